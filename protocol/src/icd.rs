@@ -1,0 +1,128 @@
+//! The endpoint and topic tables: the whole interface at a glance.
+
+use postcard_rpc::{endpoints, topics, TopicDirection};
+
+use crate::*;
+
+/// Reply of every lighting endpoint.
+pub type LitResult = Result<Lit, DeviceError>;
+/// Reply of [`BudgetEndpoint`].
+pub type BudgetResult = Result<BudgetConfig, DeviceError>;
+/// Reply of [`SequenceDefineEndpoint`] and [`SequenceAbortEndpoint`].
+pub type StatusResult = Result<SequenceStatus, DeviceError>;
+/// Reply of [`SequenceStepsEndpoint`].
+pub type StepsResult = Result<StepsLoaded, DeviceError>;
+/// Reply of [`SequenceStartEndpoint`].
+pub type StartResult = Result<SequenceStarted, DeviceError>;
+
+endpoints! {
+    list = ENDPOINT_LIST;
+    | EndpointTy             | RequestTy      | ResponseTy      | Path                   |
+    | ----------             | ---------      | ----------      | ----                   |
+    | VersionEndpoint        | ()             | ProtocolVersion | "fpm/version"          |
+    | InfoEndpoint           | ()             | DeviceInfo      | "fpm/info"             |
+    | StatusEndpoint         | ()             | DeviceStatus    | "fpm/status"           |
+    | SetLedEndpoint         | SetLed         | LitResult       | "fpm/light/led"        |
+    | SetLedsEndpoint        | SetLeds        | LitResult       | "fpm/light/leds"       |
+    | ClearEndpoint          | ()             | LitResult       | "fpm/light/clear"      |
+    | PatternEndpoint        | PatternRequest | LitResult       | "fpm/light/pattern"    |
+    | BrightnessEndpoint     | u8             | LitResult       | "fpm/light/brightness" |
+    | BudgetEndpoint         | BudgetConfig   | BudgetResult    | "fpm/light/budget"     |
+    | SequenceDefineEndpoint | SequenceDefine | StatusResult    | "fpm/seq/define"       |
+    | SequenceStepsEndpoint  | StepChunk      | StepsResult     | "fpm/seq/steps"        |
+    | SequenceStartEndpoint  | u32            | StartResult     | "fpm/seq/start"        |
+    | SequenceAbortEndpoint  | ()             | StatusResult    | "fpm/seq/abort"        |
+    | SequenceStatusEndpoint | ()             | SequenceStatus  | "fpm/seq/status"       |
+}
+
+topics! {
+    list = TOPICS_OUT_LIST;
+    direction = TopicDirection::ToClient;
+    | TopicTy          | MessageTy   | Path           |
+    | -------          | ---------   | ----           |
+    | StepTopic        | StepEvent   | "fpm/seq/step" |
+    | SequenceEndTopic | SequenceEnd | "fpm/seq/end"  |
+}
+
+topics! {
+    list = TOPICS_IN_LIST;
+    direction = TopicDirection::ToServer;
+    | TopicTy | MessageTy | Path |
+    | ------- | --------- | ---- |
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use postcard_rpc::{Endpoint, Key, Topic};
+
+    /// Keys must be unique even in their shortest (1-byte) form would be nice, but the
+    /// device always answers with 8-byte keys; what matters is that no two request or
+    /// message keys collide at 8 bytes.
+    #[test]
+    fn keys_are_unique() {
+        let mut keys: [Key; 16] = [
+            VersionEndpoint::REQ_KEY,
+            InfoEndpoint::REQ_KEY,
+            StatusEndpoint::REQ_KEY,
+            SetLedEndpoint::REQ_KEY,
+            SetLedsEndpoint::REQ_KEY,
+            ClearEndpoint::REQ_KEY,
+            PatternEndpoint::REQ_KEY,
+            BrightnessEndpoint::REQ_KEY,
+            BudgetEndpoint::REQ_KEY,
+            SequenceDefineEndpoint::REQ_KEY,
+            SequenceStepsEndpoint::REQ_KEY,
+            SequenceStartEndpoint::REQ_KEY,
+            SequenceAbortEndpoint::REQ_KEY,
+            SequenceStatusEndpoint::REQ_KEY,
+            StepTopic::TOPIC_KEY,
+            SequenceEndTopic::TOPIC_KEY,
+        ];
+        keys.sort_by_key(|k| k.to_bytes());
+        for pair in keys.windows(2) {
+            assert_ne!(pair[0].to_bytes(), pair[1].to_bytes());
+        }
+        assert_eq!(ENDPOINT_LIST.endpoints.len(), 14 + 2, "14 ours + 2 standard");
+    }
+
+    /// The version endpoint is frozen: if this key changes, old hosts can no longer ask
+    /// new firmware which protocol it speaks.
+    #[test]
+    fn version_endpoint_is_frozen() {
+        assert_eq!(
+            VersionEndpoint::REQ_KEY.to_bytes(),
+            Key::for_path::<()>("fpm/version").to_bytes()
+        );
+        assert_eq!(
+            VersionEndpoint::RESP_KEY.to_bytes(),
+            Key::for_path::<ProtocolVersion>("fpm/version").to_bytes()
+        );
+    }
+
+    #[test]
+    fn largest_messages_fit_a_frame() {
+        use crate::limits::*;
+        let step = Step {
+            illumination: Illumination::Pattern(Pattern::Annulus { inner: 0.5, outer: 0.9 }),
+            color: Rgb::WHITE,
+        };
+        let mut steps = heapless::Vec::new();
+        for _ in 0..MAX_STEPS_PER_CHUNK {
+            steps.push(step).unwrap();
+        }
+        let chunk = StepChunk { id: u32::MAX, offset: u16::MAX, steps };
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let used = postcard::to_slice(&chunk, &mut buf).expect("chunk fits").len();
+        // 1 discriminant + 8 key + 4 sequence number
+        assert!(used + 13 <= MAX_FRAME_LEN, "chunk takes {used} bytes");
+
+        let mut leds = heapless::Vec::new();
+        for i in 0..MAX_LEDS_PER_LIST {
+            leds.push(LedIndex::new(i as u8, 255)).unwrap();
+        }
+        let list = SetLeds { leds, color: Rgb::WHITE, keep_others: true };
+        let used = postcard::to_slice(&list, &mut buf).expect("list fits").len();
+        assert!(used + 13 <= MAX_FRAME_LEN, "list takes {used} bytes");
+    }
+}

@@ -1,0 +1,67 @@
+//! # fpm-protocol: the LED controller's wire contract
+//!
+//! Everything that crosses the serial link between the fpm LED controller (the RP2040
+//! firmware or its emulator) and the host lives here, shared verbatim by both sides.
+//!
+//! * Transport: a byte stream (USB CDC-ACM or a pseudo-terminal) carrying COBS frames,
+//!   each frame one [postcard-rpc](postcard_rpc) message: a header (key + sequence number)
+//!   followed by a postcard body.
+//! * Keys are hashes of an endpoint's path *and* its message schema, so a peer built
+//!   against a different message layout gets `WireError::UnknownKey` instead of
+//!   mis-decoding bytes.
+//! * [`VersionEndpoint`] is frozen: its path and types never change, so any host can ask
+//!   any firmware which protocol it speaks before using anything else.
+//!
+//! The endpoint and topic tables are in [`icd`]; the limits a device enforces are in
+//! [`limits`].
+#![no_std]
+#![deny(missing_docs)]
+
+pub mod board;
+pub mod error;
+pub mod icd;
+pub mod light;
+pub mod limits;
+pub mod sequence;
+
+pub use board::*;
+pub use error::*;
+pub use icd::*;
+pub use light::*;
+pub use sequence::*;
+
+pub use postcard_rpc;
+pub use postcard_rpc::standard_icd::{WireError, ERROR_PATH};
+
+use postcard_schema::Schema;
+use serde::{Deserialize, Serialize};
+
+/// Version of this wire contract.
+///
+/// `major` changes when an existing message changes meaning or layout; `minor` when
+/// endpoints or topics are added. A host talks to a device with the same `major` and a
+/// `minor` at least as high as the one it was built against.
+pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion { major: 1, minor: 0 };
+
+/// A protocol version, as reported by [`VersionEndpoint`].
+#[derive(Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ProtocolVersion {
+    /// Incompatible changes.
+    pub major: u16,
+    /// Compatible additions.
+    pub minor: u16,
+}
+
+impl ProtocolVersion {
+    /// Whether a host built against `self` can talk to a device speaking `device`.
+    pub fn accepts(&self, device: &ProtocolVersion) -> bool {
+        self.major == device.major && device.minor >= self.minor
+    }
+}
+
+impl core::fmt::Display for ProtocolVersion {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}.{}", self.major, self.minor)
+    }
+}

@@ -9,7 +9,9 @@ use crate::{BudgetConfig, ProtocolVersion, SequenceStatus};
 
 /// One LED, addressed by its place in the grid (0-based, row 0 at the top of the
 /// board as seen from the sample, i.e. along −y; see PHYSICS.md §1).
-#[derive(Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(
+    Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LedIndex {
     /// Grid row.

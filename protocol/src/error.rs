@@ -93,7 +93,10 @@ impl core::fmt::Display for DeviceError {
             }
             DeviceError::BadParam(p) => write!(f, "parameter out of range: {p:?}"),
             DeviceError::TooMany { requested, max } => {
-                write!(f, "too many items: {requested} requested, the device takes {max}")
+                write!(
+                    f,
+                    "too many items: {requested} requested, the device takes {max}"
+                )
             }
             DeviceError::Busy => f.write_str("a capture sequence is running (abort it first)"),
             DeviceError::NotRunning => f.write_str("no capture sequence is running"),
@@ -101,7 +104,12 @@ impl core::fmt::Display for DeviceError {
                 f,
                 "sequence {requested} is not the defined sequence ({defined})"
             ),
-            DeviceError::ChunkOutOfRange { offset, len, loaded, total } => write!(
+            DeviceError::ChunkOutOfRange {
+                offset,
+                len,
+                loaded,
+                total,
+            } => write!(
                 f,
                 "step chunk {offset}..{} does not fit: {loaded} of {total} steps loaded",
                 *offset as u32 + *len as u32
@@ -109,7 +117,11 @@ impl core::fmt::Display for DeviceError {
             DeviceError::Incomplete { loaded, total } => {
                 write!(f, "sequence incomplete: {loaded} of {total} steps loaded")
             }
-            DeviceError::OverBudget { required_ma, limit_ma, step } => {
+            DeviceError::OverBudget {
+                required_ma,
+                limit_ma,
+                step,
+            } => {
                 write!(f, "needs {required_ma} mA, over the {limit_ma} mA budget")?;
                 if let Some(s) = step {
                     write!(f, " (step {s})")?;

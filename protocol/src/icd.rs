@@ -83,7 +83,11 @@ mod tests {
         for pair in keys.windows(2) {
             assert_ne!(pair[0].to_bytes(), pair[1].to_bytes());
         }
-        assert_eq!(ENDPOINT_LIST.endpoints.len(), 14 + 2, "14 ours + 2 standard");
+        assert_eq!(
+            ENDPOINT_LIST.endpoints.len(),
+            14 + 2,
+            "14 ours + 2 standard"
+        );
     }
 
     /// The version endpoint is frozen: if this key changes, old hosts can no longer ask
@@ -104,16 +108,25 @@ mod tests {
     fn largest_messages_fit_a_frame() {
         use crate::limits::*;
         let step = Step {
-            illumination: Illumination::Pattern(Pattern::Annulus { inner: 0.5, outer: 0.9 }),
+            illumination: Illumination::Pattern(Pattern::Annulus {
+                inner: 0.5,
+                outer: 0.9,
+            }),
             color: Rgb::WHITE,
         };
         let mut steps = heapless::Vec::new();
         for _ in 0..MAX_STEPS_PER_CHUNK {
             steps.push(step).unwrap();
         }
-        let chunk = StepChunk { id: u32::MAX, offset: u16::MAX, steps };
+        let chunk = StepChunk {
+            id: u32::MAX,
+            offset: u16::MAX,
+            steps,
+        };
         let mut buf = [0u8; MAX_FRAME_LEN];
-        let used = postcard::to_slice(&chunk, &mut buf).expect("chunk fits").len();
+        let used = postcard::to_slice(&chunk, &mut buf)
+            .expect("chunk fits")
+            .len();
         // 1 discriminant + 8 key + 4 sequence number
         assert!(used + 13 <= MAX_FRAME_LEN, "chunk takes {used} bytes");
 
@@ -121,8 +134,14 @@ mod tests {
         for i in 0..MAX_LEDS_PER_LIST {
             leds.push(LedIndex::new(i as u8, 255)).unwrap();
         }
-        let list = SetLeds { leds, color: Rgb::WHITE, keep_others: true };
-        let used = postcard::to_slice(&list, &mut buf).expect("list fits").len();
+        let list = SetLeds {
+            leds,
+            color: Rgb::WHITE,
+            keep_others: true,
+        };
+        let used = postcard::to_slice(&list, &mut buf)
+            .expect("list fits")
+            .len();
         assert!(used + 13 <= MAX_FRAME_LEN, "list takes {used} bytes");
     }
 }

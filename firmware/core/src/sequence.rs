@@ -1,0 +1,401 @@
+//! Capture sequences: storage of the uploaded steps, and the run engine that turns them
+//! into timed actions. The engine is a pure state machine: [`Engine::next`] says what to
+//! do at a given time; the device carries it out and reports back.
+
+use fpm_protocol::{
+    limits::MAX_SEQUENCE_STEPS, DeviceError, Edge, Param, SequenceDefine, SequenceEnd,
+    SequenceOutcome, SequenceState, SequenceStatus, SequenceTiming, Step, StepChunk, StepEvent,
+    StepsLoaded,
+};
+use heapless::Vec;
+
+/// What the device must do next for a running sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    /// Light step `step`'s LEDs now, then report with [`Engine::lit`].
+    Light {
+        /// Step index.
+        step: u16,
+    },
+    /// Drive the trigger output active (`true`) or idle (`false`).
+    Trigger(bool),
+    /// A step finished: publish it.
+    StepDone(StepEvent),
+    /// The run ended: publish it (and clear the LEDs if the timing says so).
+    End(SequenceEnd),
+    /// Nothing to do before this time (`None`: only an event can change anything).
+    WaitUntil(Option<u64>),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    /// Waiting to light the step at the given time.
+    Light(u64),
+    /// Light is being shifted out; the device reports back with `lit`.
+    Lighting,
+    /// Lit; the trigger is due at the given time.
+    Trigger(u64),
+    /// Triggered; waiting for the pulse to end and the exposure (or camera edge).
+    Expose,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    step: u16,
+    phase: Phase,
+    light_on: u64,
+    leds_on: u16,
+    trigger_at: u64,
+    pulse_end: Option<u64>,
+    pulse_end_at: u64,
+    edge_at: Option<u64>,
+}
+
+/// The one sequence slot and its run state.
+pub struct Engine {
+    id: u32,
+    total: u16,
+    timing: Option<SequenceTiming>,
+    steps: Vec<Step, MAX_SEQUENCE_STEPS>,
+    run: Option<Run>,
+    completed: u16,
+    last_outcome: Option<SequenceOutcome>,
+}
+
+impl Default for Engine {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Engine {
+    /// No sequence defined.
+    pub const fn new() -> Self {
+        Self {
+            id: 0,
+            total: 0,
+            timing: None,
+            steps: Vec::new(),
+            run: None,
+            completed: 0,
+            last_outcome: None,
+        }
+    }
+
+    /// Whether a run is in progress.
+    pub fn is_running(&self) -> bool {
+        self.run.is_some()
+    }
+
+    /// The defined timing, if any.
+    pub fn timing(&self) -> Option<&SequenceTiming> {
+        self.timing.as_ref()
+    }
+
+    /// The uploaded steps.
+    pub fn steps(&self) -> &[Step] {
+        &self.steps
+    }
+
+    /// State report.
+    pub fn status(&self) -> SequenceStatus {
+        let state = if self.run.is_some() {
+            SequenceState::Running
+        } else if self.timing.is_none() {
+            SequenceState::Empty
+        } else if (self.steps.len() as u16) < self.total {
+            SequenceState::Loading
+        } else {
+            SequenceState::Ready
+        };
+        SequenceStatus {
+            state,
+            id: self.id,
+            total: self.total,
+            loaded: self.steps.len() as u16,
+            completed: self.completed,
+            last_outcome: self.last_outcome,
+        }
+    }
+
+    /// Define a new sequence, replacing the old one.
+    pub fn define(&mut self, def: &SequenceDefine) -> Result<SequenceStatus, DeviceError> {
+        if self.run.is_some() {
+            return Err(DeviceError::Busy);
+        }
+        if def.steps == 0 {
+            return Err(DeviceError::BadParam(Param::StepCount));
+        }
+        if def.steps as usize > MAX_SEQUENCE_STEPS {
+            return Err(DeviceError::TooMany {
+                requested: def.steps as u32,
+                max: MAX_SEQUENCE_STEPS as u32,
+            });
+        }
+        if let Some(t) = def.timing.trigger_out {
+            if t.pulse_us == 0 {
+                return Err(DeviceError::BadParam(Param::PulseWidth));
+            }
+        }
+        if let Some(t) = def.timing.trigger_in {
+            if t.timeout_us == 0 {
+                return Err(DeviceError::BadParam(Param::TriggerTimeout));
+            }
+        }
+        *self = Self {
+            id: def.id,
+            total: def.steps,
+            timing: Some(def.timing),
+            ..Self::new()
+        };
+        Ok(self.status())
+    }
+
+    /// Load a chunk of steps, each checked by `check(index, step)` first. A failing
+    /// chunk loads nothing.
+    pub fn load(
+        &mut self,
+        chunk: &StepChunk,
+        mut check: impl FnMut(u16, &Step) -> Result<(), DeviceError>,
+    ) -> Result<StepsLoaded, DeviceError> {
+        if self.run.is_some() {
+            return Err(DeviceError::Busy);
+        }
+        if self.timing.is_none() || chunk.id != self.id {
+            return Err(DeviceError::WrongSequence {
+                requested: chunk.id,
+                defined: if self.timing.is_some() { self.id } else { 0 },
+            });
+        }
+        let loaded = self.steps.len() as u16;
+        let len = chunk.steps.len() as u16;
+        let end = chunk.offset as u32 + len as u32;
+        if chunk.offset > loaded || end > self.total as u32 {
+            return Err(DeviceError::ChunkOutOfRange {
+                offset: chunk.offset,
+                len,
+                loaded,
+                total: self.total,
+            });
+        }
+        for (i, step) in chunk.steps.iter().enumerate() {
+            check(chunk.offset + i as u16, step)?;
+        }
+        for (i, step) in chunk.steps.iter().enumerate() {
+            let idx = chunk.offset as usize + i;
+            if let Some(slot) = self.steps.get_mut(idx) {
+                *slot = *step;
+            } else if self.steps.push(*step).is_err() {
+                // Unreachable: `end <= total <= MAX_SEQUENCE_STEPS` was checked above.
+                return Err(DeviceError::TooMany {
+                    requested: end,
+                    max: MAX_SEQUENCE_STEPS as u32,
+                });
+            }
+        }
+        self.completed = 0;
+        Ok(StepsLoaded {
+            loaded: self.steps.len() as u16,
+            total: self.total,
+        })
+    }
+
+    /// Start the loaded sequence at `now`.
+    pub fn start(&mut self, id: u32, now: u64) -> Result<(), DeviceError> {
+        if self.run.is_some() {
+            return Err(DeviceError::Busy);
+        }
+        if self.timing.is_none() || id != self.id {
+            return Err(DeviceError::WrongSequence {
+                requested: id,
+                defined: if self.timing.is_some() { self.id } else { 0 },
+            });
+        }
+        let loaded = self.steps.len() as u16;
+        if loaded < self.total {
+            return Err(DeviceError::Incomplete {
+                loaded,
+                total: self.total,
+            });
+        }
+        self.completed = 0;
+        self.run = Some(Run {
+            step: 0,
+            phase: Phase::Light(now),
+            light_on: now,
+            leds_on: 0,
+            trigger_at: now,
+            pulse_end: None,
+            pulse_end_at: now,
+            edge_at: None,
+        });
+        Ok(())
+    }
+
+    /// Shortest run time: settle, trigger delay and exposure (or pulse) of every step,
+    /// without LED shift times or trigger-in waits, µs.
+    pub fn min_duration_us(&self) -> u64 {
+        let Some(t) = self.timing else { return 0 };
+        let (delay, pulse) = t
+            .trigger_out
+            .map(|o| (o.delay_us as u64, o.pulse_us as u64))
+            .unwrap_or((0, 0));
+        let expose = if t.trigger_in.is_some() {
+            0
+        } else {
+            t.exposure_us as u64
+        };
+        (t.settle_us as u64 + delay + expose.max(pulse)) * self.total as u64
+    }
+
+    /// The device has shifted out the current step's LEDs: they are lit from `light_on`.
+    pub fn lit(&mut self, light_on: u64, leds_on: u16) {
+        let Some(t) = self.timing else { return };
+        if let Some(run) = self.run.as_mut() {
+            if run.phase == Phase::Lighting {
+                run.light_on = light_on;
+                run.leds_on = leds_on;
+                let delay = t.trigger_out.map(|o| o.delay_us as u64).unwrap_or(0);
+                run.phase = Phase::Trigger(light_on + t.settle_us as u64 + delay);
+            }
+        }
+    }
+
+    /// A trigger-in edge arrived at `at`. Only edges of the configured kind, after the
+    /// current step's trigger, count.
+    pub fn edge(&mut self, edge: Edge, at: u64) {
+        let Some(want) = self.timing.and_then(|t| t.trigger_in).map(|t| t.edge) else {
+            return;
+        };
+        if let Some(run) = self.run.as_mut() {
+            if run.phase == Phase::Expose
+                && edge == want
+                && at >= run.trigger_at
+                && run.edge_at.is_none()
+            {
+                run.edge_at = Some(at);
+            }
+        }
+    }
+
+    /// End the run now (host abort, or a failure found by the device).
+    pub fn stop(&mut self, outcome: SequenceOutcome, now: u64) -> Option<SequenceEnd> {
+        self.run.take()?;
+        self.last_outcome = Some(outcome);
+        Some(SequenceEnd {
+            sequence_id: self.id,
+            completed: self.completed,
+            outcome,
+            end_us: now,
+        })
+    }
+
+    /// What to do at `now`. Call repeatedly until it answers [`Action::WaitUntil`].
+    pub fn next(&mut self, now: u64) -> Action {
+        let (Some(t), Some(run)) = (self.timing, self.run.as_mut()) else {
+            return Action::WaitUntil(None);
+        };
+        match run.phase {
+            Phase::Light(at) => {
+                if run.step >= self.total {
+                    self.run = None;
+                    self.last_outcome = Some(SequenceOutcome::Done);
+                    return Action::End(SequenceEnd {
+                        sequence_id: self.id,
+                        completed: self.completed,
+                        outcome: SequenceOutcome::Done,
+                        end_us: at,
+                    });
+                }
+                if now < at {
+                    return Action::WaitUntil(Some(at));
+                }
+                run.phase = Phase::Lighting;
+                Action::Light { step: run.step }
+            }
+            // The device reports `lit` right after `Light`; until then nothing is due.
+            Phase::Lighting => Action::WaitUntil(None),
+            Phase::Trigger(at) => {
+                if now < at {
+                    return Action::WaitUntil(Some(at));
+                }
+                // Time-stamp what really happens: a late poll triggers late.
+                let at = at.max(now);
+                run.trigger_at = at;
+                run.edge_at = None;
+                run.phase = Phase::Expose;
+                match t.trigger_out {
+                    Some(o) => {
+                        run.pulse_end = Some(at + o.pulse_us as u64);
+                        run.pulse_end_at = at + o.pulse_us as u64;
+                        Action::Trigger(true)
+                    }
+                    None => {
+                        run.pulse_end = None;
+                        run.pulse_end_at = at;
+                        self.next(now)
+                    }
+                }
+            }
+            Phase::Expose => {
+                if let Some(end) = run.pulse_end {
+                    if now >= end {
+                        run.pulse_end = None;
+                        return Action::Trigger(false);
+                    }
+                }
+                let exposed_at = match t.trigger_in {
+                    Some(_) => run.edge_at,
+                    None => Some(run.trigger_at + t.exposure_us as u64),
+                };
+                let timeout_at = match (t.trigger_in, run.edge_at) {
+                    (Some(ti), None) => Some(run.trigger_at + ti.timeout_us as u64),
+                    _ => None,
+                };
+                if let Some(done) = exposed_at {
+                    if now >= done && run.pulse_end.is_none() {
+                        let step = run.step;
+                        let end_us = done.max(run.pulse_end_at);
+                        let s = self.steps.get(step as usize).copied().unwrap_or(Step {
+                            illumination: fpm_protocol::Illumination::Dark,
+                            color: fpm_protocol::Rgb::OFF,
+                        });
+                        let event = StepEvent {
+                            sequence_id: self.id,
+                            step,
+                            illumination: s.illumination,
+                            color: s.color,
+                            leds_on: run.leds_on,
+                            light_on_us: run.light_on,
+                            trigger_us: run.trigger_at,
+                            trigger_in_us: run.edge_at,
+                            end_us,
+                        };
+                        run.step = step + 1;
+                        run.phase = Phase::Light(end_us);
+                        self.completed = step + 1;
+                        return Action::StepDone(event);
+                    }
+                } else if let Some(deadline) = timeout_at {
+                    if now >= deadline {
+                        if run.pulse_end.take().is_some() {
+                            // Leave the trigger line idle before failing.
+                            return Action::Trigger(false);
+                        }
+                        let step = run.step;
+                        let failed = SequenceOutcome::Failed(DeviceError::TriggerTimeout { step });
+                        return match self.stop(failed, now) {
+                            Some(end) => Action::End(end),
+                            None => Action::WaitUntil(None),
+                        };
+                    }
+                }
+                let wake = [run.pulse_end, exposed_at, timeout_at]
+                    .into_iter()
+                    .flatten()
+                    .min();
+                Action::WaitUntil(wake)
+            }
+        }
+    }
+}

@@ -463,7 +463,10 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             })
     }
 
-    fn polarity(&self) -> Polarity {
+    /// Polarity of the trigger output under the defined sequence (active-high when
+    /// none is defined). An emulated camera is configured from it, as a user would
+    /// configure a real one.
+    pub fn trigger_polarity(&self) -> Polarity {
         self.engine
             .timing()
             .and_then(|t| t.trigger_out)
@@ -472,7 +475,7 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
     }
 
     fn set_trigger(&mut self, active: bool) {
-        let high = match self.polarity() {
+        let high = match self.trigger_polarity() {
             Polarity::ActiveHigh => active,
             Polarity::ActiveLow => !active,
         };

@@ -100,11 +100,7 @@ pub enum Reply<R> {
 }
 
 /// Send one request at `now`, return its reply and any topic messages sent meanwhile.
-pub fn call<E: Endpoint>(
-    dev: &mut Dev,
-    req: &E::Request,
-    now: u64,
-) -> (Reply<E::Response>, Frames)
+pub fn call<E: Endpoint>(dev: &mut Dev, req: &E::Request, now: u64) -> (Reply<E::Response>, Frames)
 where
     E::Request: Serialize,
     E::Response: DeserializeOwned,

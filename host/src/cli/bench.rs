@@ -1,0 +1,221 @@
+//! `fpm bench …`: performance measurements reported as percentiles, with the
+//! conditions they were measured under.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use fpm_protocol::{Pattern, Rgb};
+use serde::Serialize;
+
+use crate::controller::Controller;
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Request round-trip over the serial link: ping and a 441-LED pattern.
+    Link(LinkArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct LinkArgs {
+    /// Controller port; without it an emulator is started on a pseudo-terminal.
+    #[arg(long)]
+    port: Option<String>,
+    /// Requests per measurement.
+    #[arg(long, default_value_t = 2000)]
+    count: usize,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Latency percentiles of a set of samples.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Percentiles {
+    /// Number of samples.
+    pub count: usize,
+    /// Median, µs.
+    pub p50_us: f64,
+    /// 99th percentile, µs.
+    pub p99_us: f64,
+    /// Largest, µs.
+    pub max_us: f64,
+    /// Mean, µs.
+    pub mean_us: f64,
+}
+
+impl Percentiles {
+    /// Summarise samples in µs (sorts them).
+    pub fn of(samples: &mut [f64]) -> Self {
+        samples.sort_by(|a, b| a.total_cmp(b));
+        let n = samples.len();
+        let at = |q: f64| -> f64 {
+            if n == 0 {
+                return f64::NAN;
+            }
+            samples[((q * n as f64).ceil() as usize).clamp(1, n) - 1]
+        };
+        Self {
+            count: n,
+            p50_us: at(0.5),
+            p99_us: at(0.99),
+            max_us: at(1.0),
+            mean_us: if n == 0 {
+                f64::NAN
+            } else {
+                samples.iter().sum::<f64>() / n as f64
+            },
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct LinkReport {
+    port: String,
+    emulated: bool,
+    ping: Percentiles,
+    pattern_all_441: Percentiles,
+    pattern_leds_on: u16,
+}
+
+/// Run one benchmark.
+pub fn run(cmd: BenchCommand) -> Result<()> {
+    match cmd {
+        BenchCommand::Link(a) => link(a),
+    }
+}
+
+/// An emulator child process, stopped on drop.
+pub struct EmulatorProcess {
+    child: Child,
+    /// Its link path.
+    pub link: PathBuf,
+}
+
+impl EmulatorProcess {
+    /// Start `fpm emulator --link <tmp>` and wait until its link appears.
+    pub fn start(extra: &[&str]) -> Result<Self> {
+        let exe = std::env::current_exe().context("locating the fpm executable")?;
+        let link = std::env::temp_dir().join(format!("fpm-emulator-{}.tty", std::process::id()));
+        let child = Command::new(exe)
+            .arg("emulator")
+            .arg("--link")
+            .arg(&link)
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .context("starting the emulator")?;
+        let mut me = Self { child, link };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !me.link.exists() {
+            if let Some(status) = me.child.try_wait()? {
+                bail!("the emulator exited at start-up: {status}");
+            }
+            if Instant::now() > deadline {
+                bail!(
+                    "the emulator did not create {} within 10 s",
+                    me.link.display()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        Ok(me)
+    }
+}
+
+impl Drop for EmulatorProcess {
+    fn drop(&mut self) {
+        let _ = nix_kill(self.child.id());
+        let _ = self.child.wait();
+    }
+}
+
+fn nix_kill(pid: u32) -> std::io::Result<()> {
+    // SIGTERM lets the emulator remove its link.
+    let status = Command::new("kill")
+        .arg("-TERM")
+        .arg(pid.to_string())
+        .status()?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(std::io::Error::other("kill failed"))
+    }
+}
+
+fn link(a: LinkArgs) -> Result<()> {
+    let emulator = match &a.port {
+        Some(_) => None,
+        None => Some(EmulatorProcess::start(&[])?),
+    };
+    let port = match (&a.port, &emulator) {
+        (Some(p), _) => p.clone(),
+        (None, Some(e)) => e.link.to_string_lossy().into_owned(),
+        (None, None) => unreachable!("an emulator is started when no port is given"),
+    };
+    let dev = Controller::open(&port, Duration::from_secs(2))?;
+    let count = a.count.max(10);
+
+    // Warm up both paths, then measure.
+    for i in 0..50 {
+        dev.ping(i)?;
+    }
+    let mut ping = Vec::with_capacity(count);
+    for i in 0..count {
+        let t = Instant::now();
+        dev.ping(i as u32)?;
+        ping.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    // Every LED lit, dim enough to stay within any budget the board may have.
+    let all = Pattern::All;
+    let dim = Rgb::new(4, 4, 4);
+    let mut pattern = Vec::with_capacity(count);
+    let mut leds_on = 0;
+    for i in 0..count {
+        // Alternate colours so every request really changes all 441 LEDs.
+        let color = if i % 2 == 0 { dim } else { Rgb::new(5, 5, 5) };
+        let t = Instant::now();
+        leds_on = dev.pattern(all, color)?.leds_on;
+        pattern.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    dev.clear()?;
+    let report = LinkReport {
+        port,
+        emulated: emulator.is_some(),
+        ping: Percentiles::of(&mut ping),
+        pattern_all_441: Percentiles::of(&mut pattern),
+        pattern_leds_on: leds_on,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "request round-trip over {} ({}), {} requests each:",
+            report.port,
+            if report.emulated {
+                "emulator on a pseudo-terminal"
+            } else {
+                "device"
+            },
+            count
+        );
+        for (name, p) in [
+            ("ping", &report.ping),
+            ("pattern, all LEDs", &report.pattern_all_441),
+        ] {
+            println!(
+                "  {name:<18} p50 {:>7.1} µs   p99 {:>7.1} µs   max {:>8.1} µs   mean {:>7.1} µs",
+                p.p50_us, p.p99_us, p.max_us, p.mean_us
+            );
+        }
+        println!(
+            "  (the pattern lit {} LEDs each time)",
+            report.pattern_leds_on
+        );
+    }
+    Ok(())
+}

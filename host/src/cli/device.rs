@@ -1,0 +1,532 @@
+//! `fpm device …`: one command per controller endpoint, human-readable or JSON.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use fpm_protocol::*;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::controller::scan::{scan_steps, Order, Selection};
+use crate::controller::{Controller, SequenceEvent};
+
+/// Talk to an LED controller.
+#[derive(Args, Debug)]
+pub struct DeviceArgs {
+    /// Serial port of the controller (e.g. /dev/ttyACM0, or an emulator's --link path).
+    #[arg(long, env = "FPM_PORT")]
+    port: String,
+    /// Print machine-readable JSON instead of text.
+    #[arg(long, global = true)]
+    json: bool,
+    /// Per-request timeout in milliseconds.
+    #[arg(long, default_value_t = 1000, global = true)]
+    timeout_ms: u64,
+    #[command(subcommand)]
+    command: DeviceCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum DeviceCommand {
+    /// Identity: firmware, protocol, board geometry, limits.
+    Info,
+    /// State: what is lit, current, budget, sequence, link counters.
+    Status,
+    /// Round-trip a few pings.
+    Ping {
+        /// How many.
+        #[arg(long, default_value_t = 10)]
+        count: u32,
+    },
+    /// Light one LED, everything else off.
+    Led {
+        /// Grid row (0-based).
+        row: u8,
+        /// Grid column (0-based).
+        col: u8,
+        /// Colour: white, red, green, blue, #rrggbb or r,g,b.
+        #[arg(long, default_value = "white", value_parser = super::color::parse)]
+        color: Rgb,
+    },
+    /// Light several LEDs given as ROW,COL.
+    Leds {
+        /// LEDs as ROW,COL (e.g. 10,10 10,11).
+        #[arg(required = true, value_parser = parse_led)]
+        leds: Vec<LedIndex>,
+        /// Colour.
+        #[arg(long, default_value = "white", value_parser = super::color::parse)]
+        color: Rgb,
+        /// Keep what is already lit.
+        #[arg(long)]
+        add: bool,
+    },
+    /// Light a pattern computed on the device from its geometry.
+    Pattern {
+        #[command(subcommand)]
+        pattern: PatternArg,
+        /// Colour.
+        #[arg(long, default_value = "white", value_parser = super::color::parse, global = true)]
+        color: Rgb,
+    },
+    /// Everything off.
+    Off,
+    /// Set the global brightness (0-255).
+    Brightness {
+        /// Level.
+        level: u8,
+    },
+    /// Set the current budget.
+    Budget {
+        /// Limit in mA (at most the board's rating).
+        #[arg(long)]
+        limit_ma: u32,
+        /// Dim requests that exceed it instead of refusing them.
+        #[arg(long)]
+        scale: bool,
+    },
+    /// Upload and run an LED scan, printing every step as the device reports it.
+    RunSequence(RunSequenceArgs),
+    /// Abort the running sequence.
+    Abort,
+    /// State of the sequence engine.
+    SequenceStatus,
+}
+
+#[derive(Subcommand, Debug, Clone, Copy)]
+enum PatternArg {
+    /// LEDs with illumination NA ≤ --na.
+    Brightfield {
+        /// Numerical aperture.
+        #[arg(long)]
+        na: f32,
+    },
+    /// LEDs with illumination NA > --na.
+    Darkfield {
+        /// Numerical aperture.
+        #[arg(long)]
+        na: f32,
+    },
+    /// LEDs with --inner < NA ≤ --outer.
+    Annulus {
+        /// Inner NA.
+        #[arg(long)]
+        inner: f32,
+        /// Outer NA.
+        #[arg(long)]
+        outer: f32,
+    },
+    /// Half of the bright-field disc, for differential phase contrast.
+    Dpc {
+        /// Numerical aperture.
+        #[arg(long)]
+        na: f32,
+        /// Which half.
+        #[arg(long)]
+        half: HalfArg,
+    },
+    /// Every LED.
+    All,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum HalfArg {
+    Top,
+    Bottom,
+    Left,
+    Right,
+}
+
+impl From<PatternArg> for Pattern {
+    fn from(p: PatternArg) -> Pattern {
+        match p {
+            PatternArg::Brightfield { na } => Pattern::BrightField { na },
+            PatternArg::Darkfield { na } => Pattern::DarkField { na },
+            PatternArg::Annulus { inner, outer } => Pattern::Annulus { inner, outer },
+            PatternArg::Dpc { na, half } => Pattern::HalfCircle {
+                na,
+                half: match half {
+                    HalfArg::Top => Half::Top,
+                    HalfArg::Bottom => Half::Bottom,
+                    HalfArg::Left => Half::Left,
+                    HalfArg::Right => Half::Right,
+                },
+            },
+            PatternArg::All => Pattern::All,
+        }
+    }
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy, PartialEq)]
+enum SelectArg {
+    /// Every LED on the board.
+    All,
+    /// LEDs within --na.
+    BrightField,
+    /// LEDs beyond --na.
+    DarkField,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum PolarityArg {
+    High,
+    Low,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum EdgeArg {
+    Rising,
+    Falling,
+}
+
+/// An LED scan as a capture sequence.
+#[derive(Args, Debug)]
+struct RunSequenceArgs {
+    /// Which LEDs to visit.
+    #[arg(long, value_enum, default_value_t = SelectArg::All)]
+    select: SelectArg,
+    /// NA bounding --select bright-field / dark-field.
+    #[arg(long, default_value_t = 0.1)]
+    na: f32,
+    /// Visiting order.
+    #[arg(long, value_enum, default_value_t = Order::Nearest)]
+    order: Order,
+    /// Colour of every LED.
+    #[arg(long, default_value = "white", value_parser = super::color::parse)]
+    color: Rgb,
+    /// LED settling time before the trigger, µs.
+    #[arg(long, default_value_t = 500)]
+    settle_us: u32,
+    /// Light-on time after the trigger when not waiting for the camera, µs.
+    #[arg(long, default_value_t = 10_000)]
+    exposure_us: u32,
+    /// Trigger-out pulse width, µs (0: no trigger pulse).
+    #[arg(long, default_value_t = 100)]
+    trigger_pulse_us: u32,
+    /// Trigger-out delay after the settle time, µs.
+    #[arg(long, default_value_t = 0)]
+    trigger_delay_us: u32,
+    /// Trigger-out polarity.
+    #[arg(long, value_enum, default_value_t = PolarityArg::High)]
+    trigger_polarity: PolarityArg,
+    /// Wait for this edge on the trigger input (camera exposure signal) to end each step.
+    #[arg(long, value_enum)]
+    wait_trigger_in: Option<EdgeArg>,
+    /// Longest wait for the camera's edge, ms.
+    #[arg(long, default_value_t = 1000)]
+    trigger_timeout_ms: u32,
+    /// Leave the last LED lit at the end.
+    #[arg(long)]
+    keep_lit: bool,
+    /// Sequence id echoed in every event (default: from the clock).
+    #[arg(long)]
+    id: Option<u32>,
+}
+
+fn parse_led(s: &str) -> Result<LedIndex, String> {
+    let (r, c) = s
+        .split_once(',')
+        .ok_or_else(|| format!("'{s}' is not ROW,COL"))?;
+    let row = r
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{r}' is not a row number (0-255)"))?;
+    let col = c
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{c}' is not a column number (0-255)"))?;
+    Ok(LedIndex::new(row, col))
+}
+
+/// Run one `fpm device` command.
+pub fn run(args: DeviceArgs) -> Result<()> {
+    let timeout = Duration::from_millis(args.timeout_ms);
+    let dev = Controller::open(&args.port, timeout)?;
+    let json = args.json;
+    match args.command {
+        DeviceCommand::Info => print_info(dev.info(), json),
+        DeviceCommand::Status => print_status(&dev.status()?, json),
+        DeviceCommand::Ping { count } => ping(&dev, count, json)?,
+        DeviceCommand::Led { row, col, color } => {
+            print_lit(&dev.set_led(LedIndex::new(row, col), color)?, json)
+        }
+        DeviceCommand::Leds { leds, color, add } => {
+            print_lit(&dev.set_leds(&leds, color, add)?, json)
+        }
+        DeviceCommand::Pattern { pattern, color } => {
+            print_lit(&dev.pattern(pattern.into(), color)?, json)
+        }
+        DeviceCommand::Off => print_lit(&dev.clear()?, json),
+        DeviceCommand::Brightness { level } => print_lit(&dev.set_brightness(level)?, json),
+        DeviceCommand::Budget { limit_ma, scale } => {
+            let policy = if scale {
+                BudgetPolicy::Scale
+            } else {
+                BudgetPolicy::Refuse
+            };
+            let b = dev.set_budget(BudgetConfig { limit_ma, policy })?;
+            if json {
+                println!("{}", serde_json::to_string(&b)?);
+            } else {
+                println!("budget {} mA, {:?} above it", b.limit_ma, b.policy);
+            }
+        }
+        DeviceCommand::RunSequence(seq) => run_sequence(&dev, seq, json)?,
+        DeviceCommand::Abort => print_sequence_status(&dev.abort_sequence()?, json),
+        DeviceCommand::SequenceStatus => print_sequence_status(&dev.sequence_status()?, json),
+    }
+    Ok(())
+}
+
+fn print_info(i: &DeviceInfo, json: bool) {
+    if json {
+        println!("{}", serde_json::to_string(i).unwrap_or_default());
+        return;
+    }
+    let g = &i.geometry;
+    println!("{} (serial {:#x})", i.board, i.serial);
+    println!("  firmware {}, protocol {}", i.firmware, i.protocol);
+    println!(
+        "  LEDs     {} x {} ({}), pitch {:.3} mm, height {:.1} mm, centre ({}, {})",
+        g.rows,
+        g.cols,
+        g.led_count(),
+        g.pitch_um as f64 / 1000.0,
+        g.height_um as f64 / 1000.0,
+        g.center.row,
+        g.center.col
+    );
+    println!(
+        "  chain    from {:?}, along {:?}{}, {} lane(s)",
+        g.chain.start,
+        g.chain.major,
+        if g.chain.serpentine {
+            ", serpentine"
+        } else {
+            ""
+        },
+        g.lanes
+    );
+    println!(
+        "  colours  red {} nm, green {} nm, blue {} nm",
+        i.channels.red_nm, i.channels.green_nm, i.channels.blue_nm
+    );
+    println!(
+        "  triggers {} out, {} in",
+        i.triggers.outputs, i.triggers.inputs
+    );
+    let l = &i.limits;
+    println!(
+        "  current  {} mA max, {:.1} mA per channel at full value",
+        l.max_current_ma,
+        l.channel_current_ua as f64 / 1000.0
+    );
+    println!(
+        "  limits   {}-byte frames, {} LEDs per list, {} steps per sequence ({} per chunk)",
+        l.max_frame_len, l.max_leds_per_list, l.max_sequence_steps, l.max_steps_per_chunk
+    );
+    println!(
+        "  timing   {:.1} µs per LED per lane, {} µs latch",
+        l.led_shift_ns as f64 / 1000.0,
+        l.latch_us
+    );
+}
+
+fn print_status(s: &DeviceStatus, json: bool) {
+    if json {
+        println!("{}", serde_json::to_string(s).unwrap_or_default());
+        return;
+    }
+    println!("device time {:.6} s", s.now_us as f64 * 1e-6);
+    println!(
+        "  lit       {} LED(s), {} mA, brightness {}",
+        s.leds_on, s.current_ma, s.brightness
+    );
+    println!(
+        "  budget    {} mA ({:?} above it)",
+        s.budget.limit_ma, s.budget.policy
+    );
+    let q = &s.sequence;
+    println!(
+        "  sequence  {:?}, id {}, {}/{} loaded, {} completed, last: {:?}",
+        q.state, q.id, q.loaded, q.total, q.completed, q.last_outcome
+    );
+    let k = &s.link;
+    println!(
+        "  link      {} frames ok, {} dropped, {} unknown keys, {} decode errors",
+        k.frames_ok, k.frames_dropped, k.unknown_keys, k.decode_errors
+    );
+}
+
+fn print_lit(l: &Lit, json: bool) {
+    if json {
+        println!("{}", serde_json::to_string(l).unwrap_or_default());
+        return;
+    }
+    println!(
+        "lit {} LED(s), {} mA, brightness {}{}, latched at {:.6} s",
+        l.leds_on,
+        l.current_ma,
+        l.brightness,
+        if l.scaled {
+            " (dimmed to fit the current budget)"
+        } else {
+            ""
+        },
+        l.latched_us as f64 * 1e-6
+    );
+}
+
+fn print_sequence_status(s: &SequenceStatus, json: bool) {
+    if json {
+        println!("{}", serde_json::to_string(s).unwrap_or_default());
+        return;
+    }
+    println!(
+        "sequence {:?}: id {}, {}/{} steps loaded, {} completed, last outcome {:?}",
+        s.state, s.id, s.loaded, s.total, s.completed, s.last_outcome
+    );
+}
+
+fn ping(dev: &Controller, count: u32, json: bool) -> Result<()> {
+    let mut times = Vec::with_capacity(count as usize);
+    for i in 0..count {
+        let t = Instant::now();
+        let echo = dev.ping(i)?;
+        if echo != i {
+            bail!("ping {i} came back as {echo}");
+        }
+        times.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    let stats = super::bench::Percentiles::of(&mut times);
+    if json {
+        println!("{}", serde_json::to_string(&stats)?);
+    } else {
+        println!(
+            "{count} pings to {}: p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+            dev.port(),
+            stats.p50_us,
+            stats.p99_us,
+            stats.max_us
+        );
+    }
+    Ok(())
+}
+
+fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> {
+    let g = dev.info().geometry;
+    let selection = match a.select {
+        SelectArg::All => Selection::All,
+        SelectArg::BrightField => Selection::Pattern(Pattern::BrightField { na: a.na }),
+        SelectArg::DarkField => Selection::Pattern(Pattern::DarkField { na: a.na }),
+    };
+    let steps = scan_steps(&g, selection, a.order, a.color);
+    if steps.is_empty() {
+        bail!(
+            "the selection lights no LED on this {}x{} board",
+            g.rows,
+            g.cols
+        );
+    }
+    let timing = SequenceTiming {
+        settle_us: a.settle_us,
+        exposure_us: a.exposure_us,
+        trigger_out: (a.trigger_pulse_us > 0).then_some(TriggerOut {
+            delay_us: a.trigger_delay_us,
+            pulse_us: a.trigger_pulse_us,
+            polarity: match a.trigger_polarity {
+                PolarityArg::High => Polarity::ActiveHigh,
+                PolarityArg::Low => Polarity::ActiveLow,
+            },
+        }),
+        trigger_in: a.wait_trigger_in.map(|e| TriggerIn {
+            edge: match e {
+                EdgeArg::Rising => Edge::Rising,
+                EdgeArg::Falling => Edge::Falling,
+            },
+            timeout_us: a.trigger_timeout_ms.saturating_mul(1000),
+        }),
+        clear_at_end: !a.keep_lit,
+    };
+    let id = a.id.unwrap_or_else(|| {
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs() as u32)
+            .unwrap_or(1)
+    });
+    dev.upload_sequence(id, &steps, timing)
+        .context("uploading the sequence")?;
+    let mut events = dev.subscribe()?;
+    let started = dev.start_sequence(id)?;
+    let bar = if json {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(steps.len() as u64).with_style(
+            ProgressStyle::with_template(
+                "{spinner} sequence {msg} [{bar:40}] {pos}/{len} steps ({eta} left)",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        )
+    };
+    bar.set_message(id.to_string());
+    // The longest a step can take before we call the device silent.
+    let per_step = Duration::from_micros(
+        (timing.settle_us as u64 + timing.exposure_us as u64)
+            + timing
+                .trigger_out
+                .map_or(0, |t| (t.delay_us + t.pulse_us) as u64)
+            + timing.trigger_in.map_or(0, |t| t.timeout_us as u64)
+            + 100_000,
+    ) + Duration::from_millis(500);
+    let mut expected = 0u16;
+    loop {
+        match events.next(per_step) {
+            Ok(SequenceEvent::Step(s)) => {
+                if s.sequence_id != id || s.step != expected {
+                    bar.abandon();
+                    bail!(
+                        "expected step {expected} of sequence {id}, got step {} of sequence {}: events were lost",
+                        s.step,
+                        s.sequence_id
+                    );
+                }
+                expected += 1;
+                if json {
+                    println!("{}", serde_json::to_string(&SequenceEvent::Step(s))?);
+                } else {
+                    bar.inc(1);
+                }
+            }
+            Ok(SequenceEvent::End(end)) => {
+                bar.finish_and_clear();
+                if json {
+                    println!("{}", serde_json::to_string(&SequenceEvent::End(end))?);
+                } else {
+                    let secs = (end.end_us.saturating_sub(started.started_us)) as f64 * 1e-6;
+                    println!(
+                        "sequence {id}: {:?} after {}/{} steps, {:.3} s of device time ({:.2} ms per step)",
+                        end.outcome,
+                        end.completed,
+                        steps.len(),
+                        secs,
+                        if end.completed > 0 { secs * 1e3 / end.completed as f64 } else { 0.0 }
+                    );
+                }
+                if let SequenceOutcome::Failed(e) = end.outcome {
+                    bail!("the sequence failed at step {}: {e}", end.completed);
+                }
+                if end.completed as usize != steps.len() {
+                    bail!(
+                        "the sequence ended after {} of {} steps",
+                        end.completed,
+                        steps.len()
+                    );
+                }
+                return Ok(());
+            }
+            Err(e) => {
+                bar.abandon();
+                return Err(e.into());
+            }
+        }
+    }
+}

@@ -1,0 +1,65 @@
+//! The `fpm` command line: parsing, logging set-up and error reporting. Each
+//! subcommand lives in its own module and only formats what the library does.
+
+mod bench;
+mod color;
+mod device;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Fourier ptychographic microscopy: LED controller, calibration and reconstruction.
+#[derive(Parser, Debug)]
+#[command(name = "fpm", version, about, propagate_version = true)]
+pub struct Cli {
+    /// More log output (-v: info, -vv: debug). RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Talk to an LED controller (board or emulator) over its serial port.
+    Device(device::DeviceArgs),
+    /// Run the emulated LED controller on a pseudo-terminal.
+    Emulator(fpm_emulator::EmulatorArgs),
+    /// Measure performance.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Entry point of the `fpm` binary.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let default_level = match (&cli.command, cli.verbose) {
+        (Command::Emulator(_), 0) => "info",
+        (_, 0) => "warn",
+        (_, 1) => "info",
+        _ => "debug",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+                // postcard-rpc warns when the link closes; we report that ourselves.
+                tracing_subscriber::EnvFilter::new(format!("{default_level},postcard_rpc=error"))
+            }),
+        )
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Device(args) => device::run(args),
+        Command::Emulator(args) => fpm_emulator::run(args),
+        Command::Bench(cmd) => bench::run(cmd),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

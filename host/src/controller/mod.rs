@@ -1,0 +1,431 @@
+//! The typed client for the fpm LED controller (the RP2040 firmware or its emulator).
+//!
+//! [`Controller`] opens a serial port, checks the protocol version, and offers one
+//! blocking method per endpoint, each with a timeout. Sequence progress arrives on a
+//! [`SequenceEvents`] subscription.
+
+mod error;
+pub mod scan;
+mod transport;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use fpm_protocol::*;
+use postcard_rpc::header::VarSeqKind;
+use postcard_rpc::host_client::{
+    HostClient, HostClientConfig, HostErr, MultiSubRxError, MultiSubscription,
+};
+use postcard_rpc::standard_icd::PingEndpoint;
+use postcard_rpc::Endpoint;
+
+pub use error::ControllerError;
+
+/// Result of a controller call.
+pub type Result<T, E = ControllerError> = std::result::Result<T, E>;
+
+/// Default time a request may take.
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(1000);
+
+/// Step events the client buffers for a subscriber (a 21×21 scan and then some).
+const EVENT_DEPTH: usize = 4096;
+
+/// A connection to an LED controller.
+pub struct Controller {
+    client: HostClient<WireError>,
+    runtime: Arc<tokio::runtime::Runtime>,
+    port: String,
+    timeout: Duration,
+    info: DeviceInfo,
+}
+
+impl Drop for Controller {
+    fn drop(&mut self) {
+        self.client.close();
+    }
+}
+
+impl Controller {
+    /// Open `port`, check that it speaks a compatible protocol, and read its identity.
+    pub fn open(port: &str, timeout: Duration) -> Result<Self> {
+        let serial = serialport::new(port, 115_200)
+            .timeout(Duration::from_millis(50))
+            .open()
+            .map_err(|e| ControllerError::Open {
+                port: port.into(),
+                reason: e.to_string(),
+            })?;
+        // Bytes left from an earlier session would only confuse the framing.
+        let _ = serial.clear(serialport::ClearBuffer::All);
+        let mut serial = serial;
+        // A lone delimiter ends any partial frame the device may be holding.
+        std::io::Write::write_all(&mut serial, &[0]).map_err(|e| ControllerError::Open {
+            port: port.into(),
+            reason: e.to_string(),
+        })?;
+
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("fpm-controller")
+            .enable_time()
+            .build()
+            .map_err(|e| ControllerError::Open {
+                port: port.into(),
+                reason: e.to_string(),
+            })?;
+        let (tx, rx) =
+            transport::split(serial, port.into()).map_err(|e| ControllerError::Open {
+                port: port.into(),
+                reason: e.to_string(),
+            })?;
+        let config = HostClientConfig {
+            seq_kind: VarSeqKind::Seq4,
+            err_uri_path: ERROR_PATH,
+            outgoing_depth: 64,
+            subscriber_timeout_if_full: Duration::from_millis(100),
+        };
+        let client = HostClient::new_with_wire_and_config(
+            tx,
+            rx,
+            transport::Spawner(runtime.handle().clone()),
+            &config,
+        );
+
+        let mut me = Self {
+            client,
+            runtime: Arc::new(runtime),
+            port: port.into(),
+            timeout,
+            info: placeholder_info(),
+        };
+        me.handshake()?;
+        Ok(me)
+    }
+
+    fn handshake(&mut self) -> Result<()> {
+        let device = match self.request::<VersionEndpoint>(&()) {
+            Ok(v) => v,
+            Err(ControllerError::Wire { error, .. }) => {
+                return Err(ControllerError::NotFpm {
+                    port: self.port.clone(),
+                    reply: error.to_string(),
+                })
+            }
+            Err(e) => return Err(e),
+        };
+        if !PROTOCOL_VERSION.accepts(&device) {
+            let advice = if device.major < PROTOCOL_VERSION.major
+                || (device.major == PROTOCOL_VERSION.major && device.minor < PROTOCOL_VERSION.minor)
+            {
+                "flash newer firmware onto the controller"
+            } else {
+                "update the fpm host software"
+            };
+            return Err(ControllerError::VersionMismatch {
+                port: self.port.clone(),
+                host: PROTOCOL_VERSION,
+                device,
+                advice,
+            });
+        }
+        self.info = self.request::<InfoEndpoint>(&())?;
+        Ok(())
+    }
+
+    /// The port this controller was opened on.
+    pub fn port(&self) -> &str {
+        &self.port
+    }
+
+    /// The identity read at connection time.
+    pub fn info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    /// Change the per-request timeout.
+    pub fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
+    /// Whether the link has closed.
+    pub fn is_closed(&self) -> bool {
+        self.client.is_closed()
+    }
+
+    /// Send a request and wait for its reply (or the timeout).
+    pub fn request<E: Endpoint>(&self, req: &E::Request) -> Result<E::Response>
+    where
+        E::Request: serde::Serialize + postcard_schema::Schema,
+        E::Response: serde::de::DeserializeOwned + postcard_schema::Schema,
+    {
+        let fut = self.client.send_resp::<E>(req);
+        let res = self
+            .runtime
+            .block_on(async { tokio::time::timeout(self.timeout, fut).await });
+        match res {
+            Err(_) if self.client.is_closed() => Err(self.disconnected(E::PATH)),
+            Err(_) => Err(ControllerError::Timeout {
+                port: self.port.clone(),
+                request: E::PATH,
+                timeout: self.timeout,
+            }),
+            Ok(Ok(r)) => Ok(r),
+            Ok(Err(HostErr::Wire(error))) => Err(ControllerError::Wire {
+                port: self.port.clone(),
+                request: E::PATH,
+                error,
+            }),
+            Ok(Err(HostErr::Closed)) => Err(self.disconnected(E::PATH)),
+            Ok(Err(HostErr::BadResponse | HostErr::Postcard(_))) => {
+                Err(ControllerError::BadReply {
+                    port: self.port.clone(),
+                    request: E::PATH,
+                })
+            }
+        }
+    }
+
+    /// A request whose reply is `Result<T, DeviceError>`: flatten the device's refusal.
+    fn checked<E, T>(&self, req: &E::Request) -> Result<T>
+    where
+        E: Endpoint<Response = Result<T, DeviceError>>,
+        E::Request: serde::Serialize + postcard_schema::Schema,
+        E::Response: serde::de::DeserializeOwned + postcard_schema::Schema,
+    {
+        self.request::<E>(req)?
+            .map_err(|error| ControllerError::Device {
+                request: E::PATH,
+                error,
+            })
+    }
+
+    fn disconnected(&self, request: &'static str) -> ControllerError {
+        ControllerError::Disconnected {
+            port: self.port.clone(),
+            request,
+        }
+    }
+
+    /// Echo a number (link check).
+    pub fn ping(&self, x: u32) -> Result<u32> {
+        self.request::<PingEndpoint>(&x)
+    }
+
+    /// The device's protocol version.
+    pub fn version(&self) -> Result<ProtocolVersion> {
+        self.request::<VersionEndpoint>(&())
+    }
+
+    /// Read the identity again.
+    pub fn read_info(&self) -> Result<DeviceInfo> {
+        self.request::<InfoEndpoint>(&())
+    }
+
+    /// The device's state.
+    pub fn status(&self) -> Result<DeviceStatus> {
+        self.request::<StatusEndpoint>(&())
+    }
+
+    /// Light one LED, everything else off.
+    pub fn set_led(&self, led: LedIndex, color: Rgb) -> Result<Lit> {
+        self.checked::<SetLedEndpoint, _>(&SetLed { led, color })
+    }
+
+    /// Light a list of LEDs (sent in chunks the device accepts; `keep_others` applies
+    /// to the first chunk, later ones add).
+    pub fn set_leds(&self, leds: &[LedIndex], color: Rgb, keep_others: bool) -> Result<Lit> {
+        let max = (self.info.limits.max_leds_per_list as usize).clamp(1, limits::MAX_LEDS_PER_LIST);
+        if leds.is_empty() {
+            return if keep_others {
+                self.status().map(|s| lit_from_status(&s))
+            } else {
+                self.clear()
+            };
+        }
+        let mut last = None;
+        for (i, chunk) in leds.chunks(max).enumerate() {
+            let req = SetLeds {
+                leds: heapless::Vec::from_slice(chunk)
+                    .map_err(|_| ControllerError::Invalid("LED list chunk too long".into()))?,
+                color,
+                keep_others: keep_others || i > 0,
+            };
+            last = Some(self.checked::<SetLedsEndpoint, _>(&req)?);
+        }
+        last.ok_or_else(|| ControllerError::Invalid("empty LED list".into()))
+    }
+
+    /// Everything off.
+    pub fn clear(&self) -> Result<Lit> {
+        self.checked::<ClearEndpoint, _>(&())
+    }
+
+    /// Light an on-device pattern.
+    pub fn pattern(&self, pattern: Pattern, color: Rgb) -> Result<Lit> {
+        self.checked::<PatternEndpoint, _>(&PatternRequest { pattern, color })
+    }
+
+    /// Set the global brightness.
+    pub fn set_brightness(&self, level: u8) -> Result<Lit> {
+        self.checked::<BrightnessEndpoint, _>(&level)
+    }
+
+    /// Set the current budget.
+    pub fn set_budget(&self, budget: BudgetConfig) -> Result<BudgetConfig> {
+        self.checked::<BudgetEndpoint, _>(&budget)
+    }
+
+    /// Define and upload a sequence in chunks. Returns the final load state.
+    pub fn upload_sequence(
+        &self,
+        id: u32,
+        steps: &[Step],
+        timing: SequenceTiming,
+    ) -> Result<StepsLoaded> {
+        let max = self.info.limits.max_sequence_steps as usize;
+        if steps.len() > max || steps.is_empty() {
+            return Err(ControllerError::Invalid(format!(
+                "a sequence needs 1 to {max} steps, this one has {}",
+                steps.len()
+            )));
+        }
+        self.checked::<SequenceDefineEndpoint, _>(&SequenceDefine {
+            id,
+            steps: steps.len() as u16,
+            timing,
+        })?;
+        let per_chunk =
+            (self.info.limits.max_steps_per_chunk as usize).clamp(1, limits::MAX_STEPS_PER_CHUNK);
+        let mut loaded = StepsLoaded {
+            loaded: 0,
+            total: steps.len() as u16,
+        };
+        for (k, chunk) in steps.chunks(per_chunk).enumerate() {
+            let req = StepChunk {
+                id,
+                offset: (k * per_chunk) as u16,
+                steps: heapless::Vec::from_slice(chunk)
+                    .map_err(|_| ControllerError::Invalid("step chunk too long".into()))?,
+            };
+            loaded = self.checked::<SequenceStepsEndpoint, _>(&req)?;
+        }
+        Ok(loaded)
+    }
+
+    /// Start the uploaded sequence.
+    pub fn start_sequence(&self, id: u32) -> Result<SequenceStarted> {
+        self.checked::<SequenceStartEndpoint, _>(&id)
+    }
+
+    /// Abort the running sequence.
+    pub fn abort_sequence(&self) -> Result<SequenceStatus> {
+        self.checked::<SequenceAbortEndpoint, _>(&())
+    }
+
+    /// The sequence engine's state.
+    pub fn sequence_status(&self) -> Result<SequenceStatus> {
+        self.request::<SequenceStatusEndpoint>(&())
+    }
+
+    /// Subscribe to step and end events. Subscribe before starting a sequence so no
+    /// event is missed.
+    pub fn subscribe(&self) -> Result<SequenceEvents> {
+        let (steps, ends) = self.runtime.block_on(async {
+            let steps = self.client.subscribe_multi::<StepTopic>(EVENT_DEPTH).await;
+            let ends = self.client.subscribe_multi::<SequenceEndTopic>(16).await;
+            (steps, ends)
+        });
+        match (steps, ends) {
+            (Ok(steps), Ok(ends)) => Ok(SequenceEvents {
+                steps,
+                ends,
+                runtime: self.runtime.clone(),
+                closed: ClosedProbe(self.client.clone()),
+                port: self.port.clone(),
+            }),
+            _ => Err(self.disconnected("subscribe")),
+        }
+    }
+}
+
+fn lit_from_status(s: &DeviceStatus) -> Lit {
+    Lit {
+        leds_on: s.leds_on,
+        current_ma: s.current_ma,
+        brightness: s.brightness,
+        scaled: false,
+        latched_us: s.now_us,
+    }
+}
+
+fn placeholder_info() -> DeviceInfo {
+    let b = fpm_firmware::BoardConfig::PICO_21X21;
+    DeviceInfo {
+        protocol: PROTOCOL_VERSION,
+        firmware: fpm_firmware::board::FIRMWARE_VERSION,
+        board: heapless::String::new(),
+        serial: 0,
+        geometry: b.geometry,
+        channels: b.channels,
+        triggers: b.triggers,
+        limits: b.limits(),
+    }
+}
+
+struct ClosedProbe(HostClient<WireError>);
+
+/// One message of the sequence topics.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum SequenceEvent {
+    /// A step finished.
+    Step(StepEvent),
+    /// The run ended.
+    End(SequenceEnd),
+}
+
+/// A subscription to sequence progress.
+pub struct SequenceEvents {
+    steps: MultiSubscription<StepEvent>,
+    ends: MultiSubscription<SequenceEnd>,
+    runtime: Arc<tokio::runtime::Runtime>,
+    closed: ClosedProbe,
+    port: String,
+}
+
+impl SequenceEvents {
+    /// The next event, waiting at most `timeout`. Steps always come before the end
+    /// that follows them.
+    pub fn next(&mut self, timeout: Duration) -> Result<SequenceEvent> {
+        let port = self.port.clone();
+        let lost = || ControllerError::Disconnected {
+            port: port.clone(),
+            request: "the sequence events",
+        };
+        let closed = &self.closed.0;
+        let res = self.runtime.block_on(async {
+            tokio::time::timeout(timeout, async {
+                tokio::select! {
+                    biased;
+                    s = self.steps.recv() => s.map(SequenceEvent::Step),
+                    e = self.ends.recv() => e.map(SequenceEvent::End),
+                    _ = closed.wait_closed() => Err(MultiSubRxError::IoClosed),
+                }
+            })
+            .await
+        });
+        match res {
+            Ok(Ok(ev)) => Ok(ev),
+            Ok(Err(MultiSubRxError::Lagged(n))) => Err(ControllerError::Invalid(format!(
+                "missed {n} sequence events: the subscriber fell behind"
+            ))),
+            Ok(Err(_)) => Err(lost()),
+            Err(_) if closed.is_closed() => Err(lost()),
+            Err(_) => Err(ControllerError::Timeout {
+                port: self.port.clone(),
+                request: "the next sequence event",
+                timeout,
+            }),
+        }
+    }
+}

@@ -1,0 +1,185 @@
+//! The emulator's event loop: bytes from the terminal, the device's deadlines and the
+//! camera's edges, in time order.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use fpm_firmware::{BoardConfig, Device};
+use nix::poll::{PollFd, PollFlags};
+use nix::sys::signal::{SigHandler, Signal};
+use nix::sys::time::TimeSpec;
+
+use crate::bench::{Camera, EmulatedStrip, EmulatedTrigger};
+use crate::pty::{Link, Pty};
+
+/// Run the emulated LED controller behind a pseudo-terminal.
+#[derive(Parser, Debug, Clone)]
+#[command(
+    name = "fpm-emulator",
+    version,
+    about = "Emulated fpm LED controller on a pseudo-terminal"
+)]
+pub struct EmulatorArgs {
+    /// Make this path a symlink to the pseudo-terminal (open it like /dev/ttyACM0).
+    #[arg(long)]
+    pub link: PathBuf,
+    /// LED grid rows.
+    #[arg(long, default_value_t = 21)]
+    pub rows: u8,
+    /// LED grid columns.
+    #[arg(long, default_value_t = 21)]
+    pub cols: u8,
+    /// Parallel data lanes the chain is split into.
+    #[arg(long, default_value_t = 1)]
+    pub lanes: u8,
+    /// The LED supply's current rating, mA.
+    #[arg(long, default_value_t = 4000)]
+    pub max_current_ma: u32,
+    /// Serial number reported by the device.
+    #[arg(long, default_value_t = 0x0E30_1A7E)]
+    pub serial: u64,
+    /// Emulated camera: exposure time, µs.
+    #[arg(long, default_value_t = 10_000)]
+    pub camera_exposure_us: u64,
+    /// Emulated camera: trigger to exposure start, µs.
+    #[arg(long, default_value_t = 20)]
+    pub camera_latency_us: u64,
+    /// No camera on the trigger lines (trigger-in waits then time out).
+    #[arg(long)]
+    pub no_camera: bool,
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: nix::libc::c_int) {
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// Longest sleep between checks for a stop signal.
+const MAX_SLEEP: Duration = Duration::from_millis(100);
+
+/// Run until SIGINT, SIGTERM or SIGHUP.
+pub fn run(args: EmulatorArgs) -> Result<()> {
+    let mut board = BoardConfig::PICO_21X21;
+    board.name = "fpm-emulator";
+    board.geometry.rows = args.rows;
+    board.geometry.cols = args.cols;
+    board.geometry.center = fpm_protocol::LedIndex::new(args.rows / 2, args.cols / 2);
+    board.geometry.lanes = args.lanes;
+    board.max_current_ma = args.max_current_ma;
+    board
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
+
+    for sig in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+        // SAFETY: the handler only stores to an atomic.
+        unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }
+            .context("installing signal handlers")?;
+    }
+
+    let strip = EmulatedStrip::new(board.geometry);
+    let mut device = Device::new(board, args.serial, strip, EmulatedTrigger::default())
+        .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
+    let mut camera =
+        (!args.no_camera).then(|| Camera::new(args.camera_latency_us, args.camera_exposure_us));
+
+    let pty = Pty::open()?;
+    let _link = Link::create(&args.link, pty.device_path())?;
+    tracing::info!(
+        "emulated LED controller ready on {} (linked at {}), {}x{} LEDs, {} lane(s), camera: {}",
+        pty.device_path().display(),
+        args.link.display(),
+        args.rows,
+        args.cols,
+        args.lanes,
+        if camera.is_some() {
+            format!("{} µs exposures", args.camera_exposure_us)
+        } else {
+            "none".into()
+        }
+    );
+
+    let start = Instant::now();
+    let now_us = || start.elapsed().as_micros() as u64;
+    let mut dropped_frames = 0u64;
+    let mut next: Option<u64> = None;
+    let mut buf = [0u8; 4096];
+
+    while !STOP.load(Ordering::SeqCst) {
+        let mut send = |bytes: &[u8]| {
+            if !pty.write_frame(bytes) {
+                dropped_frames += 1;
+                tracing::warn!(
+                    "no client is reading: dropped an outgoing frame ({dropped_frames} so far)"
+                );
+            }
+        };
+
+        // Camera edges and device deadlines that are due.
+        let now = now_us();
+        if let Some(cam) = camera.as_mut() {
+            while let Some((at, edge)) = cam.due(now) {
+                next = device.trigger_edge(edge, at, now, &mut send);
+            }
+        }
+        if next.is_some_and(|t| t <= now) {
+            next = device.poll(now, &mut send);
+        }
+        stamp_trigger(&device, camera.as_mut(), now);
+
+        // Sleep until the next deadline, an edge, or bytes from the client.
+        let wake = [next, camera.as_ref().and_then(Camera::next_edge_at)]
+            .into_iter()
+            .flatten()
+            .min();
+        let now = now_us();
+        let sleep = match wake {
+            Some(t) => Duration::from_micros(t.saturating_sub(now)).min(MAX_SLEEP),
+            None => MAX_SLEEP,
+        };
+        let mut fds = [PollFd::new(pty.controller(), PollFlags::POLLIN)];
+        let ready = match nix::poll::ppoll(&mut fds, Some(TimeSpec::from_duration(sleep)), None) {
+            Ok(n) => n,
+            Err(nix::errno::Errno::EINTR) => continue,
+            Err(e) => return Err(e).context("waiting on the pseudo-terminal"),
+        };
+        if ready > 0 {
+            let n = pty.read(&mut buf)?;
+            if n > 0 {
+                let now = now_us();
+                next = device.receive(&buf[..n], now, &mut send);
+                stamp_trigger(&device, camera.as_mut(), now);
+            }
+        }
+    }
+    tracing::info!(
+        "emulated LED controller stopped (link stats: {:?})",
+        device.link_stats()
+    );
+    Ok(())
+}
+
+/// Hand trigger-line changes to the camera, stamped with the time they happened.
+fn stamp_trigger(
+    device: &Device<EmulatedStrip, EmulatedTrigger>,
+    mut camera: Option<&mut Camera>,
+    now: u64,
+) {
+    let changes = device.trigger().take_changes();
+    if changes.is_empty() {
+        return;
+    }
+    let active_level = device.trigger_polarity() == fpm_protocol::Polarity::ActiveHigh;
+    for level in changes {
+        tracing::debug!(
+            "trigger out {} at {now} µs",
+            if level { "high" } else { "low" }
+        );
+        if let Some(cam) = camera.as_deref_mut() {
+            cam.trigger_line(level, now, active_level);
+        }
+    }
+}

@@ -60,6 +60,13 @@ impl ProtocolVersion {
     }
 }
 
+impl ProtocolVersion {
+    /// Whether `self` comes before `other`.
+    pub fn is_older_than(&self, other: &ProtocolVersion) -> bool {
+        (self.major, self.minor) < (other.major, other.minor)
+    }
+}
+
 impl core::fmt::Display for ProtocolVersion {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         write!(f, "{}.{}", self.major, self.minor)

@@ -182,3 +182,32 @@ impl Drop for Emulator {
         self.stop();
     }
 }
+
+/// Raw wire frames, for tests that speak to a device below the client.
+pub mod wire {
+    use postcard_rpc::header::{VarHeader, VarKey, VarSeq};
+    use postcard_rpc::Key;
+
+    /// A COBS frame (with its delimiter) carrying `body` under `key`.
+    pub fn frame(key: Key, seq: u32, body: &[u8]) -> Vec<u8> {
+        let hdr = VarHeader {
+            key: VarKey::Key8(key),
+            seq_no: VarSeq::Seq4(seq),
+        };
+        let mut raw = hdr.write_to_vec();
+        raw.extend_from_slice(body);
+        let mut out = cobs::encode_vec(&raw);
+        out.push(0);
+        out
+    }
+
+    /// Decode every complete frame in `bytes`.
+    pub fn frames(bytes: &[u8]) -> Vec<(VarHeader, Vec<u8>)> {
+        bytes
+            .split(|&b| b == 0)
+            .filter(|c| !c.is_empty())
+            .filter_map(|c| cobs::decode_vec(c).ok())
+            .filter_map(|raw| VarHeader::take_from_slice(&raw).map(|(h, b)| (h, b.to_vec())))
+            .collect()
+    }
+}

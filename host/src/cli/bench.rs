@@ -1,16 +1,15 @@
 //! `fpm bench …`: performance measurements reported as percentiles, with the
 //! conditions they were measured under.
 
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use clap::{Args, Subcommand};
 use fpm_protocol::{Pattern, Rgb};
 use serde::Serialize;
 
 use crate::controller::Controller;
+use crate::emulator_process::EmulatorProcess;
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCommand {
@@ -84,66 +83,6 @@ struct LinkReport {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Link(a) => link(a),
-    }
-}
-
-/// An emulator child process, stopped on drop.
-pub struct EmulatorProcess {
-    child: Child,
-    /// Its link path.
-    pub link: PathBuf,
-}
-
-impl EmulatorProcess {
-    /// Start `fpm emulator --link <tmp>` and wait until its link appears.
-    pub fn start(extra: &[&str]) -> Result<Self> {
-        let exe = std::env::current_exe().context("locating the fpm executable")?;
-        let link = std::env::temp_dir().join(format!("fpm-emulator-{}.tty", std::process::id()));
-        let child = Command::new(exe)
-            .arg("emulator")
-            .arg("--link")
-            .arg(&link)
-            .args(extra)
-            .env("RUST_LOG", "warn")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .context("starting the emulator")?;
-        let mut me = Self { child, link };
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !me.link.exists() {
-            if let Some(status) = me.child.try_wait()? {
-                bail!("the emulator exited at start-up: {status}");
-            }
-            if Instant::now() > deadline {
-                bail!(
-                    "the emulator did not create {} within 10 s",
-                    me.link.display()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        Ok(me)
-    }
-}
-
-impl Drop for EmulatorProcess {
-    fn drop(&mut self) {
-        let _ = nix_kill(self.child.id());
-        let _ = self.child.wait();
-    }
-}
-
-fn nix_kill(pid: u32) -> std::io::Result<()> {
-    // SIGTERM lets the emulator remove its link.
-    let status = Command::new("kill")
-        .arg("-TERM")
-        .arg(pid.to_string())
-        .status()?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(std::io::Error::other("kill failed"))
     }
 }
 

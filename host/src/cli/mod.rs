@@ -3,6 +3,7 @@
 
 mod bench;
 mod color;
+mod demo;
 mod device;
 
 use std::process::ExitCode;
@@ -22,6 +23,8 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Run the virtual microscope demo (no hardware needed).
+    Demo(demo::DemoArgs),
     /// Talk to an LED controller (board or emulator) over its serial port.
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
@@ -51,6 +54,7 @@ pub fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .init();
     let result = match cli.command {
+        Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
         Command::Bench(cmd) => bench::run(cmd),

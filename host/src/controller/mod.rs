@@ -32,7 +32,10 @@ const EVENT_DEPTH: usize = 4096;
 
 /// A connection to an LED controller.
 pub struct Controller {
+    // Field order is drop order: the client closes, then the reader stops and
+    // releases the port.
     client: HostClient<WireError>,
+    _reader: transport::Reader,
     runtime: Arc<tokio::runtime::Runtime>,
     port: String,
     timeout: Duration,
@@ -73,7 +76,7 @@ impl Controller {
                 port: port.into(),
                 reason: e.to_string(),
             })?;
-        let (tx, rx) =
+        let (tx, rx, reader) =
             transport::split(serial, port.into()).map_err(|e| ControllerError::Open {
                 port: port.into(),
                 reason: e.to_string(),
@@ -93,6 +96,7 @@ impl Controller {
 
         let mut me = Self {
             client,
+            _reader: reader,
             runtime: Arc::new(runtime),
             port: port.into(),
             timeout,
@@ -114,9 +118,7 @@ impl Controller {
             Err(e) => return Err(e),
         };
         if !PROTOCOL_VERSION.accepts(&device) {
-            let advice = if device.major < PROTOCOL_VERSION.major
-                || (device.major == PROTOCOL_VERSION.major && device.minor < PROTOCOL_VERSION.minor)
-            {
+            let advice = if device.is_older_than(&PROTOCOL_VERSION) {
                 "flash newer firmware onto the controller"
             } else {
                 "update the fpm host software"

@@ -6,6 +6,7 @@
 //! every pending and later request fails at once instead of waiting for its timeout.
 
 use std::io::Write;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -65,32 +66,60 @@ impl WireSpawn for Spawner {
     }
 }
 
-/// Split an open port into the client's transmit and receive halves.
+/// The reader thread; stopping it (on drop) releases the port at once, so the next
+/// program can open it.
+pub struct Reader {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Drop for Reader {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Split an open port into the client's transmit and receive halves and the thread
+/// that feeds the receive half.
 pub fn split(
     port: Box<dyn SerialPort>,
     port_name: String,
-) -> std::io::Result<(SerialTx, SerialRx)> {
+) -> std::io::Result<(SerialTx, SerialRx, Reader)> {
     let mut reader = port.try_clone().map_err(std::io::Error::other)?;
     reader
-        .set_timeout(Duration::from_millis(50))
+        .set_timeout(Duration::from_millis(20))
         .map_err(std::io::Error::other)?;
     let (tx, rx) = mpsc::unbounded_channel();
-    std::thread::Builder::new()
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop_reader = stop.clone();
+    let thread = std::thread::Builder::new()
         .name(format!("fpm-serial-rx {port_name}"))
-        .spawn(move || read_loop(reader, tx, port_name))?;
+        .spawn(move || read_loop(reader, tx, port_name, stop_reader))?;
     Ok((
         SerialTx {
             port: Arc::new(Mutex::new(port)),
         },
         SerialRx { frames: rx },
+        Reader {
+            stop,
+            thread: Some(thread),
+        },
     ))
 }
 
-fn read_loop(mut port: Box<dyn SerialPort>, frames: mpsc::UnboundedSender<Vec<u8>>, name: String) {
+fn read_loop(
+    mut port: Box<dyn SerialPort>,
+    frames: mpsc::UnboundedSender<Vec<u8>>,
+    name: String,
+    stop: Arc<AtomicBool>,
+) {
     let mut receiver = Box::new(FrameReceiver::new());
     let mut buf = [0u8; 1024];
     loop {
-        if frames.is_closed() {
+        if frames.is_closed() || stop.load(Ordering::SeqCst) {
             return;
         }
         match port.read(&mut buf) {

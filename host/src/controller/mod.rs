@@ -67,9 +67,10 @@ impl Controller {
             reason: e.to_string(),
         })?;
 
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .thread_name("fpm-controller")
+        // A current-thread runtime, driven by whichever call is waiting: a multi-thread
+        // worker spinning between requests competes with the device process for the
+        // CPU and added milliseconds to 5 % of round trips on two cores.
+        let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_time()
             .build()
             .map_err(|e| ControllerError::Open {

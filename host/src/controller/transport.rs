@@ -39,8 +39,8 @@ impl WireTx for SerialTx {
             .map(<[u8]>::len)
             .ok_or(LinkError::Closed)?;
         let mut port = self.port.lock().map_err(|_| LinkError::Closed)?;
+        // No flush: on a tty it is tcdrain(), which waits for the device to read.
         port.write_all(&wire[..used])?;
-        port.flush()?;
         Ok(())
     }
 }

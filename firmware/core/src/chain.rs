@@ -5,36 +5,49 @@ use fpm_protocol::{BoardGeometry, ChainMajor, ChainStart, LedIndex};
 /// Most data lanes the firmware drives (one PIO state machine each on the RP2040).
 pub const MAX_LANES: usize = 4;
 
+/// Mirror grid coordinates so that the chain's first LED is at (0, 0). Mirroring is
+/// its own inverse, so the same function maps back.
+fn from_chain_corner(g: &BoardGeometry, row: u16, col: u16) -> (u16, u16) {
+    let (rows, cols) = (g.rows as u16, g.cols as u16);
+    let flip_cols = matches!(
+        g.chain.start,
+        ChainStart::TopRight | ChainStart::BottomRight
+    );
+    let flip_rows = matches!(
+        g.chain.start,
+        ChainStart::BottomLeft | ChainStart::BottomRight
+    );
+    (
+        if flip_rows { rows - 1 - row } else { row },
+        if flip_cols { cols - 1 - col } else { col },
+    )
+}
+
+/// Length of one run of the chain (a row or a column).
+fn run_len(g: &BoardGeometry) -> u16 {
+    match g.chain.major {
+        ChainMajor::Rows => g.cols as u16,
+        ChainMajor::Columns => g.rows as u16,
+    }
+}
+
 /// Position of `led` along the data chain, or `None` if it is not on the board.
 pub fn chain_index(g: &BoardGeometry, led: LedIndex) -> Option<u16> {
     if !g.contains(led) {
         return None;
     }
-    let (rows, cols) = (g.rows as u16, g.cols as u16);
-    let (mut r, mut c) = (led.row as u16, led.col as u16);
-    // Express the LED in a frame whose origin is the chain's first LED.
-    if matches!(
-        g.chain.start,
-        ChainStart::TopRight | ChainStart::BottomRight
-    ) {
-        c = cols - 1 - c;
-    }
-    if matches!(
-        g.chain.start,
-        ChainStart::BottomLeft | ChainStart::BottomRight
-    ) {
-        r = rows - 1 - r;
-    }
-    let (run, pos, run_len) = match g.chain.major {
-        ChainMajor::Rows => (r, c, cols),
-        ChainMajor::Columns => (c, r, rows),
+    let (r, c) = from_chain_corner(g, led.row as u16, led.col as u16);
+    let (run, pos) = match g.chain.major {
+        ChainMajor::Rows => (r, c),
+        ChainMajor::Columns => (c, r),
     };
+    let len = run_len(g);
     let pos = if g.chain.serpentine && run % 2 == 1 {
-        run_len - 1 - pos
+        len - 1 - pos
     } else {
         pos
     };
-    Some(run * run_len + pos)
+    Some(run * len + pos)
 }
 
 /// The LED at chain position `index` (inverse of [`chain_index`]).
@@ -42,32 +55,17 @@ pub fn led_at(g: &BoardGeometry, index: u16) -> Option<LedIndex> {
     if index >= g.led_count() {
         return None;
     }
-    let (rows, cols) = (g.rows as u16, g.cols as u16);
-    let run_len = match g.chain.major {
-        ChainMajor::Rows => cols,
-        ChainMajor::Columns => rows,
-    };
-    let run = index / run_len;
-    let mut pos = index % run_len;
+    let len = run_len(g);
+    let run = index / len;
+    let mut pos = index % len;
     if g.chain.serpentine && run % 2 == 1 {
-        pos = run_len - 1 - pos;
+        pos = len - 1 - pos;
     }
-    let (mut r, mut c) = match g.chain.major {
+    let (r, c) = match g.chain.major {
         ChainMajor::Rows => (run, pos),
         ChainMajor::Columns => (pos, run),
     };
-    if matches!(
-        g.chain.start,
-        ChainStart::TopRight | ChainStart::BottomRight
-    ) {
-        c = cols - 1 - c;
-    }
-    if matches!(
-        g.chain.start,
-        ChainStart::BottomLeft | ChainStart::BottomRight
-    ) {
-        r = rows - 1 - r;
-    }
+    let (r, c) = from_chain_corner(g, r, c);
     Some(LedIndex::new(r as u8, c as u8))
 }
 

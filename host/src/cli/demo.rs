@@ -135,6 +135,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
         upload.as_secs_f64() * 1e3
     );
 
+    for i in 0..50u32 {
+        dev.ping(i)?; // warm-up
+    }
     let mut rtt = Vec::with_capacity(500);
     for i in 0..500u32 {
         let t = Instant::now();

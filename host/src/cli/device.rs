@@ -243,20 +243,22 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     let dev = Controller::open(&args.port, timeout)?;
     let json = args.json;
     match args.command {
-        DeviceCommand::Info => print_info(dev.info(), json),
-        DeviceCommand::Status => print_status(&dev.status()?, json),
+        DeviceCommand::Info => emit(dev.info(), json, print_info),
+        DeviceCommand::Status => emit(&dev.status()?, json, print_status),
         DeviceCommand::Ping { count } => ping(&dev, count, json)?,
-        DeviceCommand::Led { row, col, color } => {
-            print_lit(&dev.set_led(LedIndex::new(row, col), color)?, json)
-        }
+        DeviceCommand::Led { row, col, color } => emit(
+            &dev.set_led(LedIndex::new(row, col), color)?,
+            json,
+            print_lit,
+        ),
         DeviceCommand::Leds { leds, color, add } => {
-            print_lit(&dev.set_leds(&leds, color, add)?, json)
+            emit(&dev.set_leds(&leds, color, add)?, json, print_lit)
         }
         DeviceCommand::Pattern { pattern, color } => {
-            print_lit(&dev.pattern(pattern.into(), color)?, json)
+            emit(&dev.pattern(pattern.into(), color)?, json, print_lit)
         }
-        DeviceCommand::Off => print_lit(&dev.clear()?, json),
-        DeviceCommand::Brightness { level } => print_lit(&dev.set_brightness(level)?, json),
+        DeviceCommand::Off => emit(&dev.clear()?, json, print_lit),
+        DeviceCommand::Brightness { level } => emit(&dev.set_brightness(level)?, json, print_lit),
         DeviceCommand::Budget { limit_ma, scale } => {
             let policy = if scale {
                 BudgetPolicy::Scale
@@ -264,24 +266,27 @@ pub fn run(args: DeviceArgs) -> Result<()> {
                 BudgetPolicy::Refuse
             };
             let b = dev.set_budget(BudgetConfig { limit_ma, policy })?;
-            if json {
-                println!("{}", serde_json::to_string(&b)?);
-            } else {
-                println!("budget {} mA, {:?} above it", b.limit_ma, b.policy);
-            }
+            emit(&b, json, |b| {
+                println!("budget {} mA, {:?} above it", b.limit_ma, b.policy)
+            });
         }
         DeviceCommand::RunSequence(seq) => run_sequence(&dev, seq, json)?,
-        DeviceCommand::Abort => print_sequence_status(&dev.abort_sequence()?, json),
-        DeviceCommand::SequenceStatus => print_sequence_status(&dev.sequence_status()?, json),
+        DeviceCommand::Abort => emit(&dev.abort_sequence()?, json, print_sequence_status),
+        DeviceCommand::SequenceStatus => emit(&dev.sequence_status()?, json, print_sequence_status),
     }
     Ok(())
 }
 
-fn print_info(i: &DeviceInfo, json: bool) {
+/// Print `value` as one line of JSON, or as text.
+fn emit<T: serde::Serialize>(value: &T, json: bool, text: impl FnOnce(&T)) {
     if json {
-        println!("{}", serde_json::to_string(i).unwrap_or_default());
-        return;
+        println!("{}", serde_json::to_string(value).unwrap_or_default());
+    } else {
+        text(value)
     }
+}
+
+fn print_info(i: &DeviceInfo) {
     let g = &i.geometry;
     println!("{} (serial {:#x})", i.board, i.serial);
     println!("  firmware {}, protocol {}", i.firmware, i.protocol);
@@ -331,11 +336,7 @@ fn print_info(i: &DeviceInfo, json: bool) {
     );
 }
 
-fn print_status(s: &DeviceStatus, json: bool) {
-    if json {
-        println!("{}", serde_json::to_string(s).unwrap_or_default());
-        return;
-    }
+fn print_status(s: &DeviceStatus) {
     println!("device time {:.6} s", s.now_us as f64 * 1e-6);
     println!(
         "  lit       {} LED(s), {} mA, brightness {}",
@@ -357,11 +358,7 @@ fn print_status(s: &DeviceStatus, json: bool) {
     );
 }
 
-fn print_lit(l: &Lit, json: bool) {
-    if json {
-        println!("{}", serde_json::to_string(l).unwrap_or_default());
-        return;
-    }
+fn print_lit(l: &Lit) {
     println!(
         "lit {} LED(s), {} mA, brightness {}{}, latched at {:.6} s",
         l.leds_on,
@@ -376,11 +373,7 @@ fn print_lit(l: &Lit, json: bool) {
     );
 }
 
-fn print_sequence_status(s: &SequenceStatus, json: bool) {
-    if json {
-        println!("{}", serde_json::to_string(s).unwrap_or_default());
-        return;
-    }
+fn print_sequence_status(s: &SequenceStatus) {
     println!(
         "sequence {:?}: id {}, {}/{} steps loaded, {} completed, last outcome {:?}",
         s.state, s.id, s.loaded, s.total, s.completed, s.last_outcome

@@ -1,0 +1,139 @@
+//! Start-up and the main loop: bytes from USB, edges from the camera and the
+//! controller's own deadlines, handled in arrival order.
+
+use embassy_executor::Spawner;
+use embassy_futures::select::{select3, Either3};
+use embassy_rp::flash::{Blocking, Flash};
+use embassy_rp::gpio::{Input, Level, Output, Pull};
+use embassy_rp::peripherals::{PIO0, USB};
+use embassy_rp::pio::Pio;
+use embassy_rp::{bind_interrupts, pio, usb};
+use embassy_time::{Instant, Timer};
+use fpm_firmware::Device;
+use static_cell::StaticCell;
+use {defmt_rtt as _, panic_probe as _};
+
+use crate::board::{BOARD, LANES};
+use crate::link::{self, Outbox};
+use crate::triggers::{self, Edges, TriggerPin};
+use crate::ws2812::{self, Chain, Lane, PendingFrame, RpStrip};
+
+bind_interrupts!(struct Irqs {
+    USBCTRL_IRQ => usb::InterruptHandler<USB>;
+    PIO0_IRQ_0 => pio::InterruptHandler<PIO0>;
+});
+
+const FLASH_SIZE: usize = 2 * 1024 * 1024;
+
+static PENDING: PendingFrame = PendingFrame::new();
+static EDGES: Edges = Edges::new();
+
+fn now_us() -> u64 {
+    Instant::now().as_micros()
+}
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let p = embassy_rp::init(Default::default());
+
+    // The flash chip's unique id is the board's serial number.
+    let mut uid = [0u8; 8];
+    let mut flash = Flash::<_, Blocking, FLASH_SIZE>::new_blocking(p.FLASH);
+    if flash.blocking_unique_id(&mut uid).is_err() {
+        defmt::warn!("could not read the flash unique id; serial number 0");
+    }
+    let serial = u64::from_be_bytes(uid);
+    static SERIAL_TEXT: StaticCell<heapless::String<16>> = StaticCell::new();
+    let serial_text = SERIAL_TEXT.init(hex16(serial));
+
+    // LED chain: one PIO state machine and DMA channel per lane.
+    let Pio {
+        mut common,
+        sm0,
+        sm1,
+        sm2,
+        sm3,
+        ..
+    } = Pio::new(p.PIO0, Irqs);
+    let program = ws2812::load_program(&mut common);
+    let chain = Chain {
+        lane0: Lane::new(&mut common, sm0, p.DMA_CH0, p.PIN_16, &program),
+        lane1: (LANES > 1).then(|| Lane::new(&mut common, sm1, p.DMA_CH1, p.PIN_17, &program)),
+        lane2: (LANES > 2).then(|| Lane::new(&mut common, sm2, p.DMA_CH2, p.PIN_18, &program)),
+        lane3: (LANES > 3).then(|| Lane::new(&mut common, sm3, p.DMA_CH3, p.PIN_19, &program)),
+    };
+    spawner.must_spawn(ws2812::led_task(chain, &PENDING, BOARD.latch_us));
+
+    // Camera trigger lines.
+    let trigger_out = TriggerPin(Output::new(p.PIN_14, Level::Low));
+    spawner.must_spawn(triggers::trigger_in_task(
+        Input::new(p.PIN_15, Pull::Up),
+        &EDGES,
+    ));
+
+    // USB serial.
+    let (usb, class) = link::build(usb::Driver::new(p.USB, Irqs), serial_text.as_str());
+    spawner.must_spawn(link::usb_task(usb));
+    let (mut tx, mut rx) = class.split();
+    let mut status_led = Output::new(p.PIN_25, Level::Low);
+
+    let strip = RpStrip::new(&PENDING, BOARD.max_current_ma, BOARD.channel_current_ua);
+    let mut device = match Device::new(BOARD, serial, strip, trigger_out) {
+        Ok(d) => d,
+        Err(e) => {
+            // A bad board.rs: say so forever rather than run with wrong limits.
+            loop {
+                defmt::error!("invalid board configuration: {}", e);
+                Timer::after_secs(1).await;
+            }
+        }
+    };
+    defmt::info!(
+        "fpm LED controller ready: serial {=u64:x}, {} LEDs, {} lane(s)",
+        serial,
+        BOARD.geometry.led_count(),
+        LANES
+    );
+
+    let mut outbox = Outbox::new();
+    let mut packet = [0u8; link::PACKET];
+    let mut next: Option<u64> = None;
+    loop {
+        let deadline = async {
+            match next {
+                Some(t) => Timer::at(Instant::from_micros(t)).await,
+                None => core::future::pending().await,
+            }
+        };
+        let read = async {
+            rx.wait_connection().await;
+            rx.read_packet(&mut packet).await
+        };
+        match select3(read, EDGES.receive(), deadline).await {
+            Either3::First(Ok(n)) => {
+                status_led.set_high();
+                next = device.receive(&packet[..n], now_us(), &mut outbox);
+            }
+            Either3::First(Err(_)) => {
+                // The host went away; sequences keep running on the device clock.
+                status_led.set_low();
+                next = device.poll(now_us(), &mut outbox);
+            }
+            Either3::Second((edge, at)) => {
+                next = device.trigger_edge(edge, at, now_us(), &mut outbox)
+            }
+            Either3::Third(()) => next = device.poll(now_us(), &mut outbox),
+        }
+        outbox.flush(&mut tx).await;
+    }
+}
+
+fn hex16(x: u64) -> heapless::String<16> {
+    let mut s = heapless::String::new();
+    for i in (0..16).rev() {
+        let d = ((x >> (i * 4)) & 0xF) as u8;
+        let c = if d < 10 { b'0' + d } else { b'a' + d - 10 };
+        let _ = s.push(c as char);
+    }
+    s
+}

@@ -1,0 +1,387 @@
+//! pdcFPM calibration: recover the LED array's Δx, Δy, θ and h from how a defocused
+//! feature's image moves under each bright-field LED (PHYSICS.md §3).
+//!
+//! 1. Find the feature in the focused reference frame (or in the given ROI); its
+//!    position (x_c, y_c) enters the model.
+//! 2. Measure its first moment in every defocused frame, following it with a window.
+//! 3. Leave out frames that are not bright-field (much darker than the reference) or
+//!    lose the feature (window at the frame's edge).
+//! 4. Fit the similarity model (closed form, then robust Gauss–Newton); leave out LEDs
+//!    near the bright/dark-field boundary under the fitted geometry.
+//! 5. Subtract the model-based bias of each measurement and fit again.
+
+pub mod feature;
+pub mod fit;
+pub mod model;
+pub mod shift;
+
+use serde::{Deserialize, Serialize};
+
+use crate::optics::{LedGeometry, System};
+use crate::Image;
+use feature::{FeatureError, Polarity, Roi};
+use fit::{Observation, Params, Setup};
+
+/// One frame handed to the calibrator.
+#[derive(Debug, Clone, Copy)]
+pub struct Frame<'a> {
+    /// LED (row, col).
+    pub led: (usize, usize),
+    /// Sample displacement toward the LEDs, µm (0 = in focus).
+    pub defocus_um: f64,
+    /// Exposure, ms (intensities are compared per ms).
+    pub exposure_ms: f64,
+    /// Dark-subtracted intensities.
+    pub image: &'a Image,
+}
+
+/// Calibration settings.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Look for the feature only here.
+    pub roi: Option<Roi>,
+    /// Subtract the model-based first-moment bias.
+    pub bias_correction: bool,
+    /// Frames dimmer than this fraction of the reference are not bright-field.
+    pub min_brightness: f64,
+    /// Residuals beyond this many robust σ are outliers.
+    pub reject_sigma: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self { roi: None, bias_correction: true, min_brightness: 0.6, reject_sigma: 5.0 }
+    }
+}
+
+/// Why a frame was or was not used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LedStatus {
+    /// In the fit.
+    Used,
+    /// Too dim compared with the reference: dark-field.
+    NotBrightField,
+    /// Bright-field by the fitted geometry, but so close to the pupil edge that the
+    /// feature's spectrum is cut.
+    NearPupilEdge,
+    /// The feature left the frame or could not be measured.
+    FeatureLost,
+    /// Rejected as an outlier by the robust fit.
+    Outlier,
+}
+
+/// One LED in the result.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LedResult {
+    /// (row, col).
+    pub led: [usize; 2],
+    /// Grid offsets (p, q) from the nominal centre LED.
+    pub grid: [i64; 2],
+    /// Used or why not.
+    pub status: LedStatus,
+    /// Frame brightness per ms relative to the reference.
+    pub brightness: f64,
+    /// Measured first-moment shift, µm (sample plane).
+    pub measured_um: Option<[f64; 2]>,
+    /// Model-based bias subtracted from it, µm.
+    pub bias_um: Option<[f64; 2]>,
+    /// Shift of the fitted model, µm.
+    pub fitted_um: [f64; 2],
+    /// |corrected − fitted|, µm.
+    pub residual_um: Option<f64>,
+}
+
+/// One standard deviation of each parameter.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct Uncertainty {
+    /// Δx, mm.
+    pub dx_mm: f64,
+    /// Δy, mm.
+    pub dy_mm: f64,
+    /// θ, degrees.
+    pub theta_deg: f64,
+    /// h, mm (from the shifts alone; the defocus error adds `height_per_defocus_um`).
+    pub height_mm: f64,
+}
+
+/// Where the feature is.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct FeatureInfo {
+    /// x_c, µm.
+    pub x_um: f64,
+    /// y_c, µm.
+    pub y_um: f64,
+    /// Column and row on the camera.
+    pub pixel: [f64; 2],
+    /// Pixels above half contrast.
+    pub area_px: usize,
+    /// Bright or dark.
+    pub polarity: Polarity,
+}
+
+/// The calibrated LED array (the `calibration.json` that reconstruction takes).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Calibration {
+    /// Δx, mm.
+    pub dx_mm: f64,
+    /// Δy, mm.
+    pub dy_mm: f64,
+    /// θ, degrees.
+    pub theta_deg: f64,
+    /// h, mm.
+    pub height_mm: f64,
+    /// Uncertainties (1 σ).
+    pub uncertainty: Uncertainty,
+    /// Defocus the shifts were measured at, µm.
+    pub defocus_um: f64,
+    /// Only z/h is observable: h changes by this many mm per µm of defocus error.
+    pub height_per_defocus_um: f64,
+    /// RMS residual per component, µm.
+    pub rms_residual_um: f64,
+    /// The feature.
+    pub feature: FeatureInfo,
+    /// Every defocused frame.
+    pub leds: Vec<LedResult>,
+}
+
+impl Calibration {
+    /// The calibrated geometry, on the nominal grid.
+    pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
+        LedGeometry { dx_mm: self.dx_mm, dy_mm: self.dy_mm, theta_deg: self.theta_deg, height_mm: self.height_mm, ..*nominal }
+    }
+}
+
+/// Why calibration failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// No in-focus frame under the centre LED.
+    #[error("no in-focus reference frame (defocus 0) under the centre LED ({0}, {1})")]
+    NoReference(usize, usize),
+    /// No defocused frames.
+    #[error("no defocused frames (frames with defocus_um ≠ 0)")]
+    NoDefocused,
+    /// The defocused frames disagree on the defocus.
+    #[error("defocused frames must share one defocus: LED ({led0}, {led1}) has {got} µm, others {expected} µm")]
+    MixedDefocus {
+        /// The frame's LED row.
+        led0: usize,
+        /// The frame's LED column.
+        led1: usize,
+        /// Its defocus.
+        got: f64,
+        /// The first defocus seen.
+        expected: f64,
+    },
+    /// The feature could not be found.
+    #[error("reference frame: {0}")]
+    Feature(#[from] FeatureError),
+    /// Too few usable frames.
+    #[error("only {usable} usable bright-field frames ({dark} too dim, {lost} lost the feature); at least 4 are needed")]
+    TooFew {
+        /// Usable frames.
+        usable: usize,
+        /// Dark-field frames.
+        dark: usize,
+        /// Frames that lost the feature.
+        lost: usize,
+    },
+    /// The fit failed (degenerate layout).
+    #[error("the fit did not converge (degenerate LED layout?)")]
+    Fit,
+}
+
+/// Calibrate from a reference frame and defocused frames.
+pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], options: &Options) -> Result<Calibration, CalibrationError> {
+    let reference = frames
+        .iter()
+        .find(|f| f.defocus_um == 0.0 && f.led == nominal.center)
+        .ok_or(CalibrationError::NoReference(nominal.center.0, nominal.center.1))?;
+    let defocused: Vec<&Frame> = frames.iter().filter(|f| f.defocus_um != 0.0).collect();
+    let z = defocused.first().ok_or(CalibrationError::NoDefocused)?.defocus_um;
+    if let Some(f) = defocused.iter().find(|f| (f.defocus_um - z).abs() > 1e-9) {
+        return Err(CalibrationError::MixedDefocus { led0: f.led.0, led1: f.led.1, got: f.defocus_um, expected: z });
+    }
+    let (height, width) = reference.image.dim();
+    let px = system.sample_pixel_um();
+
+    // 1. The feature, and a window big enough for its defocus blur.
+    let feature = feature::find(reference.image, options.roi)?;
+    let half_feature = (feature.bbox.w.max(feature.bbox.h) as f64 / 2.0).ceil();
+    let blur_px = z.abs() * system.na / (1.0 - system.na * system.na).sqrt() / px;
+    let half_window = (half_feature + 1.2 * blur_px + 6.0).ceil() as usize;
+    let reference_moment = shift::first_moment(reference.image, feature.polarity, feature.center_px, half_window, 3)
+        .ok_or(FeatureError::NotFound { area: feature.area_px })?;
+    let ref_center = reference_moment.center_px;
+    let (xc, yc) = system.pixel_to_sample(ref_center.0, ref_center.1, width, height);
+    let ref_brightness = frame_brightness(reference);
+
+    // 2–3. Measure every defocused frame. The window starts where the nominal geometry
+    // (with generous slack) puts the feature and then follows it.
+    struct Measured {
+        led: (usize, usize),
+        grid: (f64, f64),
+        brightness: f64,
+        shift_um: Option<(f64, f64)>,
+        status: LedStatus,
+    }
+    let mut measured: Vec<Measured> = defocused
+        .iter()
+        .map(|f| {
+            let grid = nominal.grid_offset(f.led.0, f.led.1);
+            let brightness = frame_brightness(f) / ref_brightness.max(1e-300);
+            let expect = nominal.defocus_shift_um(f.led.0, f.led.1, xc, yc, z);
+            let start = (ref_center.0 + expect.0 / px, ref_center.1 + expect.1 / px);
+            let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4);
+            let (shift_um, mut status) = match m {
+                Some(m) if !m.clipped => (
+                    Some(((m.center_px.0 - ref_center.0) * px, (m.center_px.1 - ref_center.1) * px)),
+                    LedStatus::Used,
+                ),
+                _ => (None, LedStatus::FeatureLost),
+            };
+            if brightness < options.min_brightness {
+                status = LedStatus::NotBrightField;
+            }
+            Measured { led: f.led, grid, brightness, shift_um, status }
+        })
+        .collect();
+
+    let setup = Setup { feature_um: (xc, yc), z_um: z, pitch_um: nominal.pitch_mm * 1e3 };
+    let count = |s: LedStatus, m: &[Measured]| m.iter().filter(|x| x.status == s).count();
+    let usable = count(LedStatus::Used, &measured);
+    if usable < 4 {
+        return Err(CalibrationError::TooFew {
+            usable,
+            dark: count(LedStatus::NotBrightField, &measured),
+            lost: count(LedStatus::FeatureLost, &measured),
+        });
+    }
+
+    // 4–5. Fit; drop LEDs whose spectrum the pupil cuts; correct the bias; fit again.
+    let mut bias: Vec<(f64, f64)> = vec![(0.0, 0.0); measured.len()];
+    let mut model = options.bias_correction.then(|| {
+        let max_shift_px = measured
+            .iter()
+            .filter_map(|m| m.shift_um)
+            .map(|s| s.0.hypot(s.1) / px)
+            .fold(0.0, f64::max);
+        model::FeatureModel::new(reference.image, &feature, half_window, max_shift_px + 4.0)
+    });
+    // The feature's spectrum is ~2/size wide; keep LEDs whose disc edge clears it.
+    let feature_size_um = (feature.area_px as f64).sqrt() * px;
+    let spectral_margin = 2.0 / feature_size_um.max(px);
+    let mut result = None;
+    for round in 0..3 {
+        let obs: Vec<Observation> = measured
+            .iter()
+            .zip(&bias)
+            .map(|(m, b)| Observation {
+                grid: m.grid,
+                shift_um: m.shift_um.map(|s| (s.0 - b.0, s.1 - b.1)).unwrap_or((0.0, 0.0)),
+            })
+            .collect();
+        let mask: Vec<bool> = measured.iter().map(|m| m.status == LedStatus::Used).collect();
+        let masked: Vec<Observation> = obs.iter().zip(&mask).filter(|(_, &k)| k).map(|(o, _)| *o).collect();
+        let (fit, weights) = fit::robust(&setup, &masked, options.reject_sigma).ok_or(CalibrationError::Fit)?;
+        let mut wi = weights.iter();
+        for (m, &k) in measured.iter_mut().zip(&mask) {
+            if k && wi.next().is_some_and(|&w| w == 0.0) {
+                m.status = LedStatus::Outlier;
+            }
+        }
+        let geometry = to_geometry(nominal, &fit.params);
+        // Leave out LEDs near the pupil edge under the fitted geometry.
+        for m in measured.iter_mut().filter(|m| m.status == LedStatus::Used) {
+            let (fx, fy) = geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
+            if fx.hypot(fy) > system.cutoff() - spectral_margin {
+                m.status = LedStatus::NearPupilEdge;
+            }
+        }
+        result = Some(fit);
+        if round == 2 || count(LedStatus::Used, &measured) < 4 {
+            break;
+        }
+        if let Some(model) = model.as_mut() {
+            let (rr, rc) = nominal.center;
+            let f_ref = geometry.illumination_frequency(rr, rc, xc, yc, system.wavelength_um);
+            for (m, b) in measured.iter().zip(bias.iter_mut()) {
+                if m.shift_um.is_none() {
+                    continue;
+                }
+                let f_led = geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
+                let ideal = geometry.defocus_shift_um(m.led.0, m.led.1, xc, yc, z);
+                let start = (ideal.0 / px, ideal.1 / px);
+                if let Some(pred) = model.predicted_shift_um(system, f_ref, f_led, z, start) {
+                    *b = (pred.0 - ideal.0, pred.1 - ideal.1);
+                }
+            }
+        } else {
+            break;
+        }
+    }
+    let usable = count(LedStatus::Used, &measured);
+    if usable < 4 {
+        return Err(CalibrationError::TooFew {
+            usable,
+            dark: count(LedStatus::NotBrightField, &measured),
+            lost: count(LedStatus::FeatureLost, &measured),
+        });
+    }
+    // Final fit on exactly the LEDs reported as used.
+    let obs: Vec<Observation> = measured
+        .iter()
+        .zip(&bias)
+        .map(|(m, b)| Observation { grid: m.grid, shift_um: m.shift_um.map(|s| (s.0 - b.0, s.1 - b.1)).unwrap_or((0.0, 0.0)) })
+        .collect();
+    let weights: Vec<f64> = measured.iter().map(|m| if m.status == LedStatus::Used { 1.0 } else { 0.0 }).collect();
+    let start = result.map(|r| r.params).ok_or(CalibrationError::Fit)?;
+    let fit = fit::refine(&setup, &obs, &weights, start).ok_or(CalibrationError::Fit)?;
+    let p = fit.params;
+
+    let leds = measured
+        .iter()
+        .zip(&bias)
+        .zip(&fit.residuals)
+        .map(|((m, b), r)| {
+            let fitted = fit::predict(&setup, &p, m.grid);
+            LedResult {
+                led: [m.led.0, m.led.1],
+                grid: [m.grid.0 as i64, m.grid.1 as i64],
+                status: m.status,
+                brightness: m.brightness,
+                measured_um: m.shift_um.map(|s| [s.0, s.1]),
+                bias_um: m.shift_um.map(|_| [b.0, b.1]),
+                fitted_um: [fitted.0, fitted.1],
+                residual_um: m.shift_um.map(|_| r.0.hypot(r.1)),
+            }
+        })
+        .collect();
+    Ok(Calibration {
+        dx_mm: p.dx * 1e-3,
+        dy_mm: p.dy * 1e-3,
+        theta_deg: p.theta.to_degrees(),
+        height_mm: p.h * 1e-3,
+        uncertainty: Uncertainty {
+            dx_mm: fit.sigma[0] * 1e-3,
+            dy_mm: fit.sigma[1] * 1e-3,
+            theta_deg: fit.sigma[2].to_degrees(),
+            height_mm: fit.sigma[3] * 1e-3,
+        },
+        defocus_um: z,
+        height_per_defocus_um: p.h * 1e-3 / z.abs(),
+        rms_residual_um: fit.rms_um,
+        feature: FeatureInfo { x_um: xc, y_um: yc, pixel: [ref_center.0, ref_center.1], area_px: feature.area_px, polarity: feature.polarity },
+        leds,
+    })
+}
+
+fn to_geometry(nominal: &LedGeometry, p: &Params) -> LedGeometry {
+    LedGeometry { dx_mm: p.dx * 1e-3, dy_mm: p.dy * 1e-3, theta_deg: p.theta.to_degrees(), height_mm: p.h * 1e-3, ..*nominal }
+}
+
+/// Mean intensity per ms of exposure.
+fn frame_brightness(f: &Frame) -> f64 {
+    let n = f.image.len().max(1) as f64;
+    f.image.iter().map(|&v| v as f64).sum::<f64>() / n / f.exposure_ms.max(1e-12)
+}

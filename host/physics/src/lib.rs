@@ -1,0 +1,22 @@
+//! # fpm-physics
+//!
+//! The physics of Fourier ptychographic microscopy, as pure functions over arrays: no
+//! files, no threads of its own beyond data-parallel loops, no clocks. Conventions are
+//! those of `shared/PHYSICS.md`: µm in the sample plane, mm for LED geometry,
+//! cycles/µm for spatial frequencies, F(f) = Σ f(x)·exp(−i2π f·x).
+//!
+//! * [`optics`]: the system, LED geometry, illumination wave vectors, pupil, defocus;
+//! * [`fft`]: 2-D FFTs with plans and scratch kept between calls;
+//! * [`simulate`]: the full wave-optics forward model (finite LED distance, angular
+//!   spectrum defocus, pupil, camera noise) and test objects;
+//! * [`calibrate`]: pdcFPM — feature finding, defocus-shift measurement with a
+//!   model-based bias correction, and the LED-array fit.
+
+pub mod calibrate;
+pub mod fft;
+pub mod image;
+pub mod optics;
+pub mod simulate;
+
+pub use image::Image;
+pub use optics::{LedGeometry, System};

@@ -1,0 +1,189 @@
+//! The optical system and the LED array (PHYSICS.md §1–2).
+
+use serde::{Deserialize, Serialize};
+
+/// Microscope and camera.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct System {
+    /// Illumination wavelength, µm.
+    pub wavelength_um: f64,
+    /// Objective numerical aperture.
+    pub na: f64,
+    /// Objective magnification.
+    pub magnification: f64,
+    /// Camera pixel pitch, µm.
+    pub pixel_size_um: f64,
+}
+
+impl System {
+    /// Camera pixel projected onto the sample, µm.
+    pub fn sample_pixel_um(&self) -> f64 {
+        self.pixel_size_um / self.magnification
+    }
+
+    /// Pupil cut-off frequency NA/λ, cycles/µm.
+    pub fn cutoff(&self) -> f64 {
+        self.na / self.wavelength_um
+    }
+
+    /// Sample-plane position (µm) of camera pixel (col, row) on a `width × height`
+    /// sensor: the optical axis is at (width/2, height/2).
+    pub fn pixel_to_sample(&self, col: f64, row: f64, width: usize, height: usize) -> (f64, f64) {
+        let d = self.sample_pixel_um();
+        ((col - (width / 2) as f64) * d, (row - (height / 2) as f64) * d)
+    }
+
+    /// Inverse of [`Self::pixel_to_sample`].
+    pub fn sample_to_pixel(&self, x_um: f64, y_um: f64, width: usize, height: usize) -> (f64, f64) {
+        let d = self.sample_pixel_um();
+        (x_um / d + (width / 2) as f64, y_um / d + (height / 2) as f64)
+    }
+}
+
+/// A regular LED grid below the sample (PHYSICS.md §1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LedGeometry {
+    /// Grid rows.
+    pub rows: usize,
+    /// Grid columns.
+    pub cols: usize,
+    /// Pitch, mm.
+    pub pitch_mm: f64,
+    /// Distance from the LED plane to the sample, mm.
+    pub height_mm: f64,
+    /// Nominal centre LED (row, col).
+    pub center: (usize, usize),
+    /// Lateral offset Δx, mm.
+    pub dx_mm: f64,
+    /// Lateral offset Δy, mm.
+    pub dy_mm: f64,
+    /// Rotation θ about the optical axis, degrees (from +x toward +y).
+    pub theta_deg: f64,
+}
+
+impl LedGeometry {
+    /// Grid offsets (p, q) = (c − c₀, r − r₀) of LED (row, col).
+    pub fn grid_offset(&self, row: usize, col: usize) -> (f64, f64) {
+        (col as f64 - self.center.1 as f64, row as f64 - self.center.0 as f64)
+    }
+
+    /// Position (x, y) of LED (row, col) in mm.
+    pub fn led_position_mm(&self, row: usize, col: usize) -> (f64, f64) {
+        let (p, q) = self.grid_offset(row, col);
+        let (s, c) = self.theta_deg.to_radians().sin_cos();
+        (
+            self.pitch_mm * (p * c - q * s) + self.dx_mm,
+            self.pitch_mm * (p * s + q * c) + self.dy_mm,
+        )
+    }
+
+    /// Unit propagation direction (s_x, s_y, s_z) of light from LED (row, col) at sample
+    /// point (x, y) µm.
+    pub fn direction(&self, row: usize, col: usize, x_um: f64, y_um: f64) -> [f64; 3] {
+        let (lx, ly) = self.led_position_mm(row, col);
+        let v = [x_um - lx * 1e3, y_um - ly * 1e3, self.height_mm * 1e3];
+        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        [v[0] / r, v[1] / r, v[2] / r]
+    }
+
+    /// Illumination spatial frequency f_i = (s_x, s_y)/λ at sample point (x, y),
+    /// cycles/µm.
+    pub fn illumination_frequency(&self, row: usize, col: usize, x_um: f64, y_um: f64, wavelength_um: f64) -> (f64, f64) {
+        let s = self.direction(row, col, x_um, y_um);
+        (s[0] / wavelength_um, s[1] / wavelength_um)
+    }
+
+    /// Whether LED (row, col) is bright-field at sample point (x, y): |f_i| < NA/λ.
+    pub fn is_bright_field(&self, row: usize, col: usize, x_um: f64, y_um: f64, system: &System) -> bool {
+        let (fx, fy) = self.illumination_frequency(row, col, x_um, y_um, system.wavelength_um);
+        (fx * fx + fy * fy).sqrt() < system.cutoff()
+    }
+
+    /// The defocus shift (µm) of a feature at (x, y) under LED (row, col) for a sample
+    /// moved by `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (PHYSICS.md §3).
+    pub fn defocus_shift_um(&self, row: usize, col: usize, x_um: f64, y_um: f64, z_um: f64) -> (f64, f64) {
+        let (lx, ly) = self.led_position_mm(row, col);
+        let h = self.height_mm * 1e3;
+        (z_um * (x_um - lx * 1e3) / h, z_um * (y_um - ly * 1e3) / h)
+    }
+}
+
+/// Angular-spectrum transfer function for propagation by `z_um` at frequency (fx, fy):
+/// exp(i2π z √(1/λ² − |f|²)); zero for evanescent frequencies. Returned as (re, im).
+pub fn defocus_transfer(fx: f64, fy: f64, z_um: f64, wavelength_um: f64) -> (f64, f64) {
+    let arg = 1.0 / (wavelength_um * wavelength_um) - fx * fx - fy * fy;
+    if arg <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let phase = 2.0 * std::f64::consts::PI * z_um * arg.sqrt();
+    (phase.cos(), phase.sin())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn geometry() -> LedGeometry {
+        LedGeometry {
+            rows: 21,
+            cols: 21,
+            pitch_mm: 2.5,
+            height_mm: 92.0,
+            center: (10, 10),
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_deg: 0.0,
+        }
+    }
+
+    #[test]
+    fn positions_follow_the_corrected_eq_1() {
+        let mut g = geometry();
+        g.theta_deg = 90.0;
+        g.dx_mm = 1.0;
+        // p = 1, q = 0 turns from +x to +y.
+        let (x, y) = g.led_position_mm(10, 11);
+        assert!((x - 1.0).abs() < 1e-12 && (y - 2.5).abs() < 1e-12);
+        // p = 0, q = 1 turns from +y to −x.
+        let (x, y) = g.led_position_mm(11, 10);
+        assert!((x - (1.0 - 2.5)).abs() < 1e-12 && y.abs() < 1e-12);
+    }
+
+    #[test]
+    fn light_from_an_led_at_plus_x_travels_toward_minus_x() {
+        let g = geometry();
+        let (fx, fy) = g.illumination_frequency(10, 11, 0.0, 0.0, 0.47);
+        assert!(fx < 0.0 && fy.abs() < 1e-15);
+        let expect = -2.5 / (2.5f64.powi(2) + 92.0f64.powi(2)).sqrt() / 0.47;
+        assert!((fx - expect).abs() < 1e-12);
+        // and a defocused feature moves the same way
+        let (sx, _) = g.defocus_shift_um(10, 11, 0.0, 0.0, 200.0);
+        assert!((sx - (-200.0 * 2.5 / 92.0)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bright_field_is_within_the_pupil() {
+        let g = geometry();
+        let s = System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 };
+        assert!(g.is_bright_field(10, 10, 0.0, 0.0, &s));
+        // NA 0.1 at 92 mm reaches ρ = 9.25 mm: 3 pitches in, 4 out.
+        assert!(g.is_bright_field(10, 13, 0.0, 0.0, &s));
+        assert!(!g.is_bright_field(10, 14, 0.0, 0.0, &s));
+    }
+
+    #[test]
+    fn pixels_map_to_the_axis_at_half_width() {
+        let s = System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 };
+        assert_eq!(s.pixel_to_sample(128.0, 128.0, 256, 256), (0.0, 0.0));
+        assert_eq!(s.pixel_to_sample(129.0, 127.0, 256, 256), (0.6, -0.6));
+        let (c, r) = s.sample_to_pixel(0.6, -0.6, 256, 256);
+        assert!((c - 129.0).abs() < 1e-12 && (r - 127.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn propagation_drops_evanescent_waves_and_is_unitary_otherwise() {
+        assert_eq!(defocus_transfer(3.0, 0.0, 10.0, 0.47), (0.0, 0.0));
+        let (re, im) = defocus_transfer(0.1, 0.05, 123.0, 0.47);
+        assert!(((re * re + im * im) - 1.0).abs() < 1e-12);
+    }
+}

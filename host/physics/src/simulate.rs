@@ -1,0 +1,400 @@
+//! The full wave-optics forward model (PHYSICS.md §2), used to make test data that the
+//! calibrator and the reconstructor never share a shortcut with:
+//! the sample is illuminated by the spherical wave of each LED (finite distance), the
+//! exit field is propagated by the defocus with the angular spectrum, cut by the pupil,
+//! sampled on the camera grid, and recorded with shot noise, read noise, an offset and
+//! quantisation. The sample is larger than the field of view: a padded field is imaged
+//! and the sensor region cropped.
+
+use ndarray::Array2;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal, Poisson};
+use rustfft::num_complex::Complex32;
+
+use crate::fft::{bin_frequency, Fft2};
+use crate::optics::{defocus_transfer, LedGeometry, System};
+use crate::Image;
+
+/// A complex sample transmission on the simulation grid, which covers the camera's
+/// field plus a margin, `upsample` times finer than the camera's sample-plane pixel.
+#[derive(Clone)]
+pub struct ObjectField {
+    /// Transmission, row-major `n × n`.
+    pub field: Vec<Complex32>,
+    /// Grid size (`(camera + 2·pad) · upsample`).
+    pub n: usize,
+    /// Camera width and height in pixels (square sensors only).
+    pub camera: usize,
+    /// Margin around the camera field, camera pixels.
+    pub pad: usize,
+    /// Simulation pixels per camera pixel.
+    pub upsample: usize,
+    /// Camera pixel in the sample plane, µm.
+    pub camera_pixel_um: f64,
+}
+
+impl ObjectField {
+    fn blank(system: &System, camera: usize, pad: usize, upsample: usize, value: Complex32) -> Self {
+        let n = (camera + 2 * pad) * upsample;
+        Self { field: vec![value; n * n], n, camera, pad, upsample, camera_pixel_um: system.sample_pixel_um() }
+    }
+
+    /// Simulation pixel spacing, µm.
+    pub fn pitch_um(&self) -> f64 {
+        self.camera_pixel_um / self.upsample as f64
+    }
+
+    /// Sample-plane position of simulation pixel (i, j) = (row, col), µm.
+    pub fn position(&self, row: usize, col: usize) -> (f64, f64) {
+        let d = self.pitch_um();
+        ((col as f64 - (self.n / 2) as f64) * d, (row as f64 - (self.n / 2) as f64) * d)
+    }
+
+    /// An opaque mask with one square hole of side `side_um` centred at (x, y) µm;
+    /// the mask transmits `background` in amplitude. Edges are anti-aliased by exact
+    /// area coverage.
+    pub fn square_hole(system: &System, camera: usize, pad: usize, upsample: usize, side_um: f64, center_um: (f64, f64), background: f32) -> Self {
+        let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(background, 0.0));
+        let d = o.pitch_um();
+        let half = side_um / 2.0;
+        let overlap = |c: f64, lo: f64, hi: f64| ((c + d / 2.0).min(hi) - (c - d / 2.0).max(lo)).max(0.0) / d;
+        for r in 0..o.n {
+            for c in 0..o.n {
+                let (x, y) = o.position(r, c);
+                let cover = overlap(x, center_um.0 - half, center_um.0 + half) * overlap(y, center_um.1 - half, center_um.1 + half);
+                if cover > 0.0 {
+                    let t = background + (1.0 - background) * cover as f32;
+                    o.field[r * o.n + c] = Complex32::new(t, 0.0);
+                }
+            }
+        }
+        o.taper_edges();
+        o
+    }
+
+    /// A complex test sample with amplitude and phase: soft "cells" of varying
+    /// absorption and optical thickness, and bar groups from coarse to finer than the
+    /// objective resolves, so a reconstruction's resolution gain can be measured.
+    pub fn test_sample(system: &System, camera: usize, pad: usize, upsample: usize, seed: u64) -> Self {
+        let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(1.0, 0.0));
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let extent = (o.n as f64) * o.pitch_um() / 2.0;
+        let cells: Vec<(f64, f64, f64, f64, f64)> = (0..40)
+            .map(|_| {
+                (
+                    rng.gen_range(-extent..extent),
+                    rng.gen_range(-extent..extent),
+                    rng.gen_range(4.0..14.0),
+                    rng.gen_range(0.1..0.5),
+                    rng.gen_range(0.4..1.6),
+                )
+            })
+            .collect();
+        let field_half = camera as f64 * o.camera_pixel_um / 2.0;
+        // Bar groups inside the field: periods from 4 µm down to 0.9 µm (the objective
+        // alone resolves λ/NA ≈ 4.7 µm at NA 0.1, λ 0.47).
+        let periods = [4.0, 3.0, 2.2, 1.6, 1.2, 0.9];
+        for r in 0..o.n {
+            for c in 0..o.n {
+                let (x, y) = o.position(r, c);
+                let mut absorb = 0.0;
+                let mut phase = 0.0;
+                for &(cx, cy, rad, a, p) in &cells {
+                    let d2 = ((x - cx).powi(2) + (y - cy).powi(2)) / (rad * rad);
+                    let w = (-d2 * d2).exp();
+                    absorb += a * w;
+                    phase += p * w;
+                }
+                // bars: a column of groups along x, in the upper-left quadrant
+                let gx = x + field_half * 0.7;
+                let gy = y + field_half * 0.7;
+                for (k, &period) in periods.iter().enumerate() {
+                    let y0 = k as f64 * 7.0;
+                    if gy >= y0 && gy < y0 + 5.0 && gx >= 0.0 && gx < 5.0 * period {
+                        if (gx / period).fract() < 0.5 {
+                            absorb += 0.6;
+                        }
+                    }
+                }
+                let amp = (-absorb).exp().max(0.05);
+                o.field[r * o.n + c] = Complex32::from_polar(amp as f32, phase as f32);
+            }
+        }
+        o.taper_edges();
+        o
+    }
+
+    /// Fade the sample to opaque over the outer half of the margin (raised cosine). The
+    /// grid is periodic; without this its boundary would be a sharp edge whose
+    /// diffraction rings into the field. A smooth taper's spectrum stays inside the
+    /// pupil, so the field sees a sample that simply continues beyond it.
+    fn taper_edges(&mut self) {
+        let width = (self.pad * self.upsample / 2).max(1);
+        let n = self.n;
+        let ramp: Vec<f32> = (0..n)
+            .map(|i| {
+                let d = i.min(n - 1 - i);
+                if d >= width {
+                    1.0
+                } else {
+                    0.5 * (1.0 - (std::f32::consts::PI * d as f32 / width as f32).cos())
+                }
+            })
+            .collect();
+        for r in 0..n {
+            for c in 0..n {
+                self.field[r * n + c] *= ramp[r] * ramp[c];
+            }
+        }
+    }
+
+    /// The ground truth on the camera field, cropped from the simulation grid.
+    pub fn crop_to_camera(&self) -> Array2<Complex32> {
+        let m = self.camera * self.upsample;
+        let off = self.pad * self.upsample;
+        Array2::from_shape_fn((m, m), |(r, c)| self.field[(r + off) * self.n + c + off])
+    }
+}
+
+/// Reusable FFT plans for one object grid.
+pub struct Renderer {
+    big: Fft2,
+    small: Fft2,
+    buf: Vec<Complex32>,
+    low: Vec<Complex32>,
+}
+
+impl Renderer {
+    /// Plans for `object`'s grid.
+    pub fn new(object: &ObjectField) -> Self {
+        let m = object.n / object.upsample;
+        Self {
+            big: Fft2::new(object.n, object.n),
+            small: Fft2::new(m, m),
+            buf: vec![Complex32::default(); object.n * object.n],
+            low: vec![Complex32::default(); m * m],
+        }
+    }
+
+    /// Noise-free camera intensity for LED (`row`, `col`) with the sample moved by
+    /// `defocus_um` toward the LEDs. 1.0 is the intensity a clear sample gives.
+    pub fn render(&mut self, system: &System, geometry: &LedGeometry, object: &ObjectField, led: (usize, usize), defocus_um: f64) -> Image {
+        let n = object.n;
+        let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
+        let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+        let (lx, ly, h) = (lx * 1e3, ly * 1e3, geometry.height_mm * 1e3);
+        let r0 = (lx * lx + ly * ly + h * h).sqrt();
+        // Spherical wave from the LED, phase relative to the field centre (f64, then
+        // reduced: k·R is ~10⁶ rad).
+        for r in 0..n {
+            for c in 0..n {
+                let (x, y) = object.position(r, c);
+                let rr = ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt();
+                let phase = (k * (rr - r0)).rem_euclid(2.0 * std::f64::consts::PI);
+                let (s, co) = phase.sin_cos();
+                self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co as f32, s as f32);
+            }
+        }
+        self.big.forward(&mut self.buf);
+        // Keep the frequencies the camera grid can hold; apply pupil and defocus there.
+        let m = n / object.upsample;
+        let d_cam = object.camera_pixel_um;
+        let cutoff2 = system.cutoff().powi(2);
+        let scale = 1.0 / (object.upsample * object.upsample) as f32;
+        for ky in 0..m {
+            let fy = bin_frequency(ky, m, d_cam);
+            let by = if ky < m / 2 { ky } else { n - (m - ky) };
+            for kx in 0..m {
+                let fx = bin_frequency(kx, m, d_cam);
+                let bx = if kx < m / 2 { kx } else { n - (m - kx) };
+                let v = if fx * fx + fy * fy <= cutoff2 {
+                    let (hr, hi) = defocus_transfer(fx, fy, defocus_um, system.wavelength_um);
+                    self.buf[by * n + bx] * Complex32::new(hr as f32, hi as f32) * scale
+                } else {
+                    Complex32::default()
+                };
+                self.low[ky * m + kx] = v;
+            }
+        }
+        self.small.inverse(&mut self.low);
+        let (w, pad) = (object.camera, object.pad);
+        Array2::from_shape_fn((w, w), |(r, c)| self.low[(r + pad) * m + c + pad].norm_sqr())
+    }
+}
+
+/// A camera's response and noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Photo-electrons per ms at intensity 1.0.
+    pub electrons_per_ms: f64,
+    /// Read noise, electrons rms.
+    pub read_noise_e: f64,
+    /// Digital numbers per electron.
+    pub gain_dn_per_e: f64,
+    /// Offset added to every pixel, DN.
+    pub dark_level_dn: f64,
+    /// ADC bits.
+    pub bit_depth: u32,
+    /// Whether to add noise at all.
+    pub noisy: bool,
+}
+
+impl Camera {
+    /// A typical 12-bit machine-vision sensor: 2.4 e⁻ read noise, 100 DN offset.
+    pub fn realistic() -> Self {
+        Self { electrons_per_ms: 1500.0, read_noise_e: 2.4, gain_dn_per_e: 0.2, dark_level_dn: 100.0, bit_depth: 12, noisy: true }
+    }
+
+    /// The same sensor without noise (quantisation still applies).
+    pub fn noiseless() -> Self {
+        Self { noisy: false, ..Self::realistic() }
+    }
+
+    /// Largest value the ADC gives.
+    pub fn max_dn(&self) -> f64 {
+        ((1u64 << self.bit_depth) - 1) as f64
+    }
+
+    /// The exposure (ms) that brings a peak intensity to `fill` of full scale, in
+    /// whole milliseconds within [min_ms, max_ms].
+    pub fn exposure_for(&self, peak_intensity: f64, fill: f64, min_ms: f64, max_ms: f64) -> f64 {
+        let usable = (self.max_dn() - self.dark_level_dn) * fill;
+        let ms = usable / (peak_intensity.max(1e-9) * self.electrons_per_ms * self.gain_dn_per_e);
+        ms.floor().clamp(min_ms, max_ms)
+    }
+
+    /// Record `intensity` for `exposure_ms`: shot noise, read noise, offset, rounding
+    /// and clipping to the ADC range. Returns counts (DN).
+    pub fn record(&self, intensity: &Image, exposure_ms: f64, rng: &mut impl Rng) -> Array2<u16> {
+        let read = Normal::new(0.0, self.read_noise_e.max(1e-12)).expect("finite read noise");
+        let max = self.max_dn();
+        intensity.mapv(|i| {
+            let mean_e = (i as f64).max(0.0) * self.electrons_per_ms * exposure_ms;
+            let e = if self.noisy {
+                let shot = if mean_e > 0.0 {
+                    Poisson::new(mean_e).map(|p| p.sample(rng)).unwrap_or(mean_e)
+                } else {
+                    0.0
+                };
+                shot + read.sample(rng)
+            } else {
+                mean_e
+            };
+            (e * self.gain_dn_per_e + self.dark_level_dn).round().clamp(0.0, max) as u16
+        })
+    }
+}
+
+/// One simulated frame.
+#[derive(Debug, Clone)]
+pub struct SimFrame {
+    /// LED (row, col) lit.
+    pub led: (usize, usize),
+    /// Sample displacement toward the LEDs, µm.
+    pub defocus_um: f64,
+    /// Exposure, ms.
+    pub exposure_ms: f64,
+    /// Camera counts.
+    pub counts: Array2<u16>,
+}
+
+/// Render and record `leds` (each with its defocus) in parallel, deterministically
+/// for a given seed: frame `k` uses its own random stream.
+pub fn acquire(
+    system: &System,
+    geometry: &LedGeometry,
+    object: &ObjectField,
+    shots: &[((usize, usize), f64)],
+    camera: &Camera,
+    exposure: impl Fn(&Image) -> f64 + Sync,
+    seed: u64,
+) -> Vec<SimFrame> {
+    use rayon::prelude::*;
+    shots
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || Renderer::new(object),
+            |renderer, (k, &(led, defocus_um))| {
+                let intensity = renderer.render(system, geometry, object, led, defocus_um);
+                let exposure_ms = exposure(&intensity);
+                let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)));
+                SimFrame { led, defocus_um, exposure_ms, counts: camera.record(&intensity, exposure_ms, &mut rng) }
+            },
+        )
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn system() -> System {
+        System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 }
+    }
+
+    fn geometry() -> LedGeometry {
+        LedGeometry { rows: 21, cols: 21, pitch_mm: 2.5, height_mm: 92.0, center: (10, 10), dx_mm: 0.0, dy_mm: 0.0, theta_deg: 0.0 }
+    }
+
+    #[test]
+    fn a_clear_sample_images_to_unit_intensity() {
+        let s = system();
+        let o = ObjectField::square_hole(&s, 64, 48, 2, 1000.0, (0.0, 0.0), 1.0);
+        let mut r = Renderer::new(&o);
+        let img = r.render(&s, &geometry(), &o, (10, 12), 0.0);
+        for v in img.iter() {
+            assert!((v - 1.0).abs() < 1e-2, "{v}");
+        }
+    }
+
+    #[test]
+    fn dark_field_leds_give_dark_frames() {
+        let s = system();
+        let o = ObjectField::square_hole(&s, 64, 48, 2, 1000.0, (0.0, 0.0), 1.0);
+        let mut r = Renderer::new(&o);
+        let img = r.render(&s, &geometry(), &o, (10, 16), 0.0);
+        assert!(img.iter().all(|&v| v < 1e-3), "an empty sample scatters nothing into the pupil");
+    }
+
+    #[test]
+    fn a_defocused_feature_moves_along_the_light() {
+        // Centroid of a hole under a tilted LED moves by ≈ z·(x − x_led)/h.
+        let s = system();
+        let o = ObjectField::square_hole(&s, 128, 32, 2, 20.0, (0.0, 0.0), 0.0);
+        let mut r = Renderer::new(&o);
+        let g = geometry();
+        let centroid = |img: &Image| {
+            let (mut sx, mut sy, mut sw) = (0.0, 0.0, 0.0);
+            for ((row, col), &v) in img.indexed_iter() {
+                sx += v as f64 * col as f64;
+                sy += v as f64 * row as f64;
+                sw += v as f64;
+            }
+            (sx / sw, sy / sw)
+        };
+        let (c0, r0) = centroid(&r.render(&s, &g, &o, (10, 10), 0.0));
+        let (c1, r1) = centroid(&r.render(&s, &g, &o, (10, 12), 200.0));
+        let shift_um = ((c1 - c0) * s.sample_pixel_um(), (r1 - r0) * s.sample_pixel_um());
+        let expect = g.defocus_shift_um(10, 12, 0.0, 0.0, 200.0);
+        assert!((shift_um.0 - expect.0).abs() < 0.05 * expect.0.abs(), "{shift_um:?} vs {expect:?}");
+        assert!(shift_um.1.abs() < 0.05);
+    }
+
+    #[test]
+    fn the_camera_adds_offset_and_noise_and_clips() {
+        let c = Camera::realistic();
+        let img = Image::from_elem((32, 32), 0.5);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        let counts = c.record(&img, 4.0, &mut rng);
+        let mean = counts.iter().map(|&v| v as f64).sum::<f64>() / 1024.0;
+        let expect = 0.5 * 1500.0 * 4.0 * 0.2 + 100.0;
+        assert!((mean - expect).abs() < 3.0, "{mean} vs {expect}");
+        let var = counts.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / 1023.0;
+        // shot noise: σ² = gain² · electrons
+        let expect_var = 0.2f64.powi(2) * (0.5 * 1500.0 * 4.0 + 2.4f64.powi(2)) + 1.0 / 12.0;
+        assert!((var / expect_var - 1.0).abs() < 0.2, "{var} vs {expect_var}");
+        let bright = c.record(&Image::from_elem((4, 4), 100.0), 100.0, &mut rng);
+        assert!(bright.iter().all(|&v| v == 4095));
+    }
+}

@@ -116,17 +116,28 @@ mod tests {
         let mut data: Vec<Complex32> = (0..w * h)
             .map(|i| {
                 let (r, c) = ((i / w) as f32, (i % w) as f32);
-                let ph = 2.0 * std::f32::consts::PI * (kx as f32 * c / w as f32 + ky as f32 * r / h as f32);
+                let ph = 2.0
+                    * std::f32::consts::PI
+                    * (kx as f32 * c / w as f32 + ky as f32 * r / h as f32);
                 Complex32::new(ph.cos(), ph.sin())
             })
             .collect();
         let orig = data.clone();
         fft.forward(&mut data);
-        let peak = data.iter().enumerate().max_by(|a, b| a.1.norm().total_cmp(&b.1.norm())).unwrap().0;
+        let peak = data
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.norm().total_cmp(&b.1.norm()))
+            .unwrap()
+            .0;
         assert_eq!((peak / w, peak % w), (ky, kx));
         assert!((data[peak].norm() - (w * h) as f32).abs() < 1e-2);
         fft.inverse(&mut data);
-        let err: f32 = data.iter().zip(&orig).map(|(a, b)| (a - b).norm()).fold(0.0, f32::max);
+        let err: f32 = data
+            .iter()
+            .zip(&orig)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f32::max);
         assert!(err < 1e-4, "{err}");
     }
 

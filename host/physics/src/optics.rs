@@ -30,13 +30,19 @@ impl System {
     /// sensor: the optical axis is at (width/2, height/2).
     pub fn pixel_to_sample(&self, col: f64, row: f64, width: usize, height: usize) -> (f64, f64) {
         let d = self.sample_pixel_um();
-        ((col - (width / 2) as f64) * d, (row - (height / 2) as f64) * d)
+        (
+            (col - (width / 2) as f64) * d,
+            (row - (height / 2) as f64) * d,
+        )
     }
 
     /// Inverse of [`Self::pixel_to_sample`].
     pub fn sample_to_pixel(&self, x_um: f64, y_um: f64, width: usize, height: usize) -> (f64, f64) {
         let d = self.sample_pixel_um();
-        (x_um / d + (width / 2) as f64, y_um / d + (height / 2) as f64)
+        (
+            x_um / d + (width / 2) as f64,
+            y_um / d + (height / 2) as f64,
+        )
     }
 }
 
@@ -64,7 +70,10 @@ pub struct LedGeometry {
 impl LedGeometry {
     /// Grid offsets (p, q) = (c − c₀, r − r₀) of LED (row, col).
     pub fn grid_offset(&self, row: usize, col: usize) -> (f64, f64) {
-        (col as f64 - self.center.1 as f64, row as f64 - self.center.0 as f64)
+        (
+            col as f64 - self.center.1 as f64,
+            row as f64 - self.center.0 as f64,
+        )
     }
 
     /// Position (x, y) of LED (row, col) in mm.
@@ -88,20 +97,41 @@ impl LedGeometry {
 
     /// Illumination spatial frequency f_i = (s_x, s_y)/λ at sample point (x, y),
     /// cycles/µm.
-    pub fn illumination_frequency(&self, row: usize, col: usize, x_um: f64, y_um: f64, wavelength_um: f64) -> (f64, f64) {
+    pub fn illumination_frequency(
+        &self,
+        row: usize,
+        col: usize,
+        x_um: f64,
+        y_um: f64,
+        wavelength_um: f64,
+    ) -> (f64, f64) {
         let s = self.direction(row, col, x_um, y_um);
         (s[0] / wavelength_um, s[1] / wavelength_um)
     }
 
     /// Whether LED (row, col) is bright-field at sample point (x, y): |f_i| < NA/λ.
-    pub fn is_bright_field(&self, row: usize, col: usize, x_um: f64, y_um: f64, system: &System) -> bool {
+    pub fn is_bright_field(
+        &self,
+        row: usize,
+        col: usize,
+        x_um: f64,
+        y_um: f64,
+        system: &System,
+    ) -> bool {
         let (fx, fy) = self.illumination_frequency(row, col, x_um, y_um, system.wavelength_um);
         (fx * fx + fy * fy).sqrt() < system.cutoff()
     }
 
     /// The defocus shift (µm) of a feature at (x, y) under LED (row, col) for a sample
     /// moved by `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (PHYSICS.md §3).
-    pub fn defocus_shift_um(&self, row: usize, col: usize, x_um: f64, y_um: f64, z_um: f64) -> (f64, f64) {
+    pub fn defocus_shift_um(
+        &self,
+        row: usize,
+        col: usize,
+        x_um: f64,
+        y_um: f64,
+        z_um: f64,
+    ) -> (f64, f64) {
         let (lx, ly) = self.led_position_mm(row, col);
         let h = self.height_mm * 1e3;
         (z_um * (x_um - lx * 1e3) / h, z_um * (y_um - ly * 1e3) / h)
@@ -164,7 +194,12 @@ mod tests {
     #[test]
     fn bright_field_is_within_the_pupil() {
         let g = geometry();
-        let s = System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 };
+        let s = System {
+            wavelength_um: 0.47,
+            na: 0.1,
+            magnification: 4.0,
+            pixel_size_um: 2.4,
+        };
         assert!(g.is_bright_field(10, 10, 0.0, 0.0, &s));
         // NA 0.1 at 92 mm reaches ρ = 9.25 mm: 3 pitches in, 4 out.
         assert!(g.is_bright_field(10, 13, 0.0, 0.0, &s));
@@ -173,7 +208,12 @@ mod tests {
 
     #[test]
     fn pixels_map_to_the_axis_at_half_width() {
-        let s = System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 };
+        let s = System {
+            wavelength_um: 0.47,
+            na: 0.1,
+            magnification: 4.0,
+            pixel_size_um: 2.4,
+        };
         assert_eq!(s.pixel_to_sample(128.0, 128.0, 256, 256), (0.0, 0.0));
         assert_eq!(s.pixel_to_sample(129.0, 127.0, 256, 256), (0.6, -0.6));
         let (c, r) = s.sample_to_pixel(0.6, -0.6, 256, 256);

@@ -34,9 +34,22 @@ pub struct ObjectField {
 }
 
 impl ObjectField {
-    fn blank(system: &System, camera: usize, pad: usize, upsample: usize, value: Complex32) -> Self {
+    fn blank(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        value: Complex32,
+    ) -> Self {
         let n = (camera + 2 * pad) * upsample;
-        Self { field: vec![value; n * n], n, camera, pad, upsample, camera_pixel_um: system.sample_pixel_um() }
+        Self {
+            field: vec![value; n * n],
+            n,
+            camera,
+            pad,
+            upsample,
+            camera_pixel_um: system.sample_pixel_um(),
+        }
     }
 
     /// Simulation pixel spacing, µm.
@@ -47,21 +60,40 @@ impl ObjectField {
     /// Sample-plane position of simulation pixel (i, j) = (row, col), µm.
     pub fn position(&self, row: usize, col: usize) -> (f64, f64) {
         let d = self.pitch_um();
-        ((col as f64 - (self.n / 2) as f64) * d, (row as f64 - (self.n / 2) as f64) * d)
+        (
+            (col as f64 - (self.n / 2) as f64) * d,
+            (row as f64 - (self.n / 2) as f64) * d,
+        )
     }
 
     /// An opaque mask with one square hole of side `side_um` centred at (x, y) µm;
     /// the mask transmits `background` in amplitude. Edges are anti-aliased by exact
     /// area coverage.
-    pub fn square_hole(system: &System, camera: usize, pad: usize, upsample: usize, side_um: f64, center_um: (f64, f64), background: f32) -> Self {
-        let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(background, 0.0));
+    pub fn square_hole(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        side_um: f64,
+        center_um: (f64, f64),
+        background: f32,
+    ) -> Self {
+        let mut o = Self::blank(
+            system,
+            camera,
+            pad,
+            upsample,
+            Complex32::new(background, 0.0),
+        );
         let d = o.pitch_um();
         let half = side_um / 2.0;
-        let overlap = |c: f64, lo: f64, hi: f64| ((c + d / 2.0).min(hi) - (c - d / 2.0).max(lo)).max(0.0) / d;
+        let overlap =
+            |c: f64, lo: f64, hi: f64| ((c + d / 2.0).min(hi) - (c - d / 2.0).max(lo)).max(0.0) / d;
         for r in 0..o.n {
             for c in 0..o.n {
                 let (x, y) = o.position(r, c);
-                let cover = overlap(x, center_um.0 - half, center_um.0 + half) * overlap(y, center_um.1 - half, center_um.1 + half);
+                let cover = overlap(x, center_um.0 - half, center_um.0 + half)
+                    * overlap(y, center_um.1 - half, center_um.1 + half);
                 if cover > 0.0 {
                     let t = background + (1.0 - background) * cover as f32;
                     o.field[r * o.n + c] = Complex32::new(t, 0.0);
@@ -75,7 +107,13 @@ impl ObjectField {
     /// A complex test sample with amplitude and phase: soft "cells" of varying
     /// absorption and optical thickness, and bar groups from coarse to finer than the
     /// objective resolves, so a reconstruction's resolution gain can be measured.
-    pub fn test_sample(system: &System, camera: usize, pad: usize, upsample: usize, seed: u64) -> Self {
+    pub fn test_sample(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        seed: u64,
+    ) -> Self {
         let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(1.0, 0.0));
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let extent = (o.n as f64) * o.pitch_um() / 2.0;
@@ -110,10 +148,9 @@ impl ObjectField {
                 let gy = y + field_half * 0.7;
                 for (k, &period) in periods.iter().enumerate() {
                     let y0 = k as f64 * 7.0;
-                    if gy >= y0 && gy < y0 + 5.0 && gx >= 0.0 && gx < 5.0 * period {
-                        if (gx / period).fract() < 0.5 {
-                            absorb += 0.6;
-                        }
+                    let in_group = gy >= y0 && gy < y0 + 5.0 && gx >= 0.0 && gx < 5.0 * period;
+                    if in_group && (gx / period).fract() < 0.5 {
+                        absorb += 0.6;
                     }
                 }
                 let amp = (-absorb).exp().max(0.05);
@@ -158,6 +195,9 @@ impl ObjectField {
 
 /// Reusable FFT plans for one object grid.
 pub struct Renderer {
+    /// Spherical waves from each LED (true), or plane waves with the direction the LED
+    /// has at the field centre (false; for comparisons only).
+    pub spherical: bool,
     big: Fft2,
     small: Fft2,
     buf: Vec<Complex32>,
@@ -169,6 +209,7 @@ impl Renderer {
     pub fn new(object: &ObjectField) -> Self {
         let m = object.n / object.upsample;
         Self {
+            spherical: true,
             big: Fft2::new(object.n, object.n),
             small: Fft2::new(m, m),
             buf: vec![Complex32::default(); object.n * object.n],
@@ -178,7 +219,14 @@ impl Renderer {
 
     /// Noise-free camera intensity for LED (`row`, `col`) with the sample moved by
     /// `defocus_um` toward the LEDs. 1.0 is the intensity a clear sample gives.
-    pub fn render(&mut self, system: &System, geometry: &LedGeometry, object: &ObjectField, led: (usize, usize), defocus_um: f64) -> Image {
+    pub fn render(
+        &mut self,
+        system: &System,
+        geometry: &LedGeometry,
+        object: &ObjectField,
+        led: (usize, usize),
+        defocus_um: f64,
+    ) -> Image {
         let n = object.n;
         let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
         let (lx, ly) = geometry.led_position_mm(led.0, led.1);
@@ -189,8 +237,12 @@ impl Renderer {
         for r in 0..n {
             for c in 0..n {
                 let (x, y) = object.position(r, c);
-                let rr = ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt();
-                let phase = (k * (rr - r0)).rem_euclid(2.0 * std::f64::consts::PI);
+                let rr = if self.spherical {
+                    ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt() - r0
+                } else {
+                    (x * (-lx) + y * (-ly)) / r0
+                };
+                let phase = (k * rr).rem_euclid(2.0 * std::f64::consts::PI);
                 let (s, co) = phase.sin_cos();
                 self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co as f32, s as f32);
             }
@@ -218,7 +270,9 @@ impl Renderer {
         }
         self.small.inverse(&mut self.low);
         let (w, pad) = (object.camera, object.pad);
-        Array2::from_shape_fn((w, w), |(r, c)| self.low[(r + pad) * m + c + pad].norm_sqr())
+        Array2::from_shape_fn((w, w), |(r, c)| {
+            self.low[(r + pad) * m + c + pad].norm_sqr()
+        })
     }
 }
 
@@ -242,12 +296,22 @@ pub struct Camera {
 impl Camera {
     /// A typical 12-bit machine-vision sensor: 2.4 e⁻ read noise, 100 DN offset.
     pub fn realistic() -> Self {
-        Self { electrons_per_ms: 1500.0, read_noise_e: 2.4, gain_dn_per_e: 0.2, dark_level_dn: 100.0, bit_depth: 12, noisy: true }
+        Self {
+            electrons_per_ms: 1500.0,
+            read_noise_e: 2.4,
+            gain_dn_per_e: 0.2,
+            dark_level_dn: 100.0,
+            bit_depth: 12,
+            noisy: true,
+        }
     }
 
     /// The same sensor without noise (quantisation still applies).
     pub fn noiseless() -> Self {
-        Self { noisy: false, ..Self::realistic() }
+        Self {
+            noisy: false,
+            ..Self::realistic()
+        }
     }
 
     /// Largest value the ADC gives.
@@ -272,7 +336,9 @@ impl Camera {
             let mean_e = (i as f64).max(0.0) * self.electrons_per_ms * exposure_ms;
             let e = if self.noisy {
                 let shot = if mean_e > 0.0 {
-                    Poisson::new(mean_e).map(|p| p.sample(rng)).unwrap_or(mean_e)
+                    Poisson::new(mean_e)
+                        .map(|p| p.sample(rng))
+                        .unwrap_or(mean_e)
                 } else {
                     0.0
                 };
@@ -280,7 +346,9 @@ impl Camera {
             } else {
                 mean_e
             };
-            (e * self.gain_dn_per_e + self.dark_level_dn).round().clamp(0.0, max) as u16
+            (e * self.gain_dn_per_e + self.dark_level_dn)
+                .round()
+                .clamp(0.0, max) as u16
         })
     }
 }
@@ -318,8 +386,15 @@ pub fn acquire(
             |renderer, (k, &(led, defocus_um))| {
                 let intensity = renderer.render(system, geometry, object, led, defocus_um);
                 let exposure_ms = exposure(&intensity);
-                let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)));
-                SimFrame { led, defocus_um, exposure_ms, counts: camera.record(&intensity, exposure_ms, &mut rng) }
+                let mut rng = rand::rngs::StdRng::seed_from_u64(
+                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
+                );
+                SimFrame {
+                    led,
+                    defocus_um,
+                    exposure_ms,
+                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                }
             },
         )
         .collect()
@@ -330,11 +405,25 @@ mod tests {
     use super::*;
 
     fn system() -> System {
-        System { wavelength_um: 0.47, na: 0.1, magnification: 4.0, pixel_size_um: 2.4 }
+        System {
+            wavelength_um: 0.47,
+            na: 0.1,
+            magnification: 4.0,
+            pixel_size_um: 2.4,
+        }
     }
 
     fn geometry() -> LedGeometry {
-        LedGeometry { rows: 21, cols: 21, pitch_mm: 2.5, height_mm: 92.0, center: (10, 10), dx_mm: 0.0, dy_mm: 0.0, theta_deg: 0.0 }
+        LedGeometry {
+            rows: 21,
+            cols: 21,
+            pitch_mm: 2.5,
+            height_mm: 92.0,
+            center: (10, 10),
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_deg: 0.0,
+        }
     }
 
     #[test]
@@ -354,7 +443,10 @@ mod tests {
         let o = ObjectField::square_hole(&s, 64, 48, 2, 1000.0, (0.0, 0.0), 1.0);
         let mut r = Renderer::new(&o);
         let img = r.render(&s, &geometry(), &o, (10, 16), 0.0);
-        assert!(img.iter().all(|&v| v < 1e-3), "an empty sample scatters nothing into the pupil");
+        assert!(
+            img.iter().all(|&v| v < 1e-3),
+            "an empty sample scatters nothing into the pupil"
+        );
     }
 
     #[test]
@@ -375,9 +467,15 @@ mod tests {
         };
         let (c0, r0) = centroid(&r.render(&s, &g, &o, (10, 10), 0.0));
         let (c1, r1) = centroid(&r.render(&s, &g, &o, (10, 12), 200.0));
-        let shift_um = ((c1 - c0) * s.sample_pixel_um(), (r1 - r0) * s.sample_pixel_um());
+        let shift_um = (
+            (c1 - c0) * s.sample_pixel_um(),
+            (r1 - r0) * s.sample_pixel_um(),
+        );
         let expect = g.defocus_shift_um(10, 12, 0.0, 0.0, 200.0);
-        assert!((shift_um.0 - expect.0).abs() < 0.05 * expect.0.abs(), "{shift_um:?} vs {expect:?}");
+        assert!(
+            (shift_um.0 - expect.0).abs() < 0.05 * expect.0.abs(),
+            "{shift_um:?} vs {expect:?}"
+        );
         assert!(shift_um.1.abs() < 0.05);
     }
 
@@ -390,11 +488,114 @@ mod tests {
         let mean = counts.iter().map(|&v| v as f64).sum::<f64>() / 1024.0;
         let expect = 0.5 * 1500.0 * 4.0 * 0.2 + 100.0;
         assert!((mean - expect).abs() < 3.0, "{mean} vs {expect}");
-        let var = counts.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / 1023.0;
+        let var = counts
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / 1023.0;
         // shot noise: σ² = gain² · electrons
         let expect_var = 0.2f64.powi(2) * (0.5 * 1500.0 * 4.0 + 2.4f64.powi(2)) + 1.0 / 12.0;
-        assert!((var / expect_var - 1.0).abs() < 0.2, "{var} vs {expect_var}");
+        assert!(
+            (var / expect_var - 1.0).abs() < 0.2,
+            "{var} vs {expect_var}"
+        );
         let bright = c.record(&Image::from_elem((4, 4), 100.0), 100.0, &mut rng);
         assert!(bright.iter().all(|&v| v == 4095));
+    }
+}
+
+/// A pdcFPM calibration acquisition: what the simulator needs to make one.
+#[derive(Debug, Clone, Copy)]
+pub struct CalibrationScene {
+    /// Microscope.
+    pub system: System,
+    /// The real (hidden) LED array.
+    pub truth: LedGeometry,
+    /// Sample displacement for the defocused frames, µm.
+    pub defocus_um: f64,
+    /// Side of the square hole, µm.
+    pub feature_um: f64,
+    /// Its position, µm.
+    pub feature_at_um: (f64, f64),
+    /// Sensor size, pixels (square).
+    pub camera_px: usize,
+    /// LEDs around the nominal centre: (2·k+1)² defocused frames.
+    pub half_grid: usize,
+    /// Camera.
+    pub camera: Camera,
+    /// Random seed.
+    pub seed: u64,
+}
+
+impl CalibrationScene {
+    /// The paper's system: 21×21 LEDs at 2.5 mm, λ 0.47 µm, NA 0.1, 4×, 2.4 µm pixels, a
+    /// 50 µm square hole, 200 µm defocus, 256² frames, a 5×5 bright-field grid.
+    pub fn paper(truth: LedGeometry, seed: u64) -> Self {
+        Self {
+            system: System {
+                wavelength_um: 0.47,
+                na: 0.1,
+                magnification: 4.0,
+                pixel_size_um: 2.4,
+            },
+            truth,
+            defocus_um: 200.0,
+            feature_um: 50.0,
+            feature_at_um: (0.0, 0.0),
+            camera_px: 256,
+            half_grid: 2,
+            camera: Camera::realistic(),
+            seed,
+        }
+    }
+
+    /// The shots: the focused reference under the nominal centre LED, then every LED of
+    /// the grid around it, defocused.
+    pub fn shots(&self) -> Vec<((usize, usize), f64)> {
+        let (r0, c0) = self.truth.center;
+        let k = self.half_grid as i64;
+        let mut shots = vec![((r0, c0), 0.0)];
+        for dr in -k..=k {
+            for dc in -k..=k {
+                let (r, c) = (r0 as i64 + dr, c0 as i64 + dc);
+                if r >= 0
+                    && c >= 0
+                    && (r as usize) < self.truth.rows
+                    && (c as usize) < self.truth.cols
+                {
+                    shots.push(((r as usize, c as usize), self.defocus_um));
+                }
+            }
+        }
+        shots
+    }
+
+    /// Render and record every shot, all at one exposure (as a user sets it once): a
+    /// defocused hole focuses light to about twice the clear-field level, so a clear
+    /// field is put at a third of full scale and nothing saturates.
+    pub fn acquire(&self) -> Vec<SimFrame> {
+        let px = self.system.sample_pixel_um();
+        // Margin: the defocused feature moves and blurs by up to this much.
+        let reach_um = self.defocus_um.abs() * (0.25 + self.system.na) + 10.0;
+        let pad = ((reach_um / px).ceil() as usize + 24).next_multiple_of(8);
+        let object = ObjectField::square_hole(
+            &self.system,
+            self.camera_px,
+            pad,
+            2,
+            self.feature_um,
+            self.feature_at_um,
+            0.0,
+        );
+        let exposure = self.camera.exposure_for(2.5, 0.85, 1.0, 1000.0);
+        acquire(
+            &self.system,
+            &self.truth,
+            &object,
+            &self.shots(),
+            &self.camera,
+            |_| exposure,
+            self.seed,
+        )
     }
 }

@@ -56,7 +56,9 @@ pub enum FeatureError {
         area: usize,
     },
     /// The feature is cut by the frame's edge.
-    #[error("the feature touches the edge of the frame at {bbox:?}; move the sample or pass --roi")]
+    #[error(
+        "the feature touches the edge of the frame at {bbox:?}; move the sample or pass --roi"
+    )]
     AtEdge {
         /// Its bounding box.
         bbox: Roi,
@@ -76,13 +78,23 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
     };
     let view = reference.slice(ndarray::s![roi.y..roi.y + roi.h, roi.x..roi.x + roi.w]);
     let background = median(view.iter().copied());
-    let (lo, hi) = view.iter().fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = view
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
     let (up, down) = (hi - background, background - lo);
     if up.max(down) <= 1e-6 * background.abs().max(1.0) {
         return Err(FeatureError::NoContrast);
     }
-    let polarity = if up >= down { Polarity::Bright } else { Polarity::Dark };
-    let sign = if polarity == Polarity::Bright { 1.0 } else { -1.0 };
+    let polarity = if up >= down {
+        Polarity::Bright
+    } else {
+        Polarity::Dark
+    };
+    let sign = if polarity == Polarity::Bright {
+        1.0
+    } else {
+        -1.0
+    };
     let contrast = up.max(down);
     let threshold = 0.5 * contrast;
 
@@ -104,7 +116,12 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
             while let Some((r, c)) = stack.pop() {
                 area += 1;
                 (bx0, by0, bx1, by1) = (bx0.min(c), by0.min(r), bx1.max(c), by1.max(r));
-                let neighbours = [(r.wrapping_sub(1), c), (r + 1, c), (r, c.wrapping_sub(1)), (r, c + 1)];
+                let neighbours = [
+                    (r.wrapping_sub(1), c),
+                    (r + 1, c),
+                    (r, c.wrapping_sub(1)),
+                    (r, c + 1),
+                ];
                 for (nr, nc) in neighbours {
                     if nr < rh && nc < rw && label[nr * rw + nc] == 0 && above(nr, nc) {
                         label[nr * rw + nc] = next_label;
@@ -113,7 +130,12 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
                 }
             }
             next_label += 1;
-            let bbox = Roi { x: roi.x + bx0, y: roi.y + by0, w: bx1 - bx0 + 1, h: by1 - by0 + 1 };
+            let bbox = Roi {
+                x: roi.x + bx0,
+                y: roi.y + by0,
+                w: bx1 - bx0 + 1,
+                h: by1 - by0 + 1,
+            };
             if best.is_none_or(|(a, _)| area > a) {
                 best = Some((area, bbox));
             }
@@ -132,7 +154,10 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
     // Centroid of the background-removed signal over the bounding box plus a margin.
     let margin = bbox.w.max(bbox.h) / 2 + 2;
     let (x0, y0) = (bbox.x.saturating_sub(margin), bbox.y.saturating_sub(margin));
-    let (x1, y1) = ((bbox.x + bbox.w + margin).min(w), (bbox.y + bbox.h + margin).min(h));
+    let (x1, y1) = (
+        (bbox.x + bbox.w + margin).min(w),
+        (bbox.y + bbox.h + margin).min(h),
+    );
     let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
     for r in y0..y1 {
         for c in x0..x1 {
@@ -145,7 +170,14 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
     if sw <= 0.0 {
         return Err(FeatureError::NotFound { area });
     }
-    Ok(Feature { center_px: (sx / sw, sy / sw), area_px: area, bbox, polarity, background, contrast })
+    Ok(Feature {
+        center_px: (sx / sw, sy / sw),
+        area_px: area,
+        bbox,
+        polarity,
+        background,
+        contrast,
+    })
 }
 
 #[cfg(test)]
@@ -154,7 +186,13 @@ mod tests {
 
     fn frame_with_square(w: usize, x: usize, y: usize, side: usize, bright: bool) -> Image {
         let (bg, fg) = if bright { (10.0, 200.0) } else { (200.0, 20.0) };
-        Image::from_shape_fn((w, w), |(r, c)| if r >= y && r < y + side && c >= x && c < x + side { fg } else { bg })
+        Image::from_shape_fn((w, w), |(r, c)| {
+            if r >= y && r < y + side && c >= x && c < x + side {
+                fg
+            } else {
+                bg
+            }
+        })
     }
 
     #[test]
@@ -162,18 +200,45 @@ mod tests {
         for bright in [true, false] {
             let img = frame_with_square(100, 30, 50, 11, bright);
             let f = find(&img, None).unwrap();
-            assert_eq!(f.polarity, if bright { Polarity::Bright } else { Polarity::Dark });
-            assert!((f.center_px.0 - 35.0).abs() < 1e-9 && (f.center_px.1 - 55.0).abs() < 1e-9, "{f:?}");
+            assert_eq!(
+                f.polarity,
+                if bright {
+                    Polarity::Bright
+                } else {
+                    Polarity::Dark
+                }
+            );
+            assert!(
+                (f.center_px.0 - 35.0).abs() < 1e-9 && (f.center_px.1 - 55.0).abs() < 1e-9,
+                "{f:?}"
+            );
             assert_eq!(f.area_px, 121);
-            assert_eq!(f.bbox, Roi { x: 30, y: 50, w: 11, h: 11 });
+            assert_eq!(
+                f.bbox,
+                Roi {
+                    x: 30,
+                    y: 50,
+                    w: 11,
+                    h: 11
+                }
+            );
         }
     }
 
     #[test]
     fn refuses_flat_frames_edges_and_huge_objects() {
-        assert_eq!(find(&Image::from_elem((50, 50), 3.0), None), Err(FeatureError::NoContrast));
-        assert!(matches!(find(&frame_with_square(100, 0, 40, 10, true), None), Err(FeatureError::AtEdge { .. })));
-        assert!(matches!(find(&frame_with_square(100, 10, 10, 70, true), None), Err(FeatureError::NotFound { .. })));
+        assert_eq!(
+            find(&Image::from_elem((50, 50), 3.0), None),
+            Err(FeatureError::NoContrast)
+        );
+        assert!(matches!(
+            find(&frame_with_square(100, 0, 40, 10, true), None),
+            Err(FeatureError::AtEdge { .. })
+        ));
+        assert!(matches!(
+            find(&frame_with_square(100, 10, 10, 70, true), None),
+            Err(FeatureError::NotFound { .. })
+        ));
     }
 
     #[test]
@@ -184,8 +249,26 @@ mod tests {
                 img[[r, c]] = 200.0;
             }
         }
-        let f = find(&img, Some(Roi { x: 60, y: 60, w: 50, h: 50 })).unwrap();
+        let f = find(
+            &img,
+            Some(Roi {
+                x: 60,
+                y: 60,
+                w: 50,
+                h: 50,
+            }),
+        )
+        .unwrap();
         assert!((f.center_px.0 - 84.5).abs() < 1e-9);
-        assert!(find(&img, Some(Roi { x: 100, y: 100, w: 50, h: 50 })).is_err());
+        assert!(find(
+            &img,
+            Some(Roi {
+                x: 100,
+                y: 100,
+                w: 50,
+                h: 50
+            })
+        )
+        .is_err());
     }
 }

@@ -46,7 +46,10 @@ pub fn predict(s: &Setup, p: &Params, grid: (f64, f64)) -> (f64, f64) {
     let (sin, cos) = p.theta.sin_cos();
     let x = s.pitch_um * (grid.0 * cos - grid.1 * sin) + p.dx;
     let y = s.pitch_um * (grid.0 * sin + grid.1 * cos) + p.dy;
-    (s.z_um / p.h * (s.feature_um.0 - x), s.z_um / p.h * (s.feature_um.1 - y))
+    (
+        s.z_um / p.h * (s.feature_um.0 - x),
+        s.z_um / p.h * (s.feature_um.1 - y),
+    )
 }
 
 /// The linear least-squares similarity fit. `None` with fewer than 3 observations or a
@@ -62,7 +65,10 @@ pub fn closed_form(s: &Setup, obs: &[Observation], weights: &[f64]) -> Option<Pa
         }
         used += 1;
         let (p, q) = o.grid;
-        for (row, rhs) in [([-p, q, 1.0, 0.0], o.shift_um.0), ([-q, -p, 0.0, 1.0], o.shift_um.1)] {
+        for (row, rhs) in [
+            ([-p, q, 1.0, 0.0], o.shift_um.0),
+            ([-q, -p, 0.0, 1.0], o.shift_um.1),
+        ] {
             let v = Vector4::from(row);
             ata += w * v * v.transpose();
             atb += w * v * rhs;
@@ -134,8 +140,17 @@ pub fn refine(s: &Setup, obs: &[Observation], weights: &[f64], start: Params) ->
             }
         }
         let step = jtj.try_inverse()? * jtr;
-        p = Params { dx: p.dx + step[0], dy: p.dy + step[1], theta: p.theta + step[2], h: p.h + step[3] };
-        if step[0].abs() < 1e-9 && step[1].abs() < 1e-9 && step[3].abs() < 1e-9 && step[2].abs() < 1e-13 {
+        p = Params {
+            dx: p.dx + step[0],
+            dy: p.dy + step[1],
+            theta: p.theta + step[2],
+            h: p.h + step[3],
+        };
+        if step[0].abs() < 1e-9
+            && step[1].abs() < 1e-9
+            && step[3].abs() < 1e-9
+            && step[2].abs() < 1e-13
+        {
             break;
         }
     }
@@ -161,7 +176,12 @@ pub fn refine(s: &Setup, obs: &[Observation], weights: &[f64], start: Params) ->
     let cov = jtj.try_inverse()? * (sigma2 * mean_w);
     Some(Refined {
         params: p,
-        sigma: [cov[(0, 0)].sqrt(), cov[(1, 1)].sqrt(), cov[(2, 2)].sqrt(), cov[(3, 3)].sqrt()],
+        sigma: [
+            cov[(0, 0)].sqrt(),
+            cov[(1, 1)].sqrt(),
+            cov[(2, 2)].sqrt(),
+            cov[(3, 3)].sqrt(),
+        ],
         residuals,
         rms_um: (rss / wsum.max(1e-300) / 2.0).sqrt(),
     })
@@ -175,7 +195,12 @@ pub fn robust(s: &Setup, obs: &[Observation], reject: f64) -> Option<(Refined, V
     let mut fit = refine(s, obs, &weights, start)?;
     for _ in 0..6 {
         let norms: Vec<f64> = fit.residuals.iter().map(|r| r.0.hypot(r.1)).collect();
-        let active: Vec<f64> = norms.iter().zip(&weights).filter(|(_, &w)| w > 0.0).map(|(n, _)| *n).collect();
+        let active: Vec<f64> = norms
+            .iter()
+            .zip(&weights)
+            .filter(|(_, &w)| w > 0.0)
+            .map(|(n, _)| *n)
+            .collect();
         let mad = crate::image::median(active.iter().map(|&x| x as f32)) as f64;
         // Robust σ of a 2-D residual norm; floored so a perfect fit does not reject noise.
         let scale = (1.4826 * mad).max(1e-3);
@@ -210,7 +235,11 @@ mod tests {
     use super::*;
 
     fn setup() -> Setup {
-        Setup { feature_um: (30.0, -20.0), z_um: 200.0, pitch_um: 2500.0 }
+        Setup {
+            feature_um: (30.0, -20.0),
+            z_um: 200.0,
+            pitch_um: 2500.0,
+        }
     }
 
     fn observations(truth: &Params, noise: impl Fn(usize) -> (f64, f64)) -> Vec<Observation> {
@@ -221,7 +250,10 @@ mod tests {
                 let grid = (p as f64, q as f64);
                 let m = predict(&s, truth, grid);
                 let n = noise(v.len());
-                v.push(Observation { grid, shift_um: (m.0 + n.0, m.1 + n.1) });
+                v.push(Observation {
+                    grid,
+                    shift_um: (m.0 + n.0, m.1 + n.1),
+                });
             }
         }
         v
@@ -229,7 +261,12 @@ mod tests {
 
     #[test]
     fn the_closed_form_inverts_the_model_exactly() {
-        let truth = Params { dx: 1500.0, dy: -2200.0, theta: 4.0f64.to_radians(), h: 91_000.0 };
+        let truth = Params {
+            dx: 1500.0,
+            dy: -2200.0,
+            theta: 4.0f64.to_radians(),
+            h: 91_000.0,
+        };
         let obs = observations(&truth, |_| (0.0, 0.0));
         let p = closed_form(&setup(), &obs, &vec![1.0; obs.len()]).unwrap();
         assert!((p.dx - truth.dx).abs() < 1e-6 && (p.dy - truth.dy).abs() < 1e-6);
@@ -237,22 +274,42 @@ mod tests {
         // negative defocus works the same
         let mut s = setup();
         s.z_um = -150.0;
-        let obs: Vec<_> = obs.iter().map(|o| Observation { shift_um: predict(&s, &truth, o.grid), ..*o }).collect();
+        let obs: Vec<_> = obs
+            .iter()
+            .map(|o| Observation {
+                shift_um: predict(&s, &truth, o.grid),
+                ..*o
+            })
+            .collect();
         let p = closed_form(&s, &obs, &vec![1.0; obs.len()]).unwrap();
         assert!((p.h - truth.h).abs() < 1e-6 && (p.theta - truth.theta).abs() < 1e-12);
     }
 
     #[test]
     fn a_gross_outlier_is_rejected_and_the_uncertainty_is_honest() {
-        let truth = Params { dx: -800.0, dy: 300.0, theta: -2.0f64.to_radians(), h: 95_000.0 };
+        let truth = Params {
+            dx: -800.0,
+            dy: 300.0,
+            theta: -2.0f64.to_radians(),
+            h: 95_000.0,
+        };
         // deterministic pseudo-noise of 0.01 µm, plus one LED 2 µm off
-        let mut obs = observations(&truth, |k| (0.01 * ((k * 7 % 5) as f64 - 2.0), 0.01 * ((k * 3 % 5) as f64 - 2.0)));
+        let mut obs = observations(&truth, |k| {
+            (
+                0.01 * ((k * 7 % 5) as f64 - 2.0),
+                0.01 * ((k * 3 % 5) as f64 - 2.0),
+            )
+        });
         obs[7].shift_um.0 += 2.0;
         let (fit, w) = robust(&setup(), &obs, 5.0).unwrap();
         assert_eq!(w[7], 0.0);
         assert_eq!(w.iter().filter(|&&x| x == 0.0).count(), 1);
         let p = fit.params;
-        assert!((p.dx - truth.dx).abs() < 3.0 * fit.sigma[0] + 1.0, "{p:?} σ {:?}", fit.sigma);
+        assert!(
+            (p.dx - truth.dx).abs() < 3.0 * fit.sigma[0] + 1.0,
+            "{p:?} σ {:?}",
+            fit.sigma
+        );
         assert!((p.h - truth.h).abs() < 3.0 * fit.sigma[3] + 10.0);
         assert!(fit.rms_um < 0.03);
     }

@@ -33,6 +33,8 @@ pub struct Frame<'a> {
     pub exposure_ms: f64,
     /// Dark-subtracted intensities.
     pub image: &'a Image,
+    /// Values at or above this are saturated (clipped by the camera), if known.
+    pub saturation: Option<f32>,
 }
 
 /// Calibration settings.
@@ -50,7 +52,12 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Self { roi: None, bias_correction: true, min_brightness: 0.6, reject_sigma: 5.0 }
+        Self {
+            roi: None,
+            bias_correction: true,
+            min_brightness: 0.6,
+            reject_sigma: 5.0,
+        }
     }
 }
 
@@ -67,6 +74,8 @@ pub enum LedStatus {
     NearPupilEdge,
     /// The feature left the frame or could not be measured.
     FeatureLost,
+    /// Pixels of the feature are saturated: its moment would be wrong.
+    Saturated,
     /// Rejected as an outlier by the robust fit.
     Outlier,
 }
@@ -148,7 +157,13 @@ pub struct Calibration {
 impl Calibration {
     /// The calibrated geometry, on the nominal grid.
     pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
-        LedGeometry { dx_mm: self.dx_mm, dy_mm: self.dy_mm, theta_deg: self.theta_deg, height_mm: self.height_mm, ..*nominal }
+        LedGeometry {
+            dx_mm: self.dx_mm,
+            dy_mm: self.dy_mm,
+            theta_deg: self.theta_deg,
+            height_mm: self.height_mm,
+            ..*nominal
+        }
     }
 }
 
@@ -186,21 +201,40 @@ pub enum CalibrationError {
         /// Frames that lost the feature.
         lost: usize,
     },
+    /// The reference frame is saturated around the feature.
+    #[error("the reference frame has {0} saturated pixels on the feature: lower the exposure or the LED brightness")]
+    SaturatedReference(usize),
     /// The fit failed (degenerate layout).
     #[error("the fit did not converge (degenerate LED layout?)")]
     Fit,
 }
 
 /// Calibrate from a reference frame and defocused frames.
-pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], options: &Options) -> Result<Calibration, CalibrationError> {
+pub fn calibrate(
+    system: &System,
+    nominal: &LedGeometry,
+    frames: &[Frame<'_>],
+    options: &Options,
+) -> Result<Calibration, CalibrationError> {
     let reference = frames
         .iter()
         .find(|f| f.defocus_um == 0.0 && f.led == nominal.center)
-        .ok_or(CalibrationError::NoReference(nominal.center.0, nominal.center.1))?;
+        .ok_or(CalibrationError::NoReference(
+            nominal.center.0,
+            nominal.center.1,
+        ))?;
     let defocused: Vec<&Frame> = frames.iter().filter(|f| f.defocus_um != 0.0).collect();
-    let z = defocused.first().ok_or(CalibrationError::NoDefocused)?.defocus_um;
+    let z = defocused
+        .first()
+        .ok_or(CalibrationError::NoDefocused)?
+        .defocus_um;
     if let Some(f) = defocused.iter().find(|f| (f.defocus_um - z).abs() > 1e-9) {
-        return Err(CalibrationError::MixedDefocus { led0: f.led.0, led1: f.led.1, got: f.defocus_um, expected: z });
+        return Err(CalibrationError::MixedDefocus {
+            led0: f.led.0,
+            led1: f.led.1,
+            got: f.defocus_um,
+            expected: z,
+        });
     }
     let (height, width) = reference.image.dim();
     let px = system.sample_pixel_um();
@@ -210,8 +244,28 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
     let half_feature = (feature.bbox.w.max(feature.bbox.h) as f64 / 2.0).ceil();
     let blur_px = z.abs() * system.na / (1.0 - system.na * system.na).sqrt() / px;
     let half_window = (half_feature + 1.2 * blur_px + 6.0).ceil() as usize;
-    let reference_moment = shift::first_moment(reference.image, feature.polarity, feature.center_px, half_window, 3)
-        .ok_or(FeatureError::NotFound { area: feature.area_px })?;
+    let reference_moment = shift::first_moment(
+        reference.image,
+        feature.polarity,
+        feature.center_px,
+        half_window,
+        3,
+    )
+    .ok_or(FeatureError::NotFound {
+        area: feature.area_px,
+    })?;
+    if let Some(sat) = reference.saturation {
+        let w = reference_moment.window;
+        let n = reference
+            .image
+            .slice(ndarray::s![w.y..w.y + w.h, w.x..w.x + w.w])
+            .iter()
+            .filter(|&&v| v >= sat)
+            .count();
+        if n > 0 {
+            return Err(CalibrationError::SaturatedReference(n));
+        }
+    }
     let ref_center = reference_moment.center_px;
     let (xc, yc) = system.pixel_to_sample(ref_center.0, ref_center.1, width, height);
     let ref_brightness = frame_brightness(reference);
@@ -233,9 +287,22 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
             let expect = nominal.defocus_shift_um(f.led.0, f.led.1, xc, yc, z);
             let start = (ref_center.0 + expect.0 / px, ref_center.1 + expect.1 / px);
             let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4);
+            let saturated = |m: &shift::Moment| {
+                f.saturation.is_some_and(|sat| {
+                    let w = m.window;
+                    f.image
+                        .slice(ndarray::s![w.y..w.y + w.h, w.x..w.x + w.w])
+                        .iter()
+                        .any(|&v| v >= sat)
+                })
+            };
             let (shift_um, mut status) = match m {
+                Some(m) if saturated(&m) => (None, LedStatus::Saturated),
                 Some(m) if !m.clipped => (
-                    Some(((m.center_px.0 - ref_center.0) * px, (m.center_px.1 - ref_center.1) * px)),
+                    Some((
+                        (m.center_px.0 - ref_center.0) * px,
+                        (m.center_px.1 - ref_center.1) * px,
+                    )),
                     LedStatus::Used,
                 ),
                 _ => (None, LedStatus::FeatureLost),
@@ -243,11 +310,21 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
             if brightness < options.min_brightness {
                 status = LedStatus::NotBrightField;
             }
-            Measured { led: f.led, grid, brightness, shift_um, status }
+            Measured {
+                led: f.led,
+                grid,
+                brightness,
+                shift_um,
+                status,
+            }
         })
         .collect();
 
-    let setup = Setup { feature_um: (xc, yc), z_um: z, pitch_um: nominal.pitch_mm * 1e3 };
+    let setup = Setup {
+        feature_um: (xc, yc),
+        z_um: z,
+        pitch_um: nominal.pitch_mm * 1e3,
+    };
     let count = |s: LedStatus, m: &[Measured]| m.iter().filter(|x| x.status == s).count();
     let usable = count(LedStatus::Used, &measured);
     if usable < 4 {
@@ -263,6 +340,7 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
     let mut model = options.bias_correction.then(|| {
         let max_shift_px = measured
             .iter()
+            .filter(|m| m.status == LedStatus::Used)
             .filter_map(|m| m.shift_um)
             .map(|s| s.0.hypot(s.1) / px)
             .fold(0.0, f64::max);
@@ -272,18 +350,30 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
     let feature_size_um = (feature.area_px as f64).sqrt() * px;
     let spectral_margin = 2.0 / feature_size_um.max(px);
     let mut result = None;
-    for round in 0..3 {
+    for round in 0..2 {
         let obs: Vec<Observation> = measured
             .iter()
             .zip(&bias)
             .map(|(m, b)| Observation {
                 grid: m.grid,
-                shift_um: m.shift_um.map(|s| (s.0 - b.0, s.1 - b.1)).unwrap_or((0.0, 0.0)),
+                shift_um: m
+                    .shift_um
+                    .map(|s| (s.0 - b.0, s.1 - b.1))
+                    .unwrap_or((0.0, 0.0)),
             })
             .collect();
-        let mask: Vec<bool> = measured.iter().map(|m| m.status == LedStatus::Used).collect();
-        let masked: Vec<Observation> = obs.iter().zip(&mask).filter(|(_, &k)| k).map(|(o, _)| *o).collect();
-        let (fit, weights) = fit::robust(&setup, &masked, options.reject_sigma).ok_or(CalibrationError::Fit)?;
+        let mask: Vec<bool> = measured
+            .iter()
+            .map(|m| m.status == LedStatus::Used)
+            .collect();
+        let masked: Vec<Observation> = obs
+            .iter()
+            .zip(&mask)
+            .filter(|(_, &k)| k)
+            .map(|(o, _)| *o)
+            .collect();
+        let (fit, weights) =
+            fit::robust(&setup, &masked, options.reject_sigma).ok_or(CalibrationError::Fit)?;
         let mut wi = weights.iter();
         for (m, &k) in measured.iter_mut().zip(&mask) {
             if k && wi.next().is_some_and(|&w| w == 0.0) {
@@ -293,13 +383,14 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
         let geometry = to_geometry(nominal, &fit.params);
         // Leave out LEDs near the pupil edge under the fitted geometry.
         for m in measured.iter_mut().filter(|m| m.status == LedStatus::Used) {
-            let (fx, fy) = geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
+            let (fx, fy) =
+                geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
             if fx.hypot(fy) > system.cutoff() - spectral_margin {
                 m.status = LedStatus::NearPupilEdge;
             }
         }
         result = Some(fit);
-        if round == 2 || count(LedStatus::Used, &measured) < 4 {
+        if round == 1 || count(LedStatus::Used, &measured) < 4 {
             break;
         }
         if let Some(model) = model.as_mut() {
@@ -309,7 +400,8 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
                 if m.shift_um.is_none() {
                     continue;
                 }
-                let f_led = geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
+                let f_led =
+                    geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
                 let ideal = geometry.defocus_shift_um(m.led.0, m.led.1, xc, yc, z);
                 let start = (ideal.0 / px, ideal.1 / px);
                 if let Some(pred) = model.predicted_shift_um(system, f_ref, f_led, z, start) {
@@ -332,9 +424,24 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
     let obs: Vec<Observation> = measured
         .iter()
         .zip(&bias)
-        .map(|(m, b)| Observation { grid: m.grid, shift_um: m.shift_um.map(|s| (s.0 - b.0, s.1 - b.1)).unwrap_or((0.0, 0.0)) })
+        .map(|(m, b)| Observation {
+            grid: m.grid,
+            shift_um: m
+                .shift_um
+                .map(|s| (s.0 - b.0, s.1 - b.1))
+                .unwrap_or((0.0, 0.0)),
+        })
         .collect();
-    let weights: Vec<f64> = measured.iter().map(|m| if m.status == LedStatus::Used { 1.0 } else { 0.0 }).collect();
+    let weights: Vec<f64> = measured
+        .iter()
+        .map(|m| {
+            if m.status == LedStatus::Used {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let start = result.map(|r| r.params).ok_or(CalibrationError::Fit)?;
     let fit = fit::refine(&setup, &obs, &weights, start).ok_or(CalibrationError::Fit)?;
     let p = fit.params;
@@ -371,13 +478,25 @@ pub fn calibrate(system: &System, nominal: &LedGeometry, frames: &[Frame<'_>], o
         defocus_um: z,
         height_per_defocus_um: p.h * 1e-3 / z.abs(),
         rms_residual_um: fit.rms_um,
-        feature: FeatureInfo { x_um: xc, y_um: yc, pixel: [ref_center.0, ref_center.1], area_px: feature.area_px, polarity: feature.polarity },
+        feature: FeatureInfo {
+            x_um: xc,
+            y_um: yc,
+            pixel: [ref_center.0, ref_center.1],
+            area_px: feature.area_px,
+            polarity: feature.polarity,
+        },
         leds,
     })
 }
 
 fn to_geometry(nominal: &LedGeometry, p: &Params) -> LedGeometry {
-    LedGeometry { dx_mm: p.dx * 1e-3, dy_mm: p.dy * 1e-3, theta_deg: p.theta.to_degrees(), height_mm: p.h * 1e-3, ..*nominal }
+    LedGeometry {
+        dx_mm: p.dx * 1e-3,
+        dy_mm: p.dy * 1e-3,
+        theta_deg: p.theta.to_degrees(),
+        height_mm: p.h * 1e-3,
+        ..*nominal
+    }
 }
 
 /// Mean intensity per ms of exposure.

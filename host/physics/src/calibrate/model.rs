@@ -28,17 +28,33 @@ pub struct FeatureModel {
     pub half_window: usize,
     /// Feature centre on the model grid, (col, row).
     origin: (f64, f64),
+    /// Pupil × defocus transfer for the last defocus asked for.
+    transfer: Option<(f64, Vec<Complex32>)>,
+    /// The focused reference's moment for the last reference frequency asked for.
+    reference: Option<((f64, f64), (f64, f64))>,
 }
 
 impl FeatureModel {
     /// Rebuild the feature from `reference` around `feature`. `half_window` and
     /// `max_shift_px` size the grid so nothing wraps around.
-    pub fn new(reference: &Image, feature: &Feature, half_window: usize, max_shift_px: f64) -> Self {
+    pub fn new(
+        reference: &Image,
+        feature: &Feature,
+        half_window: usize,
+        max_shift_px: f64,
+    ) -> Self {
         let need = 2 * (half_window + max_shift_px.ceil() as usize) + 16;
         let n = need.next_power_of_two().max(32);
         let (h, w) = reference.dim();
-        let (fc, fr) = (feature.center_px.0.round() as i64, feature.center_px.1.round() as i64);
-        let sign = if feature.polarity == Polarity::Bright { 1.0 } else { -1.0 };
+        let (fc, fr) = (
+            feature.center_px.0.round() as i64,
+            feature.center_px.1.round() as i64,
+        );
+        let sign = if feature.polarity == Polarity::Bright {
+            1.0
+        } else {
+            -1.0
+        };
         // Half amplitude = quarter intensity contrast: where a coherent image puts an edge.
         let threshold = 0.25 * feature.contrast;
         let bg = feature.background;
@@ -48,12 +64,18 @@ impl FeatureModel {
         };
         let (amp_in, amp_out) = match feature.polarity {
             Polarity::Bright => (1.0, (bg.max(0.0) / peak.max(1e-12)).sqrt()),
-            Polarity::Dark => (((bg - feature.contrast).max(0.0) / bg.max(1e-12)).sqrt(), 1.0),
+            Polarity::Dark => (
+                ((bg - feature.contrast).max(0.0) / bg.max(1e-12)).sqrt(),
+                1.0,
+            ),
         };
         let mut field = vec![Complex32::new(amp_out, 0.0); n * n];
         for r in 0..n {
             for c in 0..n {
-                let (ir, ic) = (fr + r as i64 - (n / 2) as i64, fc + c as i64 - (n / 2) as i64);
+                let (ir, ic) = (
+                    fr + r as i64 - (n / 2) as i64,
+                    fc + c as i64 - (n / 2) as i64,
+                );
                 if ir < 0 || ic < 0 || ir >= h as i64 || ic >= w as i64 {
                     continue;
                 }
@@ -65,43 +87,67 @@ impl FeatureModel {
                 }
             }
         }
+        Self::from_field(field, n, feature.polarity, half_window)
+    }
+
+    /// A model from a given transmission on an `n × n` grid at the camera's
+    /// sample-plane pixel, centred on the feature.
+    pub fn from_field(
+        field: Vec<Complex32>,
+        n: usize,
+        polarity: Polarity,
+        half_window: usize,
+    ) -> Self {
         Self {
             field,
             n,
-            polarity: feature.polarity,
+            polarity,
             fft: Fft2::new(n, n),
             buf: vec![Complex32::default(); n * n],
             half_window,
             origin: ((n / 2) as f64, (n / 2) as f64),
+            transfer: None,
+            reference: None,
         }
     }
 
     /// Image the model under illumination frequency `f` (cycles/µm) at defocus `z`.
-    fn image(&mut self, system: &System, f: (f64, f64), z_um: f64) -> Image {
+    pub fn image(&mut self, system: &System, f: (f64, f64), z_um: f64) -> Image {
         let n = self.n;
         let d = system.sample_pixel_um();
-        for r in 0..n {
-            for c in 0..n {
-                let x = (c as f64 - self.origin.0) * d;
-                let y = (r as f64 - self.origin.1) * d;
-                let ph = 2.0 * std::f64::consts::PI * (f.0 * x + f.1 * y);
-                let (s, co) = ph.sin_cos();
-                self.buf[r * n + c] = self.field[r * n + c] * Complex32::new(co as f32, s as f32);
+        if self.transfer.as_ref().is_none_or(|(z, _)| *z != z_um) {
+            let cutoff2 = system.cutoff().powi(2);
+            let t = (0..n * n)
+                .map(|i| {
+                    let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
+                    if fx * fx + fy * fy <= cutoff2 {
+                        let (hr, hi) = defocus_transfer(fx, fy, z_um, system.wavelength_um);
+                        Complex32::new(hr as f32, hi as f32)
+                    } else {
+                        Complex32::default()
+                    }
+                })
+                .collect();
+            self.transfer = Some((z_um, t));
+        }
+        // The tilt exp(i2π f·x) separates into a row and a column factor.
+        let tilt = |freq: f64, k: usize| {
+            let ph = 2.0 * std::f64::consts::PI * freq * (k as f64 - self.origin.0) * d;
+            let (s, c) = ph.sin_cos();
+            Complex32::new(c as f32, s as f32)
+        };
+        let cols: Vec<Complex32> = (0..n).map(|k| tilt(f.0, k)).collect();
+        let rows: Vec<Complex32> = (0..n).map(|k| tilt(f.1, k)).collect();
+        for (r, row_tilt) in rows.iter().enumerate() {
+            let span = r * n..(r + 1) * n;
+            for ((out, obj), col_tilt) in self.buf[span.clone()].iter_mut().zip(&self.field[span]).zip(&cols) {
+                *out = obj * row_tilt * col_tilt;
             }
         }
         self.fft.forward(&mut self.buf);
-        let cutoff2 = system.cutoff().powi(2);
-        for ky in 0..n {
-            let fy = bin_frequency(ky, n, d);
-            for kx in 0..n {
-                let fx = bin_frequency(kx, n, d);
-                let v = &mut self.buf[ky * n + kx];
-                if fx * fx + fy * fy <= cutoff2 {
-                    let (hr, hi) = defocus_transfer(fx, fy, z_um, system.wavelength_um);
-                    *v *= Complex32::new(hr as f32, hi as f32);
-                } else {
-                    *v = Complex32::default();
-                }
+        if let Some((_, t)) = &self.transfer {
+            for (v, h) in self.buf.iter_mut().zip(t) {
+                *v *= h;
             }
         }
         self.fft.inverse(&mut self.buf);
@@ -110,14 +156,31 @@ impl FeatureModel {
 
     /// The first-moment shift (µm) the estimator reports for a defocused frame under
     /// `f_led` relative to the focused reference under `f_ref`.
-    pub fn predicted_shift_um(&mut self, system: &System, f_ref: (f64, f64), f_led: (f64, f64), z_um: f64, start_offset_px: (f64, f64)) -> Option<(f64, f64)> {
-        let reference = self.image(system, f_ref, 0.0);
-        let half_ref = self.half_window;
-        let m0 = first_moment(&reference, self.polarity, self.origin, half_ref, 3)?;
+    pub fn predicted_shift_um(
+        &mut self,
+        system: &System,
+        f_ref: (f64, f64),
+        f_led: (f64, f64),
+        z_um: f64,
+        start_offset_px: (f64, f64),
+    ) -> Option<(f64, f64)> {
+        let m0 = match self.reference {
+            Some((f, m)) if f == f_ref => m,
+            _ => {
+                let reference = self.image(system, f_ref, 0.0);
+                let m = first_moment(&reference, self.polarity, self.origin, self.half_window, 3)?
+                    .center_px;
+                self.reference = Some((f_ref, m));
+                m
+            }
+        };
         let defocused = self.image(system, f_led, z_um);
-        let start = (self.origin.0 + start_offset_px.0, self.origin.1 + start_offset_px.1);
-        let m1 = first_moment(&defocused, self.polarity, start, self.half_window, 3)?;
+        let start = (
+            self.origin.0 + start_offset_px.0,
+            self.origin.1 + start_offset_px.1,
+        );
+        let m1 = first_moment(&defocused, self.polarity, start, self.half_window, 4)?;
         let d = system.sample_pixel_um();
-        Some(((m1.center_px.0 - m0.center_px.0) * d, (m1.center_px.1 - m0.center_px.1) * d))
+        Some(((m1.center_px.0 - m0.0) * d, (m1.center_px.1 - m0.1) * d))
     }
 }

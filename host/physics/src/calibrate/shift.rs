@@ -36,9 +36,19 @@ fn ring_background(img: &Image, x0: usize, y0: usize, x1: usize, y1: usize, band
 /// The first moment of `polarity`-signed, background-removed intensity in a square
 /// window of half-size `half` that is re-centred on the moment `iterations` times,
 /// starting at `start` (col, row).
-pub fn first_moment(img: &Image, polarity: Polarity, start: (f64, f64), half: usize, iterations: usize) -> Option<Moment> {
+pub fn first_moment(
+    img: &Image,
+    polarity: Polarity,
+    start: (f64, f64),
+    half: usize,
+    iterations: usize,
+) -> Option<Moment> {
     let (h, w) = img.dim();
-    let sign = if polarity == Polarity::Bright { 1.0 } else { -1.0 };
+    let sign = if polarity == Polarity::Bright {
+        1.0
+    } else {
+        -1.0
+    };
     let mut center = start;
     let mut result = None;
     for _ in 0..iterations.max(1) {
@@ -50,7 +60,10 @@ pub fn first_moment(img: &Image, polarity: Polarity, start: (f64, f64), half: us
         if x1 <= x0 + 2 || y1 <= y0 + 2 {
             return None;
         }
-        let clipped = cx - (half as i64) < 0 || cy - (half as i64) < 0 || cx + half as i64 + 1 > w as i64 || cy + half as i64 + 1 > h as i64;
+        let clipped = cx - (half as i64) < 0
+            || cy - (half as i64) < 0
+            || cx + half as i64 + 1 > w as i64
+            || cy + half as i64 + 1 > h as i64;
         let bg = ring_background(img, x0, y0, x1, y1, 6);
         let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
         for r in y0..y1 {
@@ -68,7 +81,12 @@ pub fn first_moment(img: &Image, polarity: Polarity, start: (f64, f64), half: us
         result = Some(Moment {
             center_px: center,
             signal: sw,
-            window: Roi { x: x0, y: y0, w: x1 - x0, h: y1 - y0 },
+            window: Roi {
+                x: x0,
+                y: y0,
+                w: x1 - x0,
+                h: y1 - y0,
+            },
             clipped,
         });
     }
@@ -87,7 +105,10 @@ mod tests {
             (50.0 + 300.0 * (-d2 / 30.0).exp()) as f32
         });
         let m = first_moment(&img, Polarity::Bright, (55.0, 45.0), 20, 3).unwrap();
-        assert!((m.center_px.0 - cx).abs() < 1e-3 && (m.center_px.1 - cy).abs() < 1e-3, "{m:?}");
+        assert!(
+            (m.center_px.0 - cx).abs() < 1e-3 && (m.center_px.1 - cy).abs() < 1e-3,
+            "{m:?}"
+        );
         assert!(!m.clipped);
     }
 

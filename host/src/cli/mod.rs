@@ -2,9 +2,11 @@
 //! subcommand lives in its own module and only formats what the library does.
 
 mod bench;
+mod calibrate;
 mod color;
 mod demo;
 mod device;
+mod simulate;
 
 use std::process::ExitCode;
 
@@ -29,6 +31,11 @@ enum Command {
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
     Emulator(fpm_emulator::EmulatorArgs),
+    /// Make simulated datasets with the full wave-optics model.
+    #[command(subcommand)]
+    Simulate(simulate::SimulateCommand),
+    /// Calibrate the LED array (pdcFPM) from a defocus dataset.
+    Calibrate(calibrate::CalibrateArgs),
     /// Measure performance.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -57,6 +64,8 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
+        Command::Simulate(cmd) => simulate::run(cmd),
+        Command::Calibrate(args) => calibrate::run(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

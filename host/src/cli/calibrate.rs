@@ -1,0 +1,117 @@
+//! `fpm calibrate DIR`: pdcFPM calibration of the LED array from a defocus dataset.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use fpm_physics::calibrate::feature::Roi;
+use fpm_physics::calibrate::{LedStatus, Options};
+
+use crate::calibration::{calibrate_dataset, write_residual_plot};
+use crate::dataset::Dataset;
+
+/// Calibrate the LED array (Δx, Δy, θ, h) from how a defocused feature moves.
+///
+/// The dataset holds one in-focus frame under the nominal centre LED and frames of the
+/// LEDs around it with the sample defocused by the same `defocus_um`.
+#[derive(Args, Debug)]
+pub struct CalibrateArgs {
+    /// Dataset directory (with dataset.toml).
+    dir: PathBuf,
+    /// Where to write the result [default: DIR/calibration.json].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Look for the feature only in this rectangle: X,Y,W,H in pixels.
+    #[arg(long, value_parser = parse_roi)]
+    roi: Option<Roi>,
+    /// Write a residual plot (measured × vs fitted ○ shifts, residuals magnified in red).
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Skip the model-based correction of the first-moment bias (for comparison).
+    #[arg(long)]
+    no_bias_correction: bool,
+    /// Print the result as JSON on stdout as well.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_roi(s: &str) -> Result<Roi, String> {
+    let v: Vec<usize> = s
+        .split(',')
+        .map(|p| {
+            p.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("'{p}' is not a pixel count"))
+        })
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, w, h] if *w > 0 && *h > 0 => Ok(Roi {
+            x: *x,
+            y: *y,
+            w: *w,
+            h: *h,
+        }),
+        _ => Err(format!(
+            "'{s}' is not X,Y,W,H with a positive width and height"
+        )),
+    }
+}
+
+/// Run `fpm calibrate`.
+pub fn run(a: CalibrateArgs) -> Result<()> {
+    let ds = Dataset::load(&a.dir)?;
+    let options = Options {
+        roi: a.roi,
+        bias_correction: !a.no_bias_correction,
+        ..Options::default()
+    };
+    let file = calibrate_dataset(&ds, &options)?;
+    let c = &file.calibration;
+    let out = a.out.unwrap_or_else(|| a.dir.join("calibration.json"));
+    std::fs::write(&out, serde_json::to_string_pretty(&file)?)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&file)?);
+    } else {
+        let u = &c.uncertainty;
+        println!(
+            "LED array from {} frames at {} µm defocus ({:.1} ms):",
+            c.leds.len(),
+            c.defocus_um,
+            file.time_ms
+        );
+        println!("  Δx = {:+.4} ± {:.4} mm", c.dx_mm, u.dx_mm);
+        println!("  Δy = {:+.4} ± {:.4} mm", c.dy_mm, u.dy_mm);
+        println!("  θ  = {:+.4} ± {:.4} °", c.theta_deg, u.theta_deg);
+        println!("  h  = {:.3} ± {:.3} mm  (+{:.3} mm per µm of defocus error: h is as accurate as the defocus)", c.height_mm, u.height_mm, c.height_per_defocus_um);
+        println!(
+            "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
+            c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um
+        );
+        let count = |s: LedStatus| c.leds.iter().filter(|l| l.status == s).count();
+        println!(
+            "  LEDs: {} used, {} dark-field, {} near the pupil edge, {} lost the feature, {} saturated, {} outliers",
+            count(LedStatus::Used),
+            count(LedStatus::NotBrightField),
+            count(LedStatus::NearPupilEdge),
+            count(LedStatus::FeatureLost),
+            count(LedStatus::Saturated),
+            count(LedStatus::Outlier)
+        );
+        println!("wrote {}", out.display());
+    }
+    if let Some(plot) = a.plot {
+        let gain = write_residual_plot(c, &plot)?;
+        println!("wrote {} (residuals magnified {gain:.0}×)", plot.display());
+    }
+    if c.leds
+        .iter()
+        .filter(|l| l.status == LedStatus::Used)
+        .count()
+        < 6
+    {
+        eprintln!(
+            "warning: only a few LEDs were usable; check the defocus, the exposure and the feature"
+        );
+    }
+    Ok(())
+}

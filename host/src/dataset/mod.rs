@@ -1,0 +1,416 @@
+//! The dataset format of PHYSICS.md §5: `dataset.toml` plus one image per frame.
+//!
+//! Loading is strict: an unknown key, a missing file, a frame whose size differs, an
+//! LED outside the array or a non-finite value is an error naming the key or frame.
+//! `[camera]` flips and transpose are applied on load, so every frame comes out in the
+//! sample-plane orientation of PHYSICS.md §1.
+
+pub mod image_io;
+
+use std::path::{Path, PathBuf};
+
+use fpm_physics::{Image, LedGeometry, System};
+use serde::{Deserialize, Serialize};
+
+pub use image_io::Pixels;
+
+/// `[system]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SystemSection {
+    /// µm.
+    pub wavelength_um: f64,
+    /// Objective NA.
+    pub na: f64,
+    /// Objective magnification.
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    pub pixel_size_um: f64,
+}
+
+/// `[led]`: the nominal geometry.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LedSection {
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Pitch, mm.
+    pub pitch_mm: f64,
+    /// LED plane to sample, mm.
+    pub height_mm: f64,
+    /// (row, col) of the nominal centre LED.
+    pub center: [usize; 2],
+    /// Δx, Δy, mm.
+    #[serde(default)]
+    pub offset_mm: [f64; 2],
+    /// θ, degrees.
+    #[serde(default)]
+    pub rotation_deg: f64,
+}
+
+/// `[camera]` (all optional).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSection {
+    /// Counts to subtract.
+    #[serde(default)]
+    pub dark_level: f64,
+    /// Bits per sample used by the sensor (saturation is at 2^bits − 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bit_depth: Option<u32>,
+    /// Image columns run against +x.
+    #[serde(default)]
+    pub flip_x: bool,
+    /// Image rows run against +y.
+    #[serde(default)]
+    pub flip_y: bool,
+    /// Swap rows and columns before the flips.
+    #[serde(default)]
+    pub transpose: bool,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// One `[[frame]]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameEntry {
+    /// Image path relative to the dataset directory.
+    pub file: String,
+    /// (row, col) lit.
+    pub led: [usize; 2],
+    /// Sample displacement toward the LEDs, µm.
+    #[serde(default)]
+    pub defocus_um: f64,
+    /// Exposure, ms; intensities are divided by it.
+    #[serde(default = "one")]
+    pub exposure_ms: f64,
+}
+
+/// The whole `dataset.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// `[system]`.
+    pub system: SystemSection,
+    /// `[led]`.
+    pub led: LedSection,
+    /// `[camera]`.
+    #[serde(default)]
+    pub camera: CameraSection,
+    /// `[[frame]]`.
+    #[serde(rename = "frame")]
+    pub frames: Vec<FrameEntry>,
+}
+
+impl Manifest {
+    /// The optical system.
+    pub fn system(&self) -> System {
+        let s = &self.system;
+        System {
+            wavelength_um: s.wavelength_um,
+            na: s.na,
+            magnification: s.magnification,
+            pixel_size_um: s.pixel_size_um,
+        }
+    }
+
+    /// The nominal LED geometry.
+    pub fn geometry(&self) -> LedGeometry {
+        let l = &self.led;
+        LedGeometry {
+            rows: l.rows,
+            cols: l.cols,
+            pitch_mm: l.pitch_mm,
+            height_mm: l.height_mm,
+            center: (l.center[0], l.center[1]),
+            dx_mm: l.offset_mm[0],
+            dy_mm: l.offset_mm[1],
+            theta_deg: l.rotation_deg,
+        }
+    }
+}
+
+/// What is wrong with a dataset.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// The manifest cannot be read.
+    #[error("{path}: {reason}")]
+    Manifest {
+        /// `dataset.toml`.
+        path: PathBuf,
+        /// What went wrong (TOML errors name the key and line).
+        reason: String,
+    },
+    /// A value is out of range.
+    #[error("{path}: `{key}` = {value}: {why}")]
+    Value {
+        /// `dataset.toml`.
+        path: PathBuf,
+        /// The key.
+        key: String,
+        /// Its value.
+        value: String,
+        /// The rule it breaks.
+        why: &'static str,
+    },
+    /// A frame is wrong.
+    #[error("{path}: frame {index} ({file}): {reason}")]
+    Frame {
+        /// `dataset.toml`.
+        path: PathBuf,
+        /// 0-based index among `[[frame]]`.
+        index: usize,
+        /// Its file.
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Writing failed.
+    #[error("writing {path}: {reason}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// A loaded frame.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Its manifest entry.
+    pub entry: FrameEntry,
+    /// Raw counts in the sample-plane orientation.
+    pub raw: Image,
+}
+
+/// A dataset in memory.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    /// Where it came from.
+    pub dir: PathBuf,
+    /// Its manifest.
+    pub manifest: Manifest,
+    /// Frames in manifest order.
+    pub frames: Vec<Frame>,
+}
+
+impl Dataset {
+    /// Load and validate the dataset in `dir`.
+    pub fn load(dir: &Path) -> Result<Self, DatasetError> {
+        let path = dir.join("dataset.toml");
+        let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::Manifest {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+        let manifest: Manifest = toml::from_str(&text).map_err(|e| DatasetError::Manifest {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+        validate(&path, &manifest)?;
+        let mut frames: Vec<Frame> = Vec::with_capacity(manifest.frames.len());
+        for (index, entry) in manifest.frames.iter().enumerate() {
+            let bad = |reason: String| DatasetError::Frame {
+                path: path.clone(),
+                index,
+                file: entry.file.clone(),
+                reason,
+            };
+            let file = dir.join(&entry.file);
+            if !file.is_file() {
+                return Err(bad(format!("file {} does not exist", file.display())));
+            }
+            let pixels = image_io::read(&file).map_err(bad)?;
+            let raw = orient(pixels.to_f32(), &manifest.camera);
+            if let Some(first) = frames.first() {
+                if raw.dim() != first.raw.dim() {
+                    return Err(bad(format!(
+                        "size {}x{} differs from frame 0 ({}x{})",
+                        raw.dim().1,
+                        raw.dim().0,
+                        first.raw.dim().1,
+                        first.raw.dim().0
+                    )));
+                }
+            }
+            if raw.iter().any(|v| !v.is_finite()) {
+                return Err(bad("contains non-finite values".into()));
+            }
+            frames.push(Frame {
+                entry: entry.clone(),
+                raw,
+            });
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+            frames,
+        })
+    }
+
+    /// Frame `k`, dark-subtracted (not yet divided by exposure).
+    pub fn corrected(&self, k: usize) -> Image {
+        let dark = self.manifest.camera.dark_level as f32;
+        self.frames[k].raw.mapv(|v| v - dark)
+    }
+
+    /// The dark-subtracted value at which the sensor saturates, if the bit depth is known.
+    pub fn saturation(&self) -> Option<f32> {
+        self.manifest
+            .camera
+            .bit_depth
+            .map(|b| ((1u64 << b.min(32)) - 1) as f32 - self.manifest.camera.dark_level as f32)
+    }
+
+    /// Write a dataset: 16-bit TIFF frames under `frames/` and `dataset.toml`. The
+    /// entries' `file` fields are set here. Frames are stored in sample-plane
+    /// orientation, so `[camera]` flips are cleared.
+    pub fn write(
+        dir: &Path,
+        manifest: &Manifest,
+        images: &[Array2U16],
+    ) -> Result<(), DatasetError> {
+        let werr = |path: &Path, reason: String| DatasetError::Write {
+            path: path.to_path_buf(),
+            reason,
+        };
+        std::fs::create_dir_all(dir.join("frames")).map_err(|e| werr(dir, e.to_string()))?;
+        let mut manifest = manifest.clone();
+        manifest.camera.flip_x = false;
+        manifest.camera.flip_y = false;
+        manifest.camera.transpose = false;
+        for (entry, img) in manifest.frames.iter_mut().zip(images) {
+            let name = if entry.defocus_um == 0.0 {
+                format!("frames/r{:02}_c{:02}.tif", entry.led[0], entry.led[1])
+            } else {
+                format!(
+                    "frames/r{:02}_c{:02}_z{:+.0}.tif",
+                    entry.led[0], entry.led[1], entry.defocus_um
+                )
+            };
+            let path = dir.join(&name);
+            image_io::write_tiff_u16(&path, img).map_err(|e| werr(&path, e))?;
+            entry.file = name;
+        }
+        let path = dir.join("dataset.toml");
+        let text = toml::to_string_pretty(&manifest).map_err(|e| werr(&path, e.to_string()))?;
+        std::fs::write(&path, text).map_err(|e| werr(&path, e.to_string()))
+    }
+}
+
+/// 16-bit frames to write.
+pub type Array2U16 = ndarray::Array2<u16>;
+
+/// Transpose, then flip, into the sample-plane orientation.
+fn orient(img: Image, cam: &CameraSection) -> Image {
+    let mut img = if cam.transpose {
+        img.reversed_axes().as_standard_layout().to_owned()
+    } else {
+        img
+    };
+    if cam.flip_x {
+        img.invert_axis(ndarray::Axis(1));
+    }
+    if cam.flip_y {
+        img.invert_axis(ndarray::Axis(0));
+    }
+    img.as_standard_layout().to_owned()
+}
+
+fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
+    let value = |key: &str, v: String, why: &'static str| DatasetError::Value {
+        path: path.to_path_buf(),
+        key: key.into(),
+        value: v,
+        why,
+    };
+    let positive = |key: &str, v: f64| {
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(value(key, v.to_string(), "must be a positive number"))
+        }
+    };
+    positive("system.wavelength_um", m.system.wavelength_um)?;
+    positive("system.magnification", m.system.magnification)?;
+    positive("system.pixel_size_um", m.system.pixel_size_um)?;
+    if !(m.system.na.is_finite() && m.system.na > 0.0 && m.system.na < 1.0) {
+        return Err(value(
+            "system.na",
+            m.system.na.to_string(),
+            "must be in (0, 1)",
+        ));
+    }
+    positive("led.pitch_mm", m.led.pitch_mm)?;
+    positive("led.height_mm", m.led.height_mm)?;
+    if m.led.rows == 0 || m.led.cols == 0 {
+        return Err(value(
+            "led.rows/cols",
+            format!("{}x{}", m.led.rows, m.led.cols),
+            "the array needs at least one LED",
+        ));
+    }
+    if m.led.center[0] >= m.led.rows || m.led.center[1] >= m.led.cols {
+        return Err(value(
+            "led.center",
+            format!("{:?}", m.led.center),
+            "is outside the array",
+        ));
+    }
+    if !m.led.offset_mm.iter().all(|v| v.is_finite()) {
+        return Err(value(
+            "led.offset_mm",
+            format!("{:?}", m.led.offset_mm),
+            "must be finite",
+        ));
+    }
+    if !m.led.rotation_deg.is_finite() {
+        return Err(value(
+            "led.rotation_deg",
+            m.led.rotation_deg.to_string(),
+            "must be finite",
+        ));
+    }
+    if !m.camera.dark_level.is_finite() {
+        return Err(value(
+            "camera.dark_level",
+            m.camera.dark_level.to_string(),
+            "must be finite",
+        ));
+    }
+    if m.frames.is_empty() {
+        return Err(DatasetError::Manifest {
+            path: path.to_path_buf(),
+            reason: "no [[frame]] entries".into(),
+        });
+    }
+    for (index, f) in m.frames.iter().enumerate() {
+        let bad = |reason: String| DatasetError::Frame {
+            path: path.to_path_buf(),
+            index,
+            file: f.file.clone(),
+            reason,
+        };
+        if f.led[0] >= m.led.rows || f.led[1] >= m.led.cols {
+            return Err(bad(format!(
+                "LED {:?} is outside the {}x{} array",
+                f.led, m.led.rows, m.led.cols
+            )));
+        }
+        if !f.defocus_um.is_finite() {
+            return Err(bad(format!("defocus_um = {} is not finite", f.defocus_um)));
+        }
+        if !(f.exposure_ms.is_finite() && f.exposure_ms > 0.0) {
+            return Err(bad(format!(
+                "exposure_ms = {} must be a positive number",
+                f.exposure_ms
+            )));
+        }
+    }
+    Ok(())
+}

@@ -65,14 +65,31 @@ impl Canvas {
     }
 }
 
+/// One LED on a residual plot: measured and fitted shift (µm), and whether it was used.
+pub struct ShiftPoint {
+    /// Measured (bias-corrected) shift.
+    pub measured: [f64; 2],
+    /// Fitted shift.
+    pub fitted: [f64; 2],
+    /// In the fit.
+    pub used: bool,
+}
+
 /// Plot measured shifts (crosses) against fitted ones (circles) in the sample plane,
 /// with residual vectors (red) magnified `gain` times; left-out LEDs in grey.
 /// Returns the canvas and the magnification used.
-pub fn residual_plot(points: &[(([f64; 2], [f64; 2]), bool)], size: usize) -> (Canvas, f64) {
+pub fn residual_plot(points: &[ShiftPoint], size: usize) -> (Canvas, f64) {
     let mut c = Canvas::new(size, size);
     let extent = points
         .iter()
-        .flat_map(|((m, f), _)| [m[0].abs(), m[1].abs(), f[0].abs(), f[1].abs()])
+        .flat_map(|p| {
+            [
+                p.measured[0].abs(),
+                p.measured[1].abs(),
+                p.fitted[0].abs(),
+                p.fitted[1].abs(),
+            ]
+        })
         .fold(1e-9, f64::max)
         * 1.15;
     let scale = (size as f64 / 2.0) / extent;
@@ -88,14 +105,14 @@ pub fn residual_plot(points: &[(([f64; 2], [f64; 2]), bool)], size: usize) -> (C
     c.line((mid, 0.0), (mid, size as f64), [200, 200, 200], 1);
     let worst = points
         .iter()
-        .filter(|(_, used)| *used)
-        .map(|((m, f), _)| (m[0] - f[0]).hypot(m[1] - f[1]))
+        .filter(|p| p.used)
+        .map(|p| (p.measured[0] - p.fitted[0]).hypot(p.measured[1] - p.fitted[1]))
         .fold(1e-12, f64::max);
     // Magnify residuals so the largest used one is 1/12 of the plot.
     let gain = (size as f64 / 12.0) / (worst * scale);
-    for ((m, f), used) in points {
-        let (fp, mp) = (to_px(*f), to_px(*m));
-        if *used {
+    for p in points {
+        let (fp, mp) = (to_px(p.fitted), to_px(p.measured));
+        if p.used {
             c.circle(fp, 6.0, [40, 90, 200]);
             let tip = (fp.0 + (mp.0 - fp.0) * gain, fp.1 + (mp.1 - fp.1) * gain);
             c.line(fp, tip, [220, 30, 30], 2);

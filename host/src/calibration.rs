@@ -77,10 +77,11 @@ pub fn write_residual_plot(cal: &Calibration, path: &Path) -> Result<f64> {
         .filter_map(|l| {
             let m = l.measured_um?;
             let b = l.bias_um.unwrap_or([0.0, 0.0]);
-            Some((
-                ([m[0] - b[0], m[1] - b[1]], l.fitted_um),
-                l.status == LedStatus::Used,
-            ))
+            Some(crate::plot::ShiftPoint {
+                measured: [m[0] - b[0], m[1] - b[1]],
+                fitted: l.fitted_um,
+                used: l.status == LedStatus::Used,
+            })
         })
         .collect();
     let (canvas, gain) = crate::plot::residual_plot(&points, 800);

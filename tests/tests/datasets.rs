@@ -1,0 +1,330 @@
+//! The PHYSICS.md §5 dataset format on real files: lossless round trips, other labs'
+//! data, and bad datasets that must fail with errors naming the key or frame.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
+use fpm_tests::{fpm_bin, TempDir};
+use ndarray::Array2;
+
+fn manifest(frames: usize) -> Manifest {
+    Manifest {
+        system: SystemSection {
+            wavelength_um: 0.47,
+            na: 0.1,
+            magnification: 4.0,
+            pixel_size_um: 2.4,
+        },
+        led: LedSection {
+            rows: 21,
+            cols: 21,
+            pitch_mm: 2.5,
+            height_mm: 92.0,
+            center: [10, 10],
+            offset_mm: [0.1, -0.2],
+            rotation_deg: 1.5,
+        },
+        camera: CameraSection {
+            dark_level: 100.0,
+            bit_depth: Some(12),
+            ..CameraSection::default()
+        },
+        frames: (0..frames)
+            .map(|k| FrameEntry {
+                file: String::new(),
+                led: [k % 21, (k * 7) % 21],
+                defocus_um: if k == 0 { 0.0 } else { -35.5 },
+                exposure_ms: 2.5 + k as f64,
+            })
+            .collect(),
+    }
+}
+
+fn frames(n: usize, w: usize, h: usize) -> Vec<Array2<u16>> {
+    (0..n)
+        .map(|k| {
+            Array2::from_shape_fn((h, w), |(r, c)| {
+                ((r * 131 + c * 17 + k * 1009) % 4096) as u16
+            })
+        })
+        .collect()
+}
+
+fn shared_data() -> PathBuf {
+    let candidates = [
+        std::env::var("FPM_SHARED")
+            .map(PathBuf::from)
+            .unwrap_or_default(),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
+    ];
+    candidates
+        .into_iter()
+        .find(|p| p.join("data").is_dir())
+        .expect(
+            "shared/ (with data/) must sit beside the repository, or FPM_SHARED must point to it",
+        )
+        .join("data")
+}
+
+#[test]
+fn writing_then_reading_is_lossless() {
+    let dir = TempDir::new("roundtrip");
+    let m = manifest(5);
+    let imgs = frames(5, 40, 30);
+    Dataset::write(&dir.0, &m, &imgs).unwrap();
+    let ds = Dataset::load(&dir.0).unwrap();
+    assert_eq!(ds.frames.len(), 5);
+    for (k, (f, img)) in ds.frames.iter().zip(&imgs).enumerate() {
+        assert_eq!(f.raw.dim(), (30, 40));
+        assert!(
+            f.raw.iter().zip(img.iter()).all(|(a, &b)| *a == b as f32),
+            "frame {k}"
+        );
+        assert_eq!(f.entry.led, m.frames[k].led);
+        assert_eq!(f.entry.defocus_um, m.frames[k].defocus_um);
+        assert_eq!(f.entry.exposure_ms, m.frames[k].exposure_ms);
+    }
+    assert_eq!(ds.manifest.system, m.system);
+    assert_eq!(ds.manifest.led, m.led);
+    assert_eq!(ds.manifest.camera, m.camera);
+    assert_eq!(ds.corrected(1)[[0, 0]], imgs[1][[0, 0]] as f32 - 100.0);
+    assert_eq!(ds.saturation(), Some(4095.0 - 100.0));
+}
+
+#[test]
+fn camera_flips_and_transpose_are_applied_on_load() {
+    let dir = TempDir::new("flips");
+    let m = manifest(1);
+    let img = Array2::from_shape_fn((3, 4), |(r, c)| (r * 10 + c) as u16);
+    Dataset::write(&dir.0, &m, std::slice::from_ref(&img)).unwrap();
+    let toml_path = dir.0.join("dataset.toml");
+    let text = std::fs::read_to_string(&toml_path).unwrap();
+    std::fs::write(&toml_path, text.replace("flip_x = false", "flip_x = true")).unwrap();
+    let ds = Dataset::load(&dir.0).unwrap();
+    assert_eq!(ds.frames[0].raw[[1, 0]], 13.0, "columns reversed");
+    let text = std::fs::read_to_string(&toml_path).unwrap();
+    std::fs::write(
+        &toml_path,
+        text.replace("flip_x = true", "flip_x = false")
+            .replace("transpose = false", "transpose = true"),
+    )
+    .unwrap();
+    let ds = Dataset::load(&dir.0).unwrap();
+    assert_eq!(ds.frames[0].raw.dim(), (4, 3));
+    assert_eq!(ds.frames[0].raw[[3, 1]], 13.0, "rows and columns swapped");
+}
+
+#[test]
+fn the_shared_usaf_dataset_from_another_lab_loads() {
+    let ds = Dataset::load(&shared_data().join("zuo-usaf-11x11")).unwrap();
+    assert_eq!(ds.frames.len(), 121);
+    assert_eq!(ds.frames[0].raw.dim(), (128, 128));
+    assert_eq!(ds.manifest.led.rows, 11);
+    assert_eq!(ds.manifest.camera.bit_depth, Some(8));
+    // Bright-field frames (rows 4–6, cols 4–6) are far brighter than dark-field ones.
+    let mean = |k: usize| ds.frames[k].raw.mean().unwrap();
+    let centre = ds
+        .frames
+        .iter()
+        .position(|f| f.entry.led == [5, 5])
+        .unwrap();
+    let corner = ds
+        .frames
+        .iter()
+        .position(|f| f.entry.led == [0, 0])
+        .unwrap();
+    assert!(
+        mean(centre) > 10.0 * mean(corner),
+        "{} vs {}",
+        mean(centre),
+        mean(corner)
+    );
+}
+
+/// Write a good dataset, break it with `edit`, and return the load error's text.
+fn broken(tag: &str, edit: impl FnOnce(&Path)) -> String {
+    let dir = TempDir::new(tag);
+    Dataset::write(&dir.0, &manifest(3), &frames(3, 16, 16)).unwrap();
+    edit(&dir.0);
+    let err = Dataset::load(&dir.0).expect_err("a broken dataset must not load");
+    format!("{err}")
+}
+
+fn edit_toml(dir: &Path, f: impl FnOnce(String) -> String) {
+    let p = dir.join("dataset.toml");
+    let t = std::fs::read_to_string(&p).unwrap();
+    std::fs::write(&p, f(t)).unwrap();
+}
+
+#[test]
+fn bad_datasets_fail_naming_the_key_or_frame() {
+    let e = broken("unknown", |d| {
+        edit_toml(d, |t| {
+            t.replace("na = 0.1", "na = 0.1\nnumerical_aperture = 0.2")
+        })
+    });
+    assert!(e.contains("numerical_aperture"), "{e}");
+
+    let e = broken("missing", |d| {
+        std::fs::remove_file(d.join("frames/r01_c07_z-36.tif")).unwrap()
+    });
+    assert!(e.contains("frame 1") && e.contains("does not exist"), "{e}");
+
+    let e = broken("size", |d| {
+        let small = Array2::<u16>::zeros((8, 16));
+        fpm_host::dataset::image_io::write_tiff_u16(&d.join("frames/r02_c14_z-36.tif"), &small)
+            .unwrap();
+    });
+    assert!(
+        e.contains("frame 2") && e.contains("16x8") && e.contains("differs"),
+        "{e}"
+    );
+
+    let e = broken("led", |d| {
+        edit_toml(d, |t| t.replacen("led = [\n    1,", "led = [\n    21,", 1))
+    });
+    assert!(
+        e.contains("frame 1") && e.contains("outside the 21x21 array"),
+        "{e}"
+    );
+
+    let e = broken("nan", |d| {
+        edit_toml(d, |t| {
+            t.replacen("exposure_ms = 3.5", "exposure_ms = nan", 1)
+        })
+    });
+    assert!(e.contains("frame 1") && e.contains("exposure_ms"), "{e}");
+
+    let e = broken("na", |d| {
+        edit_toml(d, |t| t.replace("na = 0.1", "na = 1.5"))
+    });
+    assert!(e.contains("system.na"), "{e}");
+
+    let e = broken("notimage", |d| {
+        std::fs::write(d.join("frames/r00_c00.tif"), b"not a tiff").unwrap()
+    });
+    assert!(e.contains("frame 0") && e.contains("TIFF"), "{e}");
+}
+
+fn fpm(args: &[&str]) -> std::process::Output {
+    Command::new(fpm_bin()).args(args).output().unwrap()
+}
+
+#[test]
+fn simulate_then_calibrate_recovers_the_hidden_array() {
+    let dir = TempDir::new("simcal");
+    let d = dir.0.to_string_lossy().into_owned();
+    let out = fpm(&[
+        "simulate",
+        "calibration",
+        "--out",
+        &d,
+        "--dx-mm",
+        "-2.1",
+        "--dy-mm",
+        "1.4",
+        "--theta-deg",
+        "-4",
+        "--height-mm",
+        "95",
+        "--seed",
+        "3",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plot = dir.0.join("residuals.png");
+    let out = fpm(&["calibrate", &d, "--plot", &plot.to_string_lossy()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cal: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.0.join("calibration.json")).unwrap())
+            .unwrap();
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.0.join("truth.json")).unwrap()).unwrap();
+    let err = |k: &str| (cal[k].as_f64().unwrap() - truth[k].as_f64().unwrap()).abs();
+    assert!(
+        err("dx_mm") * 1e3 <= 10.0 && err("dy_mm") * 1e3 <= 10.0,
+        "{cal}"
+    );
+    assert!(err("theta_deg") <= 0.1 && err("height_mm") <= 0.5, "{cal}");
+    assert!(cal["uncertainty"]["height_mm"].as_f64().unwrap() > 0.0);
+    assert_eq!(cal["leds"].as_array().unwrap().len(), 25);
+    let png = std::fs::read(&plot).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}
+
+/// A calibration dataset whose frames are replaced by `frame(k, led, defocus)`.
+fn calibration_with(
+    tag: &str,
+    frame: impl Fn(usize, [usize; 2], f64) -> Array2<u16>,
+) -> (TempDir, String) {
+    let dir = TempDir::new(tag);
+    let mut m = manifest(0);
+    m.frames.push(FrameEntry {
+        file: String::new(),
+        led: [10, 10],
+        defocus_um: 0.0,
+        exposure_ms: 10.0,
+    });
+    for r in 8..=12 {
+        for c in 8..=12 {
+            m.frames.push(FrameEntry {
+                file: String::new(),
+                led: [r, c],
+                defocus_um: 200.0,
+                exposure_ms: 10.0,
+            });
+        }
+    }
+    let imgs: Vec<_> = m
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| frame(k, f.led, f.defocus_um))
+        .collect();
+    Dataset::write(&dir.0, &m, &imgs).unwrap();
+    let out = fpm(&["calibrate", &dir.0.to_string_lossy()]);
+    assert!(!out.status.success(), "must fail");
+    (dir, String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+#[test]
+fn calibration_refuses_datasets_without_a_feature_or_light() {
+    let (_d, e) = calibration_with("flat", |_, _, _| Array2::from_elem((64, 64), 300));
+    assert!(e.contains("no contrast"), "{e}");
+
+    // A feature in the reference, but every defocused frame dark.
+    let (_d, e) = calibration_with("dark", |k, _, _| {
+        Array2::from_shape_fn((64, 64), |(r, c)| {
+            if k == 0 && (28..36).contains(&r) && (28..36).contains(&c) {
+                2000
+            } else {
+                100
+            }
+        })
+    });
+    assert!(
+        e.contains("usable bright-field frames") && e.contains("too dim"),
+        "{e}"
+    );
+
+    // No in-focus reference under the centre LED.
+    let dir = TempDir::new("noref");
+    let mut m = manifest(0);
+    m.frames.push(FrameEntry {
+        file: String::new(),
+        led: [9, 9],
+        defocus_um: 200.0,
+        exposure_ms: 1.0,
+    });
+    Dataset::write(&dir.0, &m, &frames(1, 32, 32)).unwrap();
+    let out = fpm(&["calibrate", &dir.0.to_string_lossy()]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no in-focus reference frame"));
+}

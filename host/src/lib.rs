@@ -9,3 +9,4 @@ pub mod controller;
 pub mod dataset;
 pub mod emulator_process;
 pub mod plot;
+pub mod reconstruction;

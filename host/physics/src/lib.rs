@@ -15,7 +15,9 @@
 pub mod calibrate;
 pub mod fft;
 pub mod image;
+pub mod metrics;
 pub mod optics;
+pub mod reconstruct;
 pub mod simulate;
 
 pub use image::Image;

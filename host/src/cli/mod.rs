@@ -6,6 +6,7 @@ mod calibrate;
 mod color;
 mod demo;
 mod device;
+mod reconstruct;
 mod simulate;
 
 use std::process::ExitCode;
@@ -36,6 +37,8 @@ enum Command {
     Simulate(simulate::SimulateCommand),
     /// Calibrate the LED array (pdcFPM) from a defocus dataset.
     Calibrate(calibrate::CalibrateArgs),
+    /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
+    Reconstruct(reconstruct::ReconstructArgs),
     /// Measure performance.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -66,6 +69,7 @@ pub fn main() -> ExitCode {
         Command::Emulator(args) => fpm_emulator::run(args),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

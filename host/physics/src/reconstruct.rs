@@ -1,0 +1,264 @@
+//! EPRY (Ou, Zheng & Yang 2014): the object spectrum on the high-resolution grid and the
+//! pupil on the low-resolution grid, recovered together from the frames (PHYSICS.md §4).
+//!
+//! * Grids: the HR grid is the camera grid × `upsample`, same field of view, optical axis
+//!   at (W·U/2, H·U/2). Spectra are kept in FFT order; both grids share the frequency
+//!   step 1/(W·Δ), so a frame's spectrum is a window of the object spectrum.
+//! * A frame lit with illumination frequency f_i sees the disc of O centred at −f_i.
+//!   The disc is placed at the nearest HR frequency bin (rounding; the error is at most
+//!   half a bin, 1/(2·W·Δ)).
+//! * Update, per frame: ψ = P·O[window]; φ = F⁻¹ψ; keep φ's phase, take √I for its
+//!   amplitude; Δ = Fφ' − ψ; O[window] += α·P*·Δ/max|P|²; P += β·O*·Δ/max|O|² inside
+//!   the pupil support (|f| ≤ NA/λ), P = 0 outside.
+//! * The object is normalised so that a clear sample under on-axis light has |o| = 1
+//!   when frames are given as intensity per ms relative to that level.
+
+use rustfft::num_complex::Complex32;
+
+use crate::fft::{bin_frequency, Fft2};
+use crate::optics::System;
+use crate::Image;
+
+/// Step sizes and options.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// HR pixels per camera pixel.
+    pub upsample: usize,
+    /// Object step α (1 = the full ePIE step).
+    pub alpha: f32,
+    /// Pupil step β.
+    pub beta: f32,
+    /// Update the pupil from the first pass on (false: keep the ideal pupil).
+    pub update_pupil: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            upsample: 4,
+            alpha: 1.0,
+            beta: 1.0,
+            update_pupil: true,
+        }
+    }
+}
+
+/// The reconstruction state.
+pub struct Epry {
+    n: usize,
+    upsample: usize,
+    settings: Settings,
+    /// Object spectrum on the HR grid, FFT order, `(n·U)²`.
+    object: Vec<Complex32>,
+    /// Pupil on the LR grid, FFT order, `n²`.
+    pupil: Vec<Complex32>,
+    support: Vec<bool>,
+    /// Bin step of the frequency grid, cycles/µm.
+    df: f64,
+    fft: Fft2,
+    psi: Vec<Complex32>,
+    phi: Vec<Complex32>,
+}
+
+impl Epry {
+    /// Start from an in-focus frame near the axis (`intensity`, normalised) for a
+    /// square camera field of `n × n` pixels: its amplitude, up-sampled, is the first
+    /// object estimate; the pupil starts as the ideal disc.
+    pub fn new(system: &System, intensity: &Image, settings: Settings) -> Self {
+        let (h, w) = intensity.dim();
+        assert_eq!(h, w, "square fields only");
+        let n = w;
+        let u = settings.upsample.max(1);
+        let nh = n * u;
+        let d = system.sample_pixel_um();
+        let df = 1.0 / (n as f64 * d);
+        let cutoff = system.cutoff();
+        let support: Vec<bool> = (0..n * n)
+            .map(|i| {
+                let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
+                fx * fx + fy * fy <= cutoff * cutoff
+            })
+            .collect();
+        let pupil = support
+            .iter()
+            .map(|&s| Complex32::new(if s { 1.0 } else { 0.0 }, 0.0))
+            .collect();
+        // Initial object: the frame's amplitude, its spectrum zero-padded to the HR grid.
+        let mut fft = Fft2::new(n, n);
+        let mut lr: Vec<Complex32> = intensity
+            .iter()
+            .map(|&v| Complex32::new(v.max(0.0).sqrt(), 0.0))
+            .collect();
+        fft.forward(&mut lr);
+        let mut object = vec![Complex32::default(); nh * nh];
+        let scale = (u * u) as f32;
+        for ky in 0..n {
+            for kx in 0..n {
+                let (hy, hx) = (wrap(signed(ky, n), nh), wrap(signed(kx, n), nh));
+                object[hy * nh + hx] = lr[ky * n + kx] * scale;
+            }
+        }
+        Self {
+            n,
+            upsample: u,
+            settings: Settings {
+                upsample: u,
+                ..settings
+            },
+            object,
+            pupil,
+            support,
+            df,
+            fft,
+            psi: vec![Complex32::default(); n * n],
+            phi: vec![Complex32::default(); n * n],
+        }
+    }
+
+    /// HR grid size.
+    pub fn hr_size(&self) -> usize {
+        self.n * self.upsample
+    }
+
+    /// The HR bin shift for illumination frequency `f` (cycles/µm), rounded.
+    pub fn bin_shift(&self, f: (f64, f64)) -> (i64, i64) {
+        (
+            (f.0 / self.df).round() as i64,
+            (f.1 / self.df).round() as i64,
+        )
+    }
+
+    /// One EPRY update with a frame (normalised intensity) lit at frequency `f`.
+    /// Returns the frame's relative amplitude error before the update.
+    pub fn update(&mut self, intensity: &Image, f: (f64, f64), update_pupil: bool) -> f64 {
+        let (n, nh) = (self.n, self.hr_size());
+        let (sx, sy) = self.bin_shift(f);
+        let index = |k: usize, s: i64, m: usize| wrap(signed(k, n) - s, m);
+        // ψ = P · O(k − s)
+        for ky in 0..n {
+            let hy = index(ky, sy, nh);
+            for kx in 0..n {
+                let i = ky * n + kx;
+                self.psi[i] = if self.support[i] {
+                    self.pupil[i] * self.object[hy * nh + index(kx, sx, nh)]
+                } else {
+                    Complex32::default()
+                };
+            }
+        }
+        self.phi.copy_from_slice(&self.psi);
+        self.fft.inverse(&mut self.phi);
+        // Amplitude constraint; the HR/LR size ratio scales amplitudes by U².
+        let gain = (self.upsample * self.upsample) as f32;
+        let (mut err, mut norm) = (0.0f64, 0.0f64);
+        for (p, &i) in self.phi.iter_mut().zip(intensity.iter()) {
+            let measured = i.max(0.0).sqrt() * gain;
+            let a = p.norm();
+            err += ((a - measured) as f64).powi(2);
+            norm += (measured as f64).powi(2);
+            *p = if a > 1e-12 {
+                *p * (measured / a)
+            } else {
+                Complex32::new(measured, 0.0)
+            };
+        }
+        self.fft.forward(&mut self.phi);
+        let pmax = self
+            .pupil
+            .iter()
+            .map(|p| p.norm_sqr())
+            .fold(0.0f32, f32::max)
+            .max(1e-12);
+        let mut omax = 0.0f32;
+        for ky in 0..n {
+            let hy = index(ky, sy, nh);
+            for kx in 0..n {
+                if self.support[ky * n + kx] {
+                    omax = omax.max(self.object[hy * nh + index(kx, sx, nh)].norm_sqr());
+                }
+            }
+        }
+        let omax = omax.max(1e-12);
+        let (alpha, beta) = (self.settings.alpha, self.settings.beta);
+        for ky in 0..n {
+            let hy = index(ky, sy, nh);
+            for kx in 0..n {
+                let i = ky * n + kx;
+                if !self.support[i] {
+                    continue;
+                }
+                let delta = self.phi[i] - self.psi[i];
+                let o = &mut self.object[hy * nh + index(kx, sx, nh)];
+                let o_old = *o;
+                *o += self.pupil[i].conj() * delta * (alpha / pmax);
+                if update_pupil {
+                    self.pupil[i] += o_old.conj() * delta * (beta / omax);
+                }
+            }
+        }
+        (err / norm.max(1e-300)).sqrt()
+    }
+
+    /// The HR object (complex transmission), row-major `(n·U)²`.
+    pub fn object(&mut self) -> ndarray::Array2<Complex32> {
+        let nh = self.hr_size();
+        let mut field = self.object.clone();
+        let mut fft = Fft2::new(nh, nh);
+        fft.inverse(&mut field);
+        let norm = 1.0 / (self.upsample * self.upsample) as f32;
+        ndarray::Array2::from_shape_fn((nh, nh), |(r, c)| field[r * nh + c] * norm)
+    }
+
+    /// The pupil on the LR grid, centred (zero frequency in the middle).
+    pub fn pupil_centered(&self) -> ndarray::Array2<Complex32> {
+        let n = self.n;
+        ndarray::Array2::from_shape_fn((n, n), |(r, c)| {
+            self.pupil[((r + n / 2) % n) * n + (c + n / 2) % n]
+        })
+    }
+
+    /// Whether the pupil is being learned.
+    pub fn settings(&self) -> Settings {
+        self.settings
+    }
+}
+
+/// FFT bin `k` of an `n`-point grid as a signed frequency index.
+fn signed(k: usize, n: usize) -> i64 {
+    if k < n / 2 {
+        k as i64
+    } else {
+        k as i64 - n as i64
+    }
+}
+
+/// A signed index wrapped onto an `m`-point grid.
+fn wrap(k: i64, m: usize) -> usize {
+    k.rem_euclid(m as i64) as usize
+}
+
+/// Complex NRMSE (PHYSICS.md §6): min over complex c of ‖c·a − b‖/‖b‖.
+pub fn complex_nrmse(a: &[Complex32], b: &[Complex32]) -> f64 {
+    let (mut ab, mut aa, mut bb) = (rustfft::num_complex::Complex64::default(), 0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        let (x, y) = (x.to_f64(), y.to_f64());
+        ab += x.conj() * y;
+        aa += x.norm_sqr();
+        bb += y.norm_sqr();
+    }
+    if aa == 0.0 || bb == 0.0 {
+        return 1.0;
+    }
+    // ‖c a − b‖² minimised at c = ⟨a, b⟩/⟨a, a⟩: ‖b‖² − |⟨a, b⟩|²/‖a‖².
+    ((bb - ab.norm_sqr() / aa).max(0.0) / bb).sqrt()
+}
+
+trait ToF64 {
+    fn to_f64(self) -> rustfft::num_complex::Complex64;
+}
+
+impl ToF64 for Complex32 {
+    fn to_f64(self) -> rustfft::num_complex::Complex64 {
+        rustfft::num_complex::Complex64::new(self.re as f64, self.im as f64)
+    }
+}

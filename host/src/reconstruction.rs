@@ -5,7 +5,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use fpm_physics::reconstruct::{Epry, Settings};
+use fpm_physics::reconstruct::{run, Settings, Shot};
 use fpm_physics::{Image, LedGeometry};
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
@@ -73,51 +73,45 @@ pub fn reconstruct(
     if h != w {
         bail!("{}: frames are {w}x{h}; the reconstructor takes square fields (crop them, or wait for tiling)", ds.dir.display());
     }
-    // Each frame as intensity per ms; the wave vector of its LED at the field centre.
-    let freq = |k: usize| {
-        let led = ds.frames[k].entry.led;
-        geometry.illumination_frequency(led[0], led[1], 0.0, 0.0, system.wavelength_um)
-    };
-    let mut order = frames.clone();
-    order.sort_by(|&a, &b| {
-        let (fa, fb) = (freq(a), freq(b));
-        fa.0.hypot(fa.1).total_cmp(&fb.0.hypot(fb.1))
-    });
-    let images: Vec<(usize, Image)> = order
+    // Each frame as intensity per ms.
+    let images: Vec<Image> = frames
         .iter()
         .map(|&k| {
-            (
-                k,
-                ds.corrected(k)
-                    .mapv(|v| v.max(0.0) / ds.frames[k].entry.exposure_ms as f32),
-            )
+            ds.corrected(k)
+                .mapv(|v| v.max(0.0) / ds.frames[k].entry.exposure_ms as f32)
         })
         .collect();
-    // Scale so the frame nearest the axis averages 1: only relative intensities matter.
-    let scale = images[0]
-        .1
-        .mean()
-        .filter(|m| *m > 0.0)
-        .context("the frame nearest the axis is black")?;
-    let images: Vec<(usize, Image)> = images.into_iter().map(|(k, i)| (k, i / scale)).collect();
-
+    let shots: Vec<Shot> = frames
+        .iter()
+        .zip(&images)
+        .map(|(&k, image)| Shot {
+            led: (ds.frames[k].entry.led[0], ds.frames[k].entry.led[1]),
+            image,
+        })
+        .collect();
     let start = Instant::now();
-    let mut epry = Epry::new(&system, &images[0].1, settings);
-    let (mut errors, mut pass_ms) = (vec![], vec![]);
-    for pass in 0..passes {
-        let t = Instant::now();
-        let mut e = 0.0;
-        for (j, (k, img)) in images.iter().enumerate() {
-            // The pupil is learned from the second pass on, once the object is sensible.
-            e += epry.update(img, freq(*k), settings.update_pupil && pass > 0);
-            progress(pass * images.len() + j + 1, passes * images.len());
-        }
-        errors.push(e / images.len() as f64);
-        pass_ms.push(t.elapsed().as_secs_f64() * 1e3);
-    }
+    let mut pass_start = Instant::now();
+    let mut pass_ms = vec![];
+    let per_pass = shots.len();
+    let outcome = run(
+        &system,
+        geometry,
+        &shots,
+        settings,
+        passes,
+        |done, total| {
+            progress(done, total);
+            if done % per_pass == 0 {
+                pass_ms.push(pass_start.elapsed().as_secs_f64() * 1e3);
+                pass_start = Instant::now();
+            }
+        },
+    )
+    .context("the frame nearest the axis is black")?;
+    let (mut epry, errors) = (outcome.epry, outcome.errors);
     let object = epry.object();
     let pupil = epry.pupil_centered();
-    let initial = ds.frames[images[0].0].entry.led;
+    let initial = ds.frames[frames[outcome.initial]].entry.led;
     Ok(Reconstruction {
         object,
         pupil,
@@ -127,7 +121,7 @@ pub fn reconstruct(
             geometry_source: source.into(),
             upsample: epry.settings().upsample,
             passes,
-            frames: images.len(),
+            frames: shots.len(),
             initial_led: initial,
             error_per_pass: errors,
             pass_ms,

@@ -19,6 +19,7 @@ pub mod metrics;
 pub mod optics;
 pub mod reconstruct;
 pub mod simulate;
+pub mod study;
 
 pub use image::Image;
 pub use optics::{LedGeometry, System};

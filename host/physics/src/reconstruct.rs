@@ -262,3 +262,62 @@ impl ToF64 for Complex32 {
         rustfft::num_complex::Complex64::new(self.re as f64, self.im as f64)
     }
 }
+
+/// One frame for [`run`]: the LED and its intensity, normalised by exposure (any common
+/// scale).
+pub struct Shot<'a> {
+    /// LED (row, col).
+    pub led: (usize, usize),
+    /// Intensity.
+    pub image: &'a Image,
+}
+
+/// The outcome of [`run`].
+pub struct Outcome {
+    /// The solver, for the object and pupil.
+    pub epry: Epry,
+    /// Mean relative amplitude error per pass.
+    pub errors: Vec<f64>,
+    /// Index into the shots of the frame nearest the axis (the initial guess).
+    pub initial: usize,
+}
+
+/// Reconstruct a field-centred square field from `shots` with the wave vectors of
+/// `geometry`: frames sorted nearest-first by |f_i| (which also copes with a wrongly
+/// chosen centre LED), the nearest one as the initial guess, the pupil learned from the
+/// second pass on. `progress(done, total)` is called after every update.
+pub fn run(
+    system: &System,
+    geometry: &crate::LedGeometry,
+    shots: &[Shot<'_>],
+    settings: Settings,
+    passes: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Option<Outcome> {
+    let freq = |s: &Shot| {
+        geometry.illumination_frequency(s.led.0, s.led.1, 0.0, 0.0, system.wavelength_um)
+    };
+    let mut order: Vec<usize> = (0..shots.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (fa, fb) = (freq(&shots[a]), freq(&shots[b]));
+        fa.0.hypot(fa.1).total_cmp(&fb.0.hypot(fb.1))
+    });
+    let initial = *order.first()?;
+    let scale = shots[initial].image.mean().filter(|m| *m > 0.0)?;
+    let images: Vec<Image> = order.iter().map(|&k| shots[k].image / scale).collect();
+    let mut epry = Epry::new(system, &images[0], settings);
+    let mut errors = Vec::with_capacity(passes);
+    for pass in 0..passes {
+        let mut e = 0.0;
+        for (j, (&k, img)) in order.iter().zip(&images).enumerate() {
+            e += epry.update(img, freq(&shots[k]), settings.update_pupil && pass > 0);
+            progress(pass * images.len() + j + 1, passes * images.len());
+        }
+        errors.push(e / images.len() as f64);
+    }
+    Some(Outcome {
+        epry,
+        errors,
+        initial,
+    })
+}

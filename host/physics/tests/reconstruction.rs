@@ -93,8 +93,8 @@ fn epry_beats_the_centre_frame_by_far() {
     let cutoff = system.cutoff();
     let discs: Vec<(f64, f64)> = (0..frames.len()).map(freq).collect();
     let in_aperture = |fx: f64, fy: f64| discs.iter().any(|f| (fx + f.0).hypot(fy + f.1) <= cutoff);
-    let truth_bl = resample(&truth, object.pitch_um(), m, &in_aperture);
-    let rec_on_truth = resample(&rec, system.sample_pixel_um() / 4.0, m, &in_aperture);
+    let truth_bl = resample(&truth, object.pitch_um(), m, in_aperture);
+    let rec_on_truth = resample(&rec, system.sample_pixel_um() / 4.0, m, in_aperture);
     let nrmse = complex_nrmse(&central(&rec_on_truth, 0.75), &central(&truth_bl, 0.75));
     // The centre frame's amplitude, up-sampled, as the baseline.
     let base: ndarray::Array2<Complex32> =

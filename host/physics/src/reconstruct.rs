@@ -321,3 +321,110 @@ pub fn run(
         initial,
     })
 }
+
+/// EPRY fed frame by frame as an acquisition runs: frames may arrive in any order; each
+/// updates the estimate at once (from the first bright-field frame on, which seeds the
+/// object), a snapshot can be taken at any time, and [`Streaming::finish`] runs the
+/// remaining passes nearest-first over everything received.
+pub struct Streaming {
+    system: System,
+    geometry: crate::LedGeometry,
+    settings: Settings,
+    frames: Vec<((usize, usize), Image)>,
+    epry: Option<Epry>,
+    scale: f32,
+    updates: usize,
+}
+
+impl Streaming {
+    /// Nothing received yet.
+    pub fn new(system: System, geometry: crate::LedGeometry, settings: Settings) -> Self {
+        Self {
+            system,
+            geometry,
+            settings,
+            frames: vec![],
+            epry: None,
+            scale: 1.0,
+            updates: 0,
+        }
+    }
+
+    fn frequency(&self, led: (usize, usize)) -> (f64, f64) {
+        self.geometry
+            .illumination_frequency(led.0, led.1, 0.0, 0.0, self.system.wavelength_um)
+    }
+
+    /// A frame (intensity per ms) arrived. Returns whether the estimate was updated.
+    pub fn push(&mut self, led: (usize, usize), image: Image) -> bool {
+        self.frames.push((led, image));
+        let f = self.frequency(led);
+        if self.epry.is_none() {
+            // Seed from the first bright-field frame; earlier (dark-field) frames are
+            // replayed right after.
+            if f.0.hypot(f.1) >= self.system.cutoff() {
+                return false;
+            }
+            let seed = &self.frames[self.frames.len() - 1].1;
+            self.scale = seed.mean().filter(|m| *m > 0.0).unwrap_or(1.0);
+            self.epry = Some(Epry::new(&self.system, &(seed / self.scale), self.settings));
+            let pending: Vec<usize> = (0..self.frames.len()).collect();
+            for k in pending {
+                self.update(k);
+            }
+            return true;
+        }
+        self.update(self.frames.len() - 1);
+        true
+    }
+
+    fn update(&mut self, k: usize) {
+        let f = self.frequency(self.frames[k].0);
+        let img = &self.frames[k].1 / self.scale;
+        if let Some(e) = self.epry.as_mut() {
+            e.update(&img, f, false);
+            self.updates += 1;
+        }
+    }
+
+    /// Frames received.
+    pub fn received(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// The object as it stands (None before the first bright-field frame).
+    pub fn snapshot(&mut self) -> Option<ndarray::Array2<Complex32>> {
+        self.epry.as_mut().map(Epry::object)
+    }
+
+    /// Run `passes` more passes over every frame received, nearest-first, learning the
+    /// pupil; returns the solver and the error per pass.
+    pub fn finish(mut self, passes: usize) -> Option<(Epry, Vec<f64>)> {
+        let mut epry = self.epry.take()?;
+        let mut order: Vec<usize> = (0..self.frames.len()).collect();
+        let freqs: Vec<(f64, f64)> = self
+            .frames
+            .iter()
+            .map(|(led, _)| self.frequency(*led))
+            .collect();
+        order.sort_by(|&a, &b| {
+            freqs[a]
+                .0
+                .hypot(freqs[a].1)
+                .total_cmp(&freqs[b].0.hypot(freqs[b].1))
+        });
+        let mut errors = vec![];
+        for _ in 0..passes {
+            let mut e = 0.0;
+            for &k in &order {
+                e += epry.update(
+                    &(&self.frames[k].1 / self.scale),
+                    freqs[k],
+                    self.settings.update_pupil,
+                );
+            }
+            errors.push(e / order.len().max(1) as f64);
+        }
+        Some((epry, errors))
+    }
+}

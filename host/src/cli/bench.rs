@@ -42,6 +42,19 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// EPRY speed: one frame update against the two FFTs it needs, and one pass over
+    /// 441 frames, measured in the same run.
+    Epry {
+        /// Camera field, pixels.
+        #[arg(long, default_value_t = 256)]
+        size: usize,
+        /// HR pixels per camera pixel.
+        #[arg(long, default_value_t = 4)]
+        upsample: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// LED switch time of single-LED scans (the firmware's chain model): full chain
     /// versus partial shifts, for 1, 2 and 4 data lanes.
     LedSwitch {
@@ -120,6 +133,11 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::LedSwitch { json } => led_switch(json),
         BenchCommand::Calibration { random, seed, json } => calibration(random, seed, json),
         BenchCommand::Geometry { size, passes, json } => geometry(size, passes, json),
+        BenchCommand::Epry {
+            size,
+            upsample,
+            json,
+        } => epry_speed(size, upsample, json),
     }
 }
 
@@ -524,6 +542,99 @@ fn geometry(size: usize, passes: usize, json: bool) -> Result<()> {
             r.nrmse_calibrated / r.nrmse_true,
             r.nrmse_centre_frame
         );
+    }
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct EpryBench {
+    size: usize,
+    upsample: usize,
+    two_ffts_us: Percentiles,
+    update_us: Percentiles,
+    update_over_ffts: f64,
+    pass_441_ms: f64,
+}
+
+fn epry_speed(size: usize, upsample: usize, json: bool) -> Result<()> {
+    use fpm_physics::fft::Fft2;
+    use fpm_physics::reconstruct::{Epry, Settings};
+    use fpm_physics::{Image, LedGeometry, System};
+    use rustfft::num_complex::Complex32;
+    let system = System {
+        wavelength_um: 0.47,
+        na: 0.1,
+        magnification: 4.0,
+        pixel_size_um: 2.4,
+    };
+    let geometry = LedGeometry {
+        rows: 21,
+        cols: 21,
+        pitch_mm: 2.5,
+        height_mm: 92.0,
+        center: (10, 10),
+        dx_mm: 0.0,
+        dy_mm: 0.0,
+        theta_deg: 0.0,
+    };
+    let frame = Image::from_shape_fn((size, size), |(r, c)| {
+        1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
+    });
+    let mut epry = Epry::new(
+        &system,
+        &frame,
+        Settings {
+            upsample,
+            ..Settings::default()
+        },
+    );
+    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
+    let freq = |led: (usize, usize)| {
+        geometry.illumination_frequency(led.0, led.1, 0.0, 0.0, system.wavelength_um)
+    };
+    // Baseline: the forward and inverse LR FFT an update cannot do without.
+    let mut fft = Fft2::new(size, size);
+    let mut buf: Vec<Complex32> = frame.iter().map(|&v| Complex32::new(v, 0.0)).collect();
+    let rounds = 200;
+    let (mut ffts, mut updates) = (Vec::with_capacity(rounds), Vec::with_capacity(rounds));
+    for k in 0..rounds {
+        // Interleave both so machine noise hits them alike.
+        let t = Instant::now();
+        fft.forward(&mut buf);
+        fft.inverse(&mut buf);
+        ffts.push(t.elapsed().as_secs_f64() * 1e6);
+        let t = Instant::now();
+        epry.update(&frame, freq(leds[k % leds.len()]), true);
+        updates.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    let t = Instant::now();
+    for &led in &leds {
+        epry.update(&frame, freq(led), true);
+    }
+    let pass = t.elapsed().as_secs_f64() * 1e3;
+    let f = Percentiles::of(&mut ffts);
+    let u = Percentiles::of(&mut updates);
+    let report = EpryBench {
+        size,
+        upsample,
+        update_over_ffts: u.p50_us / f.p50_us,
+        two_ffts_us: f,
+        update_us: u,
+        pass_441_ms: pass,
+    };
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("EPRY on {size}² frames, U = {upsample}, one thread:");
+        println!(
+            "  forward + inverse FFT   p50 {:>8.1} µs   p99 {:>8.1} µs",
+            f.p50_us, f.p99_us
+        );
+        println!(
+            "  one frame update        p50 {:>8.1} µs   p99 {:>8.1} µs   ({:.2}× the two FFTs)",
+            u.p50_us, u.p99_us, report.update_over_ffts
+        );
+        println!("  one pass over 441 frames {:.0} ms", pass);
     }
     Ok(())
 }

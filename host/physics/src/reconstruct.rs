@@ -52,12 +52,15 @@ pub struct Epry {
     object: Vec<Complex32>,
     /// Pupil on the LR grid, FFT order, `n²`.
     pupil: Vec<Complex32>,
-    support: Vec<bool>,
     /// Bin step of the frequency grid, cycles/µm.
     df: f64,
     fft: Fft2,
     psi: Vec<Complex32>,
     phi: Vec<Complex32>,
+    /// Pupil bins: (LR index, signed kx, signed ky).
+    pupil_bins: Vec<(u32, i64, i64)>,
+    /// Per frame: the HR index each pupil bin reads.
+    window: Vec<usize>,
 }
 
 impl Epry {
@@ -78,6 +81,10 @@ impl Epry {
                 let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
                 fx * fx + fy * fy <= cutoff * cutoff
             })
+            .collect();
+        let pupil_bins = (0..n * n)
+            .filter(|&i| support[i])
+            .map(|i| (i as u32, signed(i % n, n), signed(i / n, n)))
             .collect();
         let pupil = support
             .iter()
@@ -107,11 +114,12 @@ impl Epry {
             },
             object,
             pupil,
-            support,
             df,
             fft,
             psi: vec![Complex32::default(); n * n],
             phi: vec![Complex32::default(); n * n],
+            pupil_bins,
+            window: Vec::new(),
         }
     }
 
@@ -131,28 +139,43 @@ impl Epry {
     /// One EPRY update with a frame (normalised intensity) lit at frequency `f`.
     /// Returns the frame's relative amplitude error before the update.
     pub fn update(&mut self, intensity: &Image, f: (f64, f64), update_pupil: bool) -> f64 {
-        let (n, nh) = (self.n, self.hr_size());
+        let amplitude = amplitude(intensity);
+        self.update_amplitude(&amplitude, f, update_pupil)
+    }
+
+    /// [`Self::update`] with the frame's amplitude √I already taken (frames are used
+    /// once per pass; taking the root once saves a square root per pixel per pass).
+    pub fn update_amplitude(
+        &mut self,
+        amplitude: &Image,
+        f: (f64, f64),
+        update_pupil: bool,
+    ) -> f64 {
+        let nh = self.hr_size() as i64;
         let (sx, sy) = self.bin_shift(f);
-        let index = |k: usize, s: i64, m: usize| wrap(signed(k, n) - s, m);
-        // ψ = P · O(k − s)
-        for ky in 0..n {
-            let hy = index(ky, sy, nh);
-            for kx in 0..n {
-                let i = ky * n + kx;
-                self.psi[i] = if self.support[i] {
-                    self.pupil[i] * self.object[hy * nh + index(kx, sx, nh)]
-                } else {
-                    Complex32::default()
-                };
-            }
+        // Where each pupil bin reads the object: O(k − s), wrapped onto the HR grid.
+        self.window.clear();
+        self.window
+            .extend(self.pupil_bins.iter().map(|&(_, kx, ky)| {
+                ((ky - sy).rem_euclid(nh) * nh + (kx - sx).rem_euclid(nh)) as usize
+            }));
+        // ψ = P · O(k − s) on the pupil, zero elsewhere.
+        self.psi.fill(Complex32::default());
+        let mut omax = 0.0f32;
+        let mut pmax = 0.0f32;
+        for (&(i, _, _), &o) in self.pupil_bins.iter().zip(&self.window) {
+            let (p, ob) = (self.pupil[i as usize], self.object[o]);
+            self.psi[i as usize] = p * ob;
+            omax = omax.max(ob.norm_sqr());
+            pmax = pmax.max(p.norm_sqr());
         }
         self.phi.copy_from_slice(&self.psi);
         self.fft.inverse(&mut self.phi);
         // Amplitude constraint; the HR/LR size ratio scales amplitudes by U².
         let gain = (self.upsample * self.upsample) as f32;
         let (mut err, mut norm) = (0.0f64, 0.0f64);
-        for (p, &i) in self.phi.iter_mut().zip(intensity.iter()) {
-            let measured = i.max(0.0).sqrt() * gain;
+        for (p, &m) in self.phi.iter_mut().zip(amplitude.iter()) {
+            let measured = m * gain;
             let a = p.norm();
             err += ((a - measured) as f64).powi(2);
             norm += (measured as f64).powi(2);
@@ -163,37 +186,17 @@ impl Epry {
             };
         }
         self.fft.forward(&mut self.phi);
-        let pmax = self
-            .pupil
-            .iter()
-            .map(|p| p.norm_sqr())
-            .fold(0.0f32, f32::max)
-            .max(1e-12);
-        let mut omax = 0.0f32;
-        for ky in 0..n {
-            let hy = index(ky, sy, nh);
-            for kx in 0..n {
-                if self.support[ky * n + kx] {
-                    omax = omax.max(self.object[hy * nh + index(kx, sx, nh)].norm_sqr());
-                }
-            }
-        }
-        let omax = omax.max(1e-12);
-        let (alpha, beta) = (self.settings.alpha, self.settings.beta);
-        for ky in 0..n {
-            let hy = index(ky, sy, nh);
-            for kx in 0..n {
-                let i = ky * n + kx;
-                if !self.support[i] {
-                    continue;
-                }
-                let delta = self.phi[i] - self.psi[i];
-                let o = &mut self.object[hy * nh + index(kx, sx, nh)];
-                let o_old = *o;
-                *o += self.pupil[i].conj() * delta * (alpha / pmax);
-                if update_pupil {
-                    self.pupil[i] += o_old.conj() * delta * (beta / omax);
-                }
+        let (a_step, b_step) = (
+            self.settings.alpha / pmax.max(1e-12),
+            self.settings.beta / omax.max(1e-12),
+        );
+        for (&(i, _, _), &o) in self.pupil_bins.iter().zip(&self.window) {
+            let i = i as usize;
+            let d = self.phi[i] - self.psi[i];
+            let o_old = self.object[o];
+            self.object[o] += self.pupil[i].conj() * d * a_step;
+            if update_pupil {
+                self.pupil[i] += o_old.conj() * d * b_step;
             }
         }
         (err / norm.max(1e-300)).sqrt()
@@ -221,6 +224,11 @@ impl Epry {
     pub fn settings(&self) -> Settings {
         self.settings
     }
+}
+
+/// √I, with negative (noise) intensities taken as zero.
+pub fn amplitude(intensity: &Image) -> Image {
+    intensity.mapv(|v| v.max(0.0).sqrt())
 }
 
 /// FFT bin `k` of an `n`-point grid as a signed frequency index.
@@ -304,13 +312,16 @@ pub fn run(
     });
     let initial = *order.first()?;
     let scale = shots[initial].image.mean().filter(|m| *m > 0.0)?;
-    let images: Vec<Image> = order.iter().map(|&k| shots[k].image / scale).collect();
-    let mut epry = Epry::new(system, &images[0], settings);
+    let images: Vec<Image> = order
+        .iter()
+        .map(|&k| amplitude(&(shots[k].image / scale)))
+        .collect();
+    let mut epry = Epry::new(system, &images[0].mapv(|a| a * a), settings);
     let mut errors = Vec::with_capacity(passes);
     for pass in 0..passes {
         let mut e = 0.0;
         for (j, (&k, img)) in order.iter().zip(&images).enumerate() {
-            e += epry.update(img, freq(&shots[k]), settings.update_pupil && pass > 0);
+            e += epry.update_amplitude(img, freq(&shots[k]), settings.update_pupil && pass > 0);
             progress(pass * images.len() + j + 1, passes * images.len());
         }
         errors.push(e / images.len() as f64);

@@ -604,12 +604,12 @@ fn epry_speed(size: usize, upsample: usize, json: bool) -> Result<()> {
         fft.inverse(&mut buf);
         ffts.push(t.elapsed().as_secs_f64() * 1e6);
         let t = Instant::now();
-        epry.update(&frame, freq(leds[k % leds.len()]), true);
+        epry.update_amplitude(&frame, freq(leds[k % leds.len()]), true);
         updates.push(t.elapsed().as_secs_f64() * 1e6);
     }
     let t = Instant::now();
     for &led in &leds {
-        epry.update(&frame, freq(led), true);
+        epry.update_amplitude(&frame, freq(led), true);
     }
     let pass = t.elapsed().as_secs_f64() * 1e3;
     let f = Percentiles::of(&mut ffts);

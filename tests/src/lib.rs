@@ -57,6 +57,23 @@ pub fn fpm_bin() -> &'static Path {
     })
 }
 
+/// `shared/data`: beside the repository (as CI has it), or where `FPM_SHARED` points.
+pub fn shared_data() -> PathBuf {
+    let candidates = [
+        std::env::var("FPM_SHARED")
+            .map(PathBuf::from)
+            .unwrap_or_default(),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
+    ];
+    candidates
+        .into_iter()
+        .find(|p| p.join("data").is_dir())
+        .expect(
+            "shared/ (with data/) must sit beside the repository, or FPM_SHARED must point to it",
+        )
+        .join("data")
+}
+
 /// A scratch directory removed on drop.
 pub struct TempDir(pub PathBuf);
 

@@ -1,11 +1,11 @@
 //! The PHYSICS.md §5 dataset format on real files: lossless round trips, other labs'
 //! data, and bad datasets that must fail with errors naming the key or frame.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
-use fpm_tests::{fpm_bin, TempDir};
+use fpm_tests::{fpm_bin, shared_data, TempDir};
 use ndarray::Array2;
 
 fn manifest(frames: usize) -> Manifest {
@@ -49,22 +49,6 @@ fn frames(n: usize, w: usize, h: usize) -> Vec<Array2<u16>> {
             })
         })
         .collect()
-}
-
-fn shared_data() -> PathBuf {
-    let candidates = [
-        std::env::var("FPM_SHARED")
-            .map(PathBuf::from)
-            .unwrap_or_default(),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
-    ];
-    candidates
-        .into_iter()
-        .find(|p| p.join("data").is_dir())
-        .expect(
-            "shared/ (with data/) must sit beside the repository, or FPM_SHARED must point to it",
-        )
-        .join("data")
 }
 
 #[test]

@@ -11,19 +11,7 @@ use ndarray::{s, Array2};
 use rustfft::num_complex::Complex32;
 
 fn usaf() -> PathBuf {
-    let candidates = [
-        std::env::var("FPM_SHARED")
-            .map(PathBuf::from)
-            .unwrap_or_default(),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
-    ];
-    candidates
-        .into_iter()
-        .find(|p| p.join("data").is_dir())
-        .expect(
-            "shared/ (with data/) must sit beside the repository, or FPM_SHARED must point to it",
-        )
-        .join("data/zuo-usaf-11x11")
+    fpm_tests::shared_data().join("zuo-usaf-11x11")
 }
 
 /// Spectral energy per pixel of a Hann-windowed region between `lo` and `hi` cycles/µm.

@@ -16,6 +16,16 @@ pub struct System {
 }
 
 impl System {
+    /// The pdcFPM paper's microscope: λ 0.47 µm, NA 0.1, 4×, 2.4 µm camera pixels.
+    pub const fn paper() -> Self {
+        Self {
+            wavelength_um: 0.47,
+            na: 0.1,
+            magnification: 4.0,
+            pixel_size_um: 2.4,
+        }
+    }
+
     /// Camera pixel projected onto the sample, µm.
     pub fn sample_pixel_um(&self) -> f64 {
         self.pixel_size_um / self.magnification
@@ -68,6 +78,32 @@ pub struct LedGeometry {
 }
 
 impl LedGeometry {
+    /// The pdcFPM paper's array, nominally placed: 21×21 LEDs at 2.5 mm, 92 mm below the
+    /// sample, centre LED (10, 10), no offset or rotation.
+    pub const fn paper() -> Self {
+        Self {
+            rows: 21,
+            cols: 21,
+            pitch_mm: 2.5,
+            height_mm: 92.0,
+            center: (10, 10),
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_deg: 0.0,
+        }
+    }
+
+    /// The same array moved by (Δx, Δy) mm, turned by θ degrees, at height h mm.
+    pub const fn placed(self, dx_mm: f64, dy_mm: f64, theta_deg: f64, height_mm: f64) -> Self {
+        Self {
+            dx_mm,
+            dy_mm,
+            theta_deg,
+            height_mm,
+            ..self
+        }
+    }
+
     /// Grid offsets (p, q) = (c − c₀, r − r₀) of LED (row, col).
     pub fn grid_offset(&self, row: usize, col: usize) -> (f64, f64) {
         (
@@ -154,16 +190,7 @@ mod tests {
     use super::*;
 
     fn geometry() -> LedGeometry {
-        LedGeometry {
-            rows: 21,
-            cols: 21,
-            pitch_mm: 2.5,
-            height_mm: 92.0,
-            center: (10, 10),
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_deg: 0.0,
-        }
+        LedGeometry::paper()
     }
 
     #[test]
@@ -194,12 +221,7 @@ mod tests {
     #[test]
     fn bright_field_is_within_the_pupil() {
         let g = geometry();
-        let s = System {
-            wavelength_um: 0.47,
-            na: 0.1,
-            magnification: 4.0,
-            pixel_size_um: 2.4,
-        };
+        let s = System::paper();
         assert!(g.is_bright_field(10, 10, 0.0, 0.0, &s));
         // NA 0.1 at 92 mm reaches ρ = 9.25 mm: 3 pitches in, 4 out.
         assert!(g.is_bright_field(10, 13, 0.0, 0.0, &s));
@@ -208,12 +230,7 @@ mod tests {
 
     #[test]
     fn pixels_map_to_the_axis_at_half_width() {
-        let s = System {
-            wavelength_um: 0.47,
-            na: 0.1,
-            magnification: 4.0,
-            pixel_size_um: 2.4,
-        };
+        let s = System::paper();
         assert_eq!(s.pixel_to_sample(128.0, 128.0, 256, 256), (0.0, 0.0));
         assert_eq!(s.pixel_to_sample(129.0, 127.0, 256, 256), (0.6, -0.6));
         let (c, r) = s.sample_to_pixel(0.6, -0.6, 256, 256);

@@ -319,6 +319,17 @@ impl Camera {
         ((1u64 << self.bit_depth) - 1) as f64
     }
 
+    /// Counts back to dark-subtracted intensities (DN), as a calibrator receives them.
+    pub fn dark_subtracted(&self, counts: &Array2<u16>) -> Image {
+        let dark = self.dark_level_dn as f32;
+        counts.mapv(|v| v as f32 - dark)
+    }
+
+    /// The dark-subtracted level at which pixels saturate.
+    pub fn saturation(&self) -> f32 {
+        (self.max_dn() - self.dark_level_dn) as f32
+    }
+
     /// The exposure (ms) that brings a peak intensity to `fill` of full scale, in
     /// whole milliseconds within [min_ms, max_ms].
     pub fn exposure_for(&self, peak_intensity: f64, fill: f64, min_ms: f64, max_ms: f64) -> f64 {
@@ -405,25 +416,11 @@ mod tests {
     use super::*;
 
     fn system() -> System {
-        System {
-            wavelength_um: 0.47,
-            na: 0.1,
-            magnification: 4.0,
-            pixel_size_um: 2.4,
-        }
+        System::paper()
     }
 
     fn geometry() -> LedGeometry {
-        LedGeometry {
-            rows: 21,
-            cols: 21,
-            pitch_mm: 2.5,
-            height_mm: 92.0,
-            center: (10, 10),
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_deg: 0.0,
-        }
+        LedGeometry::paper()
     }
 
     #[test]
@@ -532,12 +529,7 @@ impl CalibrationScene {
     /// 50 µm square hole, 200 µm defocus, 256² frames, a 5×5 bright-field grid.
     pub fn paper(truth: LedGeometry, seed: u64) -> Self {
         Self {
-            system: System {
-                wavelength_um: 0.47,
-                na: 0.1,
-                magnification: 4.0,
-                pixel_size_um: 2.4,
-            },
+            system: System::paper(),
             truth,
             defocus_um: 200.0,
             feature_um: 50.0,

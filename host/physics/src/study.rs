@@ -6,7 +6,7 @@ use rustfft::num_complex::Complex32;
 use crate::calibrate::{self, Calibration, Options};
 use crate::metrics::{central, complex_nrmse, resample};
 use crate::reconstruct::{run, Settings, Shot};
-use crate::simulate::{acquire, CalibrationScene, Camera, ObjectField};
+use crate::simulate::{acquire, CalibrationScene, Camera, ObjectField, SimFrame};
 use crate::{Image, LedGeometry, System};
 
 /// Reconstruction quality of one misplaced array.
@@ -24,6 +24,35 @@ pub struct GeometryCase {
     pub nrmse_true: f64,
     /// The up-sampled centre frame, for scale.
     pub nrmse_centre_frame: f64,
+}
+
+/// Calibrate from frames simulated for `scene`, as the calibrator would receive them
+/// from a dataset (dark-subtracted, with the camera's saturation level). Returns the
+/// result and the time the calibration itself took.
+pub fn calibrate_simulated(
+    scene: &CalibrationScene,
+    frames: &[SimFrame],
+    nominal: &LedGeometry,
+    options: &Options,
+) -> Result<(Calibration, std::time::Duration), calibrate::CalibrationError> {
+    let images: Vec<Image> = frames
+        .iter()
+        .map(|f| scene.camera.dark_subtracted(&f.counts))
+        .collect();
+    let input: Vec<calibrate::Frame> = frames
+        .iter()
+        .zip(&images)
+        .map(|(f, image)| calibrate::Frame {
+            led: f.led,
+            defocus_um: f.defocus_um,
+            exposure_ms: f.exposure_ms,
+            image,
+            saturation: Some(scene.camera.saturation()),
+        })
+        .collect();
+    let start = std::time::Instant::now();
+    let cal = calibrate::calibrate(&scene.system, nominal, &input, options)?;
+    Ok((cal, start.elapsed()))
 }
 
 /// Simulate an acquisition (`camera_px`² frames of the test sample, every LED) and a
@@ -44,24 +73,7 @@ pub fn geometry_case(
         ..CalibrationScene::paper(*truth, seed)
     };
     let cal_frames = scene.acquire();
-    let dark = camera.dark_level_dn as f32;
-    let cal_images: Vec<Image> = cal_frames
-        .iter()
-        .map(|f| f.counts.mapv(|v| v as f32 - dark))
-        .collect();
-    let input: Vec<calibrate::Frame> = cal_frames
-        .iter()
-        .zip(&cal_images)
-        .map(|(f, image)| calibrate::Frame {
-            led: f.led,
-            defocus_um: f.defocus_um,
-            exposure_ms: f.exposure_ms,
-            image,
-            saturation: Some(camera.max_dn() as f32 - dark),
-        })
-        .collect();
-    let cal: Calibration =
-        calibrate::calibrate(system, nominal, &input, &Options::default()).ok()?;
+    let (cal, _) = calibrate_simulated(&scene, &cal_frames, nominal, &Options::default()).ok()?;
     let calibrated = cal.geometry(nominal);
 
     // The sample.
@@ -88,8 +100,9 @@ pub fn geometry_case(
     let images: Vec<Image> = frames
         .iter()
         .map(|f| {
-            f.counts
-                .mapv(|v| (v as f32 - dark).max(0.0) / f.exposure_ms as f32)
+            camera
+                .dark_subtracted(&f.counts)
+                .mapv(|v| v.max(0.0) / f.exposure_ms as f32)
         })
         .collect();
     let shot_refs: Vec<Shot> = frames

@@ -1,21 +1,13 @@
 //! pdcFPM calibration on data from the full wave-optics simulator (never from the shift
 //! model the calibrator fits), against the hidden truth.
 
-use fpm_physics::calibrate::{calibrate, Frame, Options};
+use fpm_physics::calibrate::Options;
 use fpm_physics::simulate::CalibrationScene;
-use fpm_physics::{Image, LedGeometry};
+use fpm_physics::study::calibrate_simulated;
+use fpm_physics::LedGeometry;
 
 fn nominal() -> LedGeometry {
-    LedGeometry {
-        rows: 21,
-        cols: 21,
-        pitch_mm: 2.5,
-        height_mm: 92.0,
-        center: (10, 10),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-    }
+    LedGeometry::paper()
 }
 
 /// (|Δx err| µm, |Δy err| µm, |θ err| °, |h err| mm)
@@ -29,25 +21,8 @@ fn run(
     scene.feature_at_um = feature_at;
     scene.feature_um = feature_um;
     let frames = scene.acquire();
-    let dark = scene.camera.dark_level_dn as f32;
-    let images: Vec<Image> = frames
-        .iter()
-        .map(|f| f.counts.mapv(|v| v as f32 - dark))
-        .collect();
-    let input: Vec<Frame> = frames
-        .iter()
-        .zip(&images)
-        .map(|(f, img)| Frame {
-            led: f.led,
-            defocus_um: f.defocus_um,
-            exposure_ms: f.exposure_ms,
-            image: img,
-            saturation: Some(scene.camera.max_dn() as f32 - dark),
-        })
-        .collect();
-    let t = std::time::Instant::now();
-    let cal =
-        calibrate(&scene.system, &nominal(), &input, &Options::default()).expect("calibrates");
+    let (cal, took) =
+        calibrate_simulated(&scene, &frames, &nominal(), &Options::default()).expect("calibrates");
     let errs = (
         (cal.dx_mm - truth.dx_mm).abs() * 1e3,
         (cal.dy_mm - truth.dy_mm).abs() * 1e3,
@@ -59,7 +34,7 @@ fn run(
         truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm, cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm,
         errs.0, errs.1, errs.2, errs.3, cal.rms_residual_um,
         cal.leds.iter().filter(|l| l.status == fpm_physics::calibrate::LedStatus::Used).count(),
-        t.elapsed()
+        took
     );
     errs
 }

@@ -10,12 +10,7 @@ use rustfft::num_complex::Complex32;
 
 #[test]
 fn epry_beats_the_centre_frame_by_far() {
-    let system = System {
-        wavelength_um: 0.47,
-        na: 0.1,
-        magnification: 4.0,
-        pixel_size_um: 2.4,
-    };
+    let system = System::paper();
     let geometry = LedGeometry {
         rows: 15,
         cols: 15,

@@ -308,21 +308,13 @@ struct CalibrationBench {
 }
 
 fn calibration(random: usize, seed: u64, json: bool) -> Result<()> {
-    use fpm_physics::calibrate::{calibrate, Frame, LedStatus, Options};
+    use fpm_physics::calibrate::{LedStatus, Options};
     use fpm_physics::simulate::CalibrationScene;
+    use fpm_physics::study::calibrate_simulated;
     use fpm_physics::LedGeometry;
     use rand::{Rng, SeedableRng};
 
-    let nominal = LedGeometry {
-        rows: 21,
-        cols: 21,
-        pitch_mm: 2.5,
-        height_mm: 92.0,
-        center: (10, 10),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-    };
+    let nominal = LedGeometry::paper();
     let geometry = |dx, dy, th, h| LedGeometry {
         dx_mm: dx,
         dy_mm: dy,
@@ -378,26 +370,8 @@ fn calibration(random: usize, seed: u64, json: bool) -> Result<()> {
         scene.feature_um = *side;
         scene.feature_at_um = *at;
         let frames = scene.acquire();
-        let dark = scene.camera.dark_level_dn as f32;
-        let sat = scene.camera.max_dn() as f32 - dark;
-        let images: Vec<_> = frames
-            .iter()
-            .map(|f| f.counts.mapv(|v| v as f32 - dark))
-            .collect();
-        let input: Vec<Frame> = frames
-            .iter()
-            .zip(&images)
-            .map(|(f, img)| Frame {
-                led: f.led,
-                defocus_um: f.defocus_um,
-                exposure_ms: f.exposure_ms,
-                image: img,
-                saturation: Some(sat),
-            })
-            .collect();
-        let t = Instant::now();
-        let cal = calibrate(&scene.system, &nominal, &input, &Options::default())?;
-        let ms = t.elapsed().as_secs_f64() * 1e3;
+        let (cal, took) = calibrate_simulated(&scene, &frames, &nominal, &Options::default())?;
+        let ms = took.as_secs_f64() * 1e3;
         let found = [cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm];
         let tr = [truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm];
         out.push(CalibrationCase {
@@ -475,22 +449,8 @@ fn calibration(random: usize, seed: u64, json: bool) -> Result<()> {
 fn geometry(size: usize, passes: usize, json: bool) -> Result<()> {
     use fpm_physics::study::geometry_case;
     use fpm_physics::{LedGeometry, System};
-    let system = System {
-        wavelength_um: 0.47,
-        na: 0.1,
-        magnification: 4.0,
-        pixel_size_um: 2.4,
-    };
-    let nominal = LedGeometry {
-        rows: 21,
-        cols: 21,
-        pitch_mm: 2.5,
-        height_mm: 92.0,
-        center: (10, 10),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-    };
+    let system = System::paper();
+    let nominal = LedGeometry::paper();
     let cases = [
         (0.0, 0.0, 0.0),
         (0.2, 0.0, 0.0),
@@ -561,22 +521,8 @@ fn epry_speed(size: usize, upsample: usize, json: bool) -> Result<()> {
     use fpm_physics::reconstruct::{Epry, Settings};
     use fpm_physics::{Image, LedGeometry, System};
     use rustfft::num_complex::Complex32;
-    let system = System {
-        wavelength_um: 0.47,
-        na: 0.1,
-        magnification: 4.0,
-        pixel_size_um: 2.4,
-    };
-    let geometry = LedGeometry {
-        rows: 21,
-        cols: 21,
-        pitch_mm: 2.5,
-        height_mm: 92.0,
-        center: (10, 10),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-    };
+    let system = System::paper();
+    let geometry = LedGeometry::paper();
     let frame = Image::from_shape_fn((size, size), |(r, c)| {
         1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
     });

@@ -97,24 +97,13 @@ pub struct AcquisitionArgs {
 
 /// The paper's microscope: λ 0.47 µm, NA 0.1, 4×, 2.4 µm pixels; 21×21 LEDs at 2.5 mm.
 fn paper_system() -> System {
-    System {
-        wavelength_um: 0.47,
-        na: 0.1,
-        magnification: 4.0,
-        pixel_size_um: 2.4,
-    }
+    System::paper()
 }
 
 fn nominal(height_mm: f64) -> LedGeometry {
     LedGeometry {
-        rows: 21,
-        cols: 21,
-        pitch_mm: 2.5,
         height_mm,
-        center: (10, 10),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
+        ..LedGeometry::paper()
     }
 }
 

@@ -272,13 +272,6 @@ pub fn calibrate(
 
     // 2–3. Measure every defocused frame. The window starts where the nominal geometry
     // (with generous slack) puts the feature and then follows it.
-    struct Measured {
-        led: (usize, usize),
-        grid: (f64, f64),
-        brightness: f64,
-        shift_um: Option<(f64, f64)>,
-        status: LedStatus,
-    }
     let mut measured: Vec<Measured> = defocused
         .iter()
         .map(|f| {
@@ -325,15 +318,7 @@ pub fn calibrate(
         z_um: z,
         pitch_um: nominal.pitch_mm * 1e3,
     };
-    let count = |s: LedStatus, m: &[Measured]| m.iter().filter(|x| x.status == s).count();
-    let usable = count(LedStatus::Used, &measured);
-    if usable < 4 {
-        return Err(CalibrationError::TooFew {
-            usable,
-            dark: count(LedStatus::NotBrightField, &measured),
-            lost: count(LedStatus::FeatureLost, &measured),
-        });
-    }
+    enough(&measured)?;
 
     // 4–5. Fit; drop LEDs whose spectrum the pupil cuts; correct the bias; fit again.
     let mut bias: Vec<(f64, f64)> = vec![(0.0, 0.0); measured.len()];
@@ -351,17 +336,7 @@ pub fn calibrate(
     let spectral_margin = 2.0 / feature_size_um.max(px);
     let mut result = None;
     for round in 0..2 {
-        let obs: Vec<Observation> = measured
-            .iter()
-            .zip(&bias)
-            .map(|(m, b)| Observation {
-                grid: m.grid,
-                shift_um: m
-                    .shift_um
-                    .map(|s| (s.0 - b.0, s.1 - b.1))
-                    .unwrap_or((0.0, 0.0)),
-            })
-            .collect();
+        let obs = corrected(&measured, &bias);
         let mask: Vec<bool> = measured
             .iter()
             .map(|m| m.status == LedStatus::Used)
@@ -390,7 +365,7 @@ pub fn calibrate(
             }
         }
         result = Some(fit);
-        if round == 1 || count(LedStatus::Used, &measured) < 4 {
+        if round == 1 || enough(&measured).is_err() {
             break;
         }
         if let Some(model) = model.as_mut() {
@@ -412,26 +387,9 @@ pub fn calibrate(
             break;
         }
     }
-    let usable = count(LedStatus::Used, &measured);
-    if usable < 4 {
-        return Err(CalibrationError::TooFew {
-            usable,
-            dark: count(LedStatus::NotBrightField, &measured),
-            lost: count(LedStatus::FeatureLost, &measured),
-        });
-    }
+    enough(&measured)?;
     // Final fit on exactly the LEDs reported as used.
-    let obs: Vec<Observation> = measured
-        .iter()
-        .zip(&bias)
-        .map(|(m, b)| Observation {
-            grid: m.grid,
-            shift_um: m
-                .shift_um
-                .map(|s| (s.0 - b.0, s.1 - b.1))
-                .unwrap_or((0.0, 0.0)),
-        })
-        .collect();
+    let obs = corrected(&measured, &bias);
     let weights: Vec<f64> = measured
         .iter()
         .map(|m| {
@@ -487,6 +445,44 @@ pub fn calibrate(
         },
         leds,
     })
+}
+
+/// One defocused frame as measured.
+struct Measured {
+    led: (usize, usize),
+    grid: (f64, f64),
+    brightness: f64,
+    shift_um: Option<(f64, f64)>,
+    status: LedStatus,
+}
+
+/// Shifts with the model-based bias removed (zero where nothing was measured).
+fn corrected(measured: &[Measured], bias: &[(f64, f64)]) -> Vec<Observation> {
+    measured
+        .iter()
+        .zip(bias)
+        .map(|(m, b)| Observation {
+            grid: m.grid,
+            shift_um: m
+                .shift_um
+                .map(|s| (s.0 - b.0, s.1 - b.1))
+                .unwrap_or((0.0, 0.0)),
+        })
+        .collect()
+}
+
+/// At least four frames must remain for the four parameters.
+fn enough(measured: &[Measured]) -> Result<(), CalibrationError> {
+    let count = |s: LedStatus| measured.iter().filter(|x| x.status == s).count();
+    let usable = count(LedStatus::Used);
+    if usable < 4 {
+        return Err(CalibrationError::TooFew {
+            usable,
+            dark: count(LedStatus::NotBrightField),
+            lost: count(LedStatus::FeatureLost),
+        });
+    }
+    Ok(())
 }
 
 fn to_geometry(nominal: &LedGeometry, p: &Params) -> LedGeometry {

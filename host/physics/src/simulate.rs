@@ -319,6 +319,13 @@ impl Camera {
         ((1u64 << self.bit_depth) - 1) as f64
     }
 
+    /// Auto-exposure as a camera does it: the brightest pixel of `intensity` at 80 % of
+    /// full scale, from 2 ms (bright field) up to 1 s (dark field).
+    pub fn auto_exposure(&self, intensity: &Image) -> f64 {
+        let peak = intensity.iter().copied().fold(0.0f32, f32::max) as f64;
+        self.exposure_for(peak, 0.8, 2.0, 1000.0)
+    }
+
     /// Counts back to dark-subtracted intensities (DN), as a calibrator receives them.
     pub fn dark_subtracted(&self, counts: &Array2<u16>) -> Image {
         let dark = self.dark_level_dn as f32;

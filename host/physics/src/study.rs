@@ -87,14 +87,7 @@ pub fn geometry_case(
         &object,
         &shots,
         &camera,
-        |img| {
-            camera.exposure_for(
-                img.iter().copied().fold(0.0f32, f32::max) as f64,
-                0.8,
-                2.0,
-                1000.0,
-            )
-        },
+        |img| camera.auto_exposure(img),
         seed ^ 0xAC0,
     );
     let images: Vec<Image> = frames

@@ -33,14 +33,7 @@ fn epry_beats_the_centre_frame_by_far() {
         &object,
         &shots,
         &camera,
-        |img| {
-            camera.exposure_for(
-                img.iter().copied().fold(0.0f32, f32::max) as f64,
-                0.8,
-                2.0,
-                1000.0,
-            )
-        },
+        |img| camera.auto_exposure(img),
         11,
     );
     // Intensity relative to a clear field: (counts − dark) / (exposure · e⁻/ms · gain).

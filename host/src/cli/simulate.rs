@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use fpm_physics::simulate::{acquire, CalibrationScene, Camera, ObjectField};
+use fpm_physics::simulate::{acquire, CalibrationScene, Camera, ObjectField, SimFrame};
 use fpm_physics::{LedGeometry, System};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
@@ -165,6 +165,22 @@ fn manifest(system: &System, camera: &Camera, frames: Vec<FrameEntry>) -> Manife
     }
 }
 
+/// Write simulated frames as a dataset with the nominal (uncalibrated) array.
+fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame]) -> Result<()> {
+    let entries = frames
+        .iter()
+        .map(|f| FrameEntry {
+            file: String::new(),
+            led: [f.led.0, f.led.1],
+            defocus_um: f.defocus_um,
+            exposure_ms: f.exposure_ms,
+        })
+        .collect();
+    let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
+    Dataset::write(out, &manifest(system, camera, entries), &images)?;
+    Ok(())
+}
+
 /// The hidden truth, saved as `truth.json`.
 #[derive(Serialize)]
 struct Truth {
@@ -207,21 +223,7 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
     scene.camera = s.camera();
     let start = Instant::now();
     let frames = scene.acquire();
-    let entries = frames
-        .iter()
-        .map(|f| FrameEntry {
-            file: String::new(),
-            led: [f.led.0, f.led.1],
-            defocus_um: f.defocus_um,
-            exposure_ms: f.exposure_ms,
-        })
-        .collect();
-    let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
-    Dataset::write(
-        &s.out,
-        &manifest(&scene.system, &scene.camera, entries),
-        &images,
-    )?;
+    write_frames(&s.out, &scene.system, &scene.camera, &frames)?;
     write_json(
         &s.out.join("truth.json"),
         &Truth {
@@ -272,24 +274,11 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         &object,
         &shots,
         &camera,
-        |img| {
-            let peak = img.iter().copied().fold(0.0f32, f32::max) as f64;
-            camera.exposure_for(peak, 0.8, 2.0, 1000.0)
-        },
+        |img| camera.auto_exposure(img),
         s.seed,
     );
     bar.finish_and_clear();
-    let entries = frames
-        .iter()
-        .map(|f| FrameEntry {
-            file: String::new(),
-            led: [f.led.0, f.led.1],
-            defocus_um: 0.0,
-            exposure_ms: f.exposure_ms,
-        })
-        .collect();
-    let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
-    Dataset::write(&s.out, &manifest(&system, &camera, entries), &images)?;
+    write_frames(&s.out, &system, &camera, &frames)?;
     let gt = object.crop_to_camera();
     image_io::write_tiff_f32(&s.out.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))
         .map_err(anyhow::Error::msg)?;

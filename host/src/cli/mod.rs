@@ -15,7 +15,7 @@ use clap::{Parser, Subcommand};
 
 /// Fourier ptychographic microscopy: LED controller, calibration and reconstruction.
 #[derive(Parser, Debug)]
-#[command(name = "fpm", version, about, propagate_version = true)]
+#[command(name = "fpm", version, propagate_version = true)]
 pub struct Cli {
     /// More log output (-v: info, -vv: debug). RUST_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]

@@ -341,10 +341,12 @@ pub struct Streaming {
     system: System,
     geometry: crate::LedGeometry,
     settings: Settings,
+    /// Frames before the first bright-field one, as intensities.
+    waiting: Vec<((usize, usize), Image)>,
+    /// Frames since seeding, as normalised amplitudes (√ taken once per frame).
     frames: Vec<((usize, usize), Image)>,
     epry: Option<Epry>,
     scale: f32,
-    updates: usize,
 }
 
 impl Streaming {
@@ -354,10 +356,10 @@ impl Streaming {
             system,
             geometry,
             settings,
+            waiting: vec![],
             frames: vec![],
             epry: None,
             scale: 1.0,
-            updates: 0,
         }
     }
 
@@ -368,39 +370,43 @@ impl Streaming {
 
     /// A frame (intensity per ms) arrived. Returns whether the estimate was updated.
     pub fn push(&mut self, led: (usize, usize), image: Image) -> bool {
-        self.frames.push((led, image));
-        let f = self.frequency(led);
         if self.epry.is_none() {
             // Seed from the first bright-field frame; earlier (dark-field) frames are
             // replayed right after.
+            let f = self.frequency(led);
             if f.0.hypot(f.1) >= self.system.cutoff() {
+                self.waiting.push((led, image));
                 return false;
             }
-            let seed = &self.frames[self.frames.len() - 1].1;
-            self.scale = seed.mean().filter(|m| *m > 0.0).unwrap_or(1.0);
-            self.epry = Some(Epry::new(&self.system, &(seed / self.scale), self.settings));
-            let pending: Vec<usize> = (0..self.frames.len()).collect();
-            for k in pending {
-                self.update(k);
+            self.scale = image.mean().filter(|m| *m > 0.0).unwrap_or(1.0);
+            self.epry = Some(Epry::new(
+                &self.system,
+                &(&image / self.scale),
+                self.settings,
+            ));
+            let waiting = std::mem::take(&mut self.waiting);
+            for (l, i) in waiting {
+                self.add(l, &i);
             }
-            return true;
         }
-        self.update(self.frames.len() - 1);
+        self.add(led, &image);
         true
     }
 
-    fn update(&mut self, k: usize) {
-        let f = self.frequency(self.frames[k].0);
-        let img = &self.frames[k].1 / self.scale;
+    /// Normalise, keep, and update with one frame.
+    fn add(&mut self, led: (usize, usize), intensity: &Image) {
+        let scale = self.scale;
+        let amp = intensity.mapv(|v| (v / scale).max(0.0).sqrt());
+        let f = self.frequency(led);
         if let Some(e) = self.epry.as_mut() {
-            e.update(&img, f, false);
-            self.updates += 1;
+            e.update_amplitude(&amp, f, false);
         }
+        self.frames.push((led, amp));
     }
 
     /// Frames received.
     pub fn received(&self) -> usize {
-        self.frames.len()
+        self.frames.len() + self.waiting.len()
     }
 
     /// The object as it stands (None before the first bright-field frame).
@@ -428,11 +434,7 @@ impl Streaming {
         for _ in 0..passes {
             let mut e = 0.0;
             for &k in &order {
-                e += epry.update(
-                    &(&self.frames[k].1 / self.scale),
-                    freqs[k],
-                    self.settings.update_pupil,
-                );
+                e += epry.update_amplitude(&self.frames[k].1, freqs[k], self.settings.update_pupil);
             }
             errors.push(e / order.len().max(1) as f64);
         }

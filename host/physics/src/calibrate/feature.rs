@@ -158,20 +158,11 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
         (bbox.x + bbox.w + margin).min(w),
         (bbox.y + bbox.h + margin).min(h),
     );
-    let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
-    for r in y0..y1 {
-        for c in x0..x1 {
-            let v = (sign * (reference[[r, c]] - background)) as f64;
-            sx += v * c as f64;
-            sy += v * r as f64;
-            sw += v;
-        }
-    }
-    if sw <= 0.0 {
-        return Err(FeatureError::NotFound { area });
-    }
+    let (center_px, _) =
+        super::shift::signed_moment(reference, sign, background, (x0, x1), (y0, y1))
+            .ok_or(FeatureError::NotFound { area })?;
     Ok(Feature {
-        center_px: (sx / sw, sy / sw),
+        center_px,
         area_px: area,
         bbox,
         polarity,

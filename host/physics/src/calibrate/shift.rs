@@ -33,6 +33,27 @@ fn ring_background(img: &Image, x0: usize, y0: usize, x1: usize, y1: usize, band
     median(ring)
 }
 
+/// First moment (col, row) and total of `sign·(img − background)` over rows `y0..y1`
+/// and columns `x0..x1`; `None` if the signal does not sum to a positive value.
+pub fn signed_moment(
+    img: &Image,
+    sign: f32,
+    background: f32,
+    (x0, x1): (usize, usize),
+    (y0, y1): (usize, usize),
+) -> Option<((f64, f64), f64)> {
+    let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+    for r in y0..y1 {
+        for c in x0..x1 {
+            let v = (sign * (img[[r, c]] - background)) as f64;
+            sx += v * c as f64;
+            sy += v * r as f64;
+            sw += v;
+        }
+    }
+    (sw > 0.0).then(|| ((sx / sw, sy / sw), sw))
+}
+
 /// The first moment of `polarity`-signed, background-removed intensity in a square
 /// window of half-size `half` that is re-centred on the moment `iterations` times,
 /// starting at `start` (col, row).
@@ -65,19 +86,8 @@ pub fn first_moment(
             || cx + half as i64 + 1 > w as i64
             || cy + half as i64 + 1 > h as i64;
         let bg = ring_background(img, x0, y0, x1, y1, 6);
-        let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
-        for r in y0..y1 {
-            for c in x0..x1 {
-                let v = (sign * (img[[r, c]] - bg)) as f64;
-                sx += v * c as f64;
-                sy += v * r as f64;
-                sw += v;
-            }
-        }
-        if sw <= 0.0 {
-            return None;
-        }
-        center = (sx / sw, sy / sw);
+        let (c, sw) = signed_moment(img, sign, bg, (x0, x1), (y0, y1))?;
+        center = c;
         result = Some(Moment {
             center_px: center,
             signal: sw,

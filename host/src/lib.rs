@@ -1,7 +1,8 @@
 //! # fpm-host
 //!
 //! The host side of the fpm microscope: the LED controller client and the `fpm`
-//! command. Later parts (optics, calibration, reconstruction, acquisition) join here.
+//! command: datasets, calibration, reconstruction, and (with the emulator) the virtual
+//! microscope.
 
 pub mod calibration;
 pub mod cli;
@@ -10,3 +11,4 @@ pub mod dataset;
 pub mod emulator_process;
 pub mod plot;
 pub mod reconstruction;
+pub mod truth;

@@ -4,7 +4,9 @@
 use std::path::Path;
 use std::process::Command;
 
-use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
+use fpm_host::dataset::{
+    CameraSection, Dataset, FrameEntry, LedSection, Manifest, Pixels, SystemSection,
+};
 use fpm_tests::{fpm_bin, shared_data, TempDir};
 use ndarray::Array2;
 
@@ -61,9 +63,10 @@ fn writing_then_reading_is_lossless() {
     assert_eq!(ds.frames.len(), 5);
     for (k, (f, img)) in ds.frames.iter().zip(&imgs).enumerate() {
         assert_eq!(f.raw.dim(), (30, 40));
-        assert!(
-            f.raw.iter().zip(img.iter()).all(|(a, &b)| *a == b as f32),
-            "frame {k}"
+        assert_eq!(
+            f.raw,
+            Pixels::U16(img.clone()),
+            "frame {k} stays 16-bit, unchanged"
         );
         assert_eq!(f.entry.led, m.frames[k].led);
         assert_eq!(f.entry.defocus_um, m.frames[k].defocus_um);
@@ -86,7 +89,7 @@ fn camera_flips_and_transpose_are_applied_on_load() {
     let text = std::fs::read_to_string(&toml_path).unwrap();
     std::fs::write(&toml_path, text.replace("flip_x = false", "flip_x = true")).unwrap();
     let ds = Dataset::load(&dir.0).unwrap();
-    assert_eq!(ds.frames[0].raw[[1, 0]], 13.0, "columns reversed");
+    assert_eq!(ds.frames[0].raw.to_f32()[[1, 0]], 13.0, "columns reversed");
     let text = std::fs::read_to_string(&toml_path).unwrap();
     std::fs::write(
         &toml_path,
@@ -96,7 +99,11 @@ fn camera_flips_and_transpose_are_applied_on_load() {
     .unwrap();
     let ds = Dataset::load(&dir.0).unwrap();
     assert_eq!(ds.frames[0].raw.dim(), (4, 3));
-    assert_eq!(ds.frames[0].raw[[3, 1]], 13.0, "rows and columns swapped");
+    assert_eq!(
+        ds.frames[0].raw.to_f32()[[3, 1]],
+        13.0,
+        "rows and columns swapped"
+    );
 }
 
 #[test]
@@ -107,7 +114,7 @@ fn the_shared_usaf_dataset_from_another_lab_loads() {
     assert_eq!(ds.manifest.led.rows, 11);
     assert_eq!(ds.manifest.camera.bit_depth, Some(8));
     // Bright-field frames (rows 4–6, cols 4–6) are far brighter than dark-field ones.
-    let mean = |k: usize| ds.frames[k].raw.mean().unwrap();
+    let mean = |k: usize| ds.frames[k].raw.to_f32().mean().unwrap();
     let centre = ds
         .frames
         .iter()

@@ -10,7 +10,8 @@
 //! * [`simulate`]: the full wave-optics forward model (finite LED distance, angular
 //!   spectrum defocus, pupil, camera noise) and test objects;
 //! * [`calibrate`]: pdcFPM — feature finding, defocus-shift measurement with a
-//!   model-based bias correction, and the LED-array fit.
+//!   model-based bias correction, and the LED-array fit;
+//! * [`reconstruct`]: EPRY, offline and streaming; [`tiles`]: the full field of view.
 
 pub mod calibrate;
 pub mod fft;
@@ -20,6 +21,7 @@ pub mod optics;
 pub mod reconstruct;
 pub mod simulate;
 pub mod study;
+pub mod tiles;
 
 pub use image::Image;
 pub use optics::{LedGeometry, System};

@@ -13,6 +13,16 @@
 //! * Update, per frame: ψ = P·O[window]; φ = F⁻¹ψ; keep φ's phase, take √I for its
 //!   amplitude; Δ = Fφ' − ψ; O[window] += α·P*·Δ/max|P|²; P += β·O*·Δ/max|O|² inside
 //!   the (shifted) pupil support |f + δ·df| ≤ NA/λ, P = 0 outside.
+//! * Steps: α = β = 0.5 to start, halved whenever a pass improves the misfit by < 1 %
+//!   ([`StepSchedule`], Zuo et al. 2016). The pupil is learned from the second pass on
+//!   and only from bright-field frames: their window holds the strong DC term, while a
+//!   dark-field window holds weak scattering, and learning from it let noise into the
+//!   pupil (in 128-px tiles NRMSE went from 0.095 to 0.45).
+//! * The measured amplitude can be left unimposed near a tile's inner edges
+//!   ([`Epry::set_free_border`]), where the FFT's periodic wrap has no counterpart in
+//!   the data.
+//! * Output: the object with the illumination's common spherical curvature divided out
+//!   ([`Outcome::sample`]); without that, a 150 µm field carries a 0.4 rad bowl.
 //! * The object is normalised so that a clear sample under on-axis light has |o| = 1
 //!   when frames are given as intensity per ms relative to that level.
 
@@ -27,13 +37,16 @@ use crate::Image;
 pub struct Settings {
     /// HR pixels per camera pixel.
     pub upsample: usize,
-    /// Object step α (1 = the full ePIE step).
+    /// Object step α (1 = the full ePIE step). The starting value; [`StepSchedule`]
+    /// halves it as the passes stall. 0.5: on the simulated 441-frame set, starting at 1
+    /// ended at NRMSE 0.066 after 10 passes, starting at 0.5 at 0.046.
     pub alpha: f32,
     /// Pupil step β. 0.5 rather than 1: with β = 1 the learned pupil chased the noise
     /// of the last frames, and reconstructions with geometries a few µm apart drifted
     /// up to 40 % apart in NRMSE (`fpm bench geometry`); at 0.5 they stay within ~15 %.
     pub beta: f32,
-    /// Update the pupil from the first pass on (false: keep the ideal pupil).
+    /// Learn the pupil (from the second pass on, bright-field frames only); false:
+    /// keep the ideal pupil.
     pub update_pupil: bool,
 }
 
@@ -41,7 +54,7 @@ impl Default for Settings {
     fn default() -> Self {
         Self {
             upsample: 4,
-            alpha: 1.0,
+            alpha: 0.5,
             beta: 0.5,
             update_pupil: true,
         }
@@ -68,6 +81,10 @@ pub struct Epry {
     window: Vec<usize>,
     /// Per frame: whether each pupil bin lies inside the sub-bin shifted pupil disc.
     inside: Vec<bool>,
+    /// Where the measured amplitude is imposed: columns c0..c1, rows r0..r1.
+    constrained: [usize; 4],
+    /// Multiplies α and β (the adaptive step size, see [`StepSchedule`]).
+    step_scale: f32,
     cutoff: f64,
 }
 
@@ -131,8 +148,29 @@ impl Epry {
             pupil_bins,
             window: Vec::new(),
             inside: Vec::new(),
+            constrained: [0, n, 0, n],
+            step_scale: 1.0,
             cutoff,
         }
+    }
+
+    /// Impose the measured amplitude only `free` = [left, right, top, bottom] pixels
+    /// away from the field's edges. A tile cut out of a larger frame is not periodic,
+    /// but the FFT model makes it so: the wrap-around edge then scatters into the
+    /// dark-field frames as light that was never measured. Left free, the border
+    /// absorbs that mismatch instead of the object and the pupil.
+    pub fn set_free_border(&mut self, free: [usize; 4]) {
+        let n = self.n;
+        let c0 = free[0].min(n / 2);
+        let c1 = n - free[1].min(n / 2);
+        let r0 = free[2].min(n / 2);
+        let r1 = n - free[3].min(n / 2);
+        self.constrained = [c0, c1.max(c0), r0, r1.max(r0)];
+    }
+
+    /// Scale both step sizes (1 = as in the settings).
+    pub fn set_step_scale(&mut self, scale: f32) {
+        self.step_scale = scale;
     }
 
     /// HR grid size.
@@ -200,24 +238,31 @@ impl Epry {
         }
         self.phi.copy_from_slice(&self.psi);
         self.fft.inverse(&mut self.phi);
-        // Amplitude constraint; the HR/LR size ratio scales amplitudes by U².
+        // Amplitude constraint inside the constrained window (outside it the exit wave
+        // floats); the HR/LR size ratio scales amplitudes by U².
         let gain = (self.upsample * self.upsample) as f32;
         let (mut err, mut norm) = (0.0f64, 0.0f64);
-        for (p, &m) in self.phi.iter_mut().zip(amplitude.iter()) {
-            let measured = m * gain;
-            let a = p.norm();
-            err += ((a - measured) as f64).powi(2);
-            norm += (measured as f64).powi(2);
-            *p = if a > 1e-12 {
-                *p * (measured / a)
-            } else {
-                Complex32::new(measured, 0.0)
-            };
+        let [c0, c1, r0, r1] = self.constrained;
+        let n = self.n;
+        for r in r0..r1 {
+            let row = &mut self.phi[r * n + c0..r * n + c1];
+            let measured_row = amplitude.row(r);
+            for (p, &m) in row.iter_mut().zip(measured_row.iter().skip(c0)) {
+                let measured = m * gain;
+                let a = p.norm();
+                err += ((a - measured) as f64).powi(2);
+                norm += (measured as f64).powi(2);
+                *p = if a > 1e-12 {
+                    *p * (measured / a)
+                } else {
+                    Complex32::new(measured, 0.0)
+                };
+            }
         }
         self.fft.forward(&mut self.phi);
         let (a_step, b_step) = (
-            self.settings.alpha / pmax.max(1e-12),
-            self.settings.beta / omax.max(1e-12),
+            self.step_scale * self.settings.alpha / pmax.max(1e-12),
+            self.step_scale * self.settings.beta / omax.max(1e-12),
         );
         for ((&(i, _, _), &o), _) in self
             .pupil_bins
@@ -258,6 +303,30 @@ impl Epry {
     /// Whether the pupil is being learned.
     pub fn settings(&self) -> Settings {
         self.settings
+    }
+}
+
+/// Remove the curvature of the illumination from a reconstructed field. An LED at a
+/// finite distance R lights the sample with a spherical wave: across the field its
+/// phase is a tilt (the wave vector, known to EPRY) plus ≈ π·|x − x_c|²/(λ·R), which is
+/// nearly the same for every LED and therefore ends up in the recovered object. Over a
+/// 150 µm field at R = 92 mm that is 0.4 rad at the edge; this divides it out, with R
+/// the distance from the nearest-axis LED to the field centre. `pitch_um` is the
+/// field's pixel; its centre pixel (n/2, n/2) is x_c.
+pub fn remove_illumination_curvature(
+    field: &mut ndarray::Array2<Complex32>,
+    pitch_um: f64,
+    wavelength_um: f64,
+    distance_um: f64,
+) {
+    let (h, w) = field.dim();
+    let k = std::f64::consts::PI / (wavelength_um * distance_um);
+    for ((r, c), v) in field.indexed_iter_mut() {
+        let (x, y) = (
+            (c as f64 - (w / 2) as f64) * pitch_um,
+            (r as f64 - (h / 2) as f64) * pitch_um,
+        );
+        *v *= Complex32::from_polar(1.0, (-k * (x * x + y * y)) as f32);
     }
 }
 
@@ -306,6 +375,39 @@ impl ToF64 for Complex32 {
     }
 }
 
+/// The adaptive step size of Zuo, Sun & Chen (Opt. Express 24, 20724, 2016; the lab
+/// whose USAF data is in `shared/data`): full steps while the error falls, halved each
+/// time a pass improves it by less than 1 %. Full steps converge fast but then keep
+/// chasing the noise of the last frames; halving averages it out (on the simulated
+/// 441-frame set: complex NRMSE 0.115 with fixed full steps, 0.05 with the schedule).
+#[derive(Debug, Clone, Copy)]
+pub struct StepSchedule {
+    scale: f32,
+    last_error: Option<f64>,
+}
+
+impl Default for StepSchedule {
+    fn default() -> Self {
+        Self {
+            scale: 1.0,
+            last_error: None,
+        }
+    }
+}
+
+impl StepSchedule {
+    /// After a pass with mean error `error`: the step scale for the next pass.
+    pub fn after_pass(&mut self, error: f64) -> f32 {
+        if let Some(last) = self.last_error {
+            if last > 0.0 && (last - error) / last < 0.01 {
+                self.scale *= 0.5;
+            }
+        }
+        self.last_error = Some(error);
+        self.scale
+    }
+}
+
 /// One frame for [`run`]: the LED and its intensity, normalised by exposure (any common
 /// scale).
 pub struct Shot<'a> {
@@ -315,7 +417,7 @@ pub struct Shot<'a> {
     pub image: &'a Image,
 }
 
-/// The outcome of [`run`].
+/// The outcome of [`run`] or [`Streaming::finish`].
 pub struct Outcome {
     /// The solver, for the object and pupil.
     pub epry: Epry,
@@ -323,48 +425,101 @@ pub struct Outcome {
     pub errors: Vec<f64>,
     /// Index into the shots of the frame nearest the axis (the initial guess).
     pub initial: usize,
+    /// Distance from the initial LED to the field centre, µm.
+    pub illumination_radius_um: f64,
+    wavelength_um: f64,
+    hr_pixel_um: f64,
 }
 
-/// Reconstruct a field-centred square field from `shots` with the wave vectors of
-/// `geometry`: frames sorted nearest-first by |f_i| (which also copes with a wrongly
+impl Outcome {
+    /// The sample's HR transmission: the object with the illumination's curvature
+    /// divided out ([`remove_illumination_curvature`]).
+    pub fn sample(&mut self) -> ndarray::Array2<Complex32> {
+        let mut field = self.epry.object();
+        remove_illumination_curvature(
+            &mut field,
+            self.hr_pixel_um,
+            self.wavelength_um,
+            self.illumination_radius_um,
+        );
+        field
+    }
+}
+
+/// Where a square field sits in the camera frame and how its intensities are scaled.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Field {
+    /// Sample-plane position of the field's centre pixel, µm: the wave vectors are
+    /// taken there (a tile off the axis sees every LED at a different angle).
+    pub centre_um: (f64, f64),
+    /// The intensity of a clear sample under the initial (nearest-axis) LED, in the
+    /// frames' units. `None`: the initial frame's own mean. Tiles of one frame share
+    /// the whole frame's level so that their amplitudes agree.
+    pub clear_level: Option<f32>,
+    /// Pixels along [left, right, top, bottom] where the measurement is not imposed
+    /// (see [`Epry::set_free_border`]): tiles leave their inner sides free.
+    pub free_border: [usize; 4],
+}
+
+/// Reconstruct a square field from `shots` with the wave vectors of `geometry` at the
+/// field's centre: frames sorted nearest-first by |f_i| (which also copes with a wrongly
 /// chosen centre LED), the nearest one as the initial guess, the pupil learned from the
-/// second pass on. `progress(done, total)` is called after every update.
+/// second pass on (bright-field frames), adaptive steps. `progress(done, total)` is
+/// called after every update.
 pub fn run(
     system: &System,
     geometry: &crate::LedGeometry,
+    field: Field,
     shots: &[Shot<'_>],
     settings: Settings,
     passes: usize,
     mut progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
-    let freq = |s: &Shot| {
-        geometry.illumination_frequency(s.led.0, s.led.1, 0.0, 0.0, system.wavelength_um)
-    };
+    let (cx, cy) = field.centre_um;
+    let freq =
+        |s: &Shot| geometry.illumination_frequency(s.led.0, s.led.1, cx, cy, system.wavelength_um);
     let mut order: Vec<usize> = (0..shots.len()).collect();
     order.sort_by(|&a, &b| {
         let (fa, fb) = (freq(&shots[a]), freq(&shots[b]));
         fa.0.hypot(fa.1).total_cmp(&fb.0.hypot(fb.1))
     });
     let initial = *order.first()?;
-    let scale = shots[initial].image.mean().filter(|m| *m > 0.0)?;
+    let scale = match field.clear_level {
+        Some(level) => Some(level).filter(|l| *l > 0.0)?,
+        None => shots[initial].image.mean().filter(|m| *m > 0.0)?,
+    };
     let images: Vec<Image> = order
         .iter()
         .map(|&k| amplitude(&(shots[k].image / scale)))
         .collect();
     let mut epry = Epry::new(system, &images[0].mapv(|a| a * a), settings);
+    epry.set_free_border(field.free_border);
     let mut errors = Vec::with_capacity(passes);
+    let mut schedule = StepSchedule::default();
     for pass in 0..passes {
         let mut e = 0.0;
         for (j, (&k, img)) in order.iter().zip(&images).enumerate() {
-            e += epry.update_amplitude(img, freq(&shots[k]), settings.update_pupil && pass > 0);
+            let f = freq(&shots[k]);
+            let learn = settings.update_pupil && pass > 0 && f.0.hypot(f.1) < system.cutoff();
+            e += epry.update_amplitude(img, f, learn);
             progress(pass * images.len() + j + 1, passes * images.len());
         }
-        errors.push(e / images.len() as f64);
+        let e = e / images.len() as f64;
+        errors.push(e);
+        epry.set_step_scale(schedule.after_pass(e));
     }
+    let led = shots[initial].led;
+    let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+    let illumination_radius_um =
+        ((lx * 1e3 - cx).powi(2) + (ly * 1e3 - cy).powi(2) + (geometry.height_mm * 1e3).powi(2))
+            .sqrt();
     Some(Outcome {
         epry,
         errors,
         initial,
+        illumination_radius_um,
+        wavelength_um: system.wavelength_um,
+        hr_pixel_um: system.sample_pixel_um() / settings.upsample.max(1) as f64,
     })
 }
 
@@ -449,30 +604,44 @@ impl Streaming {
         self.epry.as_mut().map(Epry::object)
     }
 
-    /// Run `passes` more passes over every frame received, nearest-first, learning the
-    /// pupil; returns the solver and the error per pass.
-    pub fn finish(mut self, passes: usize) -> Option<(Epry, Vec<f64>)> {
+    /// Run `passes` more passes over every frame received, nearest-first, with the
+    /// adaptive step size and the pupil learned from the bright-field frames, as
+    /// [`run`] does offline.
+    pub fn finish(mut self, passes: usize) -> Option<Outcome> {
         let mut epry = self.epry.take()?;
-        let mut order: Vec<usize> = (0..self.frames.len()).collect();
         let freqs: Vec<(f64, f64)> = self
             .frames
             .iter()
             .map(|(led, _)| self.frequency(*led))
             .collect();
-        order.sort_by(|&a, &b| {
-            freqs[a]
-                .0
-                .hypot(freqs[a].1)
-                .total_cmp(&freqs[b].0.hypot(freqs[b].1))
-        });
+        let radius = |k: usize| freqs[k].0.hypot(freqs[k].1);
+        let mut order: Vec<usize> = (0..self.frames.len()).collect();
+        order.sort_by(|&a, &b| radius(a).total_cmp(&radius(b)));
+        let initial = *order.first()?;
         let mut errors = vec![];
+        let mut schedule = StepSchedule::default();
         for _ in 0..passes {
             let mut e = 0.0;
             for &k in &order {
-                e += epry.update_amplitude(&self.frames[k].1, freqs[k], self.settings.update_pupil);
+                let learn = self.settings.update_pupil && radius(k) < self.system.cutoff();
+                e += epry.update_amplitude(&self.frames[k].1, freqs[k], learn);
             }
-            errors.push(e / order.len().max(1) as f64);
+            let e = e / order.len().max(1) as f64;
+            errors.push(e);
+            epry.set_step_scale(schedule.after_pass(e));
         }
-        Some((epry, errors))
+        let led = self.frames[initial].0;
+        let (lx, ly) = self.geometry.led_position_mm(led.0, led.1);
+        Some(Outcome {
+            epry,
+            errors,
+            initial,
+            illumination_radius_um: ((lx * 1e3).powi(2)
+                + (ly * 1e3).powi(2)
+                + (self.geometry.height_mm * 1e3).powi(2))
+            .sqrt(),
+            wavelength_um: self.system.wavelength_um,
+            hr_pixel_um: self.system.sample_pixel_um() / self.settings.upsample.max(1) as f64,
+        })
     }
 }

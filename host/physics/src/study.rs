@@ -5,7 +5,7 @@ use rustfft::num_complex::Complex32;
 
 use crate::calibrate::{self, Calibration, Options};
 use crate::metrics::{central, complex_nrmse, resample};
-use crate::reconstruct::{run, Settings, Shot};
+use crate::reconstruct::{run, Field, Settings, Shot};
 use crate::simulate::{acquire, CalibrationScene, Camera, ObjectField, SimFrame};
 use crate::{Image, LedGeometry, System};
 
@@ -117,8 +117,16 @@ pub fn geometry_case(
     let truth_c = central(&truth_bl, 0.75);
     let settings = Settings::default();
     let score = |geometry: &LedGeometry| -> Option<f64> {
-        let mut out = run(system, geometry, &shot_refs, settings, passes, |_, _| {})?;
-        let rec = out.epry.object();
+        let mut out = run(
+            system,
+            geometry,
+            Field::default(),
+            &shot_refs,
+            settings,
+            passes,
+            |_, _| {},
+        )?;
+        let rec = out.sample();
         let pitch = system.sample_pixel_um() / settings.upsample as f64;
         Some(complex_nrmse(
             &central(&resample(&rec, pitch, m, in_aperture), 0.75),

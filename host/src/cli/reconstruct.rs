@@ -9,6 +9,7 @@ use fpm_physics::reconstruct::Settings;
 use crate::calibration::CalibrationFile;
 use crate::dataset::Dataset;
 use crate::reconstruction::{reconstruct, write_outputs};
+use crate::truth::score_reconstruction;
 
 /// Reconstruct the high-resolution amplitude and phase (and the pupil) with EPRY.
 #[derive(Args, Debug)]
@@ -27,9 +28,20 @@ pub struct ReconstructArgs {
     /// Passes over all frames.
     #[arg(long, default_value_t = 10)]
     passes: usize,
+    /// Object step size α (1 = the full ePIE step).
+    #[arg(long, default_value_t = Settings::default().alpha)]
+    alpha: f32,
+    /// Pupil step size β.
+    #[arg(long, default_value_t = Settings::default().beta)]
+    beta: f32,
     /// Keep the ideal pupil instead of recovering it.
     #[arg(long)]
     fixed_pupil: bool,
+    /// Tile side, camera pixels: larger or non-square frames are cut into overlapping
+    /// tiles (a quarter tile of overlap), each with its own wave vectors, reconstructed
+    /// in parallel and blended. Default: the whole field if square and ≤ 512 px, else 256.
+    #[arg(long)]
+    tile: Option<usize>,
 }
 
 /// Run `fpm reconstruct`.
@@ -45,7 +57,8 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     let settings = Settings {
         upsample: a.upsample.max(1),
         update_pupil: !a.fixed_pupil,
-        ..Settings::default()
+        alpha: a.alpha,
+        beta: a.beta,
     };
     let bar = indicatif::ProgressBar::new(1).with_style(
         indicatif::ProgressStyle::with_template(
@@ -53,30 +66,42 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let r = reconstruct(
+    let mut r = reconstruct(
         &ds,
         &geometry,
         &source,
         settings,
         a.passes,
-        |done, total| {
+        a.tile,
+        &|done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
         },
     )?;
     bar.finish_and_clear();
+    r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample)?;
     write_outputs(&r, &a.out)?;
     let rep = &r.report;
     println!(
-        "{} frames, {} passes, {}x upsampling in {:.2} s ({:.0} ms per pass); amplitude error per pass: first {:.4}, last {:.4}",
+        "{} frames ({}x{}, {} tile(s) of {} px), {} passes, {}x upsampling in {:.2} s ({:.0} ms per pass); amplitude error per pass: first {:.4}, last {:.4}",
         rep.frames,
+        rep.frame_size[0],
+        rep.frame_size[1],
+        rep.tiles.len(),
+        rep.tile_size,
         rep.passes,
         rep.upsample,
         rep.total_ms / 1e3,
-        rep.pass_ms.iter().sum::<f64>() / rep.pass_ms.len().max(1) as f64,
+        rep.ms_per_pass,
         rep.error_per_pass.first().copied().unwrap_or(f64::NAN),
         rep.error_per_pass.last().copied().unwrap_or(f64::NAN)
     );
+    if let Some(s) = &rep.versus_truth {
+        println!(
+            "versus the simulation's truth: complex NRMSE {:.3}, amplitude NRMSE {:.3}, phase RMSE {:.3} rad",
+            s.complex_nrmse, s.amplitude_nrmse, s.phase_rmse_rad
+        );
+    }
     println!(
         "wrote amplitude/phase/pupil TIFFs and PNG previews and report.json to {}",
         a.out.display()

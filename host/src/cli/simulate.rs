@@ -14,6 +14,7 @@ use serde::Serialize;
 use crate::dataset::{
     image_io, CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection,
 };
+use crate::truth::Truth;
 
 /// Make a simulated dataset.
 #[derive(Subcommand, Debug)]
@@ -179,24 +180,6 @@ fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame
     let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
     Dataset::write(out, &manifest(system, camera, entries), &images)?;
     Ok(())
-}
-
-/// The hidden truth, saved as `truth.json`.
-#[derive(Serialize)]
-struct Truth {
-    dx_mm: f64,
-    dy_mm: f64,
-    theta_deg: f64,
-    height_mm: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    defocus_um: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    feature_um: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    feature_at_um: Option<[f64; 2]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    object_pixel_um: Option<f64>,
-    seed: u64,
 }
 
 fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {

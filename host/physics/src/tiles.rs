@@ -1,0 +1,242 @@
+//! Full field of view: a frame too large (or not square) for one reconstruction is cut
+//! into overlapping square tiles. Each tile sees the LEDs from its own position, so it
+//! gets its own wave vectors (taken at its centre); tiles are reconstructed on their
+//! own and blended back into one image.
+//!
+//! Blending: each tile's object is known only up to a global phase, so before it is
+//! added it is rotated onto the tiles already placed (least squares over the overlap);
+//! then tiles are weighted by a raised cosine that falls off across the overlap, so
+//! seams get no hard edge and each pixel is dominated by the tile that sees it from
+//! furthest inside.
+
+use ndarray::Array2;
+use rustfft::num_complex::Complex32;
+
+/// One tile of a camera frame, camera pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Tile {
+    /// First column.
+    pub x0: usize,
+    /// First row.
+    pub y0: usize,
+    /// Side.
+    pub size: usize,
+}
+
+impl Tile {
+    /// The border (left, right, top, bottom, camera pixels) to leave unconstrained: `free`
+    /// on the sides that face another tile, none on the frame's own edges.
+    pub fn free_border(&self, width: usize, height: usize, free: usize) -> [usize; 4] {
+        [
+            if self.x0 > 0 { free } else { 0 },
+            if self.x0 + self.size < width { free } else { 0 },
+            if self.y0 > 0 { free } else { 0 },
+            if self.y0 + self.size < height {
+                free
+            } else {
+                0
+            },
+        ]
+    }
+
+    /// Sample-plane position of the tile's centre pixel (size/2, size/2), µm, for a
+    /// `width × height` frame whose optical axis is at (width/2, height/2) and whose
+    /// pixels are `pixel_um` in the sample plane.
+    pub fn centre_um(&self, width: usize, height: usize, pixel_um: f64) -> (f64, f64) {
+        let cx = (self.x0 + self.size / 2) as f64 - (width / 2) as f64;
+        let cy = (self.y0 + self.size / 2) as f64 - (height / 2) as f64;
+        (cx * pixel_um, cy * pixel_um)
+    }
+}
+
+/// Tiles of side `tile` (at most the frame's shorter side) covering a `width × height`
+/// frame, neighbours overlapping by at least `overlap` pixels, evenly spread so that
+/// the last one ends at the frame's edge. Row-major order.
+pub fn plan(width: usize, height: usize, tile: usize, overlap: usize) -> Vec<Tile> {
+    let size = tile.min(width).min(height).max(1);
+    let overlap = overlap.min(size / 2);
+    let starts = |len: usize| -> Vec<usize> {
+        if len <= size {
+            return vec![0];
+        }
+        let step = size - overlap;
+        let count = (len - size).div_ceil(step) + 1;
+        // Spread the starts evenly over [0, len − size].
+        (0..count)
+            .map(|i| ((len - size) as f64 * i as f64 / (count - 1) as f64).round() as usize)
+            .collect()
+    };
+    let (xs, ys) = (starts(width), starts(height));
+    ys.iter()
+        .flat_map(|&y0| xs.iter().map(move |&x0| Tile { x0, y0, size }))
+        .collect()
+}
+
+/// Blends tile reconstructions (on the HR grid, `upsample` × camera pixels) into one.
+pub struct Mosaic {
+    upsample: usize,
+    width: usize,
+    height: usize,
+    overlap_hr: usize,
+    free_hr: usize,
+    sum: Array2<Complex32>,
+    weight: Array2<f32>,
+}
+
+impl Mosaic {
+    /// An empty mosaic for a `width × height` camera frame; `overlap` and the tiles'
+    /// unconstrained border `free` in camera pixels (`free` < `overlap` / 2).
+    pub fn new(width: usize, height: usize, upsample: usize, overlap: usize, free: usize) -> Self {
+        let u = upsample.max(1);
+        Self {
+            upsample: u,
+            width,
+            height,
+            overlap_hr: overlap * u,
+            free_hr: free * u,
+            sum: Array2::zeros((height * u, width * u)),
+            weight: Array2::zeros((height * u, width * u)),
+        }
+    }
+
+    /// Add the HR object of `tile`, rotated onto what is already placed.
+    pub fn add(&mut self, tile: &Tile, object: &Array2<Complex32>) {
+        let (x0, y0) = (tile.x0 * self.upsample, tile.y0 * self.upsample);
+        let (h, w) = object.dim();
+        let [left, right, top, bottom] = tile.free_border(self.width, self.height, 1);
+        // Along one axis: nothing in the free border of a side that faces another tile,
+        // then a sin² ramp up to the end of the overlap; frame edges keep full weight.
+        let (free, ramp) = (
+            self.free_hr,
+            self.overlap_hr.saturating_sub(2 * self.free_hr).max(1),
+        );
+        let taper = |i: usize, len: usize, low_inner: usize, high_inner: usize| -> f32 {
+            let side = |d: usize, inner: usize| -> f32 {
+                if inner == 0 || d >= free + ramp {
+                    1.0
+                } else if d < free {
+                    0.0
+                } else {
+                    let t = (d - free) as f32 + 0.5;
+                    (t / ramp as f32 * std::f32::consts::FRAC_PI_2)
+                        .sin()
+                        .powi(2)
+                }
+            };
+            side(i, low_inner) * side(len - 1 - i, high_inner)
+        };
+        // Global phase: c = Σ conj(t)·(blended so far) over the overlap.
+        let mut c = rustfft::num_complex::Complex64::default();
+        for r in 0..h {
+            for col in 0..w {
+                let wsum = self.weight[[y0 + r, x0 + col]];
+                if wsum > 0.0 {
+                    let placed = self.sum[[y0 + r, x0 + col]] / wsum;
+                    let t = object[[r, col]];
+                    c += rustfft::num_complex::Complex64::new(
+                        (t.conj() * placed).re as f64,
+                        (t.conj() * placed).im as f64,
+                    );
+                }
+            }
+        }
+        let rotate = if c.norm() > 0.0 {
+            Complex32::new((c.re / c.norm()) as f32, (c.im / c.norm()) as f32)
+        } else {
+            Complex32::new(1.0, 0.0)
+        };
+        for r in 0..h {
+            for col in 0..w {
+                let wt = taper(r, h, top, bottom) * taper(col, w, left, right);
+                self.sum[[y0 + r, x0 + col]] += object[[r, col]] * rotate * wt;
+                self.weight[[y0 + r, x0 + col]] += wt;
+            }
+        }
+    }
+
+    /// The blended object (zero where no tile reached).
+    pub fn finish(self) -> Array2<Complex32> {
+        let mut out = self.sum;
+        for (v, &w) in out.iter_mut().zip(self.weight.iter()) {
+            *v = if w > 0.0 {
+                *v / w
+            } else {
+                Complex32::default()
+            };
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_frame_with_the_overlap_asked_for() {
+        for (w, h, t, o) in [
+            (600, 400, 256, 64),
+            (256, 256, 256, 64),
+            (300, 100, 128, 32),
+        ] {
+            let tiles = plan(w, h, t, o);
+            let mut covered = Array2::<u8>::zeros((h, w));
+            for tile in &tiles {
+                assert!(
+                    tile.x0 + tile.size <= w && tile.y0 + tile.size <= h,
+                    "{tile:?}"
+                );
+                covered
+                    .slice_mut(ndarray::s![
+                        tile.y0..tile.y0 + tile.size,
+                        tile.x0..tile.x0 + tile.size
+                    ])
+                    .mapv_inplace(|v| v + 1);
+            }
+            assert!(covered.iter().all(|&v| v > 0), "{w}x{h}: gaps");
+            // Horizontal neighbours overlap by at least o.
+            for pair in tiles.windows(2) {
+                if pair[0].y0 == pair[1].y0 {
+                    assert!(pair[0].x0 + pair[0].size >= pair[1].x0 + o.min(pair[0].size / 2));
+                }
+            }
+        }
+        assert_eq!(plan(256, 256, 256, 64).len(), 1);
+        assert_eq!(plan(600, 400, 256, 64).len(), 3 * 2);
+    }
+
+    #[test]
+    fn the_tile_centre_is_measured_from_the_optical_axis() {
+        let t = Tile {
+            x0: 0,
+            y0: 128,
+            size: 128,
+        };
+        assert_eq!(t.centre_um(256, 256, 0.5), (-32.0, 32.0));
+    }
+
+    #[test]
+    fn blending_undoes_each_tiles_unknown_global_phase() {
+        // A smooth complex field, cut into tiles that each get a different global phase.
+        let (w, h, u) = (96, 64, 2);
+        let truth = Array2::from_shape_fn((h * u, w * u), |(r, c)| {
+            Complex32::from_polar(1.0 + 0.3 * (r as f32 * 0.05).sin(), c as f32 * 0.02)
+        });
+        let tiles = plan(w, h, 48, 12);
+        let mut mosaic = Mosaic::new(w, h, u, 12, 3);
+        for (k, t) in tiles.iter().enumerate() {
+            let part = truth
+                .slice(ndarray::s![
+                    t.y0 * u..(t.y0 + t.size) * u,
+                    t.x0 * u..(t.x0 + t.size) * u
+                ])
+                .mapv(|v| v * Complex32::from_polar(1.0, k as f32 * 1.3));
+            mosaic.add(t, &part);
+        }
+        let out = mosaic.finish();
+        let a: Vec<Complex32> = out.iter().copied().collect();
+        let b: Vec<Complex32> = truth.iter().copied().collect();
+        let e = crate::reconstruct::complex_nrmse(&a, &b);
+        assert!(e < 1e-5, "blended NRMSE {e}");
+    }
+}

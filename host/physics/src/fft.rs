@@ -68,6 +68,41 @@ impl Fft2 {
         }
     }
 
+    /// Unnormalised inverse transform of an array that is zero outside `rows` (row
+    /// indices): the other rows' 1-D transforms are skipped (zeros stay zeros). EPRY's
+    /// ψ is non-zero only inside the pupil disc, a quarter of the rows at NA 0.1.
+    pub fn inverse_unnormalised_sparse_rows(&mut self, data: &mut [Complex32], rows: &[usize]) {
+        let (w, h) = (self.width, self.height);
+        assert_eq!(data.len(), w * h, "array does not match the planned size");
+        for &r in rows {
+            self.row_inv
+                .process_with_scratch(&mut data[r * w..(r + 1) * w], &mut self.scratch);
+        }
+        transpose(data, &mut self.transposed, w, h);
+        self.col_inv
+            .process_with_scratch(&mut self.transposed, &mut self.scratch);
+        transpose(&self.transposed, data, h, w);
+    }
+
+    /// Forward transform where only the columns `cols` of the result are wanted: rows
+    /// are transformed in full, then only those columns. The other columns hold
+    /// row-transformed values, not the 2-D transform.
+    pub fn forward_wanted_cols(&mut self, data: &mut [Complex32], cols: &[usize]) {
+        let (w, h) = (self.width, self.height);
+        assert_eq!(data.len(), w * h, "array does not match the planned size");
+        self.row_fwd.process_with_scratch(data, &mut self.scratch);
+        let column = &mut self.transposed[..h];
+        for &c in cols {
+            for (r, v) in column.iter_mut().enumerate() {
+                *v = data[r * w + c];
+            }
+            self.col_fwd.process_with_scratch(column, &mut self.scratch);
+            for (r, v) in column.iter().enumerate() {
+                data[r * w + c] = *v;
+            }
+        }
+    }
+
     fn run(&mut self, data: &mut [Complex32], rows: &dyn Fft<f32>, cols: &dyn Fft<f32>) {
         let (w, h) = (self.width, self.height);
         assert_eq!(data.len(), w * h, "array does not match the planned size");
@@ -101,6 +136,56 @@ pub fn bin_frequency(k: usize, n: usize, dx: f64) -> f64 {
         k / (n_f * dx)
     } else {
         (k - n_f) / (n_f * dx)
+    }
+}
+
+#[cfg(test)]
+mod pruned_tests {
+    use super::*;
+
+    fn pseudo_random(n: usize, seed: u32) -> Vec<Complex32> {
+        let mut x = seed;
+        (0..n)
+            .map(|_| {
+                x = x.wrapping_mul(1664525).wrapping_add(1013904223);
+                let a = (x >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+                x = x.wrapping_mul(1664525).wrapping_add(1013904223);
+                let b = (x >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+                Complex32::new(a, b)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn pruned_transforms_match_the_full_ones_where_it_matters() {
+        let (w, h) = (48, 40);
+        let mut fft = Fft2::new(w, h);
+        // Sparse rows: zero everywhere but rows 3, 7 and 39.
+        let rows = [3usize, 7, 39];
+        let mut sparse = pseudo_random(w * h, 1);
+        for (r, chunk) in sparse.chunks_mut(w).enumerate() {
+            if !rows.contains(&r) {
+                chunk.fill(Complex32::default());
+            }
+        }
+        let mut full = sparse.clone();
+        fft.inverse(&mut full);
+        fft.inverse_unnormalised_sparse_rows(&mut sparse, &rows);
+        let norm = 1.0 / (w * h) as f32;
+        for (a, b) in sparse.iter().zip(&full) {
+            assert!((a * norm - b).norm() < 1e-5);
+        }
+        // Wanted columns of a forward transform.
+        let cols = [0usize, 5, 47];
+        let mut some = pseudo_random(w * h, 2);
+        let mut full = some.clone();
+        fft.forward(&mut full);
+        fft.forward_wanted_cols(&mut some, &cols);
+        for r in 0..h {
+            for &c in &cols {
+                assert!((some[r * w + c] - full[r * w + c]).norm() < 1e-3);
+            }
+        }
     }
 }
 

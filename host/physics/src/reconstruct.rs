@@ -81,6 +81,9 @@ pub struct Epry {
     window: Vec<usize>,
     /// Per frame: whether each pupil bin lies inside the sub-bin shifted pupil disc.
     inside: Vec<bool>,
+    /// LR rows and columns that the pupil disc (with its sub-bin reach) touches.
+    disc_rows: Vec<usize>,
+    disc_cols: Vec<usize>,
     /// Where the measured amplitude is imposed: columns c0..c1, rows r0..r1.
     constrained: [usize; 4],
     /// Multiplies α and β (the adaptive step size, see [`StepSchedule`]).
@@ -148,6 +151,12 @@ impl Epry {
             pupil_bins,
             window: Vec::new(),
             inside: Vec::new(),
+            disc_rows: (0..n)
+                .filter(|&r| (0..n).any(|c| reachable[r * n + c]))
+                .collect(),
+            disc_cols: (0..n)
+                .filter(|&c| (0..n).any(|r| reachable[r * n + c]))
+                .collect(),
             constrained: [0, n, 0, n],
             step_scale: 1.0,
             cutoff,
@@ -237,7 +246,12 @@ impl Epry {
             pmax = pmax.max(p.norm_sqr());
         }
         self.phi.copy_from_slice(&self.psi);
-        self.fft.inverse(&mut self.phi);
+        // ψ lives on the pupil disc's rows only, and only the disc's columns of the
+        // forward transform are used: both FFTs skip the rest (unnormalised inverse;
+        // the amplitude constraint below is scale-free apart from the error).
+        self.fft
+            .inverse_unnormalised_sparse_rows(&mut self.phi, &self.disc_rows);
+        let unnormalise = (self.n * self.n) as f32;
         // Amplitude constraint inside the constrained window (outside it the exit wave
         // floats); the HR/LR size ratio scales amplitudes by U².
         let gain = (self.upsample * self.upsample) as f32;
@@ -249,17 +263,29 @@ impl Epry {
             let measured_row = amplitude.row(r);
             for (p, &m) in row.iter_mut().zip(measured_row.iter().skip(c0)) {
                 let measured = m * gain;
-                let a = p.norm();
+                let a = p.norm() / unnormalise;
                 err += ((a - measured) as f64).powi(2);
                 norm += (measured as f64).powi(2);
                 *p = if a > 1e-12 {
-                    *p * (measured / a)
+                    *p * (measured / (a * unnormalise))
                 } else {
                     Complex32::new(measured, 0.0)
                 };
             }
         }
-        self.fft.forward(&mut self.phi);
+        // The free border keeps the model's exit wave, brought to scale.
+        if self.constrained != [0, n, 0, n] {
+            let norm = 1.0 / unnormalise;
+            for (r, row) in self.phi.chunks_mut(n).enumerate() {
+                if r < r0 || r >= r1 {
+                    row.iter_mut().for_each(|v| *v *= norm);
+                } else {
+                    row[..c0].iter_mut().for_each(|v| *v *= norm);
+                    row[c1..].iter_mut().for_each(|v| *v *= norm);
+                }
+            }
+        }
+        self.fft.forward_wanted_cols(&mut self.phi, &self.disc_cols);
         let (a_step, b_step) = (
             self.step_scale * self.settings.alpha / pmax.max(1e-12),
             self.step_scale * self.settings.beta / omax.max(1e-12),

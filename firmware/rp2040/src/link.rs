@@ -82,7 +82,7 @@ impl Outbox {
             }
         }
         // A transfer that ends on a full packet needs a zero-length packet to end it.
-        if ok && self.bytes.len() % PACKET == 0 {
+        if ok && self.bytes.len().is_multiple_of(PACKET) {
             let _ = with_timeout(Duration::from_millis(20), tx.write_packet(&[])).await;
         }
         if !ok {

@@ -42,8 +42,18 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
-    /// EPRY speed: one frame update against the two FFTs it needs, and one pass over
-    /// 441 frames, measured in the same run.
+    /// Camera-frame hand-off through iceoryx2 shared memory versus a Unix socket, for
+    /// 2048² and 5472×3648 (20 MP) frames.
+    Frames {
+        /// Frames per size.
+        #[arg(long, default_value_t = 200)]
+        rounds: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// EPRY speed: one frame update against the two FFTs it needs, one pass over 441
+    /// frames, and the streaming latency (last frame → final image), in the same run.
     Epry {
         /// Camera field, pixels.
         #[arg(long, default_value_t = 256)]
@@ -133,6 +143,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::LedSwitch { json } => led_switch(json),
         BenchCommand::Calibration { random, seed, json } => calibration(random, seed, json),
         BenchCommand::Geometry { size, passes, json } => geometry(size, passes, json),
+        BenchCommand::Frames { rounds, json } => super::bench_frames::run(rounds, json),
         BenchCommand::Epry {
             size,
             upsample,

@@ -2,6 +2,7 @@
 //! subcommand lives in its own module and only formats what the library does.
 
 mod bench;
+mod bench_frames;
 mod calibrate;
 mod color;
 mod demo;

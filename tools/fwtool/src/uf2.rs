@@ -54,7 +54,7 @@ pub fn encode(segments: &[Segment], family: u32) -> Vec<u8> {
 /// Decode UF2 blocks back into (address, payload) pairs, checking every magic number
 /// and the block numbering.
 pub fn decode(uf2: &[u8]) -> Result<Vec<(u32, Vec<u8>)>, String> {
-    if uf2.len() % 512 != 0 {
+    if !uf2.len().is_multiple_of(512) {
         return Err(format!(
             "{} bytes is not a whole number of 512-byte blocks",
             uf2.len()

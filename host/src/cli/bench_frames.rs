@@ -1,0 +1,160 @@
+//! `fpm bench frames`: camera frames handed over through iceoryx2 shared memory versus
+//! the same frames sent over a Unix socket, measured in one run.
+
+use std::io::{Read, Write};
+use std::os::unix::net::UnixStream;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use fpm_frames::{
+    FrameHeader, FramePublisher, FrameSubscriber, ServiceNames, SAMPLES_PER_PUBLISHER,
+};
+use serde::Serialize;
+
+use super::bench::Percentiles;
+
+#[derive(Serialize)]
+struct SizeResult {
+    width: u32,
+    height: u32,
+    megabytes: f64,
+    rounds: usize,
+    iceoryx2_us: Percentiles,
+    unix_socket_us: Percentiles,
+    socket_over_iceoryx2_p50: f64,
+    shared_memory_reserved_mb: f64,
+}
+
+/// Run the benchmark for 2048² and 5472 × 3648 frames.
+pub fn run(rounds: usize, json: bool) -> Result<()> {
+    let mut results = vec![];
+    for (w, h) in [(2048u32, 2048u32), (5472, 3648)] {
+        let n = rounds.max(5);
+        let ice = iceoryx2_handoff(w, h, n)?;
+        let sock = socket_copy(w, h, n)?;
+        let bytes = w as f64 * h as f64 * 2.0;
+        let (ice, sock) = (ice, sock);
+        results.push(SizeResult {
+            width: w,
+            height: h,
+            megabytes: bytes / 1e6,
+            rounds: n,
+            socket_over_iceoryx2_p50: sock.p50_us / ice.p50_us,
+            iceoryx2_us: ice,
+            unix_socket_us: sock,
+            shared_memory_reserved_mb: bytes * SAMPLES_PER_PUBLISHER as f64 / 1e6,
+        });
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&results)?);
+        return Ok(());
+    }
+    println!("frame hand-off, camera thread → host thread (same machine, one run):");
+    println!("  frame            size    iceoryx2 p50 / p99 µs    Unix socket p50 / p99 µs   socket/iceoryx2   shm reserved");
+    for r in &results {
+        println!(
+            "  {:>4}×{:<4}  {:>7.1} MB   {:>9.1} / {:<9.1}   {:>10.0} / {:<10.0}   {:>10.0}×   {:>7.0} MB",
+            r.width,
+            r.height,
+            r.megabytes,
+            r.iceoryx2_us.p50_us,
+            r.iceoryx2_us.p99_us,
+            r.unix_socket_us.p50_us,
+            r.unix_socket_us.p99_us,
+            r.socket_over_iceoryx2_p50,
+            r.shared_memory_reserved_mb
+        );
+    }
+    println!("  iceoryx2: from just before send (pixels already in shared memory) to the host holding the frame;");
+    println!("  socket: from the first byte written to the last byte read into a ready buffer.");
+    Ok(())
+}
+
+/// Publish → receive through the frame service; the camera thread stamps the time
+/// after filling its loan, right before sending.
+fn iceoryx2_handoff(w: u32, h: u32, rounds: usize) -> Result<Percentiles> {
+    let names = ServiceNames::for_camera(&format!("bench-{}-{w}x{h}", std::process::id()));
+    let subscriber = FrameSubscriber::create(&names)?;
+    let base = Instant::now();
+    let (ack_tx, ack_rx) = mpsc::channel::<()>();
+    let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
+    let camera_names = names.clone();
+    let camera = std::thread::spawn(move || -> Result<(), String> {
+        let publisher =
+            FramePublisher::create(&camera_names, (w * h) as usize).map_err(|e| e.to_string())?;
+        let _ = ready_tx.send(Ok(()));
+        for n in 0..rounds as u64 {
+            let mut loan = publisher
+                .loan(FrameHeader {
+                    frame_number: n,
+                    width: w,
+                    height: h,
+                    bit_depth: 12,
+                    ..FrameHeader::default()
+                })
+                .map_err(|e| e.to_string())?;
+            let px = loan.pixels_mut();
+            let last = px.len() - 1;
+            px[0] = n as u16;
+            px[last] = n as u16;
+            loan.header_mut().timestamp_ns = base.elapsed().as_nanos() as u64;
+            loan.send().map_err(|e| e.to_string())?;
+            if ack_rx.recv_timeout(Duration::from_secs(10)).is_err() {
+                return Err("the host side stopped acknowledging".into());
+            }
+        }
+        Ok(())
+    });
+    ready_rx
+        .recv_timeout(Duration::from_secs(10))
+        .context("camera thread did not start")?
+        .map_err(anyhow::Error::msg)?;
+    let mut samples = Vec::with_capacity(rounds);
+    for n in 0..rounds as u64 {
+        let frame = subscriber
+            .next(Duration::from_secs(10))?
+            .with_context(|| format!("frame {n} did not arrive within 10 s"))?;
+        let now = base.elapsed().as_nanos() as u64;
+        let px = frame.pixels();
+        anyhow::ensure!(
+            frame.header().frame_number == n && px[0] == n as u16 && px[px.len() - 1] == n as u16,
+            "frame {n} arrived wrong"
+        );
+        samples.push(now.saturating_sub(frame.header().timestamp_ns) as f64 / 1e3);
+        drop(frame);
+        let _ = ack_tx.send(());
+    }
+    camera
+        .join()
+        .map_err(|_| anyhow::anyhow!("camera thread panicked"))?
+        .map_err(anyhow::Error::msg)?;
+    Ok(Percentiles::of(&mut samples[1..].to_vec()))
+}
+
+/// The same frames through a Unix socket pair: a full copy through the kernel.
+fn socket_copy(w: u32, h: u32, rounds: usize) -> Result<Percentiles> {
+    let bytes = (w * h) as usize * 2;
+    let (mut tx, mut rx) = UnixStream::pair()?;
+    let base = Instant::now();
+    let (stamp_tx, stamp_rx) = mpsc::channel::<u128>();
+    let writer = std::thread::spawn(move || -> std::io::Result<()> {
+        let frame = vec![7u8; bytes];
+        for _ in 0..rounds {
+            let _ = stamp_tx.send(base.elapsed().as_nanos());
+            tx.write_all(&frame)?;
+        }
+        Ok(())
+    });
+    let mut buf = vec![0u8; bytes];
+    let mut samples = Vec::with_capacity(rounds);
+    for _ in 0..rounds {
+        let start = stamp_rx.recv_timeout(Duration::from_secs(10))?;
+        rx.read_exact(&mut buf)?;
+        samples.push((base.elapsed().as_nanos() - start) as f64 / 1e3);
+    }
+    writer
+        .join()
+        .map_err(|_| anyhow::anyhow!("writer thread panicked"))??;
+    Ok(Percentiles::of(&mut samples[1..].to_vec()))
+}

@@ -54,6 +54,47 @@ impl Drop for EmulatorProcess {
     }
 }
 
+/// Another `fpm` subcommand as a child process (e.g. the virtual camera), stopped
+/// (SIGTERM) on drop.
+pub struct ChildProcess {
+    child: Child,
+}
+
+impl ChildProcess {
+    /// Start `fpm <args>`; when `ready` is given, wait until that file exists.
+    pub fn spawn(what: &str, args: &[&str], ready: Option<&std::path::Path>) -> Result<Self> {
+        let exe = std::env::current_exe().context("locating the fpm executable")?;
+        let child = Command::new(exe)
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .with_context(|| format!("starting the {what}"))?;
+        let mut me = Self { child };
+        if let Some(path) = ready {
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while !path.exists() {
+                if let Some(status) = me.child.try_wait()? {
+                    bail!("the {what} exited at start-up: {status}");
+                }
+                if Instant::now() > deadline {
+                    bail!("the {what} was not ready within 30 s");
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+        Ok(me)
+    }
+}
+
+impl Drop for ChildProcess {
+    fn drop(&mut self) {
+        let _ = nix_kill(self.child.id());
+        let _ = self.child.wait();
+    }
+}
+
 fn nix_kill(pid: u32) -> std::io::Result<()> {
     // SIGTERM lets the emulator remove its link.
     let status = Command::new("kill")

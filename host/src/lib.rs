@@ -4,6 +4,7 @@
 //! command: datasets, calibration, reconstruction, and (with the emulator) the virtual
 //! microscope.
 
+pub mod acquire;
 pub mod calibration;
 pub mod cli;
 pub mod controller;
@@ -12,3 +13,4 @@ pub mod emulator_process;
 pub mod plot;
 pub mod reconstruction;
 pub mod truth;
+pub mod virtual_camera;

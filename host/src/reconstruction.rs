@@ -69,6 +69,42 @@ pub struct Report {
     pub versus_truth: Option<fpm_physics::metrics::Scores>,
 }
 
+impl Report {
+    /// The report of a streamed reconstruction of `ds` (one field, the whole frame).
+    pub fn streamed(
+        ds: &Dataset,
+        geometry: &LedGeometry,
+        source: &str,
+        settings: Settings,
+        passes: usize,
+        errors: Vec<f64>,
+        total_ms: f64,
+    ) -> Self {
+        let (h, w) = ds.frames.first().map(|f| f.raw.dim()).unwrap_or((0, 0));
+        Self {
+            dataset: ds.dir.display().to_string(),
+            geometry: *geometry,
+            geometry_source: source.into(),
+            upsample: settings.upsample.max(1),
+            passes,
+            frames: ds.frames.len(),
+            frame_size: [w, h],
+            tile_size: w.min(h),
+            tile_overlap: 0,
+            tile_free_border: 0,
+            tiles: vec![],
+            error_per_pass: errors,
+            ms_per_pass: total_ms / passes.max(1) as f64,
+            total_ms,
+            threads: 1,
+            disc_placement: DISC_PLACEMENT,
+            versus_truth: None,
+        }
+    }
+}
+
+const DISC_PLACEMENT: &str = "object read at the nearest whole HR bin; the pupil disc shifted by the sub-bin remainder (an exact phase ramp on the exit wave)";
+
 /// One tile in `report.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct TileReport {
@@ -240,7 +276,7 @@ pub fn reconstruct(
             total_ms,
             threads: rayon::current_num_threads().min(tiles.len()),
             versus_truth: None,
-            disc_placement: "object read at the nearest whole HR bin; the pupil disc shifted by the sub-bin remainder (an exact phase ramp on the exit wave)",
+            disc_placement: DISC_PLACEMENT,
         },
     })
 }
@@ -299,4 +335,22 @@ pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
         serde_json::to_string_pretty(&r.report)?,
     )?;
     Ok(())
+}
+
+/// Read a reconstruction's complex object back from `amplitude.tif` and `phase.tif`.
+pub fn read_object(dir: &Path) -> Result<Array2<Complex32>> {
+    let read = |name: &str| -> Result<Array2<f32>> {
+        let path = dir.join(name);
+        match image_io::read(&path).map_err(anyhow::Error::msg)? {
+            image_io::Pixels::F32(a) => Ok(a),
+            _ => bail!("{}: expected float32", path.display()),
+        }
+    };
+    let (amp, phase) = (read("amplitude.tif")?, read("phase.tif")?);
+    if amp.dim() != phase.dim() {
+        bail!("{}: amplitude and phase differ in size", dir.display());
+    }
+    Ok(Array2::from_shape_fn(amp.dim(), |i| {
+        Complex32::from_polar(amp[i], phase[i])
+    }))
 }

@@ -60,6 +60,17 @@ impl Truth {
     }
 }
 
+/// Write the sample's ground truth on the camera field (`truth_amplitude.tif`,
+/// `truth_phase.tif`, float32 at the simulation's pixel) into `dir`.
+pub fn write_truth_images(dir: &Path, object: &fpm_physics::simulate::ObjectField) -> Result<()> {
+    let gt = object.crop_to_camera();
+    image_io::write_tiff_f32(&dir.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))
+        .map_err(anyhow::Error::msg)?;
+    image_io::write_tiff_f32(&dir.join("truth_phase.tif"), &gt.mapv(|c| c.arg()))
+        .map_err(anyhow::Error::msg)?;
+    Ok(())
+}
+
 /// Score the HR object `reconstruction` (`upsample` × the camera grid) of dataset `ds`
 /// against the truth beside it. `None` when the dataset carries no object truth.
 pub fn score_reconstruction(

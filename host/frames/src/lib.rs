@@ -16,6 +16,7 @@
 //! * A slow consumer loses the oldest buffered frame (iceoryx2's safe overflow), never
 //!   blocks the camera; gaps show in `frame_number`, which the consumer checks.
 
+pub mod bench;
 mod header;
 mod publisher;
 mod service;

@@ -1,23 +1,42 @@
-//! `fpm demo`: the virtual microscope, with no hardware. Today it runs the LED side of
-//! an acquisition — an emulated controller process on a pseudo-terminal with an
-//! emulated camera on its trigger lines — and reports what a real run would see.
-//! The simulated camera, calibration and reconstruction join it as they land.
+//! `fpm demo`: the virtual microscope, with no hardware: the emulated LED controller
+//! (a process on a pseudo-terminal) and the virtual camera (a process rendering with
+//! the wave-optics model, frames over iceoryx2), a hidden misplaced LED array, then
+//! `fpm acquire --calibrate --reconstruct` against them and the result against the
+//! hidden truth.
 
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Result};
-use clap::Args;
-use fpm_protocol::*;
-use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
 
-use crate::controller::scan::{scan_steps, Order, Selection};
-use crate::controller::{Controller, SequenceEvent};
-use crate::emulator_process::EmulatorProcess;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fpm_physics::reconstruct::Settings;
+use fpm_physics::LedGeometry;
+use fpm_protocol::*;
+
+use super::acquire::{acquire, AcquireArgs, StageKind};
+use crate::controller::Controller;
+use crate::dataset::Dataset;
+use crate::emulator_process::{ChildProcess, EmulatorProcess};
+use crate::reconstruction::reconstruct;
+use crate::truth::score_reconstruction;
 
 /// Run the virtual microscope.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// Camera exposure per LED, µs.
+    /// Where to write the dataset and results [default: a new directory under /tmp].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seed of the hidden LED array misplacement, the sample and the noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Sensor size of the virtual camera, pixels.
+    #[arg(long, default_value_t = 256)]
+    size: usize,
+    /// How long each LED stays lit, ms.
+    #[arg(long, default_value_t = 40.0)]
+    step_ms: f64,
+    /// Emulated camera exposure on the trigger-in line, µs.
     #[arg(long, default_value_t = 2_000)]
     exposure_us: u32,
     /// WS2812 data lanes on the emulated board (more lanes switch LEDs faster).
@@ -30,7 +49,15 @@ pub fn run(a: DemoArgs) -> Result<()> {
     println!("fpm demo: a virtual FPM microscope, no hardware needed\n");
     let exposure = a.exposure_us.to_string();
     let lanes = a.lanes.to_string();
-    let emulator = EmulatorProcess::start(&["--camera-exposure-us", &exposure, "--lanes", &lanes])?;
+    let bench = format!("demo-{}", std::process::id());
+    let emulator = EmulatorProcess::start(&[
+        "--camera-exposure-us",
+        &exposure,
+        "--lanes",
+        &lanes,
+        "--bench",
+        &bench,
+    ])?;
     let port = emulator.link.to_string_lossy().into_owned();
     let dev = Controller::open(&port, Duration::from_secs(2))?;
     let info = dev.info().clone();
@@ -63,78 +90,6 @@ pub fn run(a: DemoArgs) -> Result<()> {
         bf.leds_on, bf.current_ma, df.leds_on, dpc.leds_on
     );
 
-    // The capture sequence of an FPM acquisition: every LED, nearest-first, each step
-    // ended by the camera's exposure signal on the trigger input.
-    let steps = scan_steps(&g, Selection::All, Order::Nearest, Rgb::new(0, 0, 255));
-    let timing = SequenceTiming {
-        settle_us: 200,
-        exposure_us: a.exposure_us,
-        trigger_out: Some(TriggerOut {
-            delay_us: 0,
-            pulse_us: 100,
-            polarity: Polarity::ActiveHigh,
-        }),
-        trigger_in: Some(TriggerIn {
-            edge: Edge::Falling,
-            timeout_us: 1_000_000,
-        }),
-        clear_at_end: true,
-    };
-    let upload_start = Instant::now();
-    dev.upload_sequence(1, &steps, timing)?;
-    let upload = upload_start.elapsed();
-    let mut events = dev.subscribe()?;
-    let started = dev.start_sequence(1)?;
-    let bar = ProgressBar::new(steps.len() as u64).with_style(
-        ProgressStyle::with_template("scan            [{bar:40}] {pos}/{len} LEDs {msg}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let wall = Instant::now();
-    let mut switch_us = Vec::with_capacity(steps.len());
-    let mut prev_end = started.started_us;
-    let end = loop {
-        match events.next(Duration::from_secs(5))? {
-            SequenceEvent::Step(s) => {
-                switch_us.push((s.light_on_us - prev_end) as f64);
-                prev_end = s.end_us;
-                bar.inc(1);
-            }
-            SequenceEvent::End(e) => break e,
-        }
-    };
-    bar.finish_and_clear();
-    let wall = wall.elapsed();
-    if end.outcome != SequenceOutcome::Done {
-        bail!(
-            "the scan ended with {:?} after {} steps",
-            end.outcome,
-            end.completed
-        );
-    }
-    let device_s = (end.end_us - started.started_us) as f64 * 1e-6;
-    let full_chain_us = (g.led_count() as f64 * info.limits.led_shift_ns as f64 / 1000.0)
-        / g.lanes.max(1) as f64
-        + info.limits.latch_us as f64;
-    let switch = super::bench::Percentiles::of(&mut switch_us);
-    println!(
-        "scan            {} LEDs nearest-first with camera trigger-in: {:.2} s device time, {:.2} s wall ({:.1} frames/s)",
-        end.completed,
-        device_s,
-        wall.as_secs_f64(),
-        end.completed as f64 / device_s
-    );
-    println!(
-        "LED switching   p50 {:.2} ms, mean {:.2} ms per step: data shifted only up to the furthest changed LED\n                (a full-chain update takes {:.2} ms; the emulator's wake-up latency is included)",
-        switch.p50_us / 1e3,
-        switch.mean_us / 1e3,
-        full_chain_us / 1e3
-    );
-    println!(
-        "upload          {} steps in {:.1} ms",
-        steps.len(),
-        upload.as_secs_f64() * 1e3
-    );
-
     for i in 0..50u32 {
         dev.ping(i)?; // warm-up
     }
@@ -154,9 +109,137 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "                {} frames, {} dropped, {} unknown keys, {} decode errors",
         link.frames_ok, link.frames_dropped, link.unknown_keys, link.decode_errors
     );
-    drop(events);
     drop(dev);
+    virtual_microscope(&a, &emulator)?;
     drop(emulator);
-    println!("\nthe emulator has stopped; run `fpm emulator --link /tmp/fpm.tty` to keep one up and drive it with `fpm device --port /tmp/fpm.tty …`");
+    Ok(())
+}
+
+/// The full virtual microscope: the virtual camera as a second process on the bench the
+/// emulator publishes, `fpm acquire --calibrate --reconstruct` against both, and the
+/// result compared with the hidden truth.
+fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
+    let id = format!("demo-{}", std::process::id());
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("fpm-demo-{}", std::process::id())));
+    if out.join("dataset.toml").exists() || out.join("truth.json").exists() {
+        bail!(
+            "{} already holds a dataset; pick another --out",
+            out.display()
+        );
+    }
+    std::fs::create_dir_all(&out)?;
+    let seed = a.seed.to_string();
+    let size = a.size.to_string();
+    let out_s = out.to_string_lossy().into_owned();
+    let camera = ChildProcess::spawn(
+        "virtual camera",
+        &[
+            "virtual-camera",
+            "--bench",
+            &id,
+            "--camera",
+            &id,
+            "--seed",
+            &seed,
+            "--size",
+            &size,
+            "--truth-dir",
+            &out_s,
+        ],
+        Some(&out.join("truth.json")),
+    )?;
+    println!(
+        "virtual camera  {}² frames, wave-optics model, realistic noise (separate process, iceoryx2 shared memory)",
+        a.size
+    );
+    let args = AcquireArgs {
+        port: emulator.link.to_string_lossy().into_owned(),
+        frames: id.clone(),
+        out: out.clone(),
+        calibrate: true,
+        reconstruct: true,
+        stage: StageKind::Virtual,
+        bench: Some(id.clone()),
+        step_ms: a.step_ms,
+        defocus_um: 200.0,
+        color: "0,0,255".into(),
+        dark_level: 100.0,
+        wavelength_um: 0.47,
+        na: 0.1,
+        magnification: 4.0,
+        pixel_um: 2.4,
+        passes: 5,
+    };
+    let start = Instant::now();
+    let summary = acquire(&args)?;
+    let acquired = start.elapsed();
+    drop(camera);
+
+    let truth =
+        crate::truth::Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;
+    let g = summary.geometry;
+    println!("\nLED array       hidden truth                 recovered by pdcFPM");
+    println!(
+        "  Δx            {:>8.3} mm                 {:>8.3} mm",
+        truth.dx_mm, g.dx_mm
+    );
+    println!(
+        "  Δy            {:>8.3} mm                 {:>8.3} mm",
+        truth.dy_mm, g.dy_mm
+    );
+    println!(
+        "  θ             {:>8.3}°                   {:>8.3}°",
+        truth.theta_deg, g.theta_deg
+    );
+    println!(
+        "  h             {:>8.2} mm                 {:>8.2} mm",
+        truth.height_mm, g.height_mm
+    );
+    let c = &summary.capture;
+    let cal_frames: usize = summary.calibration.iter().map(|r| r.labelled).sum();
+    println!(
+        "\nacquisition     {} calibration frames, then {}/{} LEDs labelled in {:.1} s ({:.1} frames/s); missing {}, extra {}, ambiguous {}",
+        cal_frames, c.labelled, c.requested, c.seconds, c.frames_per_s, c.missing.len(), c.extra_frames, c.ambiguous_frames
+    );
+    if let (Some(ms), Some(us)) = (summary.last_frame_to_final_ms, summary.update_us_mean) {
+        println!("streaming EPRY  {us:.0} µs per frame as it arrived; last frame → final image {ms:.0} ms");
+    }
+
+    // Quality against the hidden sample: nominal vs calibrated geometry, same passes.
+    let ds = Dataset::load(&out)?;
+    let nominal = ds.manifest.geometry();
+    let settings = Settings::default();
+    let score = |geometry: &LedGeometry| -> Result<Option<f64>> {
+        let r = reconstruct(&ds, geometry, "demo", settings, 10, None, &|_, _| {})?;
+        Ok(score_reconstruction(&ds, &r.object, settings.upsample)?.map(|s| s.complex_nrmse))
+    };
+    let (n, k) = (score(&nominal)?, score(&g)?);
+    let streamed = crate::reconstruction::read_object(&out.join("reconstruction"))
+        .ok()
+        .and_then(|o| {
+            score_reconstruction(&ds, &o, settings.upsample)
+                .ok()
+                .flatten()
+        })
+        .map(|s| s.complex_nrmse);
+    if let (Some(n), Some(k)) = (n, k) {
+        println!(
+            "quality         complex NRMSE vs the hidden sample: nominal geometry {n:.3}, calibrated {k:.3}{}",
+            streamed.map(|s| format!(", streamed while acquiring {s:.3}")).unwrap_or_default()
+        );
+    }
+    println!(
+        "\nwrote the dataset, calibration/, calibration.json, reconstruction/ and acquisition.json to {} ({:.0} s)",
+        out.display(),
+        acquired.as_secs_f64()
+    );
+    println!(
+        "re-run offline: fpm reconstruct {} --out /tmp/rec --calibration {}/calibration.json",
+        out.display(),
+        out.display()
+    );
     Ok(())
 }

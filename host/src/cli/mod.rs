@@ -1,6 +1,7 @@
 //! The `fpm` command line: parsing, logging set-up and error reporting. Each
 //! subcommand lives in its own module and only formats what the library does.
 
+mod acquire;
 mod bench;
 mod bench_frames;
 mod calibrate;
@@ -33,11 +34,18 @@ enum Command {
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
     Emulator(fpm_emulator::EmulatorArgs),
+    /// Run a simulated camera on a virtual bench (with `fpm emulator --bench`): renders
+    /// each triggered exposure for a hidden, misplaced LED array and publishes frames
+    /// on iceoryx2.
+    VirtualCamera(crate::virtual_camera::VirtualCameraArgs),
     /// Make simulated datasets with the full wave-optics model.
     #[command(subcommand)]
     Simulate(simulate::SimulateCommand),
     /// Calibrate the LED array (pdcFPM) from a defocus dataset.
     Calibrate(calibrate::CalibrateArgs),
+    /// Acquire a dataset from a rig (controller + camera on iceoryx2): optional pdcFPM
+    /// calibration, every LED labelled, streaming reconstruction.
+    Acquire(acquire::AcquireArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
     /// Measure performance.
@@ -49,7 +57,7 @@ enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let default_level = match (&cli.command, cli.verbose) {
-        (Command::Emulator(_), 0) => "info",
+        (Command::Emulator(_) | Command::VirtualCamera(_), 0) => "info",
         (_, 0) => "warn",
         (_, 1) => "info",
         _ => "debug",
@@ -68,9 +76,11 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
+        Command::VirtualCamera(args) => crate::virtual_camera::run(args),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Acquire(args) => acquire::run(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

@@ -11,9 +11,7 @@ use fpm_physics::{LedGeometry, System};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::dataset::{
-    image_io, CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection,
-};
+use crate::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
 use crate::truth::Truth;
 
 /// Make a simulated dataset.
@@ -262,11 +260,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     );
     bar.finish_and_clear();
     write_frames(&s.out, &system, &camera, &frames)?;
-    let gt = object.crop_to_camera();
-    image_io::write_tiff_f32(&s.out.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))
-        .map_err(anyhow::Error::msg)?;
-    image_io::write_tiff_f32(&s.out.join("truth_phase.tif"), &gt.mapv(|c| c.arg()))
-        .map_err(anyhow::Error::msg)?;
+    crate::truth::write_truth_images(&s.out, &object)?;
     write_json(
         &s.out.join("truth.json"),
         &Truth {

@@ -31,6 +31,17 @@ impl EmulatedStrip {
         &self.pixels
     }
 
+    /// The LEDs shining now: (row, col, colour), at most `max`.
+    pub fn lit(&self, max: usize) -> Vec<(u8, u8, Rgb)> {
+        self.pixels
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| **p != Rgb::OFF)
+            .filter_map(|(i, p)| led_at(&self.geometry, i as u16).map(|l| (l.row, l.col, *p)))
+            .take(max)
+            .collect()
+    }
+
     /// Chain updates so far.
     pub fn writes(&self) -> u64 {
         self.writes

@@ -50,6 +50,10 @@ pub struct EmulatorArgs {
     /// No camera on the trigger lines (trigger-in waits then time out).
     #[arg(long)]
     pub no_camera: bool,
+    /// Publish every trigger pulse, with the LEDs lit at that moment, on the iceoryx2
+    /// virtual bench of this name (for `fpm virtual-camera --bench NAME`).
+    #[arg(long)]
+    pub bench: Option<String>,
 }
 
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -86,6 +90,14 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     let mut camera =
         (!args.no_camera).then(|| Camera::new(args.camera_latency_us, args.camera_exposure_us));
 
+    let bench = match &args.bench {
+        Some(name) => Some(
+            fpm_frames::bench::PulsePublisher::create(name)
+                .with_context(|| format!("opening the virtual bench {name}"))?,
+        ),
+        None => None,
+    };
+    let mut pulses = 0u64;
     let pty = Pty::open()?;
     let _link = Link::create(&args.link, pty.device_path())?;
     tracing::info!(
@@ -128,7 +140,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
         if next.is_some_and(|t| t <= now) {
             next = device.poll(now, &mut send);
         }
-        stamp_trigger(&device, camera.as_mut(), now);
+        stamp_trigger(&device, camera.as_mut(), now, bench.as_ref(), &mut pulses);
 
         // Sleep until the next deadline, an edge, or bytes from the client.
         let wake = [next, camera.as_ref().and_then(Camera::next_edge_at)]
@@ -151,7 +163,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
             if n > 0 {
                 let now = now_us();
                 next = device.receive(&buf[..n], now, &mut send);
-                stamp_trigger(&device, camera.as_mut(), now);
+                stamp_trigger(&device, camera.as_mut(), now, bench.as_ref(), &mut pulses);
             }
         }
     }
@@ -162,11 +174,14 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     Ok(())
 }
 
-/// Hand trigger-line changes to the camera, stamped with the time they happened.
+/// Hand trigger-line changes to the camera, stamped with the time they happened, and
+/// publish each active edge with what is lit on the virtual bench.
 fn stamp_trigger(
     device: &Device<EmulatedStrip, EmulatedTrigger>,
     mut camera: Option<&mut Camera>,
     now: u64,
+    bench: Option<&fpm_frames::bench::PulsePublisher>,
+    pulses: &mut u64,
 ) {
     let changes = device.trigger().take_changes();
     if changes.is_empty() {
@@ -180,6 +195,27 @@ fn stamp_trigger(
         );
         if let Some(cam) = camera.as_deref_mut() {
             cam.trigger_line(level, now, active_level);
+        }
+        if let (Some(bench), true) = (bench, level == active_level) {
+            let mut pulse = fpm_frames::bench::TriggerPulse {
+                pulse_number: *pulses,
+                time_us: now,
+                ..Default::default()
+            };
+            let lit = device.strip().lit(fpm_frames::bench::MAX_LIT);
+            pulse.lit_count = lit.len() as u32;
+            for (slot, (row, col, c)) in pulse.lit.iter_mut().zip(lit) {
+                *slot = fpm_frames::bench::LitLed {
+                    row,
+                    col,
+                    rgb: [c.r, c.g, c.b],
+                    reserved: [0; 3],
+                };
+            }
+            if let Err(e) = bench.publish(&pulse) {
+                tracing::warn!("virtual bench: {e}");
+            }
+            *pulses += 1;
         }
     }
 }

@@ -1,0 +1,334 @@
+//! The acquisition service: drives the LED controller through a capture sequence,
+//! takes the camera's frames from the iceoryx2 frame service, labels every frame with
+//! the LED that lit it ([`label`]), and hands labelled frames on as they arrive.
+
+pub mod label;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use fpm_frames::bench::{Stage, StageControl};
+use fpm_frames::{FrameHeader, FrameSubscriber, ServiceNames};
+use fpm_protocol::{
+    Illumination, LedIndex, Polarity, Rgb, SequenceOutcome, SequenceTiming, Step, TriggerOut,
+};
+use serde::Serialize;
+
+use crate::controller::{Controller, ControllerError, SequenceEvent};
+use label::{pair, FrameTime, StepTime};
+
+/// A frame with the LED that lit it.
+pub struct Shot {
+    /// LED (row, col).
+    pub led: (usize, usize),
+    /// The camera's header.
+    pub header: FrameHeader,
+    /// Pixels, copied out of shared memory to be kept.
+    pub pixels: Vec<u16>,
+}
+
+/// What a capture did.
+#[derive(Debug, Clone, Serialize)]
+pub struct CaptureReport {
+    /// Steps in the sequence.
+    pub requested: usize,
+    /// Frames labelled with their LED.
+    pub labelled: usize,
+    /// LEDs whose frame is missing (dropped, ambiguous).
+    pub missing: Vec<[usize; 2]>,
+    /// Frames that matched no step.
+    pub extra_frames: usize,
+    /// Frames refused because more than one step or frame fit.
+    pub ambiguous_frames: usize,
+    /// Camera clock minus controller clock, ns.
+    pub clock_offset_ns: i64,
+    /// From sequence start to the last frame, s.
+    pub seconds: f64,
+    /// Frames per second.
+    pub frames_per_s: f64,
+    /// How the controller's sequence ended.
+    pub outcome: String,
+    /// Frames handed out while acquiring whose final label differs (0 expected; the
+    /// dataset follows the final labels).
+    pub relabelled: usize,
+}
+
+/// How the focus stage is moved.
+pub enum StageMover {
+    /// A motorised (here: virtual) stage on the bench.
+    Virtual(StageControl),
+    /// The user turns the knob when asked.
+    Manual,
+}
+
+impl StageMover {
+    /// Move to `stage` and wait until it is there.
+    pub fn move_to(&self, stage: Stage) -> Result<()> {
+        match self {
+            StageMover::Virtual(c) => {
+                c.set(stage)?;
+                // The stage service has history 1: the camera reads it before its next
+                // exposure. Give a real motor time to settle too.
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            StageMover::Manual => {
+                let what = if stage.slide == Stage::CALIBRATION_TARGET {
+                    "the calibration slide"
+                } else {
+                    "the sample"
+                };
+                eprintln!(
+                    "Put {what} on the stage, move it {:.0} µm {} the focus, then press Enter.",
+                    stage.defocus_um.abs(),
+                    if stage.defocus_um > 0.0 {
+                        "toward the LEDs from"
+                    } else {
+                        "back to"
+                    }
+                );
+                let mut line = String::new();
+                std::io::stdin()
+                    .read_line(&mut line)
+                    .context("waiting for the user to move the stage")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Sequence timing for one frame per step: the camera is triggered once the LEDs have
+/// settled; `exposure_us` is how long each step stays lit.
+pub fn timing(exposure_us: u32) -> SequenceTiming {
+    SequenceTiming {
+        settle_us: 500,
+        exposure_us,
+        trigger_out: Some(TriggerOut {
+            delay_us: 50,
+            pulse_us: 100,
+            polarity: Polarity::ActiveHigh,
+        }),
+        trigger_in: None,
+        clear_at_end: true,
+    }
+}
+
+/// Frames taken off the frame service by their own thread, so that a busy consumer
+/// (EPRY updates, disk) never lets the service's small buffer overflow. iceoryx2 ports
+/// stay on the thread that made them, so the thread opens its own subscriber.
+struct FrameDrain {
+    rx: mpsc::Receiver<(FrameHeader, Vec<u16>)>,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Result<(), String>>>,
+}
+
+impl FrameDrain {
+    fn start(names: &ServiceNames) -> Result<Self> {
+        let (tx, rx) = mpsc::channel();
+        let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
+        let stop = Arc::new(AtomicBool::new(false));
+        let (names, flag) = (names.clone(), stop.clone());
+        let thread = std::thread::spawn(move || -> Result<(), String> {
+            let sub = match FrameSubscriber::create(&names) {
+                Ok(s) => s,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e.to_string()));
+                    return Err(e.to_string());
+                }
+            };
+            // Frames from before this capture (a stray trigger, a previous run).
+            while let Ok(Some(_)) = sub.next(Duration::ZERO) {}
+            let _ = ready_tx.send(Ok(()));
+            while !flag.load(Ordering::SeqCst) {
+                match sub.next(Duration::from_millis(20)) {
+                    Ok(Some(f)) => {
+                        if tx.send((*f.header(), f.pixels().to_vec())).is_err() {
+                            break;
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(e) => return Err(e.to_string()),
+                }
+            }
+            Ok(())
+        });
+        ready_rx
+            .recv_timeout(Duration::from_secs(10))
+            .context("the frame thread did not start")?
+            .map_err(anyhow::Error::msg)?;
+        Ok(Self {
+            rx,
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for FrameDrain {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Run one capture sequence lighting `leds` in order, one frame per LED, with the
+/// frames of camera `camera`. Frames are labelled as soon as their step is closed (the
+/// next step's trigger was seen, or the sequence ended) and given to `on_frame` at
+/// once; the final pairing over everything is authoritative and is what the returned
+/// shots follow (a frame handed out early is never contradicted by it in practice;
+/// if it were, the caller's report says so through `relabelled`).
+pub fn capture(
+    dev: &Controller,
+    camera: &ServiceNames,
+    sequence_id: u32,
+    leds: &[LedIndex],
+    color: Rgb,
+    exposure_us: u32,
+    mut on_frame: impl FnMut(&Shot),
+) -> Result<(Vec<Shot>, CaptureReport)> {
+    let steps: Vec<Step> = leds
+        .iter()
+        .map(|&led| Step {
+            illumination: Illumination::Led(led),
+            color,
+        })
+        .collect();
+    let timing = timing(exposure_us);
+    let period_ns = (timing.settle_us as u64 + exposure_us as u64) * 1000;
+    let tolerance = (period_ns / 3).max(1_000_000);
+    let drain = FrameDrain::start(camera)?;
+    dev.upload_sequence(sequence_id, &steps, timing)?;
+    let mut events = dev.subscribe()?;
+    let start = Instant::now();
+    dev.start_sequence(sequence_id)?;
+    let mut step_times: Vec<StepTime> = vec![];
+    let mut received: Vec<(FrameHeader, Vec<u16>)> = vec![];
+    let mut online: Vec<Option<usize>> = vec![];
+    let mut outcome = None;
+    let mut last_frame = Instant::now();
+    let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
+    let mut changed = false;
+    loop {
+        while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
+            received.push(f);
+            online.push(None);
+            last_frame = Instant::now();
+            changed = true;
+        }
+        loop {
+            match events.next(Duration::from_millis(1)) {
+                Ok(SequenceEvent::Step(s)) => {
+                    step_times.push(StepTime {
+                        step: s.step as usize,
+                        trigger_ns: s.trigger_us * 1000,
+                    });
+                    changed = true;
+                }
+                Ok(SequenceEvent::End(e)) => {
+                    outcome = Some(e);
+                    changed = true;
+                    break;
+                }
+                Err(ControllerError::Timeout { .. }) => break,
+                Err(e) => return Err(e).context("the controller went away during the capture"),
+            }
+        }
+        // Label what can be labelled now: frames not yet handed out, against the steps
+        // seen so far (a window, so this stays cheap however long the run).
+        if changed {
+            changed = false;
+            let pending: Vec<usize> = (0..received.len())
+                .filter(|&k| online[k].is_none())
+                .collect();
+            let times: Vec<FrameTime> = pending
+                .iter()
+                .map(|&k| FrameTime {
+                    frame_number: received[k].0.frame_number,
+                    timestamp_ns: received[k].0.timestamp_ns,
+                })
+                .collect();
+            let first = step_times.len().saturating_sub(pending.len() + 64);
+            let window = &step_times[first..];
+            let p = pair(window, &times, tolerance, 10_000_000_000);
+            let newest = step_times.last().map(|s| s.step);
+            for &(si, pi) in &p.matched {
+                let step = window[si].step;
+                if outcome.is_some() || Some(step) != newest {
+                    let k = pending[pi];
+                    online[k] = Some(step);
+                    let led = leds[step];
+                    on_frame(&Shot {
+                        led: (led.row as usize, led.col as usize),
+                        header: received[k].0,
+                        pixels: received[k].1.clone(),
+                    });
+                }
+            }
+        }
+        let complete = received.len() >= leds.len();
+        if outcome.is_some() && (complete || last_frame.elapsed() > idle_after_end) {
+            break;
+        }
+        if outcome.is_none()
+            && start.elapsed()
+                > Duration::from_nanos(period_ns * (leds.len() as u64 + 50))
+                    + Duration::from_secs(30)
+        {
+            bail!("the capture sequence did not end in time");
+        }
+    }
+    drop(drain);
+    let times: Vec<FrameTime> = received
+        .iter()
+        .map(|(h, _)| FrameTime {
+            frame_number: h.frame_number,
+            timestamp_ns: h.timestamp_ns,
+        })
+        .collect();
+    let p = pair(&step_times, &times, tolerance, 10_000_000_000);
+    let seconds = start.elapsed().as_secs_f64();
+    let end = outcome.context("no end of sequence")?;
+    let mut shots = Vec::with_capacity(p.matched.len());
+    let mut matched = p.matched.clone();
+    matched.sort_by_key(|&(si, _)| step_times[si].step);
+    let mut relabelled = 0;
+    for (si, fi) in matched {
+        if online[fi].is_some_and(|s| s != step_times[si].step) {
+            relabelled += 1;
+        }
+        let led = leds[step_times[si].step];
+        shots.push(Shot {
+            led: (led.row as usize, led.col as usize),
+            header: received[fi].0,
+            pixels: std::mem::take(&mut received[fi].1),
+        });
+    }
+    let labelled_steps: Vec<usize> = p
+        .matched
+        .iter()
+        .map(|&(si, _)| step_times[si].step)
+        .collect();
+    let missing = (0..leds.len())
+        .filter(|s| !labelled_steps.contains(s))
+        .map(|s| [leds[s].row as usize, leds[s].col as usize])
+        .collect::<Vec<_>>();
+    let report = CaptureReport {
+        requested: leds.len(),
+        labelled: shots.len(),
+        missing,
+        extra_frames: p.extra_frames.len(),
+        ambiguous_frames: p.ambiguous_frames.len(),
+        clock_offset_ns: p.clock_offset_ns,
+        seconds,
+        frames_per_s: shots.len() as f64 / seconds.max(1e-9),
+        relabelled,
+        outcome: match end.outcome {
+            SequenceOutcome::Done => "done".into(),
+            other => format!("{other:?}"),
+        },
+    };
+    Ok((shots, report))
+}

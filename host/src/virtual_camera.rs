@@ -1,0 +1,213 @@
+//! The virtual camera: listens to the virtual bench (trigger pulses with the LEDs lit,
+//! the stage position), renders each exposure with the full wave-optics model for a
+//! hidden, misplaced LED array, and publishes the frame on the iceoryx2 frame service
+//! like a camera driver would. It knows the hidden geometry; nothing downstream does.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use fpm_frames::bench::{BenchListener, Stage};
+use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
+use fpm_physics::simulate::{Camera, ObjectField, Renderer};
+use fpm_physics::{LedGeometry, System};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+/// Run a simulated camera on a virtual bench.
+#[derive(Args, Debug, Clone)]
+pub struct VirtualCameraArgs {
+    /// The virtual bench to watch (`fpm emulator --bench NAME`).
+    #[arg(long)]
+    pub bench: String,
+    /// Publish frames as this camera (`fpm/camera/<NAME>/frames`).
+    #[arg(long, default_value = "0")]
+    pub camera: String,
+    /// Sensor size, pixels (square).
+    #[arg(long, default_value_t = 256)]
+    pub size: usize,
+    /// Seed of the hidden geometry, the sample and the noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Hidden array offset Δx, mm (default: random up to ±2 mm by seed).
+    #[arg(long, allow_hyphen_values = true)]
+    pub dx_mm: Option<f64>,
+    /// Hidden Δy, mm.
+    #[arg(long, allow_hyphen_values = true)]
+    pub dy_mm: Option<f64>,
+    /// Hidden rotation, degrees (default: random up to ±5° by seed).
+    #[arg(long, allow_hyphen_values = true)]
+    pub theta_deg: Option<f64>,
+    /// Hidden LED-to-sample distance, mm (default: random 87–97 mm by seed).
+    #[arg(long)]
+    pub height_mm: Option<f64>,
+    /// Write the hidden truth here once listening (truth.json, virtual-camera.json,
+    /// truth_amplitude.tif, truth_phase.tif), for scoring; truth.json appears last.
+    #[arg(long)]
+    pub truth_dir: Option<PathBuf>,
+    /// Sensor readout time added after each exposure, ms.
+    #[arg(long, default_value_t = 5.0)]
+    pub readout_ms: f64,
+}
+
+/// The hidden state, written to `truth_dir/virtual-camera.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Hidden {
+    /// The real array.
+    pub geometry: LedGeometry,
+    /// Seed.
+    pub seed: u64,
+    /// Sensor size.
+    pub size: usize,
+}
+
+impl VirtualCameraArgs {
+    /// The hidden array: given values, or drawn from the seed.
+    pub fn hidden_geometry(&self) -> LedGeometry {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x05EE_D0FA_77A7);
+        let dx = rng.gen_range(-2.0..2.0);
+        let dy = rng.gen_range(-2.0..2.0);
+        let th = rng.gen_range(-5.0..5.0);
+        let h = rng.gen_range(87.0..97.0);
+        LedGeometry::paper().placed(
+            self.dx_mm.unwrap_or(dx),
+            self.dy_mm.unwrap_or(dy),
+            self.theta_deg.unwrap_or(th),
+            self.height_mm.unwrap_or(h),
+        )
+    }
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: nix::libc::c_int) {
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// Run until SIGINT/SIGTERM.
+pub fn run(a: VirtualCameraArgs) -> Result<()> {
+    use nix::sys::signal::{SigHandler, Signal};
+    for sig in [Signal::SIGINT, Signal::SIGTERM] {
+        // SAFETY: the handler only stores to an atomic.
+        unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }
+            .context("installing signal handlers")?;
+    }
+    let system = System::paper();
+    let hidden = a.hidden_geometry();
+    let size = a.size.max(16);
+    let sample = ObjectField::test_sample(&system, size, 32, 2, a.seed);
+    // The calibration slide: one square hole, 50 µm (the paper's) or a third of a
+    // smaller field, with room around it for a 200 µm defocus.
+    let feature_um = (size as f64 * system.sample_pixel_um() / 3.0).min(50.0);
+    let pad = ((200.0 * (0.25 + system.na) + 10.0) / system.sample_pixel_um()).ceil() as usize + 24;
+    let target = ObjectField::square_hole(
+        &system,
+        size,
+        pad.next_multiple_of(8),
+        2,
+        feature_um,
+        (0.0, 0.0),
+        0.0,
+    );
+    let camera = Camera::realistic();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
+    let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
+    let mut bench = BenchListener::create(&a.bench)?;
+    let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), size * size)?;
+    if let Some(dir) = &a.truth_dir {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        std::fs::write(
+            dir.join("virtual-camera.json"),
+            serde_json::to_string_pretty(&Hidden {
+                geometry: hidden,
+                seed: a.seed,
+                size,
+            })?,
+        )?;
+        crate::truth::write_truth_images(dir, &sample)?;
+        // Last: its presence tells a launcher that the camera is listening.
+        std::fs::write(
+            dir.join("truth.json"),
+            serde_json::to_string_pretty(&crate::truth::Truth {
+                dx_mm: hidden.dx_mm,
+                dy_mm: hidden.dy_mm,
+                theta_deg: hidden.theta_deg,
+                height_mm: hidden.height_mm,
+                defocus_um: None,
+                feature_um: None,
+                feature_at_um: None,
+                object_pixel_um: Some(sample.pitch_um()),
+                seed: a.seed,
+            })?,
+        )?;
+    }
+    tracing::info!(
+        "virtual camera {} on bench {}: {size}² frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
+        a.camera,
+        a.bench,
+        hidden.dx_mm,
+        hidden.dy_mm,
+        hidden.theta_deg,
+        hidden.height_mm
+    );
+    let mut frame_number = 0u64;
+    while !STOP.load(Ordering::SeqCst) {
+        let Some(pulse) = bench.next_pulse(Duration::from_millis(100))? else {
+            continue;
+        };
+        let stage = bench.stage()?;
+        let (object, renderer) = if stage.slide == Stage::CALIBRATION_TARGET {
+            (&target, &mut renderers.1)
+        } else {
+            (&sample, &mut renderers.0)
+        };
+        // Lit LEDs add incoherently; white light is taken at the system's wavelength.
+        let mut intensity = fpm_physics::Image::zeros((size, size));
+        for led in pulse.lit() {
+            let weight = led.rgb.iter().map(|&v| v as f32).fold(0.0, f32::max) / 255.0;
+            let i = renderer.render(
+                &system,
+                &hidden,
+                object,
+                (led.row as usize, led.col as usize),
+                stage.defocus_um,
+            );
+            intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
+        }
+        let exposure_ms = if stage.slide == Stage::CALIBRATION_TARGET {
+            // One exposure for the whole calibration set, as a user would set it.
+            camera.exposure_for(2.5, 0.85, 1.0, 1000.0)
+        } else {
+            camera.auto_exposure(&intensity)
+        };
+        let counts = camera.record(&intensity, exposure_ms, &mut rng);
+        std::thread::sleep(Duration::from_secs_f64(a.readout_ms.max(0.0) / 1e3));
+        let pixels = counts.as_slice().context("frame layout")?;
+        publisher.publish(
+            FrameHeader {
+                frame_number,
+                timestamp_ns: pulse.time_us * 1000,
+                exposure_us: (exposure_ms * 1e3).round() as u32,
+                width: size as u32,
+                height: size as u32,
+                bit_depth: camera.bit_depth,
+                camera_id: 0,
+                ..FrameHeader::default()
+            },
+            pixels,
+        )?;
+        tracing::debug!(
+            "frame {frame_number}: pulse {} at {} µs, {} LED(s), z {} µm, {:.1} ms",
+            pulse.pulse_number,
+            pulse.time_us,
+            pulse.lit().len(),
+            stage.defocus_um,
+            exposure_ms
+        );
+        frame_number += 1;
+    }
+    tracing::info!("virtual camera stopped after {frame_number} frames");
+    Ok(())
+}

@@ -1,0 +1,191 @@
+//! `fpm acquire` against the virtual microscope as real processes: the emulated
+//! controller on a pseudo-terminal publishing its light on an iceoryx2 bench, the
+//! virtual camera rendering with the wave-optics model, frames over shared memory.
+
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use fpm_host::dataset::Dataset;
+use fpm_physics::{LedGeometry, System};
+use fpm_tests::{fpm_bin, Emulator, TempDir};
+
+struct Kill(Child);
+
+impl Drop for Kill {
+    fn drop(&mut self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.0.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let _ = self.0.wait();
+    }
+}
+
+fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> Kill {
+    let child = Command::new(fpm_bin())
+        .args([
+            "virtual-camera",
+            "--bench",
+            id,
+            "--camera",
+            id,
+            "--size",
+            "48",
+            "--readout-ms",
+            "1",
+        ])
+        .args(["--truth-dir", &truth.to_string_lossy()])
+        .args(extra)
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let ready = truth.join("truth.json");
+    for _ in 0..500 {
+        if ready.exists() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(ready.exists(), "the virtual camera did not come up");
+    Kill(child)
+}
+
+/// Every LED of the 21×21 array, one frame each, labelled: judged by physics, not by
+/// bookkeeping — under the hidden (misplaced) array, exactly the frames labelled with a
+/// bright-field LED must be bright. A frame paired with its neighbour's LED would break
+/// this at the bright-field edge.
+#[test]
+fn every_frame_is_labelled_with_the_led_that_lit_it() {
+    let id = format!("acq-{}", std::process::id());
+    let dir = TempDir::new("acquire");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let truth_dir = dir.0.join("truth");
+    let _cam = camera(
+        &id,
+        &truth_dir,
+        &[
+            "--dx-mm",
+            "1.3",
+            "--dy-mm",
+            "-0.7",
+            "--theta-deg",
+            "3",
+            "--height-mm",
+            "90",
+        ],
+    );
+    let out = dir.0.join("data");
+    let run = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .args(["--step-ms", "15"])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(text.contains("acquired 441/441 frames"), "{text}");
+
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), 441);
+    let hidden = LedGeometry::paper().placed(1.3, -0.7, 3.0, 90.0);
+    let system = System::paper();
+    let mut leds: Vec<[usize; 2]> = ds.frames.iter().map(|f| f.entry.led).collect();
+    leds.sort();
+    leds.dedup();
+    assert_eq!(leds.len(), 441, "every LED exactly once");
+    let mut wrong = vec![];
+    for (k, f) in ds.frames.iter().enumerate() {
+        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
+        let (r, c) = (f.entry.led[0], f.entry.led[1]);
+        // Stay clear of LEDs right at the pupil edge, whose brightness is in between.
+        let fr = hidden.illumination_frequency(r, c, 0.0, 0.0, system.wavelength_um);
+        let margin = (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs();
+        if margin < 0.08 {
+            continue;
+        }
+        let bright = hidden.is_bright_field(r, c, 0.0, 0.0, &system);
+        // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
+        let looks_bright = rate > 0.3 * rate_of_clear_field();
+        if bright != looks_bright {
+            wrong.push((f.entry.led, rate));
+        }
+    }
+    assert!(
+        wrong.is_empty(),
+        "frames whose brightness contradicts their LED: {wrong:?}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["capture"]["labelled"], 441);
+    assert_eq!(report["capture"]["missing"].as_array().unwrap().len(), 0);
+}
+
+fn rate_of_clear_field() -> f32 {
+    let c = fpm_physics::simulate::Camera::realistic();
+    (c.electrons_per_ms * c.gain_dn_per_e) as f32
+}
+
+/// The camera dies mid-sequence: the acquisition ends with a clear report, keeps every
+/// frame it got (labelled), and lists the LEDs it is missing.
+#[test]
+fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
+    let id = format!("acqkill-{}", std::process::id());
+    let dir = TempDir::new("acquire-kill");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let mut cam = camera(
+        &id,
+        &dir.0.join("truth"),
+        &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
+    );
+    let out = dir.0.join("data");
+    let acquire = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .args(["--step-ms", "15"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    let _ = nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(cam.0.id() as i32),
+        nix::sys::signal::Signal::SIGKILL,
+    );
+    let _ = cam.0.wait();
+    let run = acquire.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    let labelled = report["capture"]["labelled"].as_u64().unwrap() as usize;
+    let missing = report["capture"]["missing"].as_array().unwrap().len();
+    assert!(labelled > 10 && labelled < 441, "{text}");
+    assert_eq!(labelled + missing, 441, "{text}");
+    assert!(text.contains("missing LEDs"), "{text}");
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), labelled, "what was acquired is on disk");
+}

@@ -1,0 +1,59 @@
+//! The README's main command, `fpm demo`, end to end (shorter LED steps):
+//! three processes, a hidden misplaced array, calibration, a labelled 441-LED
+//! acquisition and streaming reconstruction.
+
+use std::process::Command;
+
+use fpm_tests::{fpm_bin, TempDir};
+
+fn number_after(text: &str, key: &str) -> f64 {
+    let at = text
+        .find(key)
+        .unwrap_or_else(|| panic!("no {key:?} in:\n{text}"))
+        + key.len();
+    text[at..]
+        .trim_start()
+        .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
+        .next()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {key:?} in:\n{text}"))
+}
+
+#[test]
+fn the_demo_calibrates_acquires_and_reconstructs() {
+    let dir = TempDir::new("demo");
+    let out = dir.0.join("run");
+    let run = Command::new(fpm_bin())
+        .args(["demo", "--step-ms", "20", "--seed", "3"])
+        .args(["--out", &out.to_string_lossy()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(text.contains("441/441 LEDs labelled"), "{text}");
+    assert!(text.contains("missing 0, extra 0, ambiguous 0"), "{text}");
+    // The recovered array against the hidden one (rows: hidden, recovered).
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("truth.json")).unwrap()).unwrap();
+    let cal: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("calibration.json")).unwrap())
+            .unwrap();
+    let err = |k: &str| (truth[k].as_f64().unwrap() - cal[k].as_f64().unwrap()).abs();
+    assert!(err("dx_mm") < 0.012 && err("dy_mm") < 0.012, "{text}");
+    assert!(err("theta_deg") < 0.25 && err("height_mm") < 0.92, "{text}");
+    let nominal = number_after(&text, "nominal geometry");
+    let calibrated = number_after(&text, "calibrated");
+    assert!(calibrated < 0.5 * nominal, "{text}");
+    for f in [
+        "dataset.toml",
+        "acquisition.json",
+        "reconstruction/amplitude.tif",
+        "reconstruction/report.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+}

@@ -50,6 +50,12 @@ pub struct VirtualCameraArgs {
     /// Sensor readout time added after each exposure, ms.
     #[arg(long, default_value_t = 5.0)]
     pub readout_ms: f64,
+    /// Fault injection: never publish the frame with this number (repeatable).
+    #[arg(long)]
+    pub drop_frame: Vec<u64>,
+    /// Fault injection: deliver every frame this much later, ms (a slow driver).
+    #[arg(long, default_value_t = 0.0)]
+    pub late_ms: f64,
 }
 
 /// The hidden state, written to `truth_dir/virtual-camera.json`.
@@ -185,6 +191,12 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         let counts = camera.record(&intensity, exposure_ms, &mut rng);
         std::thread::sleep(Duration::from_secs_f64(a.readout_ms.max(0.0) / 1e3));
         let pixels = counts.as_slice().context("frame layout")?;
+        std::thread::sleep(Duration::from_secs_f64(a.late_ms.max(0.0) / 1e3));
+        if a.drop_frame.contains(&frame_number) {
+            tracing::warn!("dropping frame {frame_number} on purpose (--drop-frame)");
+            frame_number += 1;
+            continue;
+        }
         publisher.publish(
             FrameHeader {
                 frame_number,

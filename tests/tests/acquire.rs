@@ -188,4 +188,152 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
     assert!(text.contains("missing LEDs"), "{text}");
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), labelled, "what was acquired is on disk");
+
+    // The crashed camera left its shared memory behind; a new camera on the same
+    // services and a new acquisition work regardless.
+    let _cam = camera(
+        &id,
+        &dir.0.join("truth2"),
+        &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
+    );
+    let out2 = dir.0.join("data2");
+    let run = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--out",
+            &out2.to_string_lossy(),
+        ])
+        .args(["--step-ms", "15"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(text.contains("acquired 441/441 frames"), "{text}");
+}
+
+/// A frame dropped by the camera and every frame delivered late: the dropped LED is
+/// reported and re-acquired, and late frames still pair by their timestamps.
+#[test]
+fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
+    let id = format!("acqdrop-{}", std::process::id());
+    let dir = TempDir::new("acquire-drop");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    // The camera's frame 7 is lost, and each frame arrives 30 ms after its exposure
+    // (longer than a step), so frames trail the sequence.
+    let _cam = camera(
+        &id,
+        &dir.0.join("truth"),
+        &[
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--theta-deg",
+            "0",
+            "--height-mm",
+            "92",
+            "--drop-frame",
+            "7",
+            "--late-ms",
+            "30",
+        ],
+    );
+    let out = dir.0.join("data");
+    let run = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .args(["--step-ms", "15"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        report["capture"]["missing"].as_array().unwrap().len(),
+        1,
+        "{text}"
+    );
+    assert_eq!(report["capture"]["extra_frames"], 0, "{text}");
+    assert_eq!(report["retake"]["labelled"], 1, "{text}");
+    assert_eq!(report["frames_in_dataset"], 441, "{text}");
+    // Labels checked by physics, as above.
+    let ds = Dataset::load(&out).unwrap();
+    let system = System::paper();
+    let nominal = LedGeometry::paper();
+    for (k, f) in ds.frames.iter().enumerate() {
+        let (r, c) = (f.entry.led[0], f.entry.led[1]);
+        let fr = nominal.illumination_frequency(r, c, 0.0, 0.0, system.wavelength_um);
+        if (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs() < 0.08 {
+            continue;
+        }
+        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
+        assert_eq!(
+            nominal.is_bright_field(r, c, 0.0, 0.0, &system),
+            rate > 0.3 * rate_of_clear_field(),
+            "LED {:?}: rate {rate}",
+            f.entry.led
+        );
+    }
+}
+
+/// The controller dies mid-sequence: a clear error, and the frames so far on disk.
+#[test]
+fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
+    let id = format!("acqctl-{}", std::process::id());
+    let dir = TempDir::new("acquire-ctl");
+    let mut emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let _cam = camera(
+        &id,
+        &dir.0.join("truth"),
+        &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
+    );
+    let out = dir.0.join("data");
+    let acquire = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--out",
+            &out.to_string_lossy(),
+        ])
+        .args(["--step-ms", "15"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    emu.kill();
+    let run = acquire.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(err.contains("LED controller was lost"), "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    let kept = report["frames_in_dataset"].as_u64().unwrap() as usize;
+    assert!(kept > 10 && kept < 441, "{err}");
+    assert_eq!(Dataset::load(&out).unwrap().frames.len(), kept);
 }

@@ -50,6 +50,8 @@ pub struct CaptureReport {
     pub frames_per_s: f64,
     /// How the controller's sequence ended.
     pub outcome: String,
+    /// The capture broke off (controller lost); what arrived is still labelled.
+    pub failed: bool,
     /// Frames handed out while acquiring whose final label differs (0 expected; the
     /// dataset follows the final labels).
     pub relabelled: usize,
@@ -211,6 +213,7 @@ pub fn capture(
     let mut last_frame = Instant::now();
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
     let mut changed = false;
+    let mut failure: Option<String> = None;
     loop {
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             received.push(f);
@@ -233,7 +236,11 @@ pub fn capture(
                     break;
                 }
                 Err(ControllerError::Timeout { .. }) => break,
-                Err(e) => return Err(e).context("the controller went away during the capture"),
+                Err(e) => {
+                    // Keep what arrived: the caller writes it and reports the failure.
+                    failure = Some(format!("the LED controller was lost mid-sequence: {e}"));
+                    break;
+                }
             }
         }
         // Label what can be labelled now: frames not yet handed out, against the steps
@@ -272,6 +279,15 @@ pub fn capture(
         if outcome.is_some() && (complete || last_frame.elapsed() > idle_after_end) {
             break;
         }
+        if failure.is_some() {
+            // Frames already on their way still count.
+            std::thread::sleep(Duration::from_millis(300));
+            while let Ok(f) = drain.rx.try_recv() {
+                received.push(f);
+                online.push(None);
+            }
+            break;
+        }
         if outcome.is_none()
             && start.elapsed()
                 > Duration::from_nanos(period_ns * (leds.len() as u64 + 50))
@@ -290,7 +306,6 @@ pub fn capture(
         .collect();
     let p = pair(&step_times, &times, tolerance, 10_000_000_000);
     let seconds = start.elapsed().as_secs_f64();
-    let end = outcome.context("no end of sequence")?;
     let mut shots = Vec::with_capacity(p.matched.len());
     let mut matched = p.matched.clone();
     matched.sort_by_key(|&(si, _)| step_times[si].step);
@@ -325,10 +340,13 @@ pub fn capture(
         seconds,
         frames_per_s: shots.len() as f64 / seconds.max(1e-9),
         relabelled,
-        outcome: match end.outcome {
-            SequenceOutcome::Done => "done".into(),
-            other => format!("{other:?}"),
+        outcome: match (&failure, outcome.map(|e| e.outcome)) {
+            (Some(f), _) => f.clone(),
+            (None, Some(SequenceOutcome::Done)) => "done".into(),
+            (None, Some(other)) => format!("{other:?}"),
+            (None, None) => "no end of sequence".into(),
         },
+        failed: failure.is_some(),
     };
     Ok((shots, report))
 }

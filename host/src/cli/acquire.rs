@@ -94,6 +94,12 @@ pub struct AcquireSummary {
     pub calibration: Vec<CaptureReport>,
     /// The full capture.
     pub capture: CaptureReport,
+    /// The second capture of the frames the first one missed, if any.
+    pub retake: Option<CaptureReport>,
+    /// Frames written to the dataset.
+    pub frames_in_dataset: usize,
+    /// LEDs without a frame after the retake.
+    pub still_missing: Vec<[usize; 2]>,
     /// Last frame → final image, ms (with `--reconstruct`).
     pub last_frame_to_final_ms: Option<f64>,
     /// Streaming updates per frame, µs (mean).
@@ -142,6 +148,12 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         pixel_size_um: a.pixel_um,
     };
     let frames = ServiceNames::for_camera(&a.frames);
+    // Shared memory of crashed runs (ours or a camera's) is removed before we start.
+    match fpm_frames::cleanup_stale() {
+        Ok(0) => {}
+        Ok(n) => tracing::info!("removed the shared memory of {n} crashed process(es)"),
+        Err(e) => tracing::warn!("could not check for stale shared memory: {e}"),
+    }
     let stage = match a.stage {
         StageKind::Manual => StageMover::Manual,
         StageKind::Virtual => StageMover::Virtual(StageControl::create(
@@ -244,7 +256,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
     let dark = a.dark_level as f32;
     let mut update_us = vec![];
     let mut last_frame_at = Instant::now();
-    let (shots, report) = capture(&dev, &frames, 103, &leds, color, step_us, |shot| {
+    let mut on_frame = |shot: &Shot| {
         bar.inc(1);
         last_frame_at = Instant::now();
         if let Some(s) = streaming.as_mut() {
@@ -257,14 +269,27 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
             s.push(shot.led, image);
             update_us.push(t.elapsed().as_secs_f64() * 1e6);
         }
-    })?;
-    bar.finish_and_clear();
+    };
+    let (mut shots, report) = capture(&dev, &frames, 103, &leds, color, step_us, &mut on_frame)?;
+    // Frames that did not arrive (or could not be labelled) are taken again, once.
+    let mut retake = None;
+    if !report.failed && !report.missing.is_empty() {
+        let again: Vec<LedIndex> = report
+            .missing
+            .iter()
+            .map(|&[r, c]| LedIndex::new(r as u8, c as u8))
+            .collect();
+        tracing::warn!("re-acquiring {} missing frame(s)", again.len());
+        let (more, r) = capture(&dev, &frames, 104, &again, color, step_us, &mut on_frame)?;
+        shots.extend(more);
+        retake = Some(r);
+    }
     let shot_refs: Vec<(&Shot, f64)> = shots.iter().map(|s| (s, 0.0)).collect();
     write_dataset(&a.out, &manifest, &shot_refs)?;
 
     // 3. The rest of the reconstruction.
     let mut last_frame_to_final_ms = None;
-    if let Some(s) = streaming {
+    if let (Some(s), false) = (streaming, report.failed) {
         let mut done = s
             .finish(a.passes)
             .context("no bright-field frame arrived")?;
@@ -290,11 +315,19 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         };
         crate::reconstruction::write_outputs(&rec, &a.out.join("reconstruction"))?;
     }
+    let failure = report.failed.then(|| report.outcome.clone());
+    let still_missing: Vec<[usize; 2]> = match &retake {
+        Some(r) => r.missing.clone(),
+        None => report.missing.clone(),
+    };
     let summary = AcquireSummary {
         nominal,
         geometry,
         calibration: calibration_reports,
         capture: report,
+        retake,
+        frames_in_dataset: shots.len(),
+        still_missing,
         last_frame_to_final_ms,
         update_us_mean: (!update_us.is_empty())
             .then(|| update_us.iter().sum::<f64>() / update_us.len() as f64),
@@ -303,6 +336,13 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         a.out.join("acquisition.json"),
         serde_json::to_string_pretty(&summary)?,
     )?;
+    if let Some(why) = failure {
+        anyhow::bail!(
+            "{why}; the {} frames acquired before are labelled and written to {} (acquisition.json lists the missing LEDs)",
+            summary.frames_in_dataset,
+            a.out.display()
+        );
+    }
     Ok(summary)
 }
 
@@ -349,8 +389,14 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
         c.extra_frames,
         c.ambiguous_frames
     );
-    if !c.missing.is_empty() {
-        println!("  missing LEDs (not in the dataset): {:?}", c.missing);
+    if let Some(r) = &s.retake {
+        println!(
+            "  re-acquired {}/{} missing frame(s)",
+            r.labelled, r.requested
+        );
+    }
+    if !s.still_missing.is_empty() {
+        println!("  missing LEDs (not in the dataset): {:?}", s.still_missing);
     }
     let g = &s.geometry;
     println!(

@@ -1,4 +1,5 @@
-//! The emulated controller as a child process, for the demo and benchmarks.
+//! `fpm` subcommands as child processes (the emulated controller, the virtual camera),
+//! for the demo and benchmarks.
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -8,7 +9,7 @@ use anyhow::{bail, Context, Result};
 
 /// An emulator child process, stopped on drop.
 pub struct EmulatorProcess {
-    child: Child,
+    _child: ChildProcess,
     /// Its link path.
     pub link: PathBuf,
 }
@@ -16,41 +17,16 @@ pub struct EmulatorProcess {
 impl EmulatorProcess {
     /// Start `fpm emulator --link <tmp>` and wait until its link appears.
     pub fn start(extra: &[&str]) -> Result<Self> {
-        let exe = std::env::current_exe().context("locating the fpm executable")?;
         let link = std::env::temp_dir().join(format!("fpm-emulator-{}.tty", std::process::id()));
         // A link left by a crashed run of this pid is replaced by the emulator itself.
-        let child = Command::new(exe)
-            .arg("emulator")
-            .arg("--link")
-            .arg(&link)
-            .args(extra)
-            .env("RUST_LOG", "warn")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .context("starting the emulator")?;
-        let mut me = Self { child, link };
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !me.link.exists() {
-            if let Some(status) = me.child.try_wait()? {
-                bail!("the emulator exited at start-up: {status}");
-            }
-            if Instant::now() > deadline {
-                bail!(
-                    "the emulator did not create {} within 10 s",
-                    me.link.display()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        Ok(me)
-    }
-}
-
-impl Drop for EmulatorProcess {
-    fn drop(&mut self) {
-        let _ = nix_kill(self.child.id());
-        let _ = self.child.wait();
+        let link_arg = link.to_string_lossy().into_owned();
+        let mut args = vec!["emulator", "--link", link_arg.as_str()];
+        args.extend_from_slice(extra);
+        let child = ChildProcess::spawn("emulator", &args, Some((&link, Duration::from_secs(10))))?;
+        Ok(Self {
+            _child: child,
+            link,
+        })
     }
 }
 
@@ -61,8 +37,13 @@ pub struct ChildProcess {
 }
 
 impl ChildProcess {
-    /// Start `fpm <args>`; when `ready` is given, wait until that file exists.
-    pub fn spawn(what: &str, args: &[&str], ready: Option<&std::path::Path>) -> Result<Self> {
+    /// Start `fpm <args>`; when `ready` = (file, timeout) is given, wait until that file
+    /// exists.
+    pub fn spawn(
+        what: &str,
+        args: &[&str],
+        ready: Option<(&std::path::Path, Duration)>,
+    ) -> Result<Self> {
         let exe = std::env::current_exe().context("locating the fpm executable")?;
         let child = Command::new(exe)
             .args(args)
@@ -72,14 +53,14 @@ impl ChildProcess {
             .spawn()
             .with_context(|| format!("starting the {what}"))?;
         let mut me = Self { child };
-        if let Some(path) = ready {
-            let deadline = Instant::now() + Duration::from_secs(30);
+        if let Some((path, timeout)) = ready {
+            let deadline = Instant::now() + timeout;
             while !path.exists() {
                 if let Some(status) = me.child.try_wait()? {
                     bail!("the {what} exited at start-up: {status}");
                 }
                 if Instant::now() > deadline {
-                    bail!("the {what} was not ready within 30 s");
+                    bail!("the {what} was not ready within {timeout:?}");
                 }
                 std::thread::sleep(Duration::from_millis(20));
             }
@@ -90,20 +71,11 @@ impl ChildProcess {
 
 impl Drop for ChildProcess {
     fn drop(&mut self) {
-        let _ = nix_kill(self.child.id());
+        // SIGTERM lets the emulator remove its link and the camera leave iceoryx2 cleanly.
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.child.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
         let _ = self.child.wait();
-    }
-}
-
-fn nix_kill(pid: u32) -> std::io::Result<()> {
-    // SIGTERM lets the emulator remove its link.
-    let status = Command::new("kill")
-        .arg("-TERM")
-        .arg(pid.to_string())
-        .status()?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(std::io::Error::other("kill failed"))
     }
 }

@@ -95,6 +95,20 @@ impl Drop for TempDir {
     }
 }
 
+/// A child process (e.g. `fpm virtual-camera`) stopped with SIGTERM, and reaped, when
+/// dropped.
+pub struct ChildGuard(pub Child);
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.0.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let _ = self.0.wait();
+    }
+}
+
 /// `fpm emulator` running as a child process.
 pub struct Emulator {
     child: Option<Child>,

@@ -2,26 +2,24 @@
 //! controller on a pseudo-terminal publishing its light on an iceoryx2 bench, the
 //! virtual camera rendering with the wave-optics model, frames over shared memory.
 
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
 use fpm_physics::{LedGeometry, System};
-use fpm_tests::{fpm_bin, Emulator, TempDir};
+use fpm_tests::{fpm_bin, ChildGuard, Emulator, TempDir};
 
-struct Kill(Child);
-
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.0.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-        let _ = self.0.wait();
-    }
+/// `fpm acquire` against emulator `emu` and camera `id`, into `out`, 15 ms per LED.
+fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
+    let mut cmd = Command::new(fpm_bin());
+    cmd.args(["acquire", "--port", &emu.port(), "--frames", id, "--out"])
+        .arg(out)
+        .args(["--step-ms", "15"]);
+    cmd
 }
 
-fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> Kill {
+fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildGuard {
     let child = Command::new(fpm_bin())
         .args([
             "virtual-camera",
@@ -47,7 +45,7 @@ fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> Kill {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(ready.exists(), "the virtual camera did not come up");
-    Kill(child)
+    ChildGuard(child)
 }
 
 /// Every LED of the 21×21 array, one frame each, labelled: judged by physics, not by
@@ -75,19 +73,7 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
         ],
     );
     let out = dir.0.join("data");
-    let run = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--out",
-            &out.to_string_lossy(),
-        ])
-        .args(["--step-ms", "15"])
-        .output()
-        .unwrap();
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
     assert!(
         run.status.success(),
         "{}",
@@ -150,17 +136,7 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
         &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
     );
     let out = dir.0.join("data");
-    let acquire = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--out",
-            &out.to_string_lossy(),
-        ])
-        .args(["--step-ms", "15"])
+    let acquire = acquire_command(&emu, &id, &out)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -197,19 +173,7 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
         &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
     );
     let out2 = dir.0.join("data2");
-    let run = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--out",
-            &out2.to_string_lossy(),
-        ])
-        .args(["--step-ms", "15"])
-        .output()
-        .unwrap();
+    let run = acquire_command(&emu, &id, &out2).output().unwrap();
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(
         run.status.success(),
@@ -247,19 +211,7 @@ fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
         ],
     );
     let out = dir.0.join("data");
-    let run = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--out",
-            &out.to_string_lossy(),
-        ])
-        .args(["--step-ms", "15"])
-        .output()
-        .unwrap();
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(
         run.status.success(),
@@ -309,17 +261,7 @@ fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
         &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"],
     );
     let out = dir.0.join("data");
-    let acquire = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--out",
-            &out.to_string_lossy(),
-        ])
-        .args(["--step-ms", "15"])
+    let acquire = acquire_command(&emu, &id, &out)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

@@ -3,26 +3,14 @@
 //! rendering each exposure with the wave-optics model and publishing frames, and the
 //! host receiving them from shared memory while driving a real capture sequence.
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use fpm_frames::bench::{Stage, StageControl};
 use fpm_frames::{FrameSubscriber, ServiceNames};
 use fpm_host::controller::{Controller, SequenceEvent};
 use fpm_protocol::*;
-use fpm_tests::{fpm_bin, Emulator, TempDir};
-
-struct Kill(Child);
-
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.0.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-        let _ = self.0.wait();
-    }
-}
+use fpm_tests::{fpm_bin, ChildGuard, Emulator, TempDir};
 
 #[test]
 fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
@@ -50,7 +38,7 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
     ready_rx.recv().unwrap();
     let stage = StageControl::create(&id).unwrap();
     stage.set(Stage::default()).unwrap();
-    let _camera = Kill(
+    let _camera = ChildGuard(
         Command::new(fpm_bin())
             .args([
                 "virtual-camera",

@@ -98,14 +98,38 @@ fn service_name(s: &str) -> Result<ServiceName, FrameError> {
     s.try_into().map_err(|e| ipc("bench service name")(&e))
 }
 
+/// Trigger pulses a listener may have queued: the camera renders far slower than a
+/// sequence can step, and no pulse may be lost while it catches up.
+const PULSE_QUEUE: usize = 1024;
+
+type PulseService =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, TriggerPulse, ()>;
+type StageService =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Stage, ()>;
+
+fn pulse_service(node: &Node<ipc::Service>, bench: &str) -> Result<PulseService, FrameError> {
+    node.service_builder(&service_name(&names(bench).0)?)
+        .publish_subscribe::<TriggerPulse>()
+        .subscriber_max_buffer_size(PULSE_QUEUE)
+        .history_size(0)
+        .open_or_create()
+        .map_err(|e| ipc("opening the trigger service")(&e))
+}
+
+/// The stage keeps its last position (history 1) for a camera that starts later.
+fn stage_service(node: &Node<ipc::Service>, bench: &str) -> Result<StageService, FrameError> {
+    node.service_builder(&service_name(&names(bench).1)?)
+        .publish_subscribe::<Stage>()
+        .history_size(1)
+        .subscriber_max_buffer_size(8)
+        .open_or_create()
+        .map_err(|e| ipc("opening the stage service")(&e))
+}
+
 /// The controller side: publishes trigger pulses.
 pub struct PulsePublisher {
     port: Publisher<ipc::Service, TriggerPulse, ()>,
-    _service: iceoryx2::service::port_factory::publish_subscribe::PortFactory<
-        ipc::Service,
-        TriggerPulse,
-        (),
-    >,
+    _service: PulseService,
     _node: Node<ipc::Service>,
 }
 
@@ -113,13 +137,7 @@ impl PulsePublisher {
     /// For bench `bench`.
     pub fn create(bench: &str) -> Result<Self, FrameError> {
         let node = node("fpm-bench-light")?;
-        let service = node
-            .service_builder(&service_name(&names(bench).0)?)
-            .publish_subscribe::<TriggerPulse>()
-            .subscriber_max_buffer_size(1024)
-            .history_size(0)
-            .open_or_create()
-            .map_err(|e| ipc("opening the trigger service")(&e))?;
+        let service = pulse_service(&node, bench)?;
         let port = service
             .publisher_builder()
             .create()
@@ -145,47 +163,19 @@ pub struct BenchListener {
     pulses: Subscriber<ipc::Service, TriggerPulse, ()>,
     stage: Subscriber<ipc::Service, Stage, ()>,
     current: Stage,
-    _services: (
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<
-            ipc::Service,
-            TriggerPulse,
-            (),
-        >,
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Stage, ()>,
-    ),
+    _services: (PulseService, StageService),
     _node: Node<ipc::Service>,
-}
-
-fn stage_service(
-    node: &Node<ipc::Service>,
-    bench: &str,
-) -> Result<
-    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Stage, ()>,
-    FrameError,
-> {
-    node.service_builder(&service_name(&names(bench).1)?)
-        .publish_subscribe::<Stage>()
-        .history_size(1)
-        .subscriber_max_buffer_size(8)
-        .open_or_create()
-        .map_err(|e| ipc("opening the stage service")(&e))
 }
 
 impl BenchListener {
     /// For bench `bench`.
     pub fn create(bench: &str) -> Result<Self, FrameError> {
         let node = node("fpm-virtual-camera")?;
-        let pulses = node
-            .service_builder(&service_name(&names(bench).0)?)
-            .publish_subscribe::<TriggerPulse>()
-            .subscriber_max_buffer_size(1024)
-            .history_size(0)
-            .open_or_create()
-            .map_err(|e| ipc("opening the trigger service")(&e))?;
+        let pulses = pulse_service(&node, bench)?;
         let stage = stage_service(&node, bench)?;
         let pulse_port = pulses
             .subscriber_builder()
-            .buffer_size(1024)
+            .buffer_size(PULSE_QUEUE)
             .create()
             .map_err(|e| ipc("subscribing to trigger pulses")(&e))?;
         let stage_port = stage
@@ -236,8 +226,7 @@ impl BenchListener {
 /// The motorised-stage controller (the acquisition service's side).
 pub struct StageControl {
     port: Publisher<ipc::Service, Stage, ()>,
-    _service:
-        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Stage, ()>,
+    _service: StageService,
     _node: Node<ipc::Service>,
 }
 

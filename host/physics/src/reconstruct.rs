@@ -77,10 +77,9 @@ pub struct Epry {
     phi: Vec<Complex32>,
     /// Pupil bins: (LR index, signed kx, signed ky).
     pupil_bins: Vec<(u32, i64, i64)>,
-    /// Per frame: the HR index each pupil bin reads.
-    window: Vec<usize>,
-    /// Per frame: whether each pupil bin lies inside the sub-bin shifted pupil disc.
-    inside: Vec<bool>,
+    /// Per frame: the pupil bins inside the sub-bin shifted disc, each with the HR
+    /// object bin it reads (LR index, HR index).
+    active: Vec<(usize, usize)>,
     /// LR rows and columns that the pupil disc (with its sub-bin reach) touches.
     disc_rows: Vec<usize>,
     disc_cols: Vec<usize>,
@@ -149,8 +148,7 @@ impl Epry {
             psi: vec![Complex32::default(); n * n],
             phi: vec![Complex32::default(); n * n],
             pupil_bins,
-            window: Vec::new(),
-            inside: Vec::new(),
+            active: Vec::new(),
             disc_rows: (0..n)
                 .filter(|&r| (0..n).any(|c| reachable[r * n + c]))
                 .collect(),
@@ -217,31 +215,27 @@ impl Epry {
         // and the pupil disc is shifted by −δ bins instead.
         let (rx, ry) = (f.0 / self.df - sx as f64, f.1 / self.df - sy as f64);
         let radius2 = (self.cutoff / self.df).powi(2);
-        self.inside.clear();
-        self.inside.extend(
+        // Each bin inside the shifted disc reads the object at O(k − s), wrapped onto
+        // the HR grid.
+        self.active.clear();
+        self.active.extend(
             self.pupil_bins
                 .iter()
-                .map(|&(_, kx, ky)| (kx as f64 + rx).powi(2) + (ky as f64 + ry).powi(2) <= radius2),
+                .filter(|&&(_, kx, ky)| {
+                    (kx as f64 + rx).powi(2) + (ky as f64 + ry).powi(2) <= radius2
+                })
+                .map(|&(i, kx, ky)| {
+                    let o = (ky - sy).rem_euclid(nh) * nh + (kx - sx).rem_euclid(nh);
+                    (i as usize, o as usize)
+                }),
         );
-        // Where each pupil bin reads the object: O(k − s), wrapped onto the HR grid.
-        self.window.clear();
-        self.window
-            .extend(self.pupil_bins.iter().map(|&(_, kx, ky)| {
-                ((ky - sy).rem_euclid(nh) * nh + (kx - sx).rem_euclid(nh)) as usize
-            }));
         // ψ = P · O(k − s) on the pupil, zero elsewhere.
         self.psi.fill(Complex32::default());
         let mut omax = 0.0f32;
         let mut pmax = 0.0f32;
-        for ((&(i, _, _), &o), _) in self
-            .pupil_bins
-            .iter()
-            .zip(&self.window)
-            .zip(&self.inside)
-            .filter(|(_, &inside)| inside)
-        {
-            let (p, ob) = (self.pupil[i as usize], self.object[o]);
-            self.psi[i as usize] = p * ob;
+        for &(i, o) in &self.active {
+            let (p, ob) = (self.pupil[i], self.object[o]);
+            self.psi[i] = p * ob;
             omax = omax.max(ob.norm_sqr());
             pmax = pmax.max(p.norm_sqr());
         }
@@ -290,14 +284,7 @@ impl Epry {
             self.step_scale * self.settings.alpha / pmax.max(1e-12),
             self.step_scale * self.settings.beta / omax.max(1e-12),
         );
-        for ((&(i, _, _), &o), _) in self
-            .pupil_bins
-            .iter()
-            .zip(&self.window)
-            .zip(&self.inside)
-            .filter(|(_, &inside)| inside)
-        {
-            let i = i as usize;
+        for &(i, o) in &self.active {
             let d = self.phi[i] - self.psi[i];
             let o_old = self.object[o];
             self.object[o] += self.pupil[i].conj() * d * a_step;
@@ -458,6 +445,32 @@ pub struct Outcome {
 }
 
 impl Outcome {
+    /// Wrap up a run: `led` lit the initial frame, the field's centre is `centre_um`.
+    fn new(
+        epry: Epry,
+        errors: Vec<f64>,
+        initial: usize,
+        system: &System,
+        geometry: &crate::LedGeometry,
+        led: (usize, usize),
+        centre_um: (f64, f64),
+    ) -> Self {
+        let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+        let illumination_radius_um = ((lx * 1e3 - centre_um.0).powi(2)
+            + (ly * 1e3 - centre_um.1).powi(2)
+            + (geometry.height_mm * 1e3).powi(2))
+        .sqrt();
+        let hr_pixel_um = system.sample_pixel_um() / epry.upsample as f64;
+        Self {
+            epry,
+            errors,
+            initial,
+            illumination_radius_um,
+            wavelength_um: system.wavelength_um,
+            hr_pixel_um,
+        }
+    }
+
     /// The sample's HR transmission: the object with the illumination's curvature
     /// divided out ([`remove_illumination_curvature`]).
     pub fn sample(&mut self) -> ndarray::Array2<Complex32> {
@@ -470,6 +483,36 @@ impl Outcome {
         );
         field
     }
+}
+
+/// `passes` passes over `frames` (amplitude, illumination frequency), in the order
+/// given, with the adaptive step size; the pupil (if the settings learn it) is learned
+/// from bright-field frames from pass `learn_from` on. `progress(done, total)` after
+/// every update. Returns the mean error per pass.
+fn passes_over(
+    epry: &mut Epry,
+    system: &System,
+    frames: &[(&Image, (f64, f64))],
+    passes: usize,
+    learn_from: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Vec<f64> {
+    let mut errors = Vec::with_capacity(passes);
+    let mut schedule = StepSchedule::default();
+    for pass in 0..passes {
+        let mut e = 0.0;
+        for (j, &(img, f)) in frames.iter().enumerate() {
+            let learn = epry.settings.update_pupil
+                && pass >= learn_from
+                && f.0.hypot(f.1) < system.cutoff();
+            e += epry.update_amplitude(img, f, learn);
+            progress(pass * frames.len() + j + 1, passes * frames.len());
+        }
+        let e = e / frames.len().max(1) as f64;
+        errors.push(e);
+        epry.set_step_scale(schedule.after_pass(e));
+    }
+    errors
 }
 
 /// Where a square field sits in the camera frame and how its intensities are scaled.
@@ -520,33 +563,22 @@ pub fn run(
         .collect();
     let mut epry = Epry::new(system, &images[0].mapv(|a| a * a), settings);
     epry.set_free_border(field.free_border);
-    let mut errors = Vec::with_capacity(passes);
-    let mut schedule = StepSchedule::default();
-    for pass in 0..passes {
-        let mut e = 0.0;
-        for (j, (&k, img)) in order.iter().zip(&images).enumerate() {
-            let f = freq(&shots[k]);
-            let learn = settings.update_pupil && pass > 0 && f.0.hypot(f.1) < system.cutoff();
-            e += epry.update_amplitude(img, f, learn);
-            progress(pass * images.len() + j + 1, passes * images.len());
-        }
-        let e = e / images.len() as f64;
-        errors.push(e);
-        epry.set_step_scale(schedule.after_pass(e));
-    }
-    let led = shots[initial].led;
-    let (lx, ly) = geometry.led_position_mm(led.0, led.1);
-    let illumination_radius_um =
-        ((lx * 1e3 - cx).powi(2) + (ly * 1e3 - cy).powi(2) + (geometry.height_mm * 1e3).powi(2))
-            .sqrt();
-    Some(Outcome {
+    let frames: Vec<(&Image, (f64, f64))> = order
+        .iter()
+        .zip(&images)
+        .map(|(&k, img)| (img, freq(&shots[k])))
+        .collect();
+    // The pupil is learned from the second pass on, once the object has a first shape.
+    let errors = passes_over(&mut epry, system, &frames, passes, 1, &mut progress);
+    Some(Outcome::new(
         epry,
         errors,
         initial,
-        illumination_radius_um,
-        wavelength_um: system.wavelength_um,
-        hr_pixel_um: system.sample_pixel_um() / settings.upsample.max(1) as f64,
-    })
+        system,
+        geometry,
+        shots[initial].led,
+        field.centre_um,
+    ))
 }
 
 /// EPRY fed frame by frame as an acquisition runs: frames may arrive in any order; each
@@ -644,30 +676,20 @@ impl Streaming {
         let mut order: Vec<usize> = (0..self.frames.len()).collect();
         order.sort_by(|&a, &b| radius(a).total_cmp(&radius(b)));
         let initial = *order.first()?;
-        let mut errors = vec![];
-        let mut schedule = StepSchedule::default();
-        for _ in 0..passes {
-            let mut e = 0.0;
-            for &k in &order {
-                let learn = self.settings.update_pupil && radius(k) < self.system.cutoff();
-                e += epry.update_amplitude(&self.frames[k].1, freqs[k], learn);
-            }
-            let e = e / order.len().max(1) as f64;
-            errors.push(e);
-            epry.set_step_scale(schedule.after_pass(e));
-        }
-        let led = self.frames[initial].0;
-        let (lx, ly) = self.geometry.led_position_mm(led.0, led.1);
-        Some(Outcome {
+        let frames: Vec<(&Image, (f64, f64))> = order
+            .iter()
+            .map(|&k| (&self.frames[k].1, freqs[k]))
+            .collect();
+        // Every frame has already updated the object once as it arrived.
+        let errors = passes_over(&mut epry, &self.system, &frames, passes, 0, |_, _| {});
+        Some(Outcome::new(
             epry,
             errors,
             initial,
-            illumination_radius_um: ((lx * 1e3).powi(2)
-                + (ly * 1e3).powi(2)
-                + (self.geometry.height_mm * 1e3).powi(2))
-            .sqrt(),
-            wavelength_um: self.system.wavelength_um,
-            hr_pixel_um: self.system.sample_pixel_um() / self.settings.upsample.max(1) as f64,
-        })
+            &self.system,
+            &self.geometry,
+            self.frames[initial].0,
+            (0.0, 0.0),
+        ))
     }
 }

@@ -29,6 +29,17 @@ pub struct Shot {
     pub pixels: Vec<u16>,
 }
 
+/// A frame handed out while the capture runs, borrowed (no copy on the way to the
+/// streaming reconstructor).
+pub struct ShotView<'a> {
+    /// LED (row, col).
+    pub led: (usize, usize),
+    /// The camera's header.
+    pub header: &'a FrameHeader,
+    /// Pixels.
+    pub pixels: &'a [u16],
+}
+
 /// What a capture did.
 #[derive(Debug, Clone, Serialize)]
 pub struct CaptureReport {
@@ -189,7 +200,7 @@ pub fn capture(
     leds: &[LedIndex],
     color: Rgb,
     exposure_us: u32,
-    mut on_frame: impl FnMut(&Shot),
+    mut on_frame: impl FnMut(ShotView<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
     let steps: Vec<Step> = leds
         .iter()
@@ -267,10 +278,10 @@ pub fn capture(
                     let k = pending[pi];
                     online[k] = Some(step);
                     let led = leds[step];
-                    on_frame(&Shot {
+                    on_frame(ShotView {
                         led: (led.row as usize, led.col as usize),
-                        header: received[k].0,
-                        pixels: received[k].1.clone(),
+                        header: &received[k].0,
+                        pixels: &received[k].1,
                     });
                 }
             }

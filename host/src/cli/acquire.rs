@@ -14,10 +14,10 @@ use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{LedIndex, Rgb};
 use serde::Serialize;
 
-use crate::acquire::{capture, CaptureReport, Shot, StageMover};
+use crate::acquire::{capture, CaptureReport, Shot, ShotView, StageMover};
 use crate::calibration::calibrate_dataset;
 use crate::controller::Controller;
-use crate::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
+use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 
 /// How the focus stage moves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -164,28 +164,12 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
     };
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let step_us = (a.step_ms * 1e3).round().max(1_000.0) as u32;
-    let manifest = |frames: Vec<FrameEntry>| Manifest {
-        system: SystemSection {
-            wavelength_um: system.wavelength_um,
-            na: system.na,
-            magnification: system.magnification,
-            pixel_size_um: system.pixel_size_um,
-        },
-        led: LedSection {
-            rows: nominal.rows,
-            cols: nominal.cols,
-            pitch_mm: nominal.pitch_mm,
-            height_mm: nominal.height_mm,
-            center: [nominal.center.0, nominal.center.1],
-            offset_mm: [0.0, 0.0],
-            rotation_deg: 0.0,
-        },
-        camera: CameraSection {
+    let manifest = |frames: Vec<FrameEntry>| {
+        let camera = CameraSection {
             dark_level: a.dark_level,
-            bit_depth: None,
             ..CameraSection::default()
-        },
-        frames,
+        };
+        Manifest::new(&system, &nominal, camera, frames)
     };
 
     // 1. Calibration.
@@ -256,7 +240,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
     let dark = a.dark_level as f32;
     let mut update_us = vec![];
     let mut last_frame_at = Instant::now();
-    let mut on_frame = |shot: &Shot| {
+    let mut on_frame = |shot: ShotView<'_>| {
         bar.inc(1);
         last_frame_at = Instant::now();
         if let Some(s) = streaming.as_mut() {

@@ -149,7 +149,7 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
             "--truth-dir",
             &out_s,
         ],
-        Some(&out.join("truth.json")),
+        Some((&out.join("truth.json"), Duration::from_secs(30))),
     )?;
     println!(
         "virtual camera  {}² frames, wave-optics model, realistic noise (separate process, iceoryx2 shared memory)",

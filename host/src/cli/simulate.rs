@@ -11,7 +11,7 @@ use fpm_physics::{LedGeometry, System};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::dataset::{CameraSection, Dataset, FrameEntry, LedSection, Manifest, SystemSection};
+use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use crate::truth::Truth;
 
 /// Make a simulated dataset.
@@ -138,30 +138,12 @@ impl SceneArgs {
 
 /// The manifest for frames of the paper's system, with the nominal (uncalibrated) array.
 fn manifest(system: &System, camera: &Camera, frames: Vec<FrameEntry>) -> Manifest {
-    let n = nominal(92.0);
-    Manifest {
-        system: SystemSection {
-            wavelength_um: system.wavelength_um,
-            na: system.na,
-            magnification: system.magnification,
-            pixel_size_um: system.pixel_size_um,
-        },
-        led: LedSection {
-            rows: n.rows,
-            cols: n.cols,
-            pitch_mm: n.pitch_mm,
-            height_mm: n.height_mm,
-            center: [n.center.0, n.center.1],
-            offset_mm: [0.0, 0.0],
-            rotation_deg: 0.0,
-        },
-        camera: CameraSection {
-            dark_level: camera.dark_level_dn,
-            bit_depth: Some(camera.bit_depth),
-            ..CameraSection::default()
-        },
-        frames,
-    }
+    let camera = CameraSection {
+        dark_level: camera.dark_level_dn,
+        bit_depth: Some(camera.bit_depth),
+        ..CameraSection::default()
+    };
+    Manifest::new(system, &nominal(92.0), camera, frames)
 }
 
 /// Write simulated frames as a dataset with the nominal (uncalibrated) array.

@@ -108,6 +108,35 @@ pub struct Manifest {
 }
 
 impl Manifest {
+    /// A manifest for `frames` taken with `system`, the array described by `geometry`
+    /// (the inverse of [`Self::system`] and [`Self::geometry`]) and `camera`.
+    pub fn new(
+        system: &System,
+        geometry: &LedGeometry,
+        camera: CameraSection,
+        frames: Vec<FrameEntry>,
+    ) -> Self {
+        Self {
+            system: SystemSection {
+                wavelength_um: system.wavelength_um,
+                na: system.na,
+                magnification: system.magnification,
+                pixel_size_um: system.pixel_size_um,
+            },
+            led: LedSection {
+                rows: geometry.rows,
+                cols: geometry.cols,
+                pitch_mm: geometry.pitch_mm,
+                height_mm: geometry.height_mm,
+                center: [geometry.center.0, geometry.center.1],
+                offset_mm: [geometry.dx_mm, geometry.dy_mm],
+                rotation_deg: geometry.theta_deg,
+            },
+            camera,
+            frames,
+        }
+    }
+
     /// The optical system.
     pub fn system(&self) -> System {
         let s = &self.system;

@@ -1,10 +1,10 @@
 //! Helpers for tests that run the real programs: build and find the `fpm` binary,
-//! start an emulated controller as a separate process, stop or kill it.
+//! start rig processes (through `fpm_rig::process`, as the demo does), stop or kill
+//! them.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::OnceLock;
-use std::time::{Duration, Instant};
 
 /// The `fpm` executable, built with the same profile as the running test.
 pub fn fpm_bin() -> &'static Path {
@@ -26,7 +26,7 @@ pub fn fpm_bin() -> &'static Path {
             "build",
             "--quiet",
             "-p",
-            "fpm-host",
+            "fpm-cli",
             "--bin",
             "fpm",
             "--message-format=json",
@@ -57,21 +57,10 @@ pub fn fpm_bin() -> &'static Path {
     })
 }
 
-/// `shared/data`: beside the repository (as CI has it), or where `FPM_SHARED` points.
-pub fn shared_data() -> PathBuf {
-    let candidates = [
-        std::env::var("FPM_SHARED")
-            .map(PathBuf::from)
-            .unwrap_or_default(),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
-    ];
-    candidates
-        .into_iter()
-        .find(|p| p.join("data").is_dir())
-        .expect(
-            "shared/ (with data/) must sit beside the repository, or FPM_SHARED must point to it",
-        )
-        .join("data")
+/// The real data sets vendored in the repository (`data/`, each with its source and
+/// licence in its README).
+pub fn data_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data")
 }
 
 /// A scratch directory removed on drop.
@@ -95,23 +84,17 @@ impl Drop for TempDir {
     }
 }
 
-/// A child process (e.g. `fpm virtual-camera`) stopped with SIGTERM, and reaped, when
-/// dropped.
-pub struct ChildGuard(pub Child);
+pub use fpm_rig::process::{ChildProcess, Ready};
 
-impl Drop for ChildGuard {
-    fn drop(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.0.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-        let _ = self.0.wait();
-    }
+/// A child process (e.g. `fpm virtual-camera`), stopped with SIGTERM and reaped when
+/// dropped.
+pub fn child(command: Command, what: &str, ready: Ready<'_>) -> ChildProcess {
+    ChildProcess::start(command, what, ready).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
-/// `fpm emulator` running as a child process.
+/// `fpm emulator` running as a child process, its log kept in a file.
 pub struct Emulator {
-    child: Option<Child>,
+    process: fpm_rig::process::EmulatorProcess,
     /// The link path clients open.
     pub link: PathBuf,
     /// Where its log goes.
@@ -123,55 +106,22 @@ impl Emulator {
     pub fn start_at(link: &Path, extra: &[&str]) -> Self {
         let log = link.with_extension("log");
         let log_file = std::fs::File::create(&log).expect("emulator log file");
-        let child = Command::new(fpm_bin())
-            .arg("emulator")
-            .arg("--link")
-            .arg(link)
-            .args(extra)
-            .env("RUST_LOG", "info")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(log_file)
-            .spawn()
-            .expect("starting the emulator");
-        let mut me = Self {
-            child: Some(child),
-            link: link.to_path_buf(),
-            log,
-        };
-        me.wait_ready(link);
-        me
-    }
-
-    fn wait_ready(&mut self, link: &Path) {
-        let deadline = Instant::now() + Duration::from_secs(20);
-        // The emulator creates the link (atomically) only once it serves the terminal.
-        loop {
-            if let Ok(target) = std::fs::read_link(link) {
-                if target.exists()
-                    && self
-                        .child
-                        .as_mut()
-                        .is_some_and(|c| c.try_wait().ok().flatten().is_none())
-                {
-                    return;
-                }
-            }
-            if let Some(status) = self
-                .child
-                .as_mut()
-                .and_then(|c| c.try_wait().ok().flatten())
-            {
-                panic!("emulator exited at start: {status}\n{}", self.log_text());
-            }
-            assert!(Instant::now() < deadline, "emulator did not become ready");
-            std::thread::sleep(Duration::from_millis(10));
+        match fpm_rig::process::EmulatorProcess::start_at(fpm_bin(), link, extra, log_file.into()) {
+            Ok(process) => Self {
+                process,
+                link: link.to_path_buf(),
+                log,
+            },
+            Err(e) => panic!(
+                "{e:#}\n{}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            ),
         }
     }
 
     /// The link path as a port name.
     pub fn port(&self) -> String {
-        self.link.to_string_lossy().into_owned()
+        self.process.port()
     }
 
     /// Its log so far.
@@ -181,36 +131,12 @@ impl Emulator {
 
     /// Kill it without warning (SIGKILL): the link stays behind, as after a crash.
     pub fn kill(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
+        self.process.process.kill();
     }
 
     /// Stop it cleanly (SIGTERM) and return its exit status.
     pub fn stop(&mut self) -> Option<std::process::ExitStatus> {
-        let mut c = self.child.take()?;
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(c.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-        let deadline = Instant::now() + Duration::from_secs(5);
-        loop {
-            if let Ok(Some(status)) = c.try_wait() {
-                return Some(status);
-            }
-            if Instant::now() > deadline {
-                let _ = c.kill();
-                return c.wait().ok();
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-}
-
-impl Drop for Emulator {
-    fn drop(&mut self) {
-        self.stop();
+        self.process.process.stop()
     }
 }
 

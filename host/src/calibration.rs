@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use fpm_physics::calibrate::{self, Calibration, LedStatus, Options};
 use fpm_physics::LedGeometry;
 use serde::{Deserialize, Serialize};
@@ -26,17 +26,116 @@ pub struct CalibrationFile {
 }
 
 impl CalibrationFile {
-    /// Read a `calibration.json`.
-    pub fn read(path: &Path) -> Result<Self> {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        serde_json::from_str(&text)
-            .with_context(|| format!("{} is not a calibration file", path.display()))
-    }
-
     /// The calibrated geometry.
     pub fn geometry(&self) -> LedGeometry {
         self.calibration.geometry(&self.nominal)
+    }
+}
+
+/// The four numbers that place an LED array (docs/dataset.md, "calibration.json").
+pub const GEOMETRY_KEYS: [&str; 4] = ["dx_mm", "dy_mm", "theta_deg", "height_mm"];
+
+/// An LED array placement read from a `calibration.json`: either a full file written by
+/// `fpm calibrate`, or a hand-written one with only [`GEOMETRY_KEYS`] (an array measured
+/// by other means). The grid itself (rows, cols, pitch, centre LED) comes from the
+/// file's `nominal` block when it has one, else from the dataset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placement {
+    /// Δx, mm.
+    pub dx_mm: f64,
+    /// Δy, mm.
+    pub dy_mm: f64,
+    /// θ, degrees.
+    pub theta_deg: f64,
+    /// LED-to-sample distance, mm.
+    pub height_mm: f64,
+    /// The grid the file was computed for, if it says.
+    pub nominal: Option<LedGeometry>,
+}
+
+impl Placement {
+    /// Read `path`. A missing or non-numeric key among [`GEOMETRY_KEYS`] is an error that
+    /// names every such key.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        Self::parse(&text).with_context(|| format!("{}", path.display()))
+    }
+
+    /// Parse the JSON text of a calibration file.
+    pub fn parse(text: &str) -> Result<Self> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).context("not a JSON calibration file")?;
+        let object = value.as_object().context(
+            "a calibration file is a JSON object with dx_mm, dy_mm, theta_deg, height_mm",
+        )?;
+        let mut numbers = [0.0; 4];
+        let mut missing = vec![];
+        let mut invalid = vec![];
+        for (slot, key) in numbers.iter_mut().zip(GEOMETRY_KEYS) {
+            match object.get(key) {
+                None => missing.push(key),
+                Some(v) => match v.as_f64().filter(|x| x.is_finite()) {
+                    Some(x) => *slot = x,
+                    None => invalid.push(format!("{key} = {v}")),
+                },
+            }
+        }
+        if !missing.is_empty() {
+            bail!(
+                "missing key(s) {}: a calibration file needs all of {}",
+                missing.join(", "),
+                GEOMETRY_KEYS.join(", ")
+            );
+        }
+        if !invalid.is_empty() {
+            bail!("not a finite number: {}", invalid.join(", "));
+        }
+        let [dx_mm, dy_mm, theta_deg, height_mm] = numbers;
+        if height_mm <= 0.0 {
+            bail!("height_mm = {height_mm}: the LED array must sit below the sample (> 0)");
+        }
+        let nominal = match object.get("nominal") {
+            None => None,
+            Some(v) => Some(
+                serde_json::from_value::<LedGeometry>(v.clone())
+                    .context("the `nominal` block is not an LED grid")?,
+            ),
+        };
+        Ok(Self {
+            dx_mm,
+            dy_mm,
+            theta_deg,
+            height_mm,
+            nominal,
+        })
+    }
+
+    /// The placed array on the file's grid, or on `dataset_nominal` when the file has
+    /// none. A file whose grid differs from the dataset's is used as written, with a
+    /// warning.
+    pub fn geometry(&self, dataset_nominal: &LedGeometry) -> LedGeometry {
+        let grid = match self.nominal {
+            Some(n) => {
+                if (n.rows, n.cols, n.center)
+                    != (
+                        dataset_nominal.rows,
+                        dataset_nominal.cols,
+                        dataset_nominal.center,
+                    )
+                    || (n.pitch_mm - dataset_nominal.pitch_mm).abs() > 1e-9
+                {
+                    tracing::warn!(
+                        "the calibration's LED grid ({}x{}, pitch {} mm, centre {:?}) differs from the dataset's ({}x{}, pitch {} mm, centre {:?}); using the calibration's",
+                        n.rows, n.cols, n.pitch_mm, n.center,
+                        dataset_nominal.rows, dataset_nominal.cols, dataset_nominal.pitch_mm, dataset_nominal.center
+                    );
+                }
+                n
+            }
+            None => *dataset_nominal,
+        };
+        grid.placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
     }
 }
 
@@ -85,7 +184,6 @@ pub fn write_residual_plot(cal: &Calibration, path: &Path) -> Result<f64> {
         })
         .collect();
     let (canvas, gain) = crate::plot::residual_plot(&points, 800);
-    crate::dataset::image_io::write_png_rgb(path, canvas.width, canvas.height, &canvas.rgb)
-        .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
+    crate::dataset::image_io::write_png_rgb(path, canvas.width, canvas.height, &canvas.rgb)?;
     Ok(gain)
 }

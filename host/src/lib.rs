@@ -1,16 +1,12 @@
 //! # fpm-host
 //!
-//! The host side of the fpm microscope: the LED controller client and the `fpm`
-//! command: datasets, calibration, reconstruction, and (with the emulator) the virtual
-//! microscope.
+//! fpm on the host, without devices or processes: the dataset format
+//! (`docs/dataset.md`), calibration and reconstruction of datasets with their reports
+//! and outputs, and scoring against a simulation's truth. The physics is
+//! `fpm-physics`; acquisition from a live rig is `fpm-acquire`.
 
-pub mod acquire;
 pub mod calibration;
-pub mod cli;
-pub mod controller;
 pub mod dataset;
-pub mod emulator_process;
 pub mod plot;
 pub mod reconstruction;
 pub mod truth;
-pub mod virtual_camera;

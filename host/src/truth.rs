@@ -1,6 +1,6 @@
 //! The ground truth that `fpm simulate` writes beside a simulated dataset
 //! (`truth.json`, `truth_amplitude.tif`, `truth_phase.tif`), and scoring a
-//! reconstruction against it (PHYSICS.md §6).
+//! reconstruction against it (docs/dataset.md §6).
 
 use std::path::Path;
 
@@ -11,7 +11,7 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{image_io, Dataset, Pixels};
+use crate::dataset::{image_io, Dataset};
 
 /// `truth.json`: the hidden array and what was simulated.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -36,8 +36,9 @@ pub struct Truth {
     /// Pixel of `truth_amplitude.tif` / `truth_phase.tif`, µm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub object_pixel_um: Option<f64>,
-    /// Seed of the simulation.
-    pub seed: u64,
+    /// Seed of the simulation (other simulators may not record one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
 }
 
 impl Truth {
@@ -64,16 +65,30 @@ impl Truth {
 /// `truth_phase.tif`, float32 at the simulation's pixel) into `dir`.
 pub fn write_truth_images(dir: &Path, object: &fpm_physics::simulate::ObjectField) -> Result<()> {
     let gt = object.crop_to_camera();
-    image_io::write_tiff_f32(&dir.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))
-        .map_err(anyhow::Error::msg)?;
-    image_io::write_tiff_f32(&dir.join("truth_phase.tif"), &gt.mapv(|c| c.arg()))
-        .map_err(anyhow::Error::msg)?;
+    image_io::write_tiff_f32(&dir.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))?;
+    image_io::write_tiff_f32(&dir.join("truth_phase.tif"), &gt.mapv(|c| c.arg()))?;
     Ok(())
 }
 
 /// Score the HR object `reconstruction` (`upsample` × the camera grid) of dataset `ds`
-/// against the truth beside it. `None` when the dataset carries no object truth.
+/// against the truth beside it. Scoring is an extra: `None` when the dataset carries no
+/// object truth, and a truth that cannot be read or used gives a warning (naming the
+/// file and the reason), never a failed reconstruction.
 pub fn score_reconstruction(
+    ds: &Dataset,
+    reconstruction: &Array2<Complex32>,
+    upsample: usize,
+) -> Option<Scores> {
+    match try_score(ds, reconstruction, upsample) {
+        Ok(scores) => scores,
+        Err(e) => {
+            tracing::warn!("not scored against the truth beside the dataset: {e:#}");
+            None
+        }
+    }
+}
+
+fn try_score(
     ds: &Dataset,
     reconstruction: &Array2<Complex32>,
     upsample: usize,
@@ -84,29 +99,17 @@ pub fn score_reconstruction(
     let Some(pitch) = truth.object_pixel_um else {
         return Ok(None);
     };
-    let (amp_path, phase_path) = (
-        ds.dir.join("truth_amplitude.tif"),
-        ds.dir.join("truth_phase.tif"),
-    );
-    let read = |p: &Path| -> Result<Array2<f32>> {
-        match image_io::read(p).map_err(anyhow::Error::msg)? {
-            Pixels::F32(a) => Ok(a),
-            _ => bail!("{}: expected a float32 TIFF", p.display()),
-        }
-    };
-    let (amp, phase) = (read(&amp_path)?, read(&phase_path)?);
-    if amp.dim() != phase.dim() || amp.dim().0 != amp.dim().1 {
-        bail!(
-            "{} and {}: the truth must be two square images of one size",
-            amp_path.display(),
-            phase_path.display()
-        );
+    let object = image_io::read_complex(
+        &ds.dir.join("truth_amplitude.tif"),
+        &ds.dir.join("truth_phase.tif"),
+    )?;
+    if object.dim().0 != object.dim().1 {
+        bail!("truth_amplitude.tif: the truth must be square");
     }
     let (rh, rw) = reconstruction.dim();
     if rh != rw {
         bail!("scoring takes square reconstructions ({rw}x{rh})");
     }
-    let object = Array2::from_shape_fn(amp.dim(), |i| Complex32::from_polar(amp[i], phase[i]));
     let system = ds.manifest.system();
     let geometry = truth.geometry(&ds.manifest.geometry());
     let discs: Vec<(f64, f64)> = ds

@@ -8,7 +8,7 @@ use crate::limits::MAX_NAME_LEN;
 use crate::{BudgetConfig, ProtocolVersion, SequenceStatus};
 
 /// One LED, addressed by its place in the grid (0-based, row 0 at the top of the
-/// board as seen from the sample, i.e. along −y; see PHYSICS.md §1).
+/// board as seen from the sample, i.e. along −y; see docs/dataset.md §1).
 #[derive(
     Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
 )]

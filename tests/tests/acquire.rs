@@ -1,5 +1,5 @@
 //! `fpm acquire` against the virtual microscope as real processes: the emulated
-//! controller on a pseudo-terminal publishing its light on an iceoryx2 bench, the
+//! controller on a pseudo-terminal publishing its light on an iceoryx2 rig bus, the
 //! virtual camera rendering with the wave-optics model, frames over shared memory.
 
 use std::path::Path;
@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
 use fpm_physics::{LedGeometry, System};
-use fpm_tests::{fpm_bin, ChildGuard, Emulator, TempDir};
+use fpm_tests::{child, fpm_bin, ChildProcess, Emulator, Ready, TempDir};
 
 /// `fpm acquire` against emulator `emu` and camera `id`, into `out`, 15 ms per LED.
 fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
@@ -19,11 +19,12 @@ fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
     cmd
 }
 
-fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildGuard {
-    let child = Command::new(fpm_bin())
+fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildProcess {
+    let mut command = Command::new(fpm_bin());
+    command
         .args([
             "virtual-camera",
-            "--bench",
+            "--rig",
             id,
             "--camera",
             id,
@@ -34,18 +35,14 @@ fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildGuard {
         ])
         .args(["--truth-dir", &truth.to_string_lossy()])
         .args(extra)
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+        .stdout(Stdio::null());
+    // The camera writes truth.json last, once it listens.
     let ready = truth.join("truth.json");
-    for _ in 0..500 {
-        if ready.exists() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    assert!(ready.exists(), "the virtual camera did not come up");
-    ChildGuard(child)
+    child(
+        command,
+        "virtual camera",
+        Ready::FileExists(&ready, Duration::from_secs(10)),
+    )
 }
 
 /// Every LED of the 21×21 array, one frame each, labelled: judged by physics, not by
@@ -56,7 +53,7 @@ fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildGuard {
 fn every_frame_is_labelled_with_the_led_that_lit_it() {
     let id = format!("acq-{}", std::process::id());
     let dir = TempDir::new("acquire");
-    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     let truth_dir = dir.0.join("truth");
     let _cam = camera(
         &id,
@@ -129,7 +126,7 @@ fn rate_of_clear_field() -> f32 {
 fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
     let id = format!("acqkill-{}", std::process::id());
     let dir = TempDir::new("acquire-kill");
-    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     let mut cam = camera(
         &id,
         &dir.0.join("truth"),
@@ -142,11 +139,7 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
         .spawn()
         .unwrap();
     std::thread::sleep(Duration::from_secs(3));
-    let _ = nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(cam.0.id() as i32),
-        nix::sys::signal::Signal::SIGKILL,
-    );
-    let _ = cam.0.wait();
+    cam.kill();
     let run = acquire.wait_with_output().unwrap();
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(
@@ -189,7 +182,7 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
 fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
     let id = format!("acqdrop-{}", std::process::id());
     let dir = TempDir::new("acquire-drop");
-    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     // The camera's frame 7 is lost, and each frame arrives 30 ms after its exposure
     // (longer than a step), so frames trail the sequence.
     let _cam = camera(
@@ -254,7 +247,7 @@ fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
 fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
     let id = format!("acqctl-{}", std::process::id());
     let dir = TempDir::new("acquire-ctl");
-    let mut emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let mut emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     let _cam = camera(
         &id,
         &dir.0.join("truth"),

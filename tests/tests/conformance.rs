@@ -3,9 +3,9 @@
 
 use std::time::Duration;
 
+use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
+use fpm_acquire::controller::{Controller, ControllerError, SequenceEvent};
 use fpm_firmware::chain::chain_index;
-use fpm_host::controller::scan::{scan_steps, Order, Selection};
-use fpm_host::controller::{Controller, ControllerError, SequenceEvent};
 use fpm_protocol::*;
 use fpm_tests::{Emulator, TempDir};
 
@@ -32,7 +32,7 @@ fn timing(trigger_in: Option<TriggerIn>) -> SequenceTiming {
 }
 
 /// Collect events until the end of the run.
-fn drain(events: &mut fpm_host::controller::SequenceEvents) -> (Vec<StepEvent>, SequenceEnd) {
+fn drain(events: &mut fpm_acquire::controller::SequenceEvents) -> (Vec<StepEvent>, SequenceEnd) {
     let mut steps = vec![];
     loop {
         match events.next(Duration::from_secs(5)).expect("sequence event") {

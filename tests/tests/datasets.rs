@@ -1,4 +1,4 @@
-//! The PHYSICS.md §5 dataset format on real files: lossless round trips, other labs'
+//! The docs/dataset.md §5 dataset format on real files: lossless round trips, other labs'
 //! data, and bad datasets that must fail with errors naming the key or frame.
 
 use std::path::Path;
@@ -7,7 +7,7 @@ use std::process::Command;
 use fpm_host::dataset::{
     CameraSection, Dataset, FrameEntry, LedSection, Manifest, Pixels, SystemSection,
 };
-use fpm_tests::{fpm_bin, shared_data, TempDir};
+use fpm_tests::{data_dir, fpm_bin, TempDir};
 use ndarray::Array2;
 
 fn manifest(frames: usize) -> Manifest {
@@ -107,8 +107,8 @@ fn camera_flips_and_transpose_are_applied_on_load() {
 }
 
 #[test]
-fn the_shared_usaf_dataset_from_another_lab_loads() {
-    let ds = Dataset::load(&shared_data().join("zuo-usaf-11x11")).unwrap();
+fn the_vendored_usaf_dataset_from_another_lab_loads() {
+    let ds = Dataset::load(&data_dir().join("zuo-usaf-11x11")).unwrap();
     assert_eq!(ds.frames.len(), 121);
     assert_eq!(ds.frames[0].raw.dim(), (128, 128));
     assert_eq!(ds.manifest.led.rows, 11);
@@ -164,8 +164,11 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
 
     let e = broken("size", |d| {
         let small = Array2::<u16>::zeros((8, 16));
-        fpm_host::dataset::image_io::write_tiff_u16(&d.join("frames/r02_c14_z-36.tif"), &small)
-            .unwrap();
+        fpm_host::dataset::image_io::write_tiff_u16(
+            &d.join("frames/r02_c14_z-36.tif"),
+            small.view(),
+        )
+        .unwrap();
     });
     assert!(
         e.contains("frame 2") && e.contains("16x8") && e.contains("differs"),

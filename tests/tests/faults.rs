@@ -5,8 +5,8 @@ use std::io::{Read, Write};
 use std::os::fd::AsFd;
 use std::time::{Duration, Instant};
 
-use fpm_host::controller::scan::{scan_steps, Order, Selection};
-use fpm_host::controller::{Controller, ControllerError, SequenceEvent};
+use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
+use fpm_acquire::controller::{Controller, ControllerError, SequenceEvent};
 use fpm_protocol::*;
 use fpm_tests::wire::{frame, frames};
 use fpm_tests::{Emulator, TempDir};

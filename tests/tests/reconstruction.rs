@@ -1,4 +1,4 @@
-//! `fpm reconstruct` on real measured data from another lab (shared/data): the result
+//! `fpm reconstruct` on real measured data from another lab (data/ in this repository): the result
 //! must carry detail the camera cannot even sample, and only where the target has it.
 
 use std::path::{Path, PathBuf};
@@ -11,7 +11,7 @@ use ndarray::{s, Array2};
 use rustfft::num_complex::Complex32;
 
 fn usaf() -> PathBuf {
-    fpm_tests::shared_data().join("zuo-usaf-11x11")
+    fpm_tests::data_dir().join("zuo-usaf-11x11")
 }
 
 /// Spectral energy per pixel of a Hann-windowed region between `lo` and `hi` cycles/µm.

@@ -5,7 +5,7 @@
 use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
-use fpm_host::controller::Controller;
+use fpm_acquire::controller::Controller;
 use fpm_protocol::*;
 use fpm_tests::wire::{frame, frames};
 use fpm_tests::{Emulator, TempDir};

@@ -16,15 +16,17 @@
 //! * A slow consumer loses the oldest buffered frame (iceoryx2's safe overflow), never
 //!   blocks the camera; gaps show in `frame_number`, which the consumer checks.
 
-pub mod bench;
 mod header;
 mod publisher;
 mod service;
 mod subscriber;
 
 pub use header::FrameHeader;
+pub use iceoryx2::prelude::LogLevel;
 pub use publisher::{FrameLoan, FramePublisher};
-pub use service::{cleanup_stale, ServiceNames, FRAME_READY, SAMPLES_PER_PUBLISHER};
+pub use service::{
+    cleanup_stale, node, set_ipc_log_level, ServiceNames, FRAME_READY, SAMPLES_PER_PUBLISHER,
+};
 pub use subscriber::{Frame, FrameSubscriber};
 
 /// The largest frame the contract is sized for by default: 5472 × 3648 (20 MP).
@@ -59,6 +61,12 @@ pub enum FrameError {
         /// The publisher's maximum.
         max: usize,
     },
+}
+
+/// Turn an iceoryx2 error of step `what` into a [`FrameError`] (for crates that build
+/// further services on [`node`]).
+pub fn ipc_error(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> FrameError {
+    ipc(what)
 }
 
 pub(crate) fn ipc(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> FrameError {

@@ -1,5 +1,7 @@
 //! Every iceoryx2 service the frame road uses, built in one place.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use iceoryx2::node::NodeState;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -48,11 +50,29 @@ pub(crate) type PubSub = publish_subscribe::PortFactory<ipc::Service, [u16], Fra
 pub(crate) type Event = event::PortFactory<ipc::Service>;
 pub(crate) type FramePort = Publisher<ipc::Service, [u16], FrameHeader>;
 
-/// A node of this process, with signal handling left to the application.
-pub(crate) fn node(name: &str) -> Result<Node<ipc::Service>, FrameError> {
-    // iceoryx2 warns on stderr when it runs without a config file (we need none);
-    // IOX2_LOG_LEVEL still overrides.
-    set_log_level_from_env_or(LogLevel::Error);
+/// Whether the application chose iceoryx2's log level ([`set_ipc_log_level`]).
+static LOG_LEVEL_CHOSEN: AtomicBool = AtomicBool::new(false);
+
+/// Set iceoryx2's own log level for this process (e.g. `LogLevel::Warn` with `-v`);
+/// `IOX2_LOG_LEVEL` still overrides. Without a call, only iceoryx2's errors are
+/// printed: it warns on every start that it runs without a config file, which we
+/// never need.
+pub fn set_ipc_log_level(level: LogLevel) {
+    LOG_LEVEL_CHOSEN.store(true, Ordering::SeqCst);
+    set_log_level_from_env_or(level);
+}
+
+/// Before any iceoryx2 call: quiet unless the application chose otherwise.
+fn quiet_by_default() {
+    if !LOG_LEVEL_CHOSEN.load(Ordering::SeqCst) {
+        set_log_level_from_env_or(LogLevel::Error);
+    }
+}
+
+/// An iceoryx2 node of this process, with signal handling left to the application and
+/// iceoryx2's log quiet by default.
+pub fn node(name: &str) -> Result<Node<ipc::Service>, FrameError> {
+    quiet_by_default();
     let name: NodeName = name.try_into().map_err(|e| ipc("node name")(&e))?;
     NodeBuilder::new()
         .name(&name)
@@ -112,6 +132,7 @@ pub(crate) fn publisher(service: &PubSub, max_pixels: usize) -> Result<FramePort
 /// to call any time, a live process's resources are never touched. Returns how many
 /// dead nodes were cleaned up.
 pub fn cleanup_stale() -> Result<usize, FrameError> {
+    quiet_by_default();
     let mut cleaned = 0;
     Node::<ipc::Service>::list(Config::global_config(), |state| {
         if let NodeState::<ipc::Service>::Dead(view) = state {

@@ -2,7 +2,7 @@
 //!
 //! The physics of Fourier ptychographic microscopy, as pure functions over arrays: no
 //! files, no threads of its own beyond data-parallel loops, no clocks. Conventions are
-//! those of `shared/PHYSICS.md`: µm in the sample plane, mm for LED geometry,
+//! those of `docs/dataset.md`: µm in the sample plane, mm for LED geometry,
 //! cycles/µm for spatial frequencies, F(f) = Σ f(x)·exp(−i2π f·x).
 //!
 //! * [`optics`]: the system, LED geometry, illumination wave vectors, pupil, defocus;
@@ -11,10 +11,14 @@
 //!   spectrum defocus, pupil, camera noise) and test objects;
 //! * [`calibrate`]: pdcFPM — feature finding, defocus-shift measurement with a
 //!   model-based bias correction, and the LED-array fit;
-//! * [`reconstruct`]: EPRY, offline and streaming; [`tiles`]: the full field of view.
+//! * [`frame`]: measured frames — counts, dark level, exposure — and the one
+//!   conversion to intensity;
+//! * [`reconstruct`]: EPRY, offline, streaming and tiled; [`tiles`]: tile geometry and
+//!   blending.
 
 pub mod calibrate;
 pub mod fft;
+pub mod frame;
 pub mod image;
 pub mod metrics;
 pub mod optics;

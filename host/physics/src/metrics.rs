@@ -1,4 +1,4 @@
-//! Quality metrics of PHYSICS.md §6 and the resampling they need.
+//! Quality metrics of docs/dataset.md §6 and the resampling they need.
 
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
@@ -52,7 +52,7 @@ pub fn resample(
     Array2::from_shape_fn((m, m), |(r, c)| out[r * m + c] * scale)
 }
 
-/// The central `fraction` of a square array (PHYSICS.md compares on the central 75 %).
+/// The central `fraction` of a square array (docs/dataset.md compares on the central 75 %).
 pub fn central(a: &Array2<Complex32>, fraction: f64) -> Vec<Complex32> {
     let n = a.dim().0;
     let k = ((n as f64) * fraction).round() as usize;
@@ -65,7 +65,7 @@ pub fn central(a: &Array2<Complex32>, fraction: f64) -> Vec<Complex32> {
 
 pub use crate::reconstruct::complex_nrmse;
 
-/// PHYSICS.md §6 reconstruction scores.
+/// docs/dataset.md §6 reconstruction scores.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Scores {
     /// Complex NRMSE (global complex factor removed).
@@ -79,7 +79,7 @@ pub struct Scores {
 
 /// Score a reconstruction against the truth: both resampled to the truth's grid and
 /// band-limited to the synthetic aperture (`in_aperture(fx, fy)`, cycles/µm), compared
-/// on the central 75 % (PHYSICS.md §6). Pitches in µm; both fields cover the same area.
+/// on the central 75 % (docs/dataset.md §6). Pitches in µm; both fields cover the same area.
 pub fn score(
     reconstruction: &Array2<Complex32>,
     reconstruction_pitch_um: f64,

@@ -1,4 +1,4 @@
-//! The optical system and the LED array (PHYSICS.md §1–2).
+//! The optical system and the LED array (docs/dataset.md §1–2).
 
 use serde::{Deserialize, Serialize};
 
@@ -56,7 +56,7 @@ impl System {
     }
 }
 
-/// A regular LED grid below the sample (PHYSICS.md §1).
+/// A regular LED grid below the sample (docs/dataset.md §1).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LedGeometry {
     /// Grid rows.
@@ -158,8 +158,30 @@ impl LedGeometry {
         (fx * fx + fy * fy).sqrt() < system.cutoff()
     }
 
+    /// Indices into `leds` ordered nearest-first: by |f_i| at sample point `at_um`,
+    /// ties kept in the given order. This is EPRY's order (it also copes with a wrongly
+    /// chosen centre LED) and the acquisition's, so frames arrive in the order they
+    /// are used.
+    pub fn nearest_first(
+        &self,
+        leds: &[(usize, usize)],
+        at_um: (f64, f64),
+        wavelength_um: f64,
+    ) -> Vec<usize> {
+        let radius: Vec<f64> = leds
+            .iter()
+            .map(|&(r, c)| {
+                let f = self.illumination_frequency(r, c, at_um.0, at_um.1, wavelength_um);
+                f.0.hypot(f.1)
+            })
+            .collect();
+        let mut order: Vec<usize> = (0..leds.len()).collect();
+        order.sort_by(|&a, &b| radius[a].total_cmp(&radius[b]));
+        order
+    }
+
     /// The defocus shift (µm) of a feature at (x, y) under LED (row, col) for a sample
-    /// moved by `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (PHYSICS.md §3).
+    /// moved by `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (docs/dataset.md §3).
     pub fn defocus_shift_um(
         &self,
         row: usize,

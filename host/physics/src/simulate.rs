@@ -1,4 +1,4 @@
-//! The full wave-optics forward model (PHYSICS.md §2), used to make test data that the
+//! The full wave-optics forward model (docs/dataset.md §2), used to make test data that the
 //! calibrator and the reconstructor never share a shortcut with:
 //! the sample is illuminated by the spherical wave of each LED (finite distance), the
 //! exit field is propagated by the defocus with the angular spectrum, cut by the pupil,

@@ -122,7 +122,7 @@ fn epry_beats_the_centre_frame_by_far() {
         streaming.push(frames[k].led, images[k].clone());
     }
     assert!(streaming.snapshot().is_some());
-    let mut finished = streaming.finish(11).unwrap();
+    let mut finished = streaming.finish(&shots, 11).unwrap();
     assert_eq!(finished.errors.len(), 11);
     let streamed = resample(
         &finished.sample(),

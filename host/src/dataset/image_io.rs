@@ -2,70 +2,100 @@
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use fpm_physics::Image;
 use ndarray::Array2;
 
-/// A frame as stored.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Pixels {
-    /// 8-bit integers.
-    U8(Array2<u8>),
-    /// 16-bit integers.
-    U16(Array2<u16>),
-    /// 32-bit floats.
-    F32(Array2<f32>),
+pub use fpm_physics::frame::Pixels;
+
+/// Why an image could not be read or written; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file could not be opened or created.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The content is not an image we read (type, colour, depth, corrupt data).
+    #[error("{}: {reason}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// Encoding or writing failed.
+    #[error("{}: cannot write: {reason}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
 }
 
-impl Pixels {
-    /// Width × height as (rows, cols).
-    pub fn dim(&self) -> (usize, usize) {
+impl ImageError {
+    /// The reason alone, without the file (for messages that name the file already).
+    pub fn reason(&self) -> String {
         match self {
-            Pixels::U8(a) => a.dim(),
-            Pixels::U16(a) => a.dim(),
-            Pixels::F32(a) => a.dim(),
+            ImageError::Io { source, .. } => source.to_string(),
+            ImageError::Format { reason, .. } | ImageError::Write { reason, .. } => reason.clone(),
         }
     }
+}
 
-    /// As floats.
-    pub fn to_f32(&self) -> Image {
-        match self {
-            Pixels::U8(a) => a.mapv(f32::from),
-            Pixels::U16(a) => a.mapv(f32::from),
-            Pixels::F32(a) => a.clone(),
-        }
+fn open(path: &Path) -> Result<File, ImageError> {
+    File::open(path).map_err(|source| ImageError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+fn create(path: &Path) -> Result<BufWriter<File>, ImageError> {
+    File::create(path)
+        .map(BufWriter::new)
+        .map_err(|source| ImageError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+}
+
+fn format(path: &Path) -> impl Fn(String) -> ImageError + '_ {
+    move |reason| ImageError::Format {
+        path: path.to_path_buf(),
+        reason,
     }
+}
 
-    /// Bits per sample.
-    pub fn bits(&self) -> u32 {
-        match self {
-            Pixels::U8(_) => 8,
-            Pixels::U16(_) => 16,
-            Pixels::F32(_) => 32,
-        }
+fn write_failed<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> ImageError + '_ {
+    move |e| ImageError::Write {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
     }
 }
 
 /// Read a TIFF or PNG by its extension.
-pub fn read(path: &Path) -> Result<Pixels, String> {
+pub fn read(path: &Path) -> Result<Pixels, ImageError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "tif" | "tiff" => read_tiff(path),
-        "png" => read_png(path),
-        _ => Err(format!(
+        "tif" | "tiff" => read_tiff(open(path)?).map_err(format(path)),
+        "png" => read_png(open(path)?).map_err(format(path)),
+        _ => Err(format(path)(format!(
             "unsupported image type '.{ext}' (use .tif, .tiff or .png)"
-        )),
+        ))),
     }
 }
 
-fn read_tiff(path: &Path) -> Result<Pixels, String> {
+fn read_tiff(file: File) -> Result<Pixels, String> {
     use tiff::decoder::{Decoder, DecodingResult};
-    let file = File::open(path).map_err(|e| e.to_string())?;
     let mut dec =
         Decoder::new(BufReader::new(file)).map_err(|e| format!("not a readable TIFF: {e}"))?;
     let (w, h) = dec.dimensions().map_err(|e| e.to_string())?;
@@ -106,8 +136,7 @@ fn sample_name(d: &tiff::decoder::DecodingResult) -> &'static str {
     }
 }
 
-fn read_png(path: &Path) -> Result<Pixels, String> {
-    let file = File::open(path).map_err(|e| e.to_string())?;
+fn read_png(file: File) -> Result<Pixels, String> {
     let mut dec = png::Decoder::new(BufReader::new(file));
     dec.set_transformations(png::Transformations::IDENTITY);
     let mut reader = dec
@@ -144,49 +173,86 @@ fn read_png(path: &Path) -> Result<Pixels, String> {
 }
 
 /// Write a 16-bit grey TIFF.
-pub fn write_tiff_u16(path: &Path, img: &Array2<u16>) -> Result<(), String> {
+pub fn write_tiff_u16(path: &Path, img: ndarray::ArrayView2<u16>) -> Result<(), ImageError> {
     use tiff::encoder::{colortype, TiffEncoder};
     let (h, w) = img.dim();
-    let file = BufWriter::new(File::create(path).map_err(|e| e.to_string())?);
-    let mut enc = TiffEncoder::new(file).map_err(|e| e.to_string())?;
-    let data: Vec<u16> = img.iter().copied().collect();
-    enc.write_image::<colortype::Gray16>(w as u32, h as u32, &data)
-        .map_err(|e| e.to_string())
+    let mut enc = TiffEncoder::new(create(path)?).map_err(write_failed(path))?;
+    let standard = img.as_standard_layout();
+    let data = standard.as_slice().unwrap_or_default();
+    enc.write_image::<colortype::Gray16>(w as u32, h as u32, data)
+        .map_err(write_failed(path))
 }
 
 /// Write a 32-bit float grey TIFF.
-pub fn write_tiff_f32(path: &Path, img: &Array2<f32>) -> Result<(), String> {
+pub fn write_tiff_f32(path: &Path, img: &Array2<f32>) -> Result<(), ImageError> {
     use tiff::encoder::{colortype, TiffEncoder};
     let (h, w) = img.dim();
-    let file = BufWriter::new(File::create(path).map_err(|e| e.to_string())?);
-    let mut enc = TiffEncoder::new(file).map_err(|e| e.to_string())?;
-    let data: Vec<f32> = img.iter().copied().collect();
-    enc.write_image::<colortype::Gray32Float>(w as u32, h as u32, &data)
-        .map_err(|e| e.to_string())
+    let mut enc = TiffEncoder::new(create(path)?).map_err(write_failed(path))?;
+    let standard = img.as_standard_layout();
+    let data = standard.as_slice().unwrap_or_default();
+    enc.write_image::<colortype::Gray32Float>(w as u32, h as u32, data)
+        .map_err(write_failed(path))
 }
 
 /// Write an RGB8 PNG (plots, previews).
-pub fn write_png_rgb(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), String> {
-    let file = BufWriter::new(File::create(path).map_err(|e| e.to_string())?);
-    let mut enc = png::Encoder::new(file, width as u32, height as u32);
+pub fn write_png_rgb(
+    path: &Path,
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+) -> Result<(), ImageError> {
+    let mut enc = png::Encoder::new(create(path)?, width as u32, height as u32);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc.write_header().map_err(|e| e.to_string())?;
-    w.write_image_data(rgb).map_err(|e| e.to_string())
+    let mut w = enc.write_header().map_err(write_failed(path))?;
+    w.write_image_data(rgb).map_err(write_failed(path))
 }
 
 /// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white).
-pub fn write_png_preview(path: &Path, img: &Array2<f32>, lo: f32, hi: f32) -> Result<(), String> {
+pub fn write_png_preview(
+    path: &Path,
+    img: &Array2<f32>,
+    lo: f32,
+    hi: f32,
+) -> Result<(), ImageError> {
     let (h, w) = img.dim();
     let span = (hi - lo).max(f32::EPSILON);
     let data: Vec<u8> = img
         .iter()
         .map(|&v| (((v - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
         .collect();
-    let file = BufWriter::new(File::create(path).map_err(|e| e.to_string())?);
-    let mut enc = png::Encoder::new(file, w as u32, h as u32);
+    let mut enc = png::Encoder::new(create(path)?, w as u32, h as u32);
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);
-    let mut wr = enc.write_header().map_err(|e| e.to_string())?;
-    wr.write_image_data(&data).map_err(|e| e.to_string())
+    let mut wr = enc.write_header().map_err(write_failed(path))?;
+    wr.write_image_data(&data).map_err(write_failed(path))
+}
+
+/// Read an amplitude/phase pair of float32 TIFFs (a reconstruction's `amplitude.tif`
+/// and `phase.tif`, or a simulation's truth) as one complex field.
+pub fn read_complex(
+    amplitude: &Path,
+    phase: &Path,
+) -> Result<Array2<rustfft::num_complex::Complex32>, ImageError> {
+    let read_f32 = |path: &Path| match read(path)? {
+        Pixels::F32(a) => Ok(a),
+        other => Err(format(path)(format!(
+            "expected a float32 TIFF, found {}-bit samples",
+            other.bits()
+        ))),
+    };
+    let (amp, ph) = (read_f32(amplitude)?, read_f32(phase)?);
+    if amp.dim() != ph.dim() {
+        return Err(format(phase)(format!(
+            "{}x{} differs from {} ({}x{})",
+            ph.dim().1,
+            ph.dim().0,
+            amplitude.display(),
+            amp.dim().1,
+            amp.dim().0
+        )));
+    }
+    Ok(Array2::from_shape_fn(amp.dim(), |i| {
+        rustfft::num_complex::Complex32::from_polar(amp[i], ph[i])
+    }))
 }

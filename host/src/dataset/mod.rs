@@ -1,18 +1,19 @@
-//! The dataset format of PHYSICS.md §5: `dataset.toml` plus one image per frame.
+//! The dataset format of docs/dataset.md §5: `dataset.toml` plus one image per frame.
 //!
 //! Loading is strict: an unknown key, a missing file, a frame whose size differs, an
 //! LED outside the array or a non-finite value is an error naming the key or frame.
 //! `[camera]` flips and transpose are applied on load, so every frame comes out in the
-//! sample-plane orientation of PHYSICS.md §1.
+//! sample-plane orientation of docs/dataset.md §1.
 
 pub mod image_io;
 
 use std::path::{Path, PathBuf};
 
+use fpm_physics::frame::{LitFrame, Measured, Region};
 use fpm_physics::{Image, LedGeometry, System};
 use serde::{Deserialize, Serialize};
 
-pub use image_io::Pixels;
+pub use image_io::{ImageError, Pixels};
 
 /// `[system]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -255,7 +256,7 @@ impl Dataset {
             if !file.is_file() {
                 return Err(bad(format!("file {} does not exist", file.display())));
             }
-            let pixels = image_io::read(&file).map_err(bad)?;
+            let pixels = image_io::read(&file).map_err(|e| bad(e.reason()))?;
             let raw = match pixels {
                 Pixels::U8(a) => Pixels::U8(orient(a, &manifest.camera)),
                 Pixels::U16(a) => Pixels::U16(orient(a, &manifest.camera)),
@@ -287,22 +288,30 @@ impl Dataset {
         })
     }
 
-    /// Frame `k`, dark-subtracted (not yet divided by exposure).
-    pub fn corrected(&self, k: usize) -> Image {
-        let (h, w) = self.frames[k].raw.dim();
-        self.corrected_region(k, 0, 0, h, w)
+    /// Frame `k` as measured: its counts, the dark level and its exposure.
+    pub fn measured(&self, k: usize) -> Measured<'_> {
+        Measured {
+            counts: self.frames[k].raw.view(),
+            dark_level: self.manifest.camera.dark_level as f32,
+            exposure_ms: self.frames[k].entry.exposure_ms as f32,
+        }
     }
 
-    /// Rows `y0..y0+h`, columns `x0..x0+w` of frame `k`, dark-subtracted: a tile's
-    /// share without converting the whole frame.
-    pub fn corrected_region(&self, k: usize, y0: usize, x0: usize, h: usize, w: usize) -> Image {
-        let dark = self.manifest.camera.dark_level as f32;
-        let region = ndarray::s![y0..y0 + h, x0..x0 + w];
-        match &self.frames[k].raw {
-            Pixels::U8(a) => a.slice(region).mapv(|v| f32::from(v) - dark),
-            Pixels::U16(a) => a.slice(region).mapv(|v| f32::from(v) - dark),
-            Pixels::F32(a) => a.slice(region).mapv(|v| v - dark),
-        }
+    /// The in-focus frames (defocus 0) with their LEDs: what a reconstruction uses.
+    pub fn in_focus(&self) -> Vec<LitFrame<'_>> {
+        (0..self.frames.len())
+            .filter(|&k| self.frames[k].entry.defocus_um == 0.0)
+            .map(|k| LitFrame {
+                led: (self.frames[k].entry.led[0], self.frames[k].entry.led[1]),
+                measured: self.measured(k),
+            })
+            .collect()
+    }
+
+    /// Frame `k`, dark-subtracted (not yet divided by exposure).
+    pub fn corrected(&self, k: usize) -> Image {
+        let m = self.measured(k);
+        m.dark_subtracted(Region::whole(m.dim()))
     }
 
     /// The dark-subtracted value at which the sensor saturates, if the bit depth is known.
@@ -313,6 +322,87 @@ impl Dataset {
             .map(|b| ((1u64 << b.min(32)) - 1) as f32 - self.manifest.camera.dark_level as f32)
     }
 
+    /// A dataset made in memory (an acquisition), to be [`Self::save`]d into `dir`:
+    /// 16-bit frames in sample-plane orientation, one per entry of `manifest.frames`.
+    /// The frames are moved in, not copied.
+    pub fn from_frames(
+        dir: &Path,
+        manifest: Manifest,
+        images: Vec<Array2U16>,
+    ) -> Result<Self, DatasetError> {
+        let path = dir.join("dataset.toml");
+        if images.len() != manifest.frames.len() {
+            return Err(DatasetError::Value {
+                path,
+                key: "frame".into(),
+                value: images.len().to_string(),
+                why: "one image per [[frame]] entry",
+            });
+        }
+        validate(&path, &manifest)?;
+        let frames: Vec<Frame> = manifest
+            .frames
+            .iter()
+            .zip(images)
+            .map(|(entry, img)| Frame {
+                entry: entry.clone(),
+                raw: Pixels::U16(img),
+            })
+            .collect();
+        if let Some((index, f)) = frames
+            .iter()
+            .enumerate()
+            .find(|(_, f)| f.raw.dim() != frames[0].raw.dim())
+        {
+            return Err(DatasetError::Frame {
+                path,
+                index,
+                file: f.entry.file.clone(),
+                reason: format!(
+                    "size {:?} differs from frame 0 ({:?})",
+                    f.raw.dim(),
+                    frames[0].raw.dim()
+                ),
+            });
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+            frames,
+        })
+    }
+
+    /// Write this dataset into its directory: frames as TIFF under `frames/` (named
+    /// here, `[camera]` flips cleared: frames are kept in sample-plane orientation),
+    /// then `dataset.toml`.
+    pub fn save(&mut self) -> Result<(), DatasetError> {
+        let werr = |path: &Path, reason: String| DatasetError::Write {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let dir = self.dir.clone();
+        std::fs::create_dir_all(dir.join("frames")).map_err(|e| werr(&dir, e.to_string()))?;
+        self.manifest.camera.flip_x = false;
+        self.manifest.camera.flip_y = false;
+        self.manifest.camera.transpose = false;
+        for (k, frame) in self.frames.iter_mut().enumerate() {
+            let name = frame_file_name(&frame.entry);
+            let path = dir.join(&name);
+            match &frame.raw {
+                Pixels::U16(a) => image_io::write_tiff_u16(&path, a.view()),
+                Pixels::U8(a) => image_io::write_tiff_u16(&path, a.mapv(u16::from).view()),
+                Pixels::F32(a) => image_io::write_tiff_f32(&path, a),
+            }
+            .map_err(|e| werr(&path, e.reason()))?;
+            frame.entry.file = name.clone();
+            self.manifest.frames[k].file = name;
+        }
+        let path = dir.join("dataset.toml");
+        let text =
+            toml::to_string_pretty(&self.manifest).map_err(|e| werr(&path, e.to_string()))?;
+        std::fs::write(&path, text).map_err(|e| werr(&path, e.to_string()))
+    }
+
     /// Write a dataset: 16-bit TIFF frames under `frames/` and `dataset.toml`. The
     /// entries' `file` fields are set here. Frames are stored in sample-plane
     /// orientation, so `[camera]` flips are cleared.
@@ -321,31 +411,34 @@ impl Dataset {
         manifest: &Manifest,
         images: &[Array2U16],
     ) -> Result<(), DatasetError> {
-        let werr = |path: &Path, reason: String| DatasetError::Write {
-            path: path.to_path_buf(),
-            reason,
-        };
-        std::fs::create_dir_all(dir.join("frames")).map_err(|e| werr(dir, e.to_string()))?;
-        let mut manifest = manifest.clone();
-        manifest.camera.flip_x = false;
-        manifest.camera.flip_y = false;
-        manifest.camera.transpose = false;
-        for (entry, img) in manifest.frames.iter_mut().zip(images) {
-            let name = if entry.defocus_um == 0.0 {
-                format!("frames/r{:02}_c{:02}.tif", entry.led[0], entry.led[1])
-            } else {
-                format!(
-                    "frames/r{:02}_c{:02}_z{:+.0}.tif",
-                    entry.led[0], entry.led[1], entry.defocus_um
-                )
-            };
-            let path = dir.join(&name);
-            image_io::write_tiff_u16(&path, img).map_err(|e| werr(&path, e))?;
-            entry.file = name;
+        // Written as given (tests write broken datasets on purpose); `load` validates.
+        let frames = manifest
+            .frames
+            .iter()
+            .zip(images)
+            .map(|(entry, img)| Frame {
+                entry: entry.clone(),
+                raw: Pixels::U16(img.clone()),
+            })
+            .collect();
+        Self {
+            dir: dir.to_path_buf(),
+            manifest: manifest.clone(),
+            frames,
         }
-        let path = dir.join("dataset.toml");
-        let text = toml::to_string_pretty(&manifest).map_err(|e| werr(&path, e.to_string()))?;
-        std::fs::write(&path, text).map_err(|e| werr(&path, e.to_string()))
+        .save()
+    }
+}
+
+/// A frame's file name: `frames/rRR_cCC.tif`, with `_z±Z` for defocused frames.
+fn frame_file_name(entry: &FrameEntry) -> String {
+    if entry.defocus_um == 0.0 {
+        format!("frames/r{:02}_c{:02}.tif", entry.led[0], entry.led[1])
+    } else {
+        format!(
+            "frames/r{:02}_c{:02}_z{:+.0}.tif",
+            entry.led[0], entry.led[1], entry.defocus_um
+        )
     }
 }
 

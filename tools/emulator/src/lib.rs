@@ -4,14 +4,14 @@
 //! pseudo-terminal, so the host's serial client — or any terminal program — talks to it
 //! exactly as to the RP2040 over USB. What the board would do physically is emulated at
 //! the hardware-trait boundary:
-//! * the WS2812 chain ([`bench::EmulatedStrip`]): only the shifted prefix of each lane
+//! * the WS2812 chain ([`hardware::EmulatedStrip`]): only the shifted prefix of each lane
 //!   changes, as on real LEDs, and every change is logged as grid positions;
 //! * the trigger output, and an emulated camera on the trigger input that answers each
-//!   trigger pulse with an exposure-active pulse ([`bench::Camera`]);
+//!   trigger pulse with an exposure-active pulse ([`hardware::Camera`]);
 //! * the clock: the device sees monotonic µs since the emulator started, and the loop
 //!   wakes at the deadlines the device asks for.
 
-pub mod bench;
+pub mod hardware;
 mod pty;
 mod run;
 

@@ -2,17 +2,15 @@
 //! camera's edges, in time order.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Parser;
 use fpm_firmware::{BoardConfig, Device};
 use nix::poll::{PollFd, PollFlags};
-use nix::sys::signal::{SigHandler, Signal};
 use nix::sys::time::TimeSpec;
 
-use crate::bench::{Camera, EmulatedStrip, EmulatedTrigger};
+use crate::hardware::{Camera, EmulatedStrip, EmulatedTrigger};
 use crate::pty::{Link, Pty};
 
 /// Run the emulated LED controller behind a pseudo-terminal.
@@ -51,15 +49,9 @@ pub struct EmulatorArgs {
     #[arg(long)]
     pub no_camera: bool,
     /// Publish every trigger pulse, with the LEDs lit at that moment, on the iceoryx2
-    /// virtual bench of this name (for `fpm virtual-camera --bench NAME`).
+    /// virtual rig of this name (for `fpm virtual-camera --rig NAME`).
     #[arg(long)]
-    pub bench: Option<String>,
-}
-
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: nix::libc::c_int) {
-    STOP.store(true, Ordering::SeqCst);
+    pub rig: Option<String>,
 }
 
 /// Longest sleep between checks for a stop signal.
@@ -78,11 +70,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
         .validate()
         .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
 
-    for sig in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
-        // SAFETY: the handler only stores to an atomic.
-        unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }
-            .context("installing signal handlers")?;
-    }
+    fpm_rig_bus::stop::install().context("installing signal handlers")?;
 
     let strip = EmulatedStrip::new(board.geometry);
     let mut device = Device::new(board, args.serial, strip, EmulatedTrigger::default())
@@ -90,10 +78,10 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     let mut camera =
         (!args.no_camera).then(|| Camera::new(args.camera_latency_us, args.camera_exposure_us));
 
-    let bench = match &args.bench {
+    let rig = match &args.rig {
         Some(name) => Some(
-            fpm_frames::bench::PulsePublisher::create(name)
-                .with_context(|| format!("opening the virtual bench {name}"))?,
+            fpm_rig_bus::PulsePublisher::create(name)
+                .with_context(|| format!("opening the virtual rig {name}"))?,
         ),
         None => None,
     };
@@ -120,7 +108,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     let mut next: Option<u64> = None;
     let mut buf = [0u8; 4096];
 
-    while !STOP.load(Ordering::SeqCst) {
+    while !fpm_rig_bus::stop::requested() {
         let mut send = |bytes: &[u8]| {
             if !pty.write_frame(bytes) {
                 dropped_frames += 1;
@@ -140,7 +128,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
         if next.is_some_and(|t| t <= now) {
             next = device.poll(now, &mut send);
         }
-        stamp_trigger(&device, camera.as_mut(), now, bench.as_ref(), &mut pulses);
+        stamp_trigger(&device, camera.as_mut(), now, rig.as_ref(), &mut pulses);
 
         // Sleep until the next deadline, an edge, or bytes from the client.
         let wake = [next, camera.as_ref().and_then(Camera::next_edge_at)]
@@ -163,7 +151,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
             if n > 0 {
                 let now = now_us();
                 next = device.receive(&buf[..n], now, &mut send);
-                stamp_trigger(&device, camera.as_mut(), now, bench.as_ref(), &mut pulses);
+                stamp_trigger(&device, camera.as_mut(), now, rig.as_ref(), &mut pulses);
             }
         }
     }
@@ -175,12 +163,12 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
 }
 
 /// Hand trigger-line changes to the camera, stamped with the time they happened, and
-/// publish each active edge with what is lit on the virtual bench.
+/// publish each active edge with what is lit on the virtual rig.
 fn stamp_trigger(
     device: &Device<EmulatedStrip, EmulatedTrigger>,
     mut camera: Option<&mut Camera>,
     now: u64,
-    bench: Option<&fpm_frames::bench::PulsePublisher>,
+    rig: Option<&fpm_rig_bus::PulsePublisher>,
     pulses: &mut u64,
 ) {
     let changes = device.trigger().take_changes();
@@ -196,24 +184,24 @@ fn stamp_trigger(
         if let Some(cam) = camera.as_deref_mut() {
             cam.trigger_line(level, now, active_level);
         }
-        if let (Some(bench), true) = (bench, level == active_level) {
-            let mut pulse = fpm_frames::bench::TriggerPulse {
+        if let (Some(rig), true) = (rig, level == active_level) {
+            let mut pulse = fpm_rig_bus::TriggerPulse {
                 pulse_number: *pulses,
                 time_us: now,
                 ..Default::default()
             };
-            let lit = device.strip().lit(fpm_frames::bench::MAX_LIT);
+            let lit = device.strip().lit(fpm_rig_bus::MAX_LIT);
             pulse.lit_count = lit.len() as u32;
             for (slot, (row, col, c)) in pulse.lit.iter_mut().zip(lit) {
-                *slot = fpm_frames::bench::LitLed {
+                *slot = fpm_rig_bus::LitLed {
                     row,
                     col,
                     rgb: [c.r, c.g, c.b],
                     reserved: [0; 3],
                 };
             }
-            if let Err(e) = bench.publish(&pulse) {
-                tracing::warn!("virtual bench: {e}");
+            if let Err(e) = rig.publish(&pulse) {
+                tracing::warn!("virtual rig: {e}");
             }
             *pulses += 1;
         }

@@ -1,5 +1,5 @@
 //! pdcFPM calibration: recover the LED array's Δx, Δy, θ and h from how a defocused
-//! feature's image moves under each bright-field LED (PHYSICS.md §3).
+//! feature's image moves under each bright-field LED (docs/dataset.md §3).
 //!
 //! 1. Find the feature in the focused reference frame (or in the given ROI); its
 //!    position (x_c, y_c) enters the model.

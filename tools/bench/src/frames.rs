@@ -12,7 +12,7 @@ use fpm_frames::{
 };
 use serde::Serialize;
 
-use super::bench::Percentiles;
+use crate::Percentiles;
 
 #[derive(Serialize)]
 struct SizeResult {

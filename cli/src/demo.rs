@@ -14,12 +14,12 @@ use fpm_physics::reconstruct::Settings;
 use fpm_physics::LedGeometry;
 use fpm_protocol::*;
 
-use super::acquire::{acquire, AcquireArgs, StageKind};
-use crate::controller::Controller;
-use crate::dataset::Dataset;
-use crate::emulator_process::{ChildProcess, EmulatorProcess};
-use crate::reconstruction::reconstruct;
-use crate::truth::score_reconstruction;
+use crate::acquire::{acquire, AcquireArgs, StageKind};
+use fpm_acquire::controller::Controller;
+use fpm_host::dataset::Dataset;
+use fpm_host::reconstruction::reconstruct;
+use fpm_host::truth::score_reconstruction;
+use fpm_rig::process::{ChildProcess, EmulatorProcess, Ready};
 
 /// Run the virtual microscope.
 #[derive(Args, Debug)]
@@ -49,14 +49,14 @@ pub fn run(a: DemoArgs) -> Result<()> {
     println!("fpm demo: a virtual FPM microscope, no hardware needed\n");
     let exposure = a.exposure_us.to_string();
     let lanes = a.lanes.to_string();
-    let bench = format!("demo-{}", std::process::id());
+    let rig = format!("demo-{}", std::process::id());
     let emulator = EmulatorProcess::start(&[
         "--camera-exposure-us",
         &exposure,
         "--lanes",
         &lanes,
-        "--bench",
-        &bench,
+        "--rig",
+        &rig,
     ])?;
     let port = emulator.link.to_string_lossy().into_owned();
     let dev = Controller::open(&port, Duration::from_secs(2))?;
@@ -90,16 +90,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         bf.leds_on, bf.current_ma, df.leds_on, dpc.leds_on
     );
 
-    for i in 0..50u32 {
-        dev.ping(i)?; // warm-up
-    }
-    let mut rtt = Vec::with_capacity(500);
-    for i in 0..500u32 {
-        let t = Instant::now();
-        dev.ping(i)?;
-        rtt.push(t.elapsed().as_secs_f64() * 1e6);
-    }
-    let rtt = super::bench::Percentiles::of(&mut rtt);
+    let rtt = fpm_bench::Percentiles::of(&mut dev.ping_round_trips(50, 500)?);
     println!(
         "link            request round-trip p50 {:.0} µs, p99 {:.0} µs (500 pings)",
         rtt.p50_us, rtt.p99_us
@@ -134,11 +125,12 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
     let seed = a.seed.to_string();
     let size = a.size.to_string();
     let out_s = out.to_string_lossy().into_owned();
-    let camera = ChildProcess::spawn(
-        "virtual camera",
+    let fpm = std::env::current_exe().context("locating the fpm executable")?;
+    let camera = ChildProcess::fpm(
+        &fpm,
         &[
             "virtual-camera",
-            "--bench",
+            "--rig",
             &id,
             "--camera",
             &id,
@@ -149,7 +141,8 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
             "--truth-dir",
             &out_s,
         ],
-        Some((&out.join("truth.json"), Duration::from_secs(30))),
+        "virtual camera",
+        Ready::FileExists(&out.join("truth.json"), Duration::from_secs(30)),
     )?;
     println!(
         "virtual camera  {}² frames, wave-optics model, realistic noise (separate process, iceoryx2 shared memory)",
@@ -162,16 +155,17 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
         calibrate: true,
         reconstruct: true,
         stage: StageKind::Virtual,
-        bench: Some(id.clone()),
+        rig: Some(id.clone()),
         step_ms: a.step_ms,
         defocus_um: 200.0,
-        color: "0,0,255".into(),
+        color: Rgb::new(0, 0, 255),
         dark_level: 100.0,
         wavelength_um: 0.47,
         na: 0.1,
         magnification: 4.0,
         pixel_um: 2.4,
         passes: 5,
+        tile: None,
     };
     let start = Instant::now();
     let summary = acquire(&args)?;
@@ -179,7 +173,7 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
     drop(camera);
 
     let truth =
-        crate::truth::Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;
+        fpm_host::truth::Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;
     let g = summary.geometry;
     println!("\nLED array       hidden truth                 recovered by pdcFPM");
     println!(
@@ -214,16 +208,12 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
     let settings = Settings::default();
     let score = |geometry: &LedGeometry| -> Result<Option<f64>> {
         let r = reconstruct(&ds, geometry, "demo", settings, 10, None, &|_, _| {})?;
-        Ok(score_reconstruction(&ds, &r.object, settings.upsample)?.map(|s| s.complex_nrmse))
+        Ok(score_reconstruction(&ds, &r.object, settings.upsample).map(|s| s.complex_nrmse))
     };
     let (n, k) = (score(&nominal)?, score(&g)?);
-    let streamed = crate::reconstruction::read_object(&out.join("reconstruction"))
+    let streamed = fpm_host::reconstruction::read_object(&out.join("reconstruction"))
         .ok()
-        .and_then(|o| {
-            score_reconstruction(&ds, &o, settings.upsample)
-                .ok()
-                .flatten()
-        })
+        .and_then(|o| score_reconstruction(&ds, &o, settings.upsample))
         .map(|s| s.complex_nrmse);
     if let (Some(n), Some(k)) = (n, k) {
         println!(

@@ -1,14 +1,14 @@
 //! `fpm device …`: one command per controller endpoint, human-readable or JSON.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use fpm_protocol::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::controller::scan::{scan_steps, Order, Selection};
-use crate::controller::{Controller, SequenceEvent};
+use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
+use fpm_acquire::controller::{Controller, SequenceEvent};
 
 /// Talk to an LED controller.
 #[derive(Args, Debug)]
@@ -45,7 +45,7 @@ enum DeviceCommand {
         /// Grid column (0-based).
         col: u8,
         /// Colour: white, red, green, blue, #rrggbb or r,g,b.
-        #[arg(long, default_value = "white", value_parser = super::color::parse)]
+        #[arg(long, default_value = "white", value_parser = crate::color::parse)]
         color: Rgb,
     },
     /// Light several LEDs given as ROW,COL.
@@ -54,7 +54,7 @@ enum DeviceCommand {
         #[arg(required = true, value_parser = parse_led)]
         leds: Vec<LedIndex>,
         /// Colour.
-        #[arg(long, default_value = "white", value_parser = super::color::parse)]
+        #[arg(long, default_value = "white", value_parser = crate::color::parse)]
         color: Rgb,
         /// Keep what is already lit.
         #[arg(long)]
@@ -65,7 +65,7 @@ enum DeviceCommand {
         #[command(subcommand)]
         pattern: PatternArg,
         /// Colour.
-        #[arg(long, default_value = "white", value_parser = super::color::parse, global = true)]
+        #[arg(long, default_value = "white", value_parser = crate::color::parse, global = true)]
         color: Rgb,
     },
     /// Everything off.
@@ -191,7 +191,7 @@ struct RunSequenceArgs {
     #[arg(long, value_enum, default_value_t = Order::Nearest)]
     order: Order,
     /// Colour of every LED.
-    #[arg(long, default_value = "white", value_parser = super::color::parse)]
+    #[arg(long, default_value = "white", value_parser = crate::color::parse)]
     color: Rgb,
     /// LED settling time before the trigger, µs.
     #[arg(long, default_value_t = 500)]
@@ -381,16 +381,7 @@ fn print_sequence_status(s: &SequenceStatus) {
 }
 
 fn ping(dev: &Controller, count: u32, json: bool) -> Result<()> {
-    let mut times = Vec::with_capacity(count as usize);
-    for i in 0..count {
-        let t = Instant::now();
-        let echo = dev.ping(i)?;
-        if echo != i {
-            bail!("ping {i} came back as {echo}");
-        }
-        times.push(t.elapsed().as_secs_f64() * 1e6);
-    }
-    let stats = super::bench::Percentiles::of(&mut times);
+    let stats = fpm_bench::Percentiles::of(&mut dev.ping_round_trips(0, count)?);
     if json {
         println!("{}", serde_json::to_string(&stats)?);
     } else {

@@ -1,23 +1,22 @@
-//! The acquisition service: drives the LED controller through a capture sequence,
-//! takes the camera's frames from the iceoryx2 frame service, labels every frame with
-//! the LED that lit it ([`label`]), and hands labelled frames on as they arrive.
-
-pub mod label;
+//! One capture sequence: drives the LED controller through a list of LEDs, takes the
+//! camera's frames from the iceoryx2 frame service, labels every frame with the LED
+//! that lit it ([`crate::label`]), and hands labelled frames on as they arrive.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use fpm_frames::bench::{Stage, StageControl};
 use fpm_frames::{FrameHeader, FrameSubscriber, ServiceNames};
+use fpm_physics::frame::{Counts, LitFrame, Measured};
 use fpm_protocol::{
     Illumination, LedIndex, Polarity, Rgb, SequenceOutcome, SequenceTiming, Step, TriggerOut,
 };
+use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent};
-use label::{pair, FrameTime, StepTime};
+use crate::label::{pair, FrameTime, StepTime};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -25,19 +24,46 @@ pub struct Shot {
     pub led: (usize, usize),
     /// The camera's header.
     pub header: FrameHeader,
-    /// Pixels, copied out of shared memory to be kept.
-    pub pixels: Vec<u16>,
+    /// Pixels `[row, col]`: the one copy out of shared memory, kept for the dataset.
+    pub pixels: Array2<u16>,
+}
+
+impl Shot {
+    /// Borrowed, as handed out while capturing.
+    pub fn view(&self) -> ShotView<'_> {
+        ShotView {
+            led: self.led,
+            header: &self.header,
+            pixels: self.pixels.view(),
+        }
+    }
 }
 
 /// A frame handed out while the capture runs, borrowed (no copy on the way to the
 /// streaming reconstructor).
+#[derive(Clone, Copy)]
 pub struct ShotView<'a> {
     /// LED (row, col).
     pub led: (usize, usize),
     /// The camera's header.
     pub header: &'a FrameHeader,
-    /// Pixels.
-    pub pixels: &'a [u16],
+    /// Pixels `[row, col]`.
+    pub pixels: ArrayView2<'a, u16>,
+}
+
+impl<'a> ShotView<'a> {
+    /// The frame as the reconstruction takes it: counts, `dark_level`, and the exposure
+    /// the camera reported.
+    pub fn lit_frame(&self, dark_level: f32) -> LitFrame<'a> {
+        LitFrame {
+            led: self.led,
+            measured: Measured {
+                counts: Counts::U16(self.pixels),
+                dark_level,
+                exposure_ms: self.header.exposure_us.max(1) as f32 / 1e3,
+            },
+        }
+    }
 }
 
 /// What a capture did.
@@ -68,49 +94,6 @@ pub struct CaptureReport {
     pub relabelled: usize,
 }
 
-/// How the focus stage is moved.
-pub enum StageMover {
-    /// A motorised (here: virtual) stage on the bench.
-    Virtual(StageControl),
-    /// The user turns the knob when asked.
-    Manual,
-}
-
-impl StageMover {
-    /// Move to `stage` and wait until it is there.
-    pub fn move_to(&self, stage: Stage) -> Result<()> {
-        match self {
-            StageMover::Virtual(c) => {
-                c.set(stage)?;
-                // The stage service has history 1: the camera reads it before its next
-                // exposure. Give a real motor time to settle too.
-                std::thread::sleep(Duration::from_millis(100));
-            }
-            StageMover::Manual => {
-                let what = if stage.slide == Stage::CALIBRATION_TARGET {
-                    "the calibration slide"
-                } else {
-                    "the sample"
-                };
-                eprintln!(
-                    "Put {what} on the stage, move it {:.0} µm {} the focus, then press Enter.",
-                    stage.defocus_um.abs(),
-                    if stage.defocus_um > 0.0 {
-                        "toward the LEDs from"
-                    } else {
-                        "back to"
-                    }
-                );
-                let mut line = String::new();
-                std::io::stdin()
-                    .read_line(&mut line)
-                    .context("waiting for the user to move the stage")?;
-            }
-        }
-        Ok(())
-    }
-}
-
 /// Sequence timing for one frame per step: the camera is triggered once the LEDs have
 /// settled; `exposure_us` is how long each step stays lit.
 pub fn timing(exposure_us: u32) -> SequenceTiming {
@@ -131,7 +114,7 @@ pub fn timing(exposure_us: u32) -> SequenceTiming {
 /// (EPRY updates, disk) never lets the service's small buffer overflow. iceoryx2 ports
 /// stay on the thread that made them, so the thread opens its own subscriber.
 struct FrameDrain {
-    rx: mpsc::Receiver<(FrameHeader, Vec<u16>)>,
+    rx: mpsc::Receiver<(FrameHeader, Array2<u16>)>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<Result<(), String>>>,
 }
@@ -156,8 +139,23 @@ impl FrameDrain {
             while !flag.load(Ordering::SeqCst) {
                 match sub.next(Duration::from_millis(20)) {
                     Ok(Some(f)) => {
-                        if tx.send((*f.header(), f.pixels().to_vec())).is_err() {
-                            break;
+                        // The one copy out of shared memory: the sample goes back to the
+                        // camera at once, the pixels are kept for the dataset.
+                        let h = *f.header();
+                        let shape = (h.height as usize, h.width as usize);
+                        match Array2::from_shape_vec(shape, f.pixels().to_vec()) {
+                            Ok(pixels) => {
+                                if tx.send((h, pixels)).is_err() {
+                                    break;
+                                }
+                            }
+                            // The contract checks pixel_count = width·height already.
+                            Err(e) => tracing::warn!(
+                                "frame {}: {}x{} header does not fit its pixels: {e}",
+                                h.frame_number,
+                                h.width,
+                                h.height
+                            ),
                         }
                     }
                     Ok(None) => {}
@@ -218,7 +216,7 @@ pub fn capture(
     let start = Instant::now();
     dev.start_sequence(sequence_id)?;
     let mut step_times: Vec<StepTime> = vec![];
-    let mut received: Vec<(FrameHeader, Vec<u16>)> = vec![];
+    let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
     let mut online: Vec<Option<usize>> = vec![];
     let mut outcome = None;
     let mut last_frame = Instant::now();
@@ -281,7 +279,7 @@ pub fn capture(
                     on_frame(ShotView {
                         led: (led.row as usize, led.col as usize),
                         header: &received[k].0,
-                        pixels: &received[k].1,
+                        pixels: received[k].1.view(),
                     });
                 }
             }

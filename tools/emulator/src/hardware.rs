@@ -1,4 +1,4 @@
-//! The emulated hardware on the bench: the LED chain, the trigger line and a camera.
+//! The emulated hardware: the LED chain, the trigger line and a camera.
 
 use std::cell::RefCell;
 use std::cmp::Reverse;

@@ -11,8 +11,8 @@ use fpm_physics::{LedGeometry, System};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
-use crate::truth::Truth;
+use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
+use fpm_host::truth::Truth;
 
 /// Make a simulated dataset.
 #[derive(Subcommand, Debug)]
@@ -198,7 +198,7 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
             feature_um: Some(a.feature_um),
             feature_at_um: Some([a.feature_x_um, a.feature_y_um]),
             object_pixel_um: None,
-            seed: s.seed,
+            seed: Some(s.seed),
         },
     )?;
     println!(
@@ -242,7 +242,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     );
     bar.finish_and_clear();
     write_frames(&s.out, &system, &camera, &frames)?;
-    crate::truth::write_truth_images(&s.out, &object)?;
+    fpm_host::truth::write_truth_images(&s.out, &object)?;
     write_json(
         &s.out.join("truth.json"),
         &Truth {
@@ -254,7 +254,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
             feature_um: None,
             feature_at_um: None,
             object_pixel_um: Some(object.pitch_um()),
-            seed: s.seed,
+            seed: Some(s.seed),
         },
     )?;
     println!(

@@ -1,7 +1,11 @@
-//! The virtual bench: what the emulated controller physically does (which LEDs shine,
-//! when the camera trigger fires) and where the virtual focus stage is, published for
-//! the virtual camera. It stands for the light path and the trigger cable of a real
-//! rig, so the camera side learns nothing it could not see on real hardware.
+//! # fpm-rig-bus
+//!
+//! The wiring of the virtual rig: what the emulated controller physically does (which
+//! LEDs shine, when the camera trigger fires) and where the virtual focus stage is,
+//! published over iceoryx2 for the virtual camera. It stands for the light path, the
+//! trigger cable and the stage's motor cable of a real rig, so the camera side learns
+//! nothing it could not see on real hardware. Its own crate so that the controller
+//! emulator can publish without depending on the simulator.
 
 use std::time::Duration;
 
@@ -9,15 +13,14 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 
-use crate::service::node;
-use crate::{ipc, FrameError};
+use fpm_frames::{ipc_error as ipc, node, FrameError};
 
 /// Most LEDs a pulse reports (a sequence step lights at most 64).
 pub const MAX_LIT: usize = 64;
 
 /// One lit LED.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("fpm::bench::LitLed/1")]
+#[type_name("fpm::rig::LitLed/1")]
 #[repr(C)]
 pub struct LitLed {
     /// Grid row.
@@ -32,7 +35,7 @@ pub struct LitLed {
 
 /// The camera trigger fired (its active edge), with what was lit at that moment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("fpm::bench::TriggerPulse/1")]
+#[type_name("fpm::rig::TriggerPulse/1")]
 #[repr(C)]
 pub struct TriggerPulse {
     /// Consecutive from 0 since the controller started.
@@ -68,7 +71,7 @@ impl TriggerPulse {
 
 /// Where the virtual focus stage is and which slide is on it.
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("fpm::bench::Stage/1")]
+#[type_name("fpm::rig::Stage/1")]
 #[repr(C)]
 pub struct Stage {
     /// Sample moved toward the LEDs by this much, µm (0 = in focus).
@@ -86,16 +89,16 @@ impl Stage {
     pub const CALIBRATION_TARGET: u32 = 1;
 }
 
-/// Service names of one virtual bench.
-fn names(bench: &str) -> (String, String) {
+/// Service names of one virtual rig.
+fn names(rig: &str) -> (String, String) {
     (
-        format!("fpm/bench/{bench}/trigger"),
-        format!("fpm/bench/{bench}/stage"),
+        format!("fpm/rig/{rig}/trigger"),
+        format!("fpm/rig/{rig}/stage"),
     )
 }
 
 fn service_name(s: &str) -> Result<ServiceName, FrameError> {
-    s.try_into().map_err(|e| ipc("bench service name")(&e))
+    s.try_into().map_err(|e| ipc("rig service name")(&e))
 }
 
 /// Trigger pulses a listener may have queued: the camera renders far slower than a
@@ -107,8 +110,8 @@ type PulseService =
 type StageService =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, Stage, ()>;
 
-fn pulse_service(node: &Node<ipc::Service>, bench: &str) -> Result<PulseService, FrameError> {
-    node.service_builder(&service_name(&names(bench).0)?)
+fn pulse_service(node: &Node<ipc::Service>, rig: &str) -> Result<PulseService, FrameError> {
+    node.service_builder(&service_name(&names(rig).0)?)
         .publish_subscribe::<TriggerPulse>()
         .subscriber_max_buffer_size(PULSE_QUEUE)
         .history_size(0)
@@ -117,8 +120,8 @@ fn pulse_service(node: &Node<ipc::Service>, bench: &str) -> Result<PulseService,
 }
 
 /// The stage keeps its last position (history 1) for a camera that starts later.
-fn stage_service(node: &Node<ipc::Service>, bench: &str) -> Result<StageService, FrameError> {
-    node.service_builder(&service_name(&names(bench).1)?)
+fn stage_service(node: &Node<ipc::Service>, rig: &str) -> Result<StageService, FrameError> {
+    node.service_builder(&service_name(&names(rig).1)?)
         .publish_subscribe::<Stage>()
         .history_size(1)
         .subscriber_max_buffer_size(8)
@@ -134,10 +137,10 @@ pub struct PulsePublisher {
 }
 
 impl PulsePublisher {
-    /// For bench `bench`.
-    pub fn create(bench: &str) -> Result<Self, FrameError> {
-        let node = node("fpm-bench-light")?;
-        let service = pulse_service(&node, bench)?;
+    /// For rig `rig`.
+    pub fn create(rig: &str) -> Result<Self, FrameError> {
+        let node = node("fpm-rig-light")?;
+        let service = pulse_service(&node, rig)?;
         let port = service
             .publisher_builder()
             .create()
@@ -159,7 +162,7 @@ impl PulsePublisher {
 }
 
 /// The camera side: receives trigger pulses and reads the stage.
-pub struct BenchListener {
+pub struct RigListener {
     pulses: Subscriber<ipc::Service, TriggerPulse, ()>,
     stage: Subscriber<ipc::Service, Stage, ()>,
     current: Stage,
@@ -167,12 +170,12 @@ pub struct BenchListener {
     _node: Node<ipc::Service>,
 }
 
-impl BenchListener {
-    /// For bench `bench`.
-    pub fn create(bench: &str) -> Result<Self, FrameError> {
+impl RigListener {
+    /// For rig `rig`.
+    pub fn create(rig: &str) -> Result<Self, FrameError> {
         let node = node("fpm-virtual-camera")?;
-        let pulses = pulse_service(&node, bench)?;
-        let stage = stage_service(&node, bench)?;
+        let pulses = pulse_service(&node, rig)?;
+        let stage = stage_service(&node, rig)?;
         let pulse_port = pulses
             .subscriber_builder()
             .buffer_size(PULSE_QUEUE)
@@ -191,7 +194,7 @@ impl BenchListener {
         })
     }
 
-    /// The next pulse, polling every millisecond up to `timeout` (the bench is a
+    /// The next pulse, polling every millisecond up to `timeout` (the rig is a
     /// stand-in for a cable; its latency is not what is being measured).
     pub fn next_pulse(&mut self, timeout: Duration) -> Result<Option<TriggerPulse>, FrameError> {
         let deadline = std::time::Instant::now() + timeout;
@@ -231,10 +234,10 @@ pub struct StageControl {
 }
 
 impl StageControl {
-    /// For bench `bench`.
-    pub fn create(bench: &str) -> Result<Self, FrameError> {
+    /// For rig `rig`.
+    pub fn create(rig: &str) -> Result<Self, FrameError> {
         let node = node("fpm-stage")?;
-        let service = stage_service(&node, bench)?;
+        let service = stage_service(&node, rig)?;
         let port = service
             .publisher_builder()
             .create()
@@ -252,5 +255,33 @@ impl StageControl {
             .send_copy(stage)
             .map_err(|e| ipc("moving the stage")(&e))?;
         Ok(())
+    }
+}
+
+/// SIGINT/SIGTERM/SIGHUP for rig processes (the emulator, the virtual camera): they run
+/// until told to stop, then leave iceoryx2 and their links cleanly.
+pub mod stop {
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    use nix::sys::signal::{SigHandler, Signal};
+
+    static STOP: AtomicBool = AtomicBool::new(false);
+
+    extern "C" fn on_signal(_: nix::libc::c_int) {
+        STOP.store(true, Ordering::SeqCst);
+    }
+
+    /// Install the handlers.
+    pub fn install() -> Result<(), nix::Error> {
+        for sig in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+            // SAFETY: the handler only stores to an atomic.
+            unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }?;
+        }
+        Ok(())
+    }
+
+    /// Whether a stop signal arrived.
+    pub fn requested() -> bool {
+        STOP.load(Ordering::SeqCst)
     }
 }

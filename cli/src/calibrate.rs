@@ -7,8 +7,8 @@ use clap::Args;
 use fpm_physics::calibrate::feature::Roi;
 use fpm_physics::calibrate::{LedStatus, Options};
 
-use crate::calibration::{calibrate_dataset, write_residual_plot};
-use crate::dataset::Dataset;
+use fpm_host::calibration::{calibrate_dataset, write_residual_plot};
+use fpm_host::dataset::Dataset;
 
 /// Calibrate the LED array (Δx, Δy, θ, h) from how a defocused feature moves.
 ///

@@ -214,6 +214,27 @@ impl Controller {
         self.request::<PingEndpoint>(&x)
     }
 
+    /// Request round-trip times, µs: `warm_up` pings unmeasured, then `count` measured,
+    /// each echo checked.
+    pub fn ping_round_trips(&self, warm_up: u32, count: u32) -> Result<Vec<f64>> {
+        for i in 0..warm_up {
+            self.ping(i)?;
+        }
+        let mut times = Vec::with_capacity(count as usize);
+        for i in 0..count {
+            let t = std::time::Instant::now();
+            let echo = self.ping(i)?;
+            if echo != i {
+                return Err(ControllerError::BadReply {
+                    port: self.port.clone(),
+                    request: "ping (wrong echo)",
+                });
+            }
+            times.push(t.elapsed().as_secs_f64() * 1e6);
+        }
+        Ok(times)
+    }
+
     /// The device's protocol version.
     pub fn version(&self) -> Result<ProtocolVersion> {
         self.request::<VersionEndpoint>(&())

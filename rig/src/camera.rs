@@ -1,27 +1,27 @@
-//! The virtual camera: listens to the virtual bench (trigger pulses with the LEDs lit,
+//! The virtual camera: listens to the virtual rig (trigger pulses with the LEDs lit,
 //! the stage position), renders each exposure with the full wave-optics model for a
 //! hidden, misplaced LED array, and publishes the frame on the iceoryx2 frame service
 //! like a camera driver would. It knows the hidden geometry; nothing downstream does.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use fpm_frames::bench::{BenchListener, Stage};
 use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
+use fpm_host::truth::{write_truth_images, Truth};
 use fpm_physics::simulate::{Camera, ObjectField, Renderer};
 use fpm_physics::{LedGeometry, System};
+use fpm_rig_bus::{RigListener, Stage};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-/// Run a simulated camera on a virtual bench.
+/// Run a simulated camera on a virtual rig.
 #[derive(Args, Debug, Clone)]
 pub struct VirtualCameraArgs {
-    /// The virtual bench to watch (`fpm emulator --bench NAME`).
+    /// The virtual rig to watch (`fpm emulator --rig NAME`).
     #[arg(long)]
-    pub bench: String,
+    pub rig: String,
     /// Publish frames as this camera (`fpm/camera/<NAME>/frames`).
     #[arg(long, default_value = "0")]
     pub camera: String,
@@ -86,20 +86,9 @@ impl VirtualCameraArgs {
     }
 }
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: nix::libc::c_int) {
-    STOP.store(true, Ordering::SeqCst);
-}
-
 /// Run until SIGINT/SIGTERM.
 pub fn run(a: VirtualCameraArgs) -> Result<()> {
-    use nix::sys::signal::{SigHandler, Signal};
-    for sig in [Signal::SIGINT, Signal::SIGTERM] {
-        // SAFETY: the handler only stores to an atomic.
-        unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }
-            .context("installing signal handlers")?;
-    }
+    fpm_rig_bus::stop::install().context("installing signal handlers")?;
     let system = System::paper();
     let hidden = a.hidden_geometry();
     let size = a.size.max(16);
@@ -120,7 +109,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
     let camera = Camera::realistic();
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
-    let mut bench = BenchListener::create(&a.bench)?;
+    let mut rig = RigListener::create(&a.rig)?;
     let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), size * size)?;
     if let Some(dir) = &a.truth_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -132,11 +121,11 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 size,
             })?,
         )?;
-        crate::truth::write_truth_images(dir, &sample)?;
+        write_truth_images(dir, &sample)?;
         // Last: its presence tells a launcher that the camera is listening.
         std::fs::write(
             dir.join("truth.json"),
-            serde_json::to_string_pretty(&crate::truth::Truth {
+            serde_json::to_string_pretty(&Truth {
                 dx_mm: hidden.dx_mm,
                 dy_mm: hidden.dy_mm,
                 theta_deg: hidden.theta_deg,
@@ -145,25 +134,25 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 feature_um: None,
                 feature_at_um: None,
                 object_pixel_um: Some(sample.pitch_um()),
-                seed: a.seed,
+                seed: Some(a.seed),
             })?,
         )?;
     }
     tracing::info!(
-        "virtual camera {} on bench {}: {size}² frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
+        "virtual camera {} on rig {}: {size}² frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
         a.camera,
-        a.bench,
+        a.rig,
         hidden.dx_mm,
         hidden.dy_mm,
         hidden.theta_deg,
         hidden.height_mm
     );
     let mut frame_number = 0u64;
-    while !STOP.load(Ordering::SeqCst) {
-        let Some(pulse) = bench.next_pulse(Duration::from_millis(100))? else {
+    while !fpm_rig_bus::stop::requested() {
+        let Some(pulse) = rig.next_pulse(Duration::from_millis(100))? else {
             continue;
         };
-        let stage = bench.stage()?;
+        let stage = rig.stage()?;
         let (object, renderer) = if stage.slide == Stage::CALIBRATION_TARGET {
             (&target, &mut renderers.1)
         } else {

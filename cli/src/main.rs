@@ -1,9 +1,9 @@
-//! The `fpm` command line: parsing, logging set-up and error reporting. Each
-//! subcommand lives in its own module and only formats what the library does.
+//! `fpm`: the Fourier ptychographic microscope, from LED controller to image.
+//!
+//! The command line only: parsing, logging set-up and error reporting. Each subcommand
+//! lives in its own module and only formats what the library crates do.
 
 mod acquire;
-mod bench;
-mod bench_frames;
 mod calibrate;
 mod color;
 mod demo;
@@ -18,7 +18,7 @@ use clap::{Parser, Subcommand};
 /// Fourier ptychographic microscopy: LED controller, calibration and reconstruction.
 #[derive(Parser, Debug)]
 #[command(name = "fpm", version, propagate_version = true)]
-pub struct Cli {
+struct Cli {
     /// More log output (-v: info, -vv: debug). RUST_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
@@ -34,10 +34,10 @@ enum Command {
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
     Emulator(fpm_emulator::EmulatorArgs),
-    /// Run a simulated camera on a virtual bench (with `fpm emulator --bench`): renders
+    /// Run a simulated camera on a virtual rig (with `fpm emulator --rig`): renders
     /// each triggered exposure for a hidden, misplaced LED array and publishes frames
     /// on iceoryx2.
-    VirtualCamera(crate::virtual_camera::VirtualCameraArgs),
+    VirtualCamera(fpm_rig::camera::VirtualCameraArgs),
     /// Make simulated datasets with the full wave-optics model.
     #[command(subcommand)]
     Simulate(simulate::SimulateCommand),
@@ -50,11 +50,10 @@ enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Measure performance.
     #[command(subcommand)]
-    Bench(bench::BenchCommand),
+    Bench(fpm_bench::BenchCommand),
 }
 
-/// Entry point of the `fpm` binary.
-pub fn main() -> ExitCode {
+fn main() -> ExitCode {
     let cli = Cli::parse();
     let default_level = match (&cli.command, cli.verbose) {
         (Command::Emulator(_) | Command::VirtualCamera(_), 0) => "info",
@@ -72,16 +71,22 @@ pub fn main() -> ExitCode {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_writer(std::io::stderr)
         .init();
+    // iceoryx2 logs on its own: only its errors, unless asked for more.
+    fpm_frames::set_ipc_log_level(match cli.verbose {
+        0 => fpm_frames::LogLevel::Error,
+        1 => fpm_frames::LogLevel::Warn,
+        _ => fpm_frames::LogLevel::Debug,
+    });
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
-        Command::VirtualCamera(args) => crate::virtual_camera::run(args),
+        Command::VirtualCamera(args) => fpm_rig::camera::run(args),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
-        Command::Bench(cmd) => bench::run(cmd),
+        Command::Bench(cmd) => fpm_bench::run(cmd),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,10 +6,10 @@ use anyhow::Result;
 use clap::Args;
 use fpm_physics::reconstruct::Settings;
 
-use crate::calibration::CalibrationFile;
-use crate::dataset::Dataset;
-use crate::reconstruction::{reconstruct, write_outputs};
-use crate::truth::score_reconstruction;
+use fpm_host::calibration::Placement;
+use fpm_host::dataset::Dataset;
+use fpm_host::reconstruction::{reconstruct, write_outputs};
+use fpm_host::truth::score_reconstruction;
 
 /// Reconstruct the high-resolution amplitude and phase (and the pupil) with EPRY.
 #[derive(Args, Debug)]
@@ -49,7 +49,7 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     let ds = Dataset::load(&a.dir)?;
     let (geometry, source) = match &a.calibration {
         Some(path) => (
-            CalibrationFile::read(path)?.geometry(),
+            Placement::read(path)?.geometry(&ds.manifest.geometry()),
             path.display().to_string(),
         ),
         None => (ds.manifest.geometry(), "nominal (dataset.toml)".to_string()),
@@ -79,7 +79,7 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         },
     )?;
     bar.finish_and_clear();
-    r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample)?;
+    r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample);
     write_outputs(&r, &a.out)?;
     let rep = &r.report;
     println!(

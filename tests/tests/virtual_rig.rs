@@ -1,22 +1,22 @@
 //! The virtual microscope's parts as separate processes: the emulated controller
-//! publishing its light and trigger pulses on an iceoryx2 bench, the virtual camera
+//! publishing its light and trigger pulses on an iceoryx2 rig bus, the virtual camera
 //! rendering each exposure with the wave-optics model and publishing frames, and the
 //! host receiving them from shared memory while driving a real capture sequence.
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use fpm_frames::bench::{Stage, StageControl};
+use fpm_acquire::controller::{Controller, SequenceEvent};
 use fpm_frames::{FrameSubscriber, ServiceNames};
-use fpm_host::controller::{Controller, SequenceEvent};
 use fpm_protocol::*;
-use fpm_tests::{fpm_bin, ChildGuard, Emulator, TempDir};
+use fpm_rig_bus::{Stage, StageControl};
+use fpm_tests::{child, fpm_bin, Emulator, Ready, TempDir};
 
 #[test]
 fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
     let id = format!("vb-{}", std::process::id());
-    let dir = TempDir::new("virtual-bench");
-    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--bench", &id]);
+    let dir = TempDir::new("virtual-rig");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     // The host's frame reader on its own thread (iceoryx2 ports stay on the thread that
     // made them), reading while the sequence runs: the service buffers only two frames.
     let names = ServiceNames::for_camera(&id);
@@ -38,33 +38,31 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
     ready_rx.recv().unwrap();
     let stage = StageControl::create(&id).unwrap();
     stage.set(Stage::default()).unwrap();
-    let _camera = ChildGuard(
-        Command::new(fpm_bin())
-            .args([
-                "virtual-camera",
-                "--bench",
-                &id,
-                "--camera",
-                &id,
-                "--size",
-                "64",
-                "--dx-mm",
-                "0",
-                "--dy-mm",
-                "0",
-                "--theta-deg",
-                "0",
-                "--height-mm",
-                "92",
-                "--readout-ms",
-                "1",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap(),
-    );
-    // Let the camera subscribe to the bench before the first pulse.
+    let mut command = Command::new(fpm_bin());
+    command
+        .args([
+            "virtual-camera",
+            "--rig",
+            &id,
+            "--camera",
+            &id,
+            "--size",
+            "64",
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--theta-deg",
+            "0",
+            "--height-mm",
+            "92",
+            "--readout-ms",
+            "1",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    let _camera = child(command, "virtual camera", Ready::Started);
+    // Let the camera subscribe to the rig before the first pulse.
     std::thread::sleep(Duration::from_millis(1500));
 
     let dev = Controller::open(&emu.port(), Duration::from_secs(2)).unwrap();

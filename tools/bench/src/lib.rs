@@ -1,5 +1,11 @@
-//! `fpm bench …`: performance measurements reported as percentiles, with the
-//! conditions they were measured under.
+//! # fpm-bench
+//!
+//! `fpm bench …`: fpm's measurements, reported as percentiles with the conditions
+//! they were measured under and, where speed is the question, as ratios against a
+//! baseline measured in the same run (these machines are noisy). The criterion
+//! micro-benchmark of the EPRY update is `benches/epry.rs`.
+
+mod frames;
 
 use std::time::{Duration, Instant};
 
@@ -8,9 +14,9 @@ use clap::{Args, Subcommand};
 use fpm_protocol::{Pattern, Rgb};
 use serde::Serialize;
 
-use crate::controller::scan::{scan_steps, Order, Selection};
-use crate::controller::Controller;
-use crate::emulator_process::EmulatorProcess;
+use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
+use fpm_acquire::controller::Controller;
+use fpm_rig::process::EmulatorProcess;
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCommand {
@@ -143,7 +149,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::LedSwitch { json } => led_switch(json),
         BenchCommand::Calibration { random, seed, json } => calibration(random, seed, json),
         BenchCommand::Geometry { size, passes, json } => geometry(size, passes, json),
-        BenchCommand::Frames { rounds, json } => super::bench_frames::run(rounds, json),
+        BenchCommand::Frames { rounds, json } => frames::run(rounds, json),
         BenchCommand::Epry {
             size,
             upsample,
@@ -166,15 +172,7 @@ fn link(a: LinkArgs) -> Result<()> {
     let count = a.count.max(10);
 
     // Warm up both paths, then measure.
-    for i in 0..50 {
-        dev.ping(i)?;
-    }
-    let mut ping = Vec::with_capacity(count);
-    for i in 0..count {
-        let t = Instant::now();
-        dev.ping(i as u32)?;
-        ping.push(t.elapsed().as_secs_f64() * 1e6);
-    }
+    let mut ping = dev.ping_round_trips(50, count as u32)?;
     // Every LED lit, dim enough to stay within any budget the board may have.
     let all = Pattern::All;
     let dim = Rgb::new(4, 4, 4);
@@ -552,14 +550,12 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let geometry = LedGeometry::paper();
     let camera = Camera::realistic();
     let object = ObjectField::test_sample(&system, size, 32, 2, 9);
-    let mut shots: Vec<((usize, usize), f64)> = (0..21)
-        .flat_map(|r| (0..21).map(move |c| ((r, c), 0.0)))
+    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
+    let shots: Vec<((usize, usize), f64)> = geometry
+        .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+        .into_iter()
+        .map(|k| (leds[k], 0.0))
         .collect();
-    let radius = |led: (usize, usize)| {
-        let f = geometry.illumination_frequency(led.0, led.1, 0.0, 0.0, system.wavelength_um);
-        f.0.hypot(f.1)
-    };
-    shots.sort_by(|a, b| radius(a.0).total_cmp(&radius(b.0)));
     eprintln!("simulating {} frames of {size}² …", shots.len());
     let frames = acquire(
         &system,
@@ -589,17 +585,17 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
         streaming.push(f.led, img.clone());
         push.push(t.elapsed().as_secs_f64() * 1e6);
     }
-    let t = Instant::now();
-    let mut done = streaming
-        .finish(finish_passes)
-        .context("no bright-field frame")?;
-    let streamed = done.sample();
-    let latency = t.elapsed().as_secs_f64() * 1e3;
     let shot_refs: Vec<Shot> = frames
         .iter()
         .zip(&images)
         .map(|(f, image)| Shot { led: f.led, image })
         .collect();
+    let t = Instant::now();
+    let mut done = streaming
+        .finish(&shot_refs, finish_passes)
+        .context("no bright-field frame")?;
+    let streamed = done.sample();
+    let latency = t.elapsed().as_secs_f64() * 1e3;
     let offline_passes = 10;
     let t = Instant::now();
     let mut offline = run(

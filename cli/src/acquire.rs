@@ -1,0 +1,174 @@
+//! `fpm acquire`: calibrate (pdcFPM) and acquire a full dataset from a live rig, with
+//! streaming reconstruction while the frames arrive (`fpm_acquire::pipeline`).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
+use fpm_acquire::{Controller, FocusStage, ManualStage};
+use fpm_frames::ServiceNames;
+use fpm_physics::System;
+use fpm_protocol::Rgb;
+use fpm_rig::stage::VirtualStage;
+
+/// How the focus stage moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum StageKind {
+    /// Ask the user to move it and wait for Enter.
+    Manual,
+    /// The virtual rig's motorised stage (`--rig`).
+    Virtual,
+}
+
+/// Acquire an FPM dataset: every LED of the array, one frame each, labelled.
+#[derive(Args, Debug, Clone)]
+pub struct AcquireArgs {
+    /// The LED controller's serial port (a board, or `fpm emulator --link`).
+    #[arg(long)]
+    pub port: String,
+    /// The camera whose frames to take (`fpm/camera/<NAME>/frames` on iceoryx2).
+    #[arg(long, default_value = "0")]
+    pub frames: String,
+    /// Output directory: dataset.toml + frames/, acquisition.json, calibration/,
+    /// calibration.json, reconstruction/.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Calibrate the LED array first (pdcFPM: a focused reference, then the bright-field
+    /// LEDs with the sample defocused).
+    #[arg(long)]
+    pub calibrate: bool,
+    /// Reconstruct while the frames arrive (streaming EPRY).
+    #[arg(long)]
+    pub reconstruct: bool,
+    /// How to move the focus stage for calibration.
+    #[arg(long, value_enum, default_value_t = StageKind::Manual)]
+    pub stage: StageKind,
+    /// The virtual rig whose stage to move (with `--stage virtual`).
+    #[arg(long)]
+    pub rig: Option<String>,
+    /// How long each LED stays lit, ms (the camera exposes within it).
+    #[arg(long, default_value_t = 40.0)]
+    pub step_ms: f64,
+    /// Defocus for calibration, µm toward the LEDs.
+    #[arg(long, default_value_t = 200.0)]
+    pub defocus_um: f64,
+    /// LED colour: a name, `#rrggbb` or `r,g,b` (0–255).
+    #[arg(long, default_value = "0,0,255", value_parser = crate::color::parse)]
+    pub color: Rgb,
+    /// The camera's dark level, counts.
+    #[arg(long, default_value_t = 100.0)]
+    pub dark_level: f64,
+    /// Illumination wavelength, µm.
+    #[arg(long, default_value_t = 0.47)]
+    pub wavelength_um: f64,
+    /// Objective NA.
+    #[arg(long, default_value_t = 0.1)]
+    pub na: f64,
+    /// Objective magnification.
+    #[arg(long, default_value_t = 4.0)]
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    #[arg(long, default_value_t = 2.4)]
+    pub pixel_um: f64,
+    /// EPRY passes after the last frame.
+    #[arg(long, default_value_t = 5)]
+    pub passes: usize,
+    /// Tile side of the reconstruction, camera pixels (default: the whole field if
+    /// square and ≤ 512 px, else 256-px tiles).
+    #[arg(long)]
+    pub tile: Option<usize>,
+}
+
+/// Run `fpm acquire`.
+pub fn run(a: AcquireArgs) -> Result<()> {
+    let summary = acquire(&a)?;
+    print_summary(&summary, &a.out);
+    Ok(())
+}
+
+/// The acquisition, returning its summary (used by `fpm demo` too).
+pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
+    let dev = Controller::open(&a.port, Duration::from_secs(2))
+        .with_context(|| format!("connecting to the LED controller on {}", a.port))?;
+    // Shared memory of crashed runs (ours or a camera's) is removed before we start.
+    match fpm_frames::cleanup_stale() {
+        Ok(0) => {}
+        Ok(n) => tracing::info!("removed the shared memory of {n} crashed process(es)"),
+        Err(e) => tracing::warn!("could not check for stale shared memory: {e}"),
+    }
+    let mut stage: Box<dyn FocusStage> = match a.stage {
+        StageKind::Manual => Box::new(ManualStage),
+        StageKind::Virtual => Box::new(VirtualStage::open(
+            a.rig
+                .as_deref()
+                .context("--stage virtual needs --rig NAME")?,
+        )?),
+    };
+    let plan = Plan {
+        camera: ServiceNames::for_camera(&a.frames),
+        out: a.out.clone(),
+        calibrate: a.calibrate,
+        reconstruct: a.reconstruct,
+        step_ms: a.step_ms,
+        defocus_um: a.defocus_um,
+        color: a.color,
+        dark_level: a.dark_level,
+        system: System {
+            wavelength_um: a.wavelength_um,
+            na: a.na,
+            magnification: a.magnification,
+            pixel_size_um: a.pixel_um,
+        },
+        passes: a.passes,
+        tile: a.tile,
+    };
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(
+            "acquiring [{bar:40}] {pos}/{len} frames ({per_sec}, {eta} left)",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let summary = run_pipeline(&dev, stage.as_mut(), &plan, |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    bar.finish_and_clear();
+    summary
+}
+
+fn print_summary(s: &AcquireSummary, out: &Path) {
+    let c = &s.capture;
+    println!(
+        "acquired {}/{} frames in {:.1} s ({:.1} frames/s); missing {}, extra {}, ambiguous {}",
+        c.labelled,
+        c.requested,
+        c.seconds,
+        c.frames_per_s,
+        c.missing.len(),
+        c.extra_frames,
+        c.ambiguous_frames
+    );
+    if let Some(r) = &s.retake {
+        println!(
+            "  re-acquired {}/{} missing frame(s)",
+            r.labelled, r.requested
+        );
+    }
+    if !s.still_missing.is_empty() {
+        println!("  missing LEDs (not in the dataset): {:?}", s.still_missing);
+    }
+    let g = &s.geometry;
+    println!(
+        "geometry used: Δx {:.3} mm, Δy {:.3} mm, θ {:.3}°, h {:.2} mm",
+        g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
+    );
+    if let Some(ms) = s.last_frame_to_final_ms {
+        println!("last frame → final image: {ms:.0} ms");
+    }
+    println!(
+        "wrote the dataset and acquisition.json to {}",
+        out.display()
+    );
+}

@@ -1,0 +1,25 @@
+//! # fpm-acquire
+//!
+//! Acquisition from a live rig, in the order a frame travels:
+//!
+//! * [`controller`]: the typed client of the LED controller (board or emulator) over a
+//!   serial port;
+//! * [`capture`]: one capture sequence — the controller steps through LEDs, the camera's
+//!   frames are taken off the iceoryx2 frame service (the one copy out of shared
+//!   memory) and every frame is labelled with the LED that lit it ([`label`]);
+//! * [`stage`]: how the focus stage moves (by hand, or a motorised or virtual stage);
+//! * [`pipeline`]: the acquisition — calibrate (pdcFPM) → order nearest-first → capture
+//!   → retake what is missing → stream into the reconstruction → write the dataset.
+//!
+//! Nothing here knows whether the rig is real or virtual.
+
+pub mod capture;
+pub mod controller;
+pub mod label;
+pub mod pipeline;
+pub mod stage;
+
+pub use capture::{capture, CaptureReport, Shot, ShotView};
+pub use controller::Controller;
+pub use pipeline::{acquire, AcquireSummary, Plan};
+pub use stage::{FocusStage, ManualStage, Slide, StagePosition};

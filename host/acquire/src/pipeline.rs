@@ -1,0 +1,313 @@
+//! The acquisition: calibrate the LED array (pdcFPM, optional) → order the LEDs
+//! nearest-first under the geometry in use → capture one labelled frame per LED →
+//! retake what is missing, once → write the dataset → finish the reconstruction that
+//! streamed while the frames arrived.
+//!
+//! A frame's way: out of shared memory once ([`crate::capture`]), lent to the streaming
+//! reconstruction as it arrives (each tile takes its share as amplitude, the one
+//! conversion, in `fpm_physics::frame`), moved into the in-memory dataset, written to
+//! disk, and lent again from there for the last passes. Calibration frames are used
+//! from memory too.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use fpm_frames::ServiceNames;
+use fpm_host::calibration::calibrate_dataset;
+use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
+use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
+use fpm_physics::calibrate::Options;
+use fpm_physics::reconstruct::{Settings, TiledStreaming};
+use fpm_physics::{LedGeometry, System};
+use fpm_protocol::{LedIndex, Rgb};
+use serde::Serialize;
+
+use crate::capture::{capture, CaptureReport, Shot, ShotView};
+use crate::controller::Controller;
+use crate::stage::{FocusStage, Slide, StagePosition};
+
+/// What to acquire and how.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// The camera whose frames to take.
+    pub camera: ServiceNames,
+    /// Output directory: dataset.toml + frames/, acquisition.json, calibration/,
+    /// calibration.json, reconstruction/.
+    pub out: PathBuf,
+    /// Calibrate the LED array first.
+    pub calibrate: bool,
+    /// Reconstruct while the frames arrive.
+    pub reconstruct: bool,
+    /// How long each LED stays lit, ms.
+    pub step_ms: f64,
+    /// Defocus for calibration, µm toward the LEDs.
+    pub defocus_um: f64,
+    /// LED colour.
+    pub color: Rgb,
+    /// The camera's dark level, counts.
+    pub dark_level: f64,
+    /// The optics.
+    pub system: System,
+    /// EPRY passes after the last frame.
+    pub passes: usize,
+    /// Tile side for the reconstruction, camera pixels (None: chosen by frame size).
+    pub tile: Option<usize>,
+}
+
+/// What an acquisition did, also written as `acquisition.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct AcquireSummary {
+    /// The nominal array (from the controller).
+    pub nominal: LedGeometry,
+    /// The geometry used for the acquisition order and the reconstruction.
+    pub geometry: LedGeometry,
+    /// Calibration captures.
+    pub calibration: Vec<CaptureReport>,
+    /// The full capture.
+    pub capture: CaptureReport,
+    /// The second capture of the frames the first one missed, if any.
+    pub retake: Option<CaptureReport>,
+    /// Frames written to the dataset.
+    pub frames_in_dataset: usize,
+    /// LEDs without a frame after the retake.
+    pub still_missing: Vec<[usize; 2]>,
+    /// Last frame → final image, ms (with reconstruction).
+    pub last_frame_to_final_ms: Option<f64>,
+    /// Streaming updates per frame, µs (mean over frames; all tiles).
+    pub update_us_mean: Option<f64>,
+    /// Tiles the streaming reconstruction used.
+    pub tiles: Option<usize>,
+}
+
+/// The nominal array as the controller describes it.
+pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
+    let g = dev.info().geometry;
+    LedGeometry {
+        rows: g.rows as usize,
+        cols: g.cols as usize,
+        pitch_mm: g.pitch_um as f64 / 1e3,
+        height_mm: g.height_um as f64 / 1e3,
+        center: (g.center.row as usize, g.center.col as usize),
+        dx_mm: 0.0,
+        dy_mm: 0.0,
+        theta_deg: 0.0,
+    }
+}
+
+fn led_index(led: (usize, usize)) -> LedIndex {
+    LedIndex::new(led.0 as u8, led.1 as u8)
+}
+
+/// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
+/// `on_frame(done, total)` after every frame of the full capture. Frames that arrived
+/// are labelled and written even when the controller is lost; the error then says so.
+pub fn acquire(
+    dev: &Controller,
+    stage: &mut dyn FocusStage,
+    plan: &Plan,
+    mut on_frame: impl FnMut(usize, usize),
+) -> Result<AcquireSummary> {
+    let nominal = nominal_geometry(dev);
+    let system = plan.system;
+    std::fs::create_dir_all(&plan.out)
+        .with_context(|| format!("creating {}", plan.out.display()))?;
+    let step_us = (plan.step_ms * 1e3).round().max(1_000.0) as u32;
+    let camera = CameraSection {
+        dark_level: plan.dark_level,
+        ..CameraSection::default()
+    };
+    let capture_leds = |id: u32, leds: &[(usize, usize)], on: &mut dyn FnMut(ShotView<'_>)| {
+        let wire: Vec<LedIndex> = leds.iter().copied().map(led_index).collect();
+        capture(dev, &plan.camera, id, &wire, plan.color, step_us, on)
+    };
+
+    // 1. Calibration: a focused reference under the centre LED, then the 5×5 LEDs
+    // around it with the calibration slide defocused.
+    let mut geometry = nominal;
+    let mut calibration_reports = vec![];
+    if plan.calibrate {
+        stage.move_to(StagePosition::in_focus(Slide::CalibrationTarget))?;
+        let (reference, r1) = capture_leds(101, &[nominal.center], &mut |_| {})?;
+        stage.move_to(StagePosition {
+            slide: Slide::CalibrationTarget,
+            defocus_um: plan.defocus_um,
+        })?;
+        let grid: Vec<(usize, usize)> = (-2i64..=2)
+            .flat_map(|dr| (-2i64..=2).map(move |dc| (dr, dc)))
+            .map(|(dr, dc)| {
+                (
+                    (nominal.center.0 as i64 + dr).max(0) as usize,
+                    (nominal.center.1 as i64 + dc).max(0) as usize,
+                )
+            })
+            .collect();
+        let (defocused, r2) = capture_leds(102, &grid, &mut |_| {})?;
+        stage.move_to(StagePosition::in_focus(Slide::Sample))?;
+        calibration_reports = vec![r1, r2];
+        let shots = reference
+            .into_iter()
+            .map(|s| (s, 0.0))
+            .chain(defocused.into_iter().map(|s| (s, plan.defocus_um)));
+        let mut ds = dataset(
+            plan.out.join("calibration"),
+            &system,
+            &nominal,
+            camera,
+            shots,
+        )?;
+        ds.save()?;
+        let cal = calibrate_dataset(&ds, &Options::default())?;
+        std::fs::write(
+            plan.out.join("calibration.json"),
+            serde_json::to_string_pretty(&cal)?,
+        )?;
+        geometry = cal.geometry();
+    }
+
+    // 2. The full acquisition, nearest-first under the geometry in use, streamed into
+    // the reconstruction as the frames arrive.
+    let all: Vec<(usize, usize)> = (0..nominal.rows)
+        .flat_map(|r| (0..nominal.cols).map(move |c| (r, c)))
+        .collect();
+    let leds: Vec<(usize, usize)> = geometry
+        .nearest_first(&all, (0.0, 0.0), system.wavelength_um)
+        .into_iter()
+        .map(|k| all[k])
+        .collect();
+    let settings = Settings::default();
+    let dark = plan.dark_level as f32;
+    let mut streaming: Option<TiledStreaming> = None;
+    let mut stream_error: Option<String> = None;
+    let mut update_us = vec![];
+    let mut last_frame_at = Instant::now();
+    let mut done = 0;
+    let total = leds.len();
+    let mut stream = |shot: ShotView<'_>| {
+        done += 1;
+        on_frame(done, total);
+        last_frame_at = Instant::now();
+        if !plan.reconstruct || stream_error.is_some() {
+            return;
+        }
+        let frame = shot.lit_frame(dark);
+        let (h, w) = frame.measured.dim();
+        let s = streaming.get_or_insert_with(|| {
+            TiledStreaming::new(system, geometry, settings, w, h, plan.tile)
+        });
+        let t = Instant::now();
+        if let Err(e) = s.push(&frame) {
+            stream_error = Some(e.to_string());
+        }
+        update_us.push(t.elapsed().as_secs_f64() * 1e6);
+    };
+    let (mut shots, report) = capture_leds(103, &leds, &mut stream)?;
+    // Frames that did not arrive (or could not be labelled) are taken again, once.
+    let mut retake = None;
+    if !report.failed && !report.missing.is_empty() {
+        let again: Vec<(usize, usize)> = report.missing.iter().map(|&[r, c]| (r, c)).collect();
+        tracing::warn!("re-acquiring {} missing frame(s)", again.len());
+        let (more, r) = capture_leds(104, &again, &mut stream)?;
+        shots.extend(more);
+        retake = Some(r);
+    }
+    let tiles = streaming.as_ref().map(|s| s.layout().tiles.len());
+    let mut ds = dataset(
+        plan.out.clone(),
+        &system,
+        &nominal,
+        camera,
+        shots.into_iter().map(|s| (s, 0.0)),
+    )?;
+    ds.save()?;
+
+    // 3. The rest of the reconstruction, over the frames in the dataset (in memory).
+    let mut last_frame_to_final_ms = None;
+    if let Some(e) = &stream_error {
+        tracing::warn!("streaming reconstruction stopped: {e}");
+    }
+    if let (Some(s), false, None) = (streaming, report.failed, &stream_error) {
+        let frames = ds.in_focus();
+        let outcome = s
+            .finish(&frames, plan.passes, &|_, _| {})
+            .context("finishing the streaming reconstruction")?;
+        let ms = last_frame_at.elapsed().as_secs_f64() * 1e3;
+        last_frame_to_final_ms = Some(ms);
+        let source = if plan.calibrate {
+            "calibration.json"
+        } else {
+            "nominal (controller)"
+        };
+        let report = Report::new(
+            &ds.dir,
+            &geometry,
+            source,
+            settings,
+            plan.passes,
+            frames.len(),
+            &outcome,
+            ms,
+        );
+        write_outputs(
+            &Reconstruction::from_outcome(outcome, report),
+            &plan.out.join("reconstruction"),
+        )?;
+    }
+    let failure = report.failed.then(|| report.outcome.clone());
+    let still_missing = match &retake {
+        Some(r) => r.missing.clone(),
+        None => report.missing.clone(),
+    };
+    let summary = AcquireSummary {
+        nominal,
+        geometry,
+        calibration: calibration_reports,
+        capture: report,
+        retake,
+        frames_in_dataset: ds.frames.len(),
+        still_missing,
+        last_frame_to_final_ms,
+        update_us_mean: (!update_us.is_empty())
+            .then(|| update_us.iter().sum::<f64>() / update_us.len() as f64),
+        tiles,
+    };
+    std::fs::write(
+        plan.out.join("acquisition.json"),
+        serde_json::to_string_pretty(&summary)?,
+    )?;
+    if let Some(why) = failure {
+        bail!(
+            "{why}; the {} frames acquired before are labelled and written to {} (acquisition.json lists the missing LEDs)",
+            summary.frames_in_dataset,
+            plan.out.display()
+        );
+    }
+    Ok(summary)
+}
+
+/// Labelled shots (with their defocus) as an in-memory dataset in `dir`; the pixels
+/// are moved, not copied.
+fn dataset(
+    dir: PathBuf,
+    system: &System,
+    nominal: &LedGeometry,
+    camera: CameraSection,
+    shots: impl Iterator<Item = (Shot, f64)>,
+) -> Result<Dataset> {
+    let mut entries = vec![];
+    let mut images = vec![];
+    let mut bit_depth = None;
+    for (shot, defocus_um) in shots {
+        bit_depth.get_or_insert(shot.header.bit_depth);
+        entries.push(FrameEntry {
+            file: String::new(),
+            led: [shot.led.0, shot.led.1],
+            defocus_um,
+            exposure_ms: shot.header.exposure_us as f64 / 1e3,
+        });
+        images.push(shot.pixels);
+    }
+    let mut manifest = Manifest::new(system, nominal, camera, entries);
+    manifest.camera.bit_depth = bit_depth;
+    Ok(Dataset::from_frames(&dir, manifest, images)?)
+}

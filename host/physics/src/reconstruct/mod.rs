@@ -1,0 +1,19 @@
+//! EPRY (Ou, Zheng & Yang 2014): the object spectrum and the pupil recovered together.
+//!
+//! * [`epry`]: the solver state and one frame's update;
+//! * [`schedule`]: the pass loop and the adaptive step size;
+//! * [`offline`]: one square field with every frame at hand;
+//! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
+//! * [`tiled`]: the full field of view in tiles, offline and streaming alike.
+
+pub mod epry;
+pub mod offline;
+pub mod schedule;
+pub mod streaming;
+pub mod tiled;
+
+pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
+pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
+pub use schedule::StepSchedule;
+pub use streaming::Streaming;
+pub use tiled::{TileLayout, TileResult, TiledError, TiledOutcome, TiledStreaming};

@@ -1,0 +1,164 @@
+//! Offline EPRY over one square field: every frame at hand, nearest-first passes.
+
+use rustfft::num_complex::Complex32;
+
+use super::schedule::passes_over;
+use super::{amplitude, remove_illumination_curvature, Epry, Settings};
+use crate::optics::{LedGeometry, System};
+use crate::Image;
+
+/// One frame for [`run`]: the LED and its intensity, normalised by exposure (any common
+/// scale).
+pub struct Shot<'a> {
+    /// LED (row, col).
+    pub led: (usize, usize),
+    /// Intensity.
+    pub image: &'a Image,
+}
+
+/// The outcome of [`run`] or [`Streaming::finish`].
+pub struct Outcome {
+    /// The solver, for the object and pupil.
+    pub epry: Epry,
+    /// Mean relative amplitude error per pass.
+    pub errors: Vec<f64>,
+    /// Index into the shots of the frame nearest the axis (the initial guess).
+    pub initial: usize,
+    /// Distance from the initial LED to the field centre, µm.
+    pub illumination_radius_um: f64,
+    wavelength_um: f64,
+    hr_pixel_um: f64,
+}
+
+impl Outcome {
+    /// Wrap up a run: `led` lit the initial frame, the field's centre is `centre_um`.
+    pub(crate) fn new(
+        epry: Epry,
+        errors: Vec<f64>,
+        initial: usize,
+        system: &System,
+        geometry: &LedGeometry,
+        led: (usize, usize),
+        centre_um: (f64, f64),
+    ) -> Self {
+        let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+        let illumination_radius_um = ((lx * 1e3 - centre_um.0).powi(2)
+            + (ly * 1e3 - centre_um.1).powi(2)
+            + (geometry.height_mm * 1e3).powi(2))
+        .sqrt();
+        let hr_pixel_um = system.sample_pixel_um() / epry.settings().upsample as f64;
+        Self {
+            epry,
+            errors,
+            initial,
+            illumination_radius_um,
+            wavelength_um: system.wavelength_um,
+            hr_pixel_um,
+        }
+    }
+
+    /// The sample's HR transmission: the object with the illumination's curvature
+    /// divided out ([`remove_illumination_curvature`]).
+    pub fn sample(&mut self) -> ndarray::Array2<Complex32> {
+        let mut field = self.epry.object();
+        remove_illumination_curvature(
+            &mut field,
+            self.hr_pixel_um,
+            self.wavelength_um,
+            self.illumination_radius_um,
+        );
+        field
+    }
+}
+
+/// Where a square field sits in the camera frame and how its intensities are scaled.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Field {
+    /// Sample-plane position of the field's centre pixel, µm: the wave vectors are
+    /// taken there (a tile off the axis sees every LED at a different angle).
+    pub centre_um: (f64, f64),
+    /// The intensity of a clear sample under the initial (nearest-axis) LED, in the
+    /// frames' units. `None`: the initial frame's own mean. Tiles of one frame share
+    /// the whole frame's level so that their amplitudes agree.
+    pub clear_level: Option<f32>,
+    /// Pixels along [left, right, top, bottom] where the measurement is not imposed
+    /// (see [`Epry::set_free_border`]): tiles leave their inner sides free.
+    pub free_border: [usize; 4],
+}
+
+/// Reconstruct a square field from `shots` with the wave vectors of `geometry` at the
+/// field's centre: frames sorted nearest-first by |f_i| (which also copes with a wrongly
+/// chosen centre LED), the nearest one as the initial guess, the pupil learned from the
+/// second pass on (bright-field frames), adaptive steps. `progress(done, total)` is
+/// called after every update. `None` when no frame can seed the object (no frames, or a
+/// black clear level).
+pub fn run(
+    system: &System,
+    geometry: &LedGeometry,
+    field: Field,
+    shots: &[Shot<'_>],
+    settings: Settings,
+    passes: usize,
+    progress: impl FnMut(usize, usize),
+) -> Option<Outcome> {
+    let leds: Vec<(usize, usize)> = shots.iter().map(|s| s.led).collect();
+    let order = geometry.nearest_first(&leds, field.centre_um, system.wavelength_um);
+    let initial = *order.first()?;
+    let scale = match field.clear_level {
+        Some(level) => Some(level).filter(|l| *l > 0.0)?,
+        None => shots[initial].image.mean().filter(|m| *m > 0.0)?,
+    };
+    let amplitudes: Vec<Image> = shots
+        .iter()
+        .map(|s| amplitude(&(s.image / scale)))
+        .collect();
+    run_amplitudes(
+        system,
+        geometry,
+        field,
+        &leds,
+        &amplitudes,
+        settings,
+        passes,
+        progress,
+    )
+}
+
+/// [`run`] on amplitudes already normalised to the clear level (√(I / clear)), one per
+/// LED of `leds`: the form in which tiles hand over their share of each frame.
+#[allow(clippy::too_many_arguments)]
+pub fn run_amplitudes(
+    system: &System,
+    geometry: &LedGeometry,
+    field: Field,
+    leds: &[(usize, usize)],
+    amplitudes: &[Image],
+    settings: Settings,
+    passes: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> Option<Outcome> {
+    let order = geometry.nearest_first(leds, field.centre_um, system.wavelength_um);
+    let initial = *order.first()?;
+    let mut epry = Epry::new(system, &amplitudes[initial].mapv(|a| a * a), settings);
+    epry.set_free_border(field.free_border);
+    let (cx, cy) = field.centre_um;
+    let frames: Vec<(&Image, (f64, f64))> = order
+        .iter()
+        .map(|&k| {
+            let f =
+                geometry.illumination_frequency(leds[k].0, leds[k].1, cx, cy, system.wavelength_um);
+            (&amplitudes[k], f)
+        })
+        .collect();
+    // The pupil is learned from the second pass on, once the object has a first shape.
+    let errors = passes_over(&mut epry, system, &frames, passes, 1, &mut progress);
+    Some(Outcome::new(
+        epry,
+        errors,
+        initial,
+        system,
+        geometry,
+        leds[initial],
+        field.centre_um,
+    ))
+}

@@ -1,0 +1,213 @@
+//! EPRY fed frame by frame as an acquisition runs. Frames may arrive in any order; each
+//! updates the estimate at once (from the first bright-field frame on, which seeds the
+//! object), a snapshot can be taken at any time, and [`Streaming::finish`] runs the
+//! remaining passes nearest-first over every frame received, exactly as the offline
+//! run does. The stream keeps no copy of the frames: the caller keeps them (it writes
+//! them to the dataset anyway) and hands them back to `finish`.
+
+use rustfft::num_complex::Complex32;
+
+use super::offline::{Field, Outcome, Shot};
+use super::schedule::passes_over;
+use super::{amplitude, Epry, Settings};
+use crate::frame::{Measured, Region};
+use crate::optics::{LedGeometry, System};
+use crate::Image;
+
+/// Streaming EPRY over one square field (a whole frame, or one tile of it).
+pub struct Streaming {
+    system: System,
+    geometry: LedGeometry,
+    settings: Settings,
+    field: Field,
+    /// Frames that arrived before the estimate could be seeded, as intensities.
+    waiting: Vec<((usize, usize), Image)>,
+    /// LEDs of the frames used so far, in arrival order.
+    used: Vec<(usize, usize)>,
+    epry: Option<Epry>,
+    /// The clear level the amplitudes are normalised by, once known.
+    scale: Option<f32>,
+}
+
+impl Streaming {
+    /// Nothing received yet; the whole frame is the field (its centre on the axis), the
+    /// clear level is the first bright-field frame's mean.
+    pub fn new(system: System, geometry: LedGeometry, settings: Settings) -> Self {
+        Self::for_field(system, geometry, settings, Field::default())
+    }
+
+    /// Nothing received yet, for `field` (a tile: its centre, its free border, and the
+    /// clear level shared by all tiles once [`Self::set_clear_level`] gives it).
+    pub fn for_field(
+        system: System,
+        geometry: LedGeometry,
+        settings: Settings,
+        field: Field,
+    ) -> Self {
+        Self {
+            system,
+            geometry,
+            settings,
+            field,
+            waiting: vec![],
+            used: vec![],
+            epry: None,
+            scale: field.clear_level.filter(|l| *l > 0.0),
+        }
+    }
+
+    fn frequency(&self, led: (usize, usize)) -> (f64, f64) {
+        let (x, y) = self.field.centre_um;
+        self.geometry
+            .illumination_frequency(led.0, led.1, x, y, self.system.wavelength_um)
+    }
+
+    fn bright_field(&self, led: (usize, usize)) -> bool {
+        let (x, y) = self.field.centre_um;
+        self.geometry
+            .is_bright_field(led.0, led.1, x, y, &self.system)
+    }
+
+    /// A frame (intensity per ms) arrived. Returns whether the estimate was updated.
+    pub fn push(&mut self, led: (usize, usize), image: Image) -> bool {
+        if self.epry.is_none() {
+            self.waiting.push((led, image));
+            return self.try_seed();
+        }
+        let amp = amplitude(&(image / self.scale.unwrap_or(1.0)));
+        self.update(led, &amp);
+        true
+    }
+
+    /// A measured frame arrived; this field is `region` of it. Returns whether the
+    /// estimate was updated.
+    pub fn push_measured(
+        &mut self,
+        led: (usize, usize),
+        frame: &Measured<'_>,
+        region: Region,
+    ) -> bool {
+        match (self.epry.is_some(), self.scale) {
+            (true, Some(scale)) => {
+                let amp = frame.amplitude(region, scale);
+                self.update(led, &amp);
+                true
+            }
+            _ => {
+                self.waiting.push((led, frame.intensity(region)));
+                self.try_seed()
+            }
+        }
+    }
+
+    /// The clear level (intensity per ms of a clear sample under the reference LED),
+    /// when a tiled stream learns it from the whole frame.
+    pub fn set_clear_level(&mut self, level: f32) {
+        if self.epry.is_none() && level > 0.0 {
+            self.scale = Some(level);
+            self.try_seed();
+        }
+    }
+
+    /// Seed from the first bright-field frame that arrived (its own mean is the clear
+    /// level unless one was given), then replay the frames that waited.
+    fn try_seed(&mut self) -> bool {
+        if self.epry.is_some() {
+            return false;
+        }
+        let Some(seed) = self
+            .waiting
+            .iter()
+            .position(|(led, _)| self.bright_field(*led))
+        else {
+            return false;
+        };
+        let scale = match self.scale {
+            Some(s) => s,
+            None => match self.waiting[seed].1.mean().filter(|m| *m > 0.0) {
+                Some(m) => m,
+                None => return false,
+            },
+        };
+        self.scale = Some(scale);
+        let mut epry = Epry::new(
+            &self.system,
+            &(&self.waiting[seed].1 / scale),
+            self.settings,
+        );
+        epry.set_free_border(self.field.free_border);
+        self.epry = Some(epry);
+        // Earlier (dark-field) frames first, as they arrived, then the seed and the rest.
+        for (led, image) in std::mem::take(&mut self.waiting) {
+            let amp = amplitude(&(image / scale));
+            self.update(led, &amp);
+        }
+        true
+    }
+
+    fn update(&mut self, led: (usize, usize), amplitude: &Image) {
+        let f = self.frequency(led);
+        if let Some(e) = self.epry.as_mut() {
+            e.update_amplitude(amplitude, f, false);
+        }
+        self.used.push(led);
+    }
+
+    /// Frames received.
+    pub fn received(&self) -> usize {
+        self.used.len() + self.waiting.len()
+    }
+
+    /// The clear level in use (None before seeding).
+    pub fn clear_level(&self) -> Option<f32> {
+        self.scale.filter(|_| self.epry.is_some())
+    }
+
+    /// The object as it stands (None before the first bright-field frame).
+    pub fn snapshot(&mut self) -> Option<ndarray::Array2<Complex32>> {
+        self.epry.as_mut().map(Epry::object)
+    }
+
+    /// Run `passes` more passes over `shots` (intensity per ms: every frame received,
+    /// handed back), nearest-first, with the adaptive step size and the pupil learned
+    /// from the bright-field frames, as [`super::run`] does offline.
+    pub fn finish(self, shots: &[Shot<'_>], passes: usize) -> Option<Outcome> {
+        let scale = self.clear_level()?;
+        let leds: Vec<(usize, usize)> = shots.iter().map(|s| s.led).collect();
+        let amplitudes: Vec<Image> = shots
+            .iter()
+            .map(|s| amplitude(&(s.image / scale)))
+            .collect();
+        self.finish_amplitudes(&leds, &amplitudes, passes, |_, _| {})
+    }
+
+    /// [`Self::finish`] on amplitudes already normalised by [`Self::clear_level`].
+    pub fn finish_amplitudes(
+        mut self,
+        leds: &[(usize, usize)],
+        amplitudes: &[Image],
+        passes: usize,
+        progress: impl FnMut(usize, usize),
+    ) -> Option<Outcome> {
+        let mut epry = self.epry.take()?;
+        let order =
+            self.geometry
+                .nearest_first(leds, self.field.centre_um, self.system.wavelength_um);
+        let initial = *order.first()?;
+        let frames: Vec<(&Image, (f64, f64))> = order
+            .iter()
+            .map(|&k| (&amplitudes[k], self.frequency(leds[k])))
+            .collect();
+        // Every frame has already updated the object once as it arrived.
+        let errors = passes_over(&mut epry, &self.system, &frames, passes, 0, progress);
+        Some(Outcome::new(
+            epry,
+            errors,
+            initial,
+            &self.system,
+            &self.geometry,
+            leds[initial],
+            self.field.centre_um,
+        ))
+    }
+}

@@ -1,0 +1,410 @@
+//! The full field of view, offline and streaming alike: a frame is cut into square
+//! tiles ([`TileLayout`]), each tile is reconstructed with its own wave vectors and a
+//! free border on its inner sides, all tiles share one clear level (the whole frame
+//! under the LED nearest the axis), and the tiles are blended into one image
+//! ([`Mosaic`]). Offline runs and streams differ only in where each tile's estimate
+//! starts: fresh, or from the updates made while the frames arrived.
+
+use std::time::Instant;
+
+use ndarray::Array2;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex32;
+
+use super::offline::{run_amplitudes, Field, Outcome};
+use super::streaming::Streaming;
+use super::Settings;
+use crate::frame::{LitFrame, Region};
+use crate::optics::{LedGeometry, System};
+use crate::tiles::{plan, Mosaic, Tile};
+use crate::Image;
+
+/// How a `width × height` frame is cut.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileLayout {
+    /// Frame width, pixels.
+    pub width: usize,
+    /// Frame height, pixels.
+    pub height: usize,
+    /// Tile side, pixels.
+    pub size: usize,
+    /// Overlap between neighbours, pixels (0 for one tile).
+    pub overlap: usize,
+    /// Border on the sides facing another tile where the measurement is not imposed
+    /// (absorbs the FFT's wrap-around), pixels (0 for one tile).
+    pub free: usize,
+    /// The tiles, row-major.
+    pub tiles: Vec<Tile>,
+}
+
+impl TileLayout {
+    /// `tile` = None picks the whole field when it is square and at most 512 pixels,
+    /// else 256-pixel tiles; the overlap is a quarter tile, the free border a quarter
+    /// of the overlap.
+    pub fn new(width: usize, height: usize, tile: Option<usize>) -> Self {
+        let size = match tile {
+            Some(t) => t.max(16),
+            None if width == height && width <= 512 => width,
+            None => 256,
+        };
+        let size = size.min(width).min(height);
+        let overlap = size / 4;
+        let tiles = plan(width, height, size, overlap);
+        let (overlap, free) = if tiles.len() > 1 {
+            (overlap, overlap / 4)
+        } else {
+            (0, 0)
+        };
+        Self {
+            width,
+            height,
+            size,
+            overlap,
+            free,
+            tiles,
+        }
+    }
+
+    /// The field of tile `k`: its centre (wave vectors are taken there), its free
+    /// border, and the shared clear level.
+    pub fn field(&self, k: usize, pixel_um: f64, clear_level: Option<f32>) -> Field {
+        let t = &self.tiles[k];
+        Field {
+            centre_um: t.centre_um(self.width, self.height, pixel_um),
+            clear_level,
+            free_border: t.free_border(self.width, self.height, self.free),
+        }
+    }
+
+    /// The tile whose centre is nearest the optical axis (its pupil is reported).
+    pub fn central_tile(&self) -> usize {
+        (0..self.tiles.len())
+            .min_by(|&a, &b| {
+                let d = |k: usize| {
+                    let c = self.tiles[k].centre_um(self.width, self.height, 1.0);
+                    c.0.hypot(c.1)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap_or(0)
+    }
+}
+
+/// One tile's result.
+#[derive(Debug, Clone)]
+pub struct TileResult {
+    /// Where it is.
+    pub tile: Tile,
+    /// Sample-plane centre, µm.
+    pub centre_um: (f64, f64),
+    /// The LED of the initial guess (nearest the axis from this tile).
+    pub initial_led: (usize, usize),
+    /// Mean relative amplitude error per pass.
+    pub errors: Vec<f64>,
+    /// Time this tile took, ms.
+    pub ms: f64,
+}
+
+/// A reconstruction of the full field.
+pub struct TiledOutcome {
+    /// How the frame was cut.
+    pub layout: TileLayout,
+    /// The sample's HR transmission, blended, illumination curvature removed.
+    pub object: Array2<Complex32>,
+    /// The pupil of the tile nearest the axis, centred.
+    pub pupil: Array2<Complex32>,
+    /// Per tile.
+    pub tiles: Vec<TileResult>,
+    /// The clear level the frames were normalised by (intensity per ms).
+    pub clear_level: f32,
+}
+
+/// Why a tiled reconstruction could not run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TiledError {
+    /// No frames.
+    #[error("no frames to reconstruct")]
+    NoFrames,
+    /// The reference frame is black.
+    #[error("frame {index} (LED {led:?}, nearest the axis) is black: cannot normalise")]
+    BlackReference {
+        /// Its index among the frames given.
+        index: usize,
+        /// Its LED.
+        led: (usize, usize),
+    },
+    /// Frames of different sizes.
+    #[error("frame {index} (LED {led:?}) is {got:?} (rows, cols), the others {expected:?}")]
+    Size {
+        /// Its index among the frames given.
+        index: usize,
+        /// Its LED.
+        led: (usize, usize),
+        /// Its size.
+        got: (usize, usize),
+        /// The size of the first.
+        expected: (usize, usize),
+    },
+    /// A tile had no usable frame.
+    #[error("tile at ({x0}, {y0}): no bright-field frame to start from")]
+    Tile {
+        /// Its first column.
+        x0: usize,
+        /// Its first row.
+        y0: usize,
+    },
+}
+
+/// The clear level all tiles share: the whole frame's mean intensity under the LED
+/// nearest the axis. Returns (index of that frame, level).
+pub fn clear_level(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+) -> Result<(usize, f32), TiledError> {
+    let leds: Vec<(usize, usize)> = frames.iter().map(|f| f.led).collect();
+    let nearest = *geometry
+        .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+        .first()
+        .ok_or(TiledError::NoFrames)?;
+    let level = frames[nearest].measured.mean_intensity();
+    if level.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(TiledError::BlackReference {
+            index: nearest,
+            led: frames[nearest].led,
+        });
+    }
+    Ok((nearest, level))
+}
+
+fn check_sizes(frames: &[LitFrame<'_>]) -> Result<(usize, usize), TiledError> {
+    let expected = frames.first().ok_or(TiledError::NoFrames)?.measured.dim();
+    for (index, f) in frames.iter().enumerate() {
+        if f.measured.dim() != expected {
+            return Err(TiledError::Size {
+                index,
+                led: f.led,
+                got: f.measured.dim(),
+                expected,
+            });
+        }
+    }
+    Ok(expected)
+}
+
+/// Reconstruct `frames` (in focus) with `geometry` in tiles (`tile`: side in pixels,
+/// see [`TileLayout::new`]), tiles in parallel. `progress(done, total)` counts frame
+/// updates over all tiles.
+pub fn reconstruct(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+    settings: Settings,
+    passes: usize,
+    tile: Option<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<TiledOutcome, TiledError> {
+    let (height, width) = check_sizes(frames)?;
+    let layout = TileLayout::new(width, height, tile);
+    let (_, level) = clear_level(system, geometry, frames)?;
+    let starts = (0..layout.tiles.len()).map(|_| None).collect();
+    solve(
+        system, geometry, frames, settings, passes, layout, level, starts, progress,
+    )
+}
+
+/// Each tile from its start (None: fresh, nearest-first from the frames), then blended.
+#[allow(clippy::too_many_arguments)]
+fn solve(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+    settings: Settings,
+    passes: usize,
+    layout: TileLayout,
+    clear_level: f32,
+    starts: Vec<Option<Streaming>>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<TiledOutcome, TiledError> {
+    let pixel_um = system.sample_pixel_um();
+    let leds: Vec<(usize, usize)> = frames.iter().map(|f| f.led).collect();
+    let total = layout.tiles.len() * passes * frames.len();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let tick = |_: usize, _: usize| {
+        progress(
+            done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+            total,
+        );
+    };
+    let jobs: Vec<(usize, Option<Streaming>)> = starts.into_iter().enumerate().collect();
+    let results: Vec<(TileResult, Outcome)> = jobs
+        .into_par_iter()
+        .map(|(k, start)| {
+            let began = Instant::now();
+            let t = layout.tiles[k];
+            // This tile's share of each frame, as amplitude: the only conversion of the
+            // counts, made here and dropped with the tile.
+            let amplitudes: Vec<Image> = frames
+                .iter()
+                .map(|f| f.measured.amplitude(Region::from(t), clear_level))
+                .collect();
+            let field = layout.field(k, pixel_um, Some(clear_level));
+            let outcome = match start {
+                Some(s) => s.finish_amplitudes(&leds, &amplitudes, passes, tick),
+                None => run_amplitudes(
+                    system,
+                    geometry,
+                    field,
+                    &leds,
+                    &amplitudes,
+                    settings,
+                    passes,
+                    tick,
+                ),
+            }
+            .ok_or(TiledError::Tile { x0: t.x0, y0: t.y0 })?;
+            let result = TileResult {
+                tile: t,
+                centre_um: field.centre_um,
+                initial_led: leds[outcome.initial],
+                errors: outcome.errors.clone(),
+                ms: began.elapsed().as_secs_f64() * 1e3,
+            };
+            Ok((result, outcome))
+        })
+        .collect::<Result<_, TiledError>>()?;
+    let mut mosaic = Mosaic::new(
+        layout.width,
+        layout.height,
+        settings.upsample.max(1),
+        layout.overlap,
+        layout.free,
+    );
+    let central = layout.central_tile();
+    let mut pupil = None;
+    let mut tiles = Vec::with_capacity(results.len());
+    for (k, (result, mut outcome)) in results.into_iter().enumerate() {
+        mosaic.add(&result.tile, &outcome.sample());
+        if k == central {
+            pupil = Some(outcome.epry.pupil_centered());
+        }
+        tiles.push(result);
+    }
+    Ok(TiledOutcome {
+        object: mosaic.finish(),
+        pupil: pupil.ok_or(TiledError::NoFrames)?,
+        tiles,
+        layout,
+        clear_level,
+    })
+}
+
+/// Streaming EPRY over the full field: one [`Streaming`] per tile of the same
+/// [`TileLayout`] an offline run uses, so frames of any size (a 20 MP sensor, a
+/// non-square one) stream. The clear level comes from the first frame that is
+/// bright-field on the axis (in a nearest-first acquisition, the axial LED's).
+pub struct TiledStreaming {
+    system: System,
+    geometry: LedGeometry,
+    settings: Settings,
+    layout: TileLayout,
+    tiles: Vec<Streaming>,
+    clear_level: Option<f32>,
+}
+
+impl TiledStreaming {
+    /// Nothing received yet, for `width × height` frames cut as `tile` says.
+    pub fn new(
+        system: System,
+        geometry: LedGeometry,
+        settings: Settings,
+        width: usize,
+        height: usize,
+        tile: Option<usize>,
+    ) -> Self {
+        let layout = TileLayout::new(width, height, tile);
+        let pixel_um = system.sample_pixel_um();
+        let tiles = (0..layout.tiles.len())
+            .map(|k| {
+                Streaming::for_field(system, geometry, settings, layout.field(k, pixel_um, None))
+            })
+            .collect();
+        Self {
+            system,
+            geometry,
+            settings,
+            layout,
+            tiles,
+            clear_level: None,
+        }
+    }
+
+    /// How the frame is cut.
+    pub fn layout(&self) -> &TileLayout {
+        &self.layout
+    }
+
+    /// A frame arrived: every tile is updated with its share (or keeps it until it can
+    /// be seeded). A frame of the wrong size is refused.
+    pub fn push(&mut self, frame: &LitFrame<'_>) -> Result<(), TiledError> {
+        let expected = (self.layout.height, self.layout.width);
+        if frame.measured.dim() != expected {
+            return Err(TiledError::Size {
+                index: self.received(),
+                led: frame.led,
+                got: frame.measured.dim(),
+                expected,
+            });
+        }
+        if self.clear_level.is_none()
+            && self
+                .geometry
+                .is_bright_field(frame.led.0, frame.led.1, 0.0, 0.0, &self.system)
+        {
+            let level = frame.measured.mean_intensity();
+            if level > 0.0 {
+                self.clear_level = Some(level);
+                for t in &mut self.tiles {
+                    t.set_clear_level(level);
+                }
+            }
+        }
+        for (t, tile) in self.tiles.iter_mut().zip(&self.layout.tiles) {
+            t.push_measured(frame.led, &frame.measured, Region::from(*tile));
+        }
+        Ok(())
+    }
+
+    /// Frames received.
+    pub fn received(&self) -> usize {
+        self.tiles.first().map_or(0, Streaming::received)
+    }
+
+    /// Run `passes` more passes over `frames` (every frame received, handed back) in
+    /// each tile, and blend: the same finish as an offline run.
+    pub fn finish(
+        self,
+        frames: &[LitFrame<'_>],
+        passes: usize,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<TiledOutcome, TiledError> {
+        check_sizes(frames)?;
+        let level = self.clear_level.ok_or(TiledError::NoFrames)?;
+        if let Some(k) = self.tiles.iter().position(|t| t.clear_level().is_none()) {
+            let t = self.layout.tiles[k];
+            return Err(TiledError::Tile { x0: t.x0, y0: t.y0 });
+        }
+        let starts = self.tiles.into_iter().map(Some).collect();
+        solve(
+            &self.system,
+            &self.geometry,
+            frames,
+            self.settings,
+            passes,
+            self.layout,
+            level,
+            starts,
+            progress,
+        )
+    }
+}

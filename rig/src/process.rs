@@ -1,0 +1,167 @@
+//! Rig processes (the controller emulator, the virtual camera, any `fpm` subcommand)
+//! as children: started, waited for until ready, stopped with SIGTERM on drop (so the
+//! emulator removes its link and the camera leaves iceoryx2 cleanly) or killed like a
+//! crash. The demo, the benchmarks and the tests all start them through this.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+
+/// When a started process counts as ready.
+#[derive(Debug, Clone, Copy)]
+pub enum Ready<'a> {
+    /// At once.
+    Started,
+    /// Once this file exists (a process writes it last when it is listening).
+    FileExists(&'a Path, Duration),
+    /// Once this symbolic link points to an existing file (the emulator creates its
+    /// link, atomically, only once it serves the terminal).
+    LinkServes(&'a Path, Duration),
+}
+
+/// A child process, stopped (SIGTERM, then SIGKILL after 5 s) and reaped on drop.
+pub struct ChildProcess {
+    child: Option<Child>,
+    what: String,
+}
+
+impl ChildProcess {
+    /// Start `command` (named `what` in errors) and wait until it is `ready`.
+    pub fn start(mut command: Command, what: &str, ready: Ready<'_>) -> Result<Self> {
+        let child = command
+            .spawn()
+            .with_context(|| format!("starting the {what}"))?;
+        let mut me = Self {
+            child: Some(child),
+            what: what.into(),
+        };
+        let (path, timeout, is_ready): (&Path, Duration, fn(&Path) -> bool) = match ready {
+            Ready::Started => return Ok(me),
+            Ready::FileExists(p, t) => (p, t, |p| p.exists()),
+            Ready::LinkServes(p, t) => (p, t, |p| {
+                std::fs::read_link(p).is_ok_and(|target| target.exists())
+            }),
+        };
+        let deadline = Instant::now() + timeout;
+        while !is_ready(path) {
+            if let Some(status) = me.try_wait() {
+                bail!("the {what} exited at start-up: {status}");
+            }
+            if Instant::now() > deadline {
+                bail!("the {what} was not ready within {timeout:?}");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if let Some(status) = me.try_wait() {
+            bail!("the {what} exited at start-up: {status}");
+        }
+        Ok(me)
+    }
+
+    /// `fpm <args>` from the executable `fpm`, output discarded, logging at `warn`.
+    pub fn fpm(fpm: &Path, args: &[&str], what: &str, ready: Ready<'_>) -> Result<Self> {
+        let mut command = Command::new(fpm);
+        command
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null());
+        Self::start(command, what, ready)
+    }
+
+    /// Its process id.
+    pub fn id(&self) -> Option<u32> {
+        self.child.as_ref().map(Child::id)
+    }
+
+    /// Its exit status, if it has exited.
+    pub fn try_wait(&mut self) -> Option<ExitStatus> {
+        self.child
+            .as_mut()
+            .and_then(|c| c.try_wait().ok().flatten())
+    }
+
+    /// Kill it without warning (SIGKILL), as a crash would: it leaves its link, shared
+    /// memory and files behind.
+    pub fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Stop it cleanly (SIGTERM; SIGKILL after 5 s) and return its exit status.
+    pub fn stop(&mut self) -> Option<ExitStatus> {
+        let mut c = self.child.take()?;
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(c.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            if let Ok(Some(status)) = c.try_wait() {
+                return Some(status);
+            }
+            if Instant::now() > deadline {
+                tracing::warn!("the {} did not stop on SIGTERM; killing it", self.what);
+                let _ = c.kill();
+                return c.wait().ok();
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for ChildProcess {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// `fpm emulator --link <link> <extra>` as a child process, ready once its link serves.
+pub struct EmulatorProcess {
+    /// The process.
+    pub process: ChildProcess,
+    /// Its link path (a serial port name for clients).
+    pub link: PathBuf,
+}
+
+impl EmulatorProcess {
+    /// Start the emulator of the executable `fpm` at `link`, its log to `stderr`.
+    pub fn start_at(fpm: &Path, link: &Path, extra: &[&str], stderr: Stdio) -> Result<Self> {
+        let mut command = Command::new(fpm);
+        command
+            .arg("emulator")
+            .arg("--link")
+            .arg(link)
+            .args(extra)
+            .env("RUST_LOG", "info")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(stderr);
+        let process = ChildProcess::start(
+            command,
+            "emulator",
+            Ready::LinkServes(link, Duration::from_secs(20)),
+        )?;
+        Ok(Self {
+            process,
+            link: link.to_path_buf(),
+        })
+    }
+
+    /// Start this executable's emulator at a link under the temp dir named by our pid
+    /// (a link left by a crashed run of this pid is replaced by the emulator itself).
+    pub fn start(extra: &[&str]) -> Result<Self> {
+        let fpm = std::env::current_exe().context("locating the fpm executable")?;
+        let link = std::env::temp_dir().join(format!("fpm-emulator-{}.tty", std::process::id()));
+        Self::start_at(&fpm, &link, extra, Stdio::null())
+    }
+
+    /// The link path as a port name.
+    pub fn port(&self) -> String {
+        self.link.to_string_lossy().into_owned()
+    }
+}

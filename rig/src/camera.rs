@@ -25,9 +25,14 @@ pub struct VirtualCameraArgs {
     /// Publish frames as this camera (`fpm/camera/<NAME>/frames`).
     #[arg(long, default_value = "0")]
     pub camera: String,
-    /// Sensor size, pixels (square).
+    /// Sensor width, pixels (and height, unless `--height` is given).
     #[arg(long, default_value_t = 256)]
     pub size: usize,
+    /// Sensor height, pixels, for a non-square sensor (the scene is rendered on a
+    /// square field and the sensor's rows are cut from its middle, optical axis kept at
+    /// (width/2, height/2)).
+    #[arg(long)]
+    pub height: Option<usize>,
     /// Seed of the hidden geometry, the sample and the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -91,7 +96,11 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
     let system = System::paper();
     let hidden = a.hidden_geometry();
-    let size = a.size.max(16);
+    let width = a.size.max(16);
+    let height = a.height.unwrap_or(width).max(16);
+    // The scene is rendered square (the simulator's grid), then cropped to the sensor.
+    let size = width.max(height);
+    let sensor = Sensor::centred(size, width, height);
     let sample = ObjectField::test_sample(&system, size, 32, 2, a.seed);
     // The calibration slide: one square hole, 50 µm (the paper's) or a third of a
     // smaller field, with room around it for a 200 µm defocus.
@@ -110,7 +119,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
     let mut rig = RigListener::create(&a.rig)?;
-    let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), size * size)?;
+    let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), width * height)?;
     if let Some(dir) = &a.truth_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         std::fs::write(
@@ -139,7 +148,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         )?;
     }
     tracing::info!(
-        "virtual camera {} on rig {}: {size}² frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
+        "virtual camera {} on rig {}: {width}x{height} frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
         a.camera,
         a.rig,
         hidden.dx_mm,
@@ -177,7 +186,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         } else {
             camera.auto_exposure(&intensity)
         };
-        let counts = camera.record(&intensity, exposure_ms, &mut rng);
+        let counts = camera.record(&sensor.crop(&intensity), exposure_ms, &mut rng);
         std::thread::sleep(Duration::from_secs_f64(a.readout_ms.max(0.0) / 1e3));
         let pixels = counts.as_slice().context("frame layout")?;
         std::thread::sleep(Duration::from_secs_f64(a.late_ms.max(0.0) / 1e3));
@@ -191,8 +200,8 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 frame_number,
                 timestamp_ns: pulse.time_us * 1000,
                 exposure_us: (exposure_ms * 1e3).round() as u32,
-                width: size as u32,
-                height: size as u32,
+                width: width as u32,
+                height: height as u32,
                 bit_depth: camera.bit_depth,
                 camera_id: 0,
                 ..FrameHeader::default()
@@ -211,4 +220,34 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
     }
     tracing::info!("virtual camera stopped after {frame_number} frames");
     Ok(())
+}
+
+/// Where a `width × height` sensor sits on the square `size²` rendered field: centred,
+/// so that its optical axis (width/2, height/2) is the field's (size/2, size/2).
+#[derive(Debug, Clone, Copy)]
+struct Sensor {
+    x0: usize,
+    y0: usize,
+    width: usize,
+    height: usize,
+}
+
+impl Sensor {
+    fn centred(size: usize, width: usize, height: usize) -> Self {
+        Self {
+            x0: size / 2 - width / 2,
+            y0: size / 2 - height / 2,
+            width,
+            height,
+        }
+    }
+
+    fn crop(&self, field: &fpm_physics::Image) -> fpm_physics::Image {
+        field
+            .slice(ndarray::s![
+                self.y0..self.y0 + self.height,
+                self.x0..self.x0 + self.width
+            ])
+            .to_owned()
+    }
 }

@@ -165,3 +165,90 @@ fn calibration_recovers_what_a_misplaced_array_costs() {
         );
     }
 }
+
+/// Tiled streaming is the offline tiled reconstruction fed early: frames of a field cut
+/// into tiles, pushed one by one as an acquisition delivers them (nearest-first), then
+/// finished, must score against the truth as well as the offline run over the same
+/// tiles does.
+#[test]
+fn tiled_streaming_is_as_good_as_offline_tiles() {
+    use fpm_physics::frame::{Counts, LitFrame, Measured};
+    use fpm_physics::reconstruct::{tiled, TiledStreaming};
+
+    let system = System::paper();
+    let geometry = LedGeometry {
+        rows: 15,
+        cols: 15,
+        pitch_mm: 2.5,
+        height_mm: 92.0,
+        center: (7, 7),
+        dx_mm: 0.0,
+        dy_mm: 0.0,
+        theta_deg: 0.0,
+    };
+    let w = 160;
+    let tile = Some(80);
+    let object = ObjectField::test_sample(&system, w, 32, 2, 7);
+    let camera = Camera::realistic();
+    let all: Vec<(usize, usize)> = (0..15).flat_map(|r| (0..15).map(move |c| (r, c))).collect();
+    let order = geometry.nearest_first(&all, (0.0, 0.0), system.wavelength_um);
+    let shots: Vec<((usize, usize), f64)> = order.iter().map(|&k| (all[k], 0.0)).collect();
+    let frames = acquire(
+        &system,
+        &geometry,
+        &object,
+        &shots,
+        &camera,
+        |img| camera.auto_exposure(img),
+        13,
+    );
+    let lit: Vec<LitFrame> = frames
+        .iter()
+        .map(|f| LitFrame {
+            led: f.led,
+            measured: Measured {
+                counts: Counts::U16(f.counts.view()),
+                dark_level: camera.dark_level_dn as f32,
+                exposure_ms: f.exposure_ms as f32,
+            },
+        })
+        .collect();
+    let settings = Settings::default();
+    let passes = 6;
+    let offline = tiled::reconstruct(&system, &geometry, &lit, settings, passes, tile, &|_, _| {})
+        .expect("offline tiles");
+    assert!(offline.tiles.len() >= 4, "{} tiles", offline.tiles.len());
+
+    let mut streaming = TiledStreaming::new(system, geometry, settings, w, w, tile);
+    for f in &lit {
+        streaming.push(f).expect("frame of the right size");
+    }
+    assert_eq!(streaming.layout(), &offline.layout, "the same tiles");
+    let streamed = streaming
+        .finish(&lit, passes - 1, &|_, _| {})
+        .expect("streamed tiles");
+    // A frame of another size is refused, naming it.
+    let mut other = TiledStreaming::new(system, geometry, settings, w, w / 2, tile);
+    assert!(other.push(&lit[0]).is_err());
+
+    let truth = object.crop_to_camera();
+    let m = truth.dim().0;
+    let discs: Vec<(f64, f64)> = frames
+        .iter()
+        .map(|f| geometry.illumination_frequency(f.led.0, f.led.1, 0.0, 0.0, system.wavelength_um))
+        .collect();
+    let cutoff = system.cutoff();
+    let in_aperture = |fx: f64, fy: f64| discs.iter().any(|f| (fx + f.0).hypot(fy + f.1) <= cutoff);
+    let truth_bl = resample(&truth, object.pitch_um(), m, in_aperture);
+    let nrmse = |rec: &ndarray::Array2<Complex32>| {
+        let on_truth = resample(rec, system.sample_pixel_um() / 4.0, m, in_aperture);
+        complex_nrmse(&central(&on_truth, 0.75), &central(&truth_bl, 0.75))
+    };
+    let (n_offline, n_streamed) = (nrmse(&offline.object), nrmse(&streamed.object));
+    eprintln!("tiles: offline NRMSE {n_offline:.3}, streamed {n_streamed:.3}");
+    assert!(n_offline < 0.3, "offline tiles {n_offline}");
+    assert!(
+        n_streamed < 1.2 * n_offline,
+        "streamed {n_streamed} vs offline {n_offline}"
+    );
+}

@@ -12,7 +12,7 @@ use fpm_frames::{
 };
 use serde::Serialize;
 
-use crate::Percentiles;
+use crate::stats::Percentiles;
 
 #[derive(Serialize)]
 struct SizeResult {

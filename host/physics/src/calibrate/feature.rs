@@ -3,28 +3,7 @@
 
 use crate::image::{median, Image};
 
-/// A rectangle of pixels: columns `x .. x + w`, rows `y .. y + h`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub struct Roi {
-    /// First column.
-    pub x: usize,
-    /// First row.
-    pub y: usize,
-    /// Width.
-    pub w: usize,
-    /// Height.
-    pub h: usize,
-}
-
-/// Whether the feature is brighter or darker than its surroundings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Polarity {
-    /// A bright object on a dark field (a pinhole, a hole in a mask).
-    Bright,
-    /// A dark object on a bright field (a bead, a particle).
-    Dark,
-}
+pub use super::window::{Polarity, Roi};
 
 /// The feature found in the reference frame.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -159,7 +138,7 @@ pub fn find(reference: &Image, roi: Option<Roi>) -> Result<Feature, FeatureError
         (bbox.y + bbox.h + margin).min(h),
     );
     let (center_px, _) =
-        super::shift::signed_moment(reference, sign, background, (x0, x1), (y0, y1))
+        super::window::signed_moment(reference, sign, background, (x0, x1), (y0, y1))
             .ok_or(FeatureError::NotFound { area })?;
     Ok(Feature {
         center_px,

@@ -14,6 +14,7 @@ pub mod feature;
 pub mod fit;
 pub mod model;
 pub mod shift;
+pub mod window;
 
 use serde::{Deserialize, Serialize};
 

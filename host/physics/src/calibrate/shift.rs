@@ -5,7 +5,7 @@
 //! mean direction of the light that reaches the camera; what remains of its bias comes
 //! from the pupil clipping the feature's spectrum, and [`super::model`] removes it.
 
-use super::feature::{Polarity, Roi};
+use super::window::{signed_moment, Polarity, Roi};
 use crate::image::{median, Image};
 
 /// The feature's position in one frame.
@@ -31,27 +31,6 @@ fn ring_background(img: &Image, x0: usize, y0: usize, x1: usize, y1: usize, band
         .filter(|&(r, c)| r < y0 || r >= y1 || c < x0 || c >= x1)
         .map(|(r, c)| img[[r, c]]);
     median(ring)
-}
-
-/// First moment (col, row) and total of `sign·(img − background)` over rows `y0..y1`
-/// and columns `x0..x1`; `None` if the signal does not sum to a positive value.
-pub fn signed_moment(
-    img: &Image,
-    sign: f32,
-    background: f32,
-    (x0, x1): (usize, usize),
-    (y0, y1): (usize, usize),
-) -> Option<((f64, f64), f64)> {
-    let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
-    for r in y0..y1 {
-        for c in x0..x1 {
-            let v = (sign * (img[[r, c]] - background)) as f64;
-            sx += v * c as f64;
-            sy += v * r as f64;
-            sw += v;
-        }
-    }
-    (sw > 0.0).then(|| ((sx / sw, sy / sw), sw))
 }
 
 /// The first moment of `polarity`-signed, background-removed intensity in a square

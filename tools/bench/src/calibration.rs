@@ -1,0 +1,167 @@
+//! `fpm bench calibration`: pdcFPM accuracy and speed on simulated data against the
+//! hidden truth (the paper's Table 1, an off-axis feature, a random sweep).
+
+use crate::Percentiles;
+
+use anyhow::Result;
+use serde::Serialize;
+
+#[derive(Serialize, Clone)]
+struct CalibrationCase {
+    name: String,
+    truth: [f64; 4],
+    found: [f64; 4],
+    /// |Δx| µm, |Δy| µm, |θ| °, |h| mm
+    error: [f64; 4],
+    used_leds: usize,
+    calibrate_ms: f64,
+}
+
+#[derive(Serialize)]
+struct CalibrationBench {
+    cases: Vec<CalibrationCase>,
+    max_error: [f64; 4],
+    median_error: [f64; 4],
+    paper_table1_max_error: [f64; 4],
+    calibrate_ms_median: f64,
+    calibrate_ms_max: f64,
+}
+
+pub(crate) fn run(random: usize, seed: u64, json: bool) -> Result<()> {
+    use fpm_physics::calibrate::{LedStatus, Options};
+    use fpm_physics::simulate::CalibrationScene;
+    use fpm_physics::study::calibrate_simulated;
+    use fpm_physics::LedGeometry;
+    use rand::{Rng, SeedableRng};
+
+    let nominal = LedGeometry::paper();
+    let geometry = |dx, dy, th, h| LedGeometry {
+        dx_mm: dx,
+        dy_mm: dy,
+        theta_deg: th,
+        height_mm: h,
+        ..nominal
+    };
+    // (name, truth, feature side µm, feature position µm)
+    let mut cases: Vec<(String, LedGeometry, f64, (f64, f64))> = vec![
+        (
+            "table 1: 1.5, 1.5, 5°, 92".into(),
+            geometry(1.5, 1.5, 5.0, 92.0),
+            50.0,
+            (0.0, 0.0),
+        ),
+        (
+            "table 1: 2.0, 2.0, 5°, 92".into(),
+            geometry(2.0, 2.0, 5.0, 92.0),
+            50.0,
+            (0.0, 0.0),
+        ),
+        (
+            "table 1: 2.5, 2.5, 5°, 92".into(),
+            geometry(2.5, 2.5, 5.0, 92.0),
+            50.0,
+            (0.0, 0.0),
+        ),
+        (
+            "off-axis 30 µm feature at (30, -20) µm".into(),
+            geometry(-1.7, 0.8, -3.5, 88.0),
+            30.0,
+            (30.0, -20.0),
+        ),
+    ];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    for k in 0..random {
+        let g = geometry(
+            rng.gen_range(-2.5..2.5),
+            rng.gen_range(-2.5..2.5),
+            rng.gen_range(-5.0..5.0),
+            rng.gen_range(87.0..97.0),
+        );
+        cases.push((format!("random {k}"), g, 50.0, (0.0, 0.0)));
+    }
+    let bar = if json {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(cases.len() as u64)
+    };
+    let mut out = vec![];
+    for (k, (name, truth, side, at)) in cases.iter().enumerate() {
+        let mut scene = CalibrationScene::paper(*truth, seed.wrapping_mul(1000) + k as u64);
+        scene.feature_um = *side;
+        scene.feature_at_um = *at;
+        let frames = scene.acquire();
+        let (cal, took) = calibrate_simulated(&scene, &frames, &nominal, &Options::default())?;
+        let ms = took.as_secs_f64() * 1e3;
+        let found = [cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm];
+        let tr = [truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm];
+        out.push(CalibrationCase {
+            name: name.clone(),
+            truth: tr,
+            found,
+            error: [
+                (found[0] - tr[0]).abs() * 1e3,
+                (found[1] - tr[1]).abs() * 1e3,
+                (found[2] - tr[2]).abs(),
+                (found[3] - tr[3]).abs(),
+            ],
+            used_leds: cal
+                .leds
+                .iter()
+                .filter(|l| l.status == LedStatus::Used)
+                .count(),
+            calibrate_ms: ms,
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let column = |i: usize| -> Vec<f64> { out.iter().map(|c| c.error[i]).collect() };
+    let stat = |f: fn(&mut [f64]) -> f64| [0, 1, 2, 3].map(|i| f(&mut column(i)));
+    let max = |v: &mut [f64]| v.iter().copied().fold(0.0, f64::max);
+    let median = |v: &mut [f64]| {
+        v.sort_by(|a, b| a.total_cmp(b));
+        v[v.len() / 2]
+    };
+    let mut times: Vec<f64> = out.iter().map(|c| c.calibrate_ms).collect();
+    let t = Percentiles::of(&mut times);
+    let report = CalibrationBench {
+        max_error: stat(max),
+        median_error: stat(median),
+        paper_table1_max_error: [6.0, 12.0, 0.200, 0.92],
+        calibrate_ms_median: t.p50_us,
+        calibrate_ms_max: t.max_us,
+        cases: out,
+    };
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!("pdcFPM calibration on simulated 256x256 frames (full wave optics, realistic noise), 26 frames per case:");
+    println!(
+        "  {:<40} {:>9} {:>9} {:>9} {:>9} {:>5} {:>8}",
+        "case", "Δx µm", "Δy µm", "θ °", "h mm", "LEDs", "ms"
+    );
+    for c in &report.cases {
+        println!(
+            "  {:<40} {:>9.2} {:>9.2} {:>9.4} {:>9.3} {:>5} {:>8.1}",
+            c.name, c.error[0], c.error[1], c.error[2], c.error[3], c.used_leds, c.calibrate_ms
+        );
+    }
+    let e = &report;
+    println!(
+        "  {:<40} {:>9.2} {:>9.2} {:>9.4} {:>9.3}",
+        "max error (all cases)", e.max_error[0], e.max_error[1], e.max_error[2], e.max_error[3]
+    );
+    println!(
+        "  {:<40} {:>9.2} {:>9.2} {:>9.4} {:>9.3}",
+        "median error", e.median_error[0], e.median_error[1], e.median_error[2], e.median_error[3]
+    );
+    println!(
+        "  {:<40} {:>9.2} {:>9.2} {:>9.4} {:>9.3}",
+        "paper, Table 1 worst", 6.0, 12.0, 0.200, 0.92
+    );
+    println!(
+        "  calibration time (one core, frames in memory): median {:.1} ms, max {:.1} ms",
+        e.calibrate_ms_median, e.calibrate_ms_max
+    );
+    Ok(())
+}

@@ -1,0 +1,209 @@
+//! `fpm bench epry`: one EPRY update against the two FFTs it needs, a 441-frame pass,
+//! and the streaming latency (last frame → final image), all in one run.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use serde::Serialize;
+
+use crate::Percentiles;
+
+#[derive(Serialize)]
+struct EpryBench {
+    size: usize,
+    upsample: usize,
+    two_ffts_us: Percentiles,
+    update_us: Percentiles,
+    update_over_ffts: f64,
+    pass_441_ms: f64,
+    streaming: StreamingBench,
+}
+
+#[derive(Serialize)]
+struct StreamingBench {
+    frames: usize,
+    push_us: Percentiles,
+    finish_passes: usize,
+    last_frame_to_final_ms: f64,
+    nrmse_streamed: f64,
+    nrmse_offline: f64,
+    offline_passes: usize,
+    offline_ms: f64,
+}
+
+/// Streaming on a simulated acquisition (full wave-optics model, 441 frames): frames
+/// pushed as they would arrive (nearest-first, the acquisition's order), then the time
+/// from the last frame to the final image, against the offline run.
+fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Result<StreamingBench> {
+    use fpm_physics::metrics::{score, synthetic_aperture};
+    use fpm_physics::reconstruct::{run, Field, Settings, Shot, Streaming};
+    use fpm_physics::simulate::{acquire, Camera, ObjectField};
+    use fpm_physics::{LedGeometry, System};
+    let system = System::paper();
+    let geometry = LedGeometry::paper();
+    let camera = Camera::realistic();
+    let object = ObjectField::test_sample(&system, size, 32, 2, 9);
+    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
+    let shots: Vec<((usize, usize), f64)> = geometry
+        .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+        .into_iter()
+        .map(|k| (leds[k], 0.0))
+        .collect();
+    eprintln!("simulating {} frames of {size}² …", shots.len());
+    let frames = acquire(
+        &system,
+        &geometry,
+        &object,
+        &shots,
+        &camera,
+        |i| camera.auto_exposure(i),
+        5,
+    );
+    let images: Vec<fpm_physics::Image> = frames
+        .iter()
+        .map(|f| {
+            camera
+                .dark_subtracted(&f.counts)
+                .mapv(|v| v.max(0.0) / f.exposure_ms as f32)
+        })
+        .collect();
+    let settings = Settings {
+        upsample,
+        ..Settings::default()
+    };
+    let mut streaming = Streaming::new(system, geometry, settings);
+    let mut push = vec![];
+    for (f, img) in frames.iter().zip(&images) {
+        let t = Instant::now();
+        streaming.push(f.led, img.clone());
+        push.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    let shot_refs: Vec<Shot> = frames
+        .iter()
+        .zip(&images)
+        .map(|(f, image)| Shot { led: f.led, image })
+        .collect();
+    let t = Instant::now();
+    let mut done = streaming
+        .finish(&shot_refs, finish_passes)
+        .context("no bright-field frame")?;
+    let streamed = done.sample();
+    let latency = t.elapsed().as_secs_f64() * 1e3;
+    let offline_passes = 10;
+    let t = Instant::now();
+    let mut offline = run(
+        &system,
+        &geometry,
+        Field::default(),
+        &shot_refs,
+        settings,
+        offline_passes,
+        |_, _| {},
+    )
+    .context("no bright-field frame")?;
+    let offline_obj = offline.sample();
+    let offline_ms = t.elapsed().as_secs_f64() * 1e3;
+    let discs: Vec<(f64, f64)> = shots
+        .iter()
+        .map(|s| geometry.illumination_frequency(s.0 .0, s.0 .1, 0.0, 0.0, system.wavelength_um))
+        .collect();
+    let truth = object.crop_to_camera();
+    let pitch = system.sample_pixel_um() / upsample as f64;
+    let aperture = synthetic_aperture(&discs, system.cutoff());
+    Ok(StreamingBench {
+        frames: frames.len(),
+        push_us: Percentiles::of(&mut push),
+        finish_passes,
+        last_frame_to_final_ms: latency,
+        nrmse_streamed: score(&streamed, pitch, &truth, object.pitch_um(), &aperture).complex_nrmse,
+        nrmse_offline: score(&offline_obj, pitch, &truth, object.pitch_um(), &aperture)
+            .complex_nrmse,
+        offline_passes,
+        offline_ms,
+    })
+}
+
+pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
+    use fpm_physics::fft::Fft2;
+    use fpm_physics::reconstruct::{Epry, Settings};
+    use fpm_physics::{Image, LedGeometry, System};
+    use rustfft::num_complex::Complex32;
+    let system = System::paper();
+    let geometry = LedGeometry::paper();
+    let frame = Image::from_shape_fn((size, size), |(r, c)| {
+        1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
+    });
+    let mut epry = Epry::new(
+        &system,
+        &frame,
+        Settings {
+            upsample,
+            ..Settings::default()
+        },
+    );
+    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
+    let freq = |led: (usize, usize)| {
+        geometry.illumination_frequency(led.0, led.1, 0.0, 0.0, system.wavelength_um)
+    };
+    // Baseline: the forward and inverse LR FFT an update cannot do without.
+    let mut fft = Fft2::new(size, size);
+    let mut buf: Vec<Complex32> = frame.iter().map(|&v| Complex32::new(v, 0.0)).collect();
+    let rounds = 200;
+    let (mut ffts, mut updates) = (Vec::with_capacity(rounds), Vec::with_capacity(rounds));
+    for k in 0..rounds {
+        // Interleave both so machine noise hits them alike.
+        let t = Instant::now();
+        fft.forward(&mut buf);
+        fft.inverse(&mut buf);
+        ffts.push(t.elapsed().as_secs_f64() * 1e6);
+        let t = Instant::now();
+        epry.update_amplitude(&frame, freq(leds[k % leds.len()]), true);
+        updates.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    let t = Instant::now();
+    for &led in &leds {
+        epry.update_amplitude(&frame, freq(led), true);
+    }
+    let pass = t.elapsed().as_secs_f64() * 1e3;
+    let streaming = streaming_latency(size, upsample, 5)?;
+    let f = Percentiles::of(&mut ffts);
+    let u = Percentiles::of(&mut updates);
+    let report = EpryBench {
+        size,
+        upsample,
+        update_over_ffts: u.p50_us / f.p50_us,
+        two_ffts_us: f,
+        update_us: u,
+        pass_441_ms: pass,
+        streaming,
+    };
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("EPRY on {size}² frames, U = {upsample}, one thread:");
+        println!(
+            "  forward + inverse FFT   p50 {:>8.1} µs   p99 {:>8.1} µs",
+            f.p50_us, f.p99_us
+        );
+        println!(
+            "  one frame update        p50 {:>8.1} µs   p99 {:>8.1} µs   ({:.2}× the two FFTs)",
+            u.p50_us, u.p99_us, report.update_over_ffts
+        );
+        println!("  one pass over 441 frames {:.0} ms", pass);
+        let st = &report.streaming;
+        println!(
+            "streaming {} simulated frames: push p50 {:.0} µs p99 {:.0} µs (one update each, as they arrive);",
+            st.frames, st.push_us.p50_us, st.push_us.p99_us
+        );
+        println!(
+            "  last frame → final image ({} more passes): {:.0} ms, NRMSE {:.3}; offline {} passes: {:.0} ms, NRMSE {:.3}",
+            st.finish_passes,
+            st.last_frame_to_final_ms,
+            st.nrmse_streamed,
+            st.offline_passes,
+            st.offline_ms,
+            st.nrmse_offline
+        );
+    }
+    Ok(())
+}

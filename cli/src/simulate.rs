@@ -152,7 +152,7 @@ fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame
         .iter()
         .map(|f| FrameEntry {
             file: String::new(),
-            led: [f.led.0, f.led.1],
+            led: f.led,
             defocus_um: f.defocus_um,
             exposure_ms: f.exposure_ms,
         })
@@ -222,9 +222,8 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     let system = paper_system();
     let camera = s.camera();
     let object = ObjectField::test_sample(&system, s.size, 48, a.upsample.max(1), s.seed);
-    let shots: Vec<((usize, usize), f64)> = (0..truth.rows)
-        .flat_map(|r| (0..truth.cols).map(move |c| ((r, c), 0.0)))
-        .collect();
+    let shots: Vec<(fpm_physics::LedIndex, f64)> =
+        truth.leds().into_iter().map(|l| (l, 0.0)).collect();
     let bar = indicatif::ProgressBar::new_spinner()
         .with_message(format!("rendering {} frames", shots.len()));
     bar.enable_steady_tick(std::time::Duration::from_millis(120));

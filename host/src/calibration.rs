@@ -126,7 +126,7 @@ impl Placement {
                     || (n.pitch_mm - dataset_nominal.pitch_mm).abs() > 1e-9
                 {
                     tracing::warn!(
-                        "the calibration's LED grid ({}x{}, pitch {} mm, centre {:?}) differs from the dataset's ({}x{}, pitch {} mm, centre {:?}); using the calibration's",
+                        "the calibration's LED grid ({}x{}, pitch {} mm, centre {}) differs from the dataset's ({}x{}, pitch {} mm, centre {}); using the calibration's",
                         n.rows, n.cols, n.pitch_mm, n.center,
                         dataset_nominal.rows, dataset_nominal.cols, dataset_nominal.pitch_mm, dataset_nominal.center
                     );
@@ -150,7 +150,7 @@ pub fn calibrate_dataset(ds: &Dataset, options: &Options) -> Result<CalibrationF
         .iter()
         .zip(&images)
         .map(|(f, img)| calibrate::Frame {
-            led: (f.entry.led[0], f.entry.led[1]),
+            led: f.entry.led,
             defocus_um: f.entry.defocus_um,
             exposure_ms: f.entry.exposure_ms,
             image: img,

@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use fpm_physics::reconstruct::tiled::{self, TiledOutcome};
 use fpm_physics::reconstruct::Settings;
 use fpm_physics::tiles::Tile;
-use fpm_physics::LedGeometry;
+use fpm_physics::{LedGeometry, LedIndex};
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::Serialize;
@@ -98,7 +98,7 @@ impl Report {
             .map(|t| TileReport {
                 tile: t.tile,
                 centre_um: [t.centre_um.0, t.centre_um.1],
-                initial_led: [t.initial_led.0, t.initial_led.1],
+                initial_led: t.initial_led,
                 error_per_pass: t.errors.clone(),
                 ms: t.ms,
             })
@@ -145,7 +145,7 @@ pub struct TileReport {
     /// Sample-plane centre, µm (its wave vectors are taken there).
     pub centre_um: [f64; 2],
     /// The frame used for the initial guess (nearest the axis from this tile).
-    pub initial_led: [usize; 2],
+    pub initial_led: LedIndex,
     /// Mean relative amplitude error of the frames, per pass.
     pub error_per_pass: Vec<f64>,
     /// Time this tile took, ms.

@@ -64,7 +64,12 @@ impl Truth {
 /// Write the sample's ground truth on the camera field (`truth_amplitude.tif`,
 /// `truth_phase.tif`, float32 at the simulation's pixel) into `dir`.
 pub fn write_truth_images(dir: &Path, object: &fpm_physics::simulate::ObjectField) -> Result<()> {
-    let gt = object.crop_to_camera();
+    write_truth_field(dir, &object.crop_to_camera())
+}
+
+/// Write a ground-truth field (the camera's field of view, any aspect ratio, at the
+/// simulation's pixel) as `truth_amplitude.tif` and `truth_phase.tif` into `dir`.
+pub fn write_truth_field(dir: &Path, gt: &Array2<Complex32>) -> Result<()> {
     image_io::write_tiff_f32(&dir.join("truth_amplitude.tif"), &gt.mapv(|c| c.norm()))?;
     image_io::write_tiff_f32(&dir.join("truth_phase.tif"), &gt.mapv(|c| c.arg()))?;
     Ok(())
@@ -103,12 +108,12 @@ fn try_score(
         &ds.dir.join("truth_amplitude.tif"),
         &ds.dir.join("truth_phase.tif"),
     )?;
-    if object.dim().0 != object.dim().1 {
-        bail!("truth_amplitude.tif: the truth must be square");
-    }
     let (rh, rw) = reconstruction.dim();
-    if rh != rw {
-        bail!("scoring takes square reconstructions ({rw}x{rh})");
+    let (th, tw) = object.dim();
+    if rh * tw != rw * th {
+        bail!(
+            "truth_amplitude.tif is {tw}x{th}, the reconstruction {rw}x{rh}: not the same field of view"
+        );
     }
     let system = ds.manifest.system();
     let geometry = truth.geometry(&ds.manifest.geometry());
@@ -116,15 +121,7 @@ fn try_score(
         .frames
         .iter()
         .filter(|f| f.entry.defocus_um == 0.0)
-        .map(|f| {
-            geometry.illumination_frequency(
-                f.entry.led[0],
-                f.entry.led[1],
-                0.0,
-                0.0,
-                system.wavelength_um,
-            )
-        })
+        .map(|f| geometry.illumination_frequency(f.entry.led, 0.0, 0.0, system.wavelength_um))
         .collect();
     let rec_pitch = system.sample_pixel_um() / upsample as f64;
     Ok(Some(score(

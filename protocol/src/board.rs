@@ -8,10 +8,14 @@ use crate::limits::MAX_NAME_LEN;
 use crate::{BudgetConfig, ProtocolVersion, SequenceStatus};
 
 /// One LED, addressed by its place in the grid (0-based, row 0 at the top of the
-/// board as seen from the sample, i.e. along −y; see docs/dataset.md §1).
-#[derive(
-    Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
-)]
+/// board as seen from the sample, i.e. along −y; see docs/dataset.md §1). The one LED
+/// index of the whole stack: the wire, the firmware, datasets, calibration and
+/// reconstruction all use it.
+///
+/// Serialised as the pair `[row, col]` in every format: on the wire (postcard) that is
+/// byte for byte what a struct of the two fields is, and in files it is the
+/// `led = [10, 10]` of a dataset.
+#[derive(Schema, Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LedIndex {
     /// Grid row.
@@ -24,6 +28,35 @@ impl LedIndex {
     /// The LED at (`row`, `col`).
     pub const fn new(row: u8, col: u8) -> Self {
         Self { row, col }
+    }
+
+    /// Grid row as an index.
+    pub const fn r(self) -> usize {
+        self.row as usize
+    }
+
+    /// Grid column as an index.
+    pub const fn c(self) -> usize {
+        self.col as usize
+    }
+}
+
+impl core::fmt::Display for LedIndex {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "({}, {})", self.row, self.col)
+    }
+}
+
+impl Serialize for LedIndex {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        (self.row, self.col).serialize(serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for LedIndex {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let (row, col) = <(u8, u8)>::deserialize(deserializer)?;
+        Ok(Self { row, col })
     }
 }
 
@@ -213,4 +246,19 @@ pub struct DeviceStatus {
     pub sequence: SequenceStatus,
     /// Link counters.
     pub link: LinkStats,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The pair form keeps the wire bytes of the two-field struct the firmware has
+    /// always sent: row, then column, one byte each.
+    #[test]
+    fn an_led_index_is_two_bytes_on_the_wire_and_round_trips() {
+        let led = LedIndex::new(10, 3);
+        let bytes = postcard::to_allocvec(&led).unwrap();
+        assert_eq!(bytes, [10, 3]);
+        assert_eq!(postcard::from_bytes::<LedIndex>(&bytes).unwrap(), led);
+    }
 }

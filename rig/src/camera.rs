@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use clap::Args;
 use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
-use fpm_host::truth::{write_truth_images, Truth};
+use fpm_host::truth::{write_truth_field, Truth};
 use fpm_physics::simulate::{Camera, ObjectField, Renderer};
 use fpm_physics::{LedGeometry, System};
 use fpm_rig_bus::{RigListener, Stage};
@@ -130,7 +130,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 size,
             })?,
         )?;
-        write_truth_images(dir, &sample)?;
+        write_truth_field(dir, &sensor.crop_truth(&sample))?;
         // Last: its presence tells a launcher that the camera is listening.
         std::fs::write(
             dir.join("truth.json"),
@@ -175,7 +175,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 &system,
                 &hidden,
                 object,
-                (led.row as usize, led.col as usize),
+                fpm_physics::LedIndex::new(led.row, led.col),
                 stage.defocus_um,
             );
             intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
@@ -240,6 +240,18 @@ impl Sensor {
             width,
             height,
         }
+    }
+
+    /// The sample's truth under the sensor, at the simulation's finer pixel.
+    fn crop_truth(&self, object: &ObjectField) -> ndarray::Array2<rustfft::num_complex::Complex32> {
+        let u = object.upsample;
+        object
+            .crop_to_camera()
+            .slice(ndarray::s![
+                self.y0 * u..(self.y0 + self.height) * u,
+                self.x0 * u..(self.x0 + self.width) * u
+            ])
+            .to_owned()
     }
 
     fn crop(&self, field: &fpm_physics::Image) -> fpm_physics::Image {

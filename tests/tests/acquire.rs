@@ -77,6 +77,10 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
+    // iceoryx2's own start-up chatter stays out of a user's terminal (it runs without
+    // a config file by design).
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!stderr.contains("config file"), "{stderr}");
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(text.contains("acquired 441/441 frames"), "{text}");
 
@@ -84,21 +88,21 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
     assert_eq!(ds.frames.len(), 441);
     let hidden = LedGeometry::paper().placed(1.3, -0.7, 3.0, 90.0);
     let system = System::paper();
-    let mut leds: Vec<[usize; 2]> = ds.frames.iter().map(|f| f.entry.led).collect();
+    let mut leds: Vec<_> = ds.frames.iter().map(|f| f.entry.led).collect();
     leds.sort();
     leds.dedup();
     assert_eq!(leds.len(), 441, "every LED exactly once");
     let mut wrong = vec![];
     for (k, f) in ds.frames.iter().enumerate() {
         let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
-        let (r, c) = (f.entry.led[0], f.entry.led[1]);
+        let led = f.entry.led;
         // Stay clear of LEDs right at the pupil edge, whose brightness is in between.
-        let fr = hidden.illumination_frequency(r, c, 0.0, 0.0, system.wavelength_um);
+        let fr = hidden.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
         let margin = (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs();
         if margin < 0.08 {
             continue;
         }
-        let bright = hidden.is_bright_field(r, c, 0.0, 0.0, &system);
+        let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
         // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
         let looks_bright = rate > 0.3 * rate_of_clear_field();
         if bright != looks_bright {
@@ -228,14 +232,14 @@ fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
     let system = System::paper();
     let nominal = LedGeometry::paper();
     for (k, f) in ds.frames.iter().enumerate() {
-        let (r, c) = (f.entry.led[0], f.entry.led[1]);
-        let fr = nominal.illumination_frequency(r, c, 0.0, 0.0, system.wavelength_um);
+        let led = f.entry.led;
+        let fr = nominal.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
         if (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs() < 0.08 {
             continue;
         }
         let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
         assert_eq!(
-            nominal.is_bright_field(r, c, 0.0, 0.0, &system),
+            nominal.is_bright_field(led, 0.0, 0.0, &system),
             rate > 0.3 * rate_of_clear_field(),
             "LED {:?}: rate {rate}",
             f.entry.led
@@ -314,6 +318,10 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
         serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
             .unwrap();
     assert_eq!(report["capture"]["labelled"], 441);
+    // The camera (≈10 frames/s at this size) lags far behind the 15 ms steps: every
+    // frame must still reach the stream under its final label.
+    assert_eq!(report["capture"]["relabelled"], 0);
+    assert_eq!(report["reconstruction"], "streamed");
     let tiles = report["tiles"].as_u64().expect("streamed in tiles") as usize;
     assert!(tiles > 1, "a 512×384 frame is cut into tiles, got {tiles}");
     let rec: serde_json::Value = serde_json::from_str(
@@ -338,17 +346,22 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     )
     .unwrap();
     assert_eq!(offline.report.tiles.len(), tiles);
-    let centre = |a: &ndarray::Array2<rustfft::num_complex::Complex32>| -> Vec<_> {
-        let (h, w) = a.dim();
-        a.slice(ndarray::s![h / 8..h - h / 8, w / 8..w - w / 8])
-            .iter()
-            .copied()
-            .collect()
+    // Both against the hidden sample under the sensor (the camera wrote it).
+    for name in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
+        std::fs::copy(dir.0.join("truth").join(name), out.join(name)).unwrap();
+    }
+    let score = |object| {
+        fpm_host::truth::score_reconstruction(&ds, object, 4)
+            .expect("a truth of the sensor's field")
+            .complex_nrmse
     };
-    let (s, o) = (centre(&streamed), centre(&offline.object));
-    let nrmse = fpm_physics::metrics::complex_nrmse(&s, &o);
-    eprintln!("streamed vs offline, central 75 %: complex NRMSE {nrmse:.3}");
-    // Measured 0.20: the two differ mostly in the low-frequency phase each tile pins
-    // down loosely; a stream with wrong tile centres or levels lands near 1.
-    assert!(nrmse < 0.3, "streamed and offline disagree: {nrmse}");
+    let (streamed, offline) = (score(&streamed), score(&offline.object));
+    eprintln!(
+        "512x384 in {tiles} tiles vs the truth: streamed {streamed:.3}, offline {offline:.3}"
+    );
+    assert!(offline < 0.5, "offline tiles: {offline}");
+    assert!(
+        streamed < 1.25 * offline,
+        "streamed {streamed} vs offline {offline}"
+    );
 }

@@ -7,6 +7,7 @@ use std::process::Command;
 use fpm_host::dataset::{
     CameraSection, Dataset, FrameEntry, LedSection, Manifest, Pixels, SystemSection,
 };
+use fpm_physics::LedIndex;
 use fpm_tests::{data_dir, fpm_bin, TempDir};
 use ndarray::Array2;
 
@@ -23,7 +24,7 @@ fn manifest(frames: usize) -> Manifest {
             cols: 21,
             pitch_mm: 2.5,
             height_mm: 92.0,
-            center: [10, 10],
+            center: LedIndex::new(10, 10),
             offset_mm: [0.1, -0.2],
             rotation_deg: 1.5,
         },
@@ -35,7 +36,7 @@ fn manifest(frames: usize) -> Manifest {
         frames: (0..frames)
             .map(|k| FrameEntry {
                 file: String::new(),
-                led: [k % 21, (k * 7) % 21],
+                led: LedIndex::new((k % 21) as u8, ((k * 7) % 21) as u8),
                 defocus_um: if k == 0 { 0.0 } else { -35.5 },
                 exposure_ms: 2.5 + k as f64,
             })
@@ -118,12 +119,12 @@ fn the_vendored_usaf_dataset_from_another_lab_loads() {
     let centre = ds
         .frames
         .iter()
-        .position(|f| f.entry.led == [5, 5])
+        .position(|f| f.entry.led == LedIndex::new(5, 5))
         .unwrap();
     let corner = ds
         .frames
         .iter()
-        .position(|f| f.entry.led == [0, 0])
+        .position(|f| f.entry.led == LedIndex::new(0, 0))
         .unwrap();
     assert!(
         mean(centre) > 10.0 * mean(corner),
@@ -257,13 +258,13 @@ fn simulate_then_calibrate_recovers_the_hidden_array() {
 /// A calibration dataset whose frames are replaced by `frame(k, led, defocus)`.
 fn calibration_with(
     tag: &str,
-    frame: impl Fn(usize, [usize; 2], f64) -> Array2<u16>,
+    frame: impl Fn(usize, LedIndex, f64) -> Array2<u16>,
 ) -> (TempDir, String) {
     let dir = TempDir::new(tag);
     let mut m = manifest(0);
     m.frames.push(FrameEntry {
         file: String::new(),
-        led: [10, 10],
+        led: LedIndex::new(10, 10),
         defocus_um: 0.0,
         exposure_ms: 10.0,
     });
@@ -271,7 +272,7 @@ fn calibration_with(
         for c in 8..=12 {
             m.frames.push(FrameEntry {
                 file: String::new(),
-                led: [r, c],
+                led: LedIndex::new(r, c),
                 defocus_um: 200.0,
                 exposure_ms: 10.0,
             });
@@ -314,7 +315,7 @@ fn calibration_refuses_datasets_without_a_feature_or_light() {
     let mut m = manifest(0);
     m.frames.push(FrameEntry {
         file: String::new(),
-        led: [9, 9],
+        led: LedIndex::new(9, 9),
         defocus_um: 200.0,
         exposure_ms: 1.0,
     });

@@ -223,3 +223,90 @@ fn tiles_blend_into_the_whole_field() {
         (120 * 4, 256 * 4)
     );
 }
+
+/// A copy of the vendored USAF dataset in `dir`, to add files beside it.
+fn usaf_copy(dir: &Path) -> PathBuf {
+    let to = dir.join("usaf");
+    std::fs::create_dir_all(to.join("frames")).unwrap();
+    std::fs::copy(usaf().join("dataset.toml"), to.join("dataset.toml")).unwrap();
+    for entry in std::fs::read_dir(usaf().join("frames")).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(&path, to.join("frames").join(path.file_name().unwrap())).unwrap();
+    }
+    to
+}
+
+/// docs/dataset.md §5.7: an array measured by other means is given to `fpm reconstruct`
+/// as the four numbers alone (the grid comes from the dataset); a file without them
+/// names each missing key; and a `truth.json` written by another simulator, which fpm
+/// cannot use, costs a warning, never the reconstruction.
+#[test]
+fn a_hand_written_geometry_places_the_array_and_a_foreign_truth_only_warns() {
+    let dir = TempDir::new("geometry-json");
+    let data = usaf_copy(&dir.0);
+    let geometry = dir.0.join("geometry.json");
+    std::fs::write(
+        &geometry,
+        r#"{ "dx_mm": 0.4, "dy_mm": -0.3, "theta_deg": 1.5, "height_mm": 88.0 }"#,
+    )
+    .unwrap();
+    // Another tool's truth: different keys, no seed, no object images.
+    std::fs::write(
+        data.join("truth.json"),
+        r#"{ "generator": "other-simulator", "led_offset": [0.1, 0.2] }"#,
+    )
+    .unwrap();
+    let out = dir.0.join("out");
+    let run = Command::new(fpm_bin())
+        .args([
+            "reconstruct",
+            &data.to_string_lossy(),
+            "--passes",
+            "2",
+            "--out",
+        ])
+        .arg(&out)
+        .arg("--calibration")
+        .arg(&geometry)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("truth.json") && stderr.contains("not scored"),
+        "the unusable truth is named in a warning: {stderr}"
+    );
+    let r = report(&out);
+    let g = &r["geometry"];
+    assert_eq!(g["dx_mm"], 0.4);
+    assert_eq!(g["dy_mm"], -0.3);
+    assert_eq!(g["theta_deg"], 1.5);
+    assert_eq!(g["height_mm"], 88.0);
+    // The grid is the dataset's (11×11 at 5 mm, centre (5, 5)).
+    assert_eq!(g["rows"], 11);
+    assert_eq!(g["pitch_mm"], 5.0);
+    assert_eq!(g["center"], serde_json::json!([5, 5]));
+    assert!(r["versus_truth"].is_null());
+    assert!(out.join("amplitude.tif").is_file());
+
+    std::fs::write(&geometry, r#"{ "dx_mm": 0.4, "theta_deg": 1.5 }"#).unwrap();
+    let run = Command::new(fpm_bin())
+        .args([
+            "reconstruct",
+            &data.to_string_lossy(),
+            "--passes",
+            "1",
+            "--out",
+        ])
+        .arg(dir.0.join("out2"))
+        .arg("--calibration")
+        .arg(&geometry)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("geometry.json") && stderr.contains("missing key(s) dy_mm, height_mm"),
+        "{stderr}"
+    );
+}

@@ -2,15 +2,15 @@
 """Compare `fpm reconstruct` with the published Python FPM packages fpm-rs and fpm-py.
 
 Same machine, same frames (dark-subtracted, exposure-normalised, in-focus frames of a
-dataset in the PHYSICS.md section 5 format), same illumination wave vectors, same
+dataset in the docs/dataset.md section 5 format), same illumination wave vectors, same
 upsampling, same pass count, same frame order (increasing |f_i|, as `fpm reconstruct`
 uses). Prints seconds per pass (reconstruction only, loading excluded), the ratio to
-ours, and the complex NRMSE against the dataset's ground truth (PHYSICS.md section 6).
+ours, and the complex NRMSE against the dataset's ground truth (docs/dataset.md section 6).
 
 Run it through compare.sh, which sets up the venv with the pinned peers.
 
 How each peer is fed (read from the installed sources, fpm-rs 0.2.0b3 / fpm-py 2.0.1):
-  fpm-rs  KVectorList of k = 2*pi*f_i (rad/m), the illumination vectors of PHYSICS.md
+  fpm-rs  KVectorList of k = 2*pi*f_i (rad/m), the illumination vectors of docs/dataset.md
           section 1; checked against fpm-rs's own PlanarLEDArray built from [led].
           compile_model(reconstruction_shape = U x frame shape), Epry(iterations=N)
           with its default steps, schedule "sequential" = our frame order.
@@ -74,7 +74,7 @@ def parse_args() -> argparse.Namespace:
 
 
 # --------------------------------------------------------------------------------------
-# Dataset (PHYSICS.md section 5)
+# Dataset (docs/dataset.md section 5)
 # --------------------------------------------------------------------------------------
 
 class Dataset:
@@ -111,7 +111,7 @@ class Dataset:
             self.f.append(self.illumination_f(r, c))
             images.append(img)
         self.f = np.array(self.f)  # (frames, 2): (f_x, f_y) cycles/um
-        # nearest-first, the order `fpm reconstruct` uses (PHYSICS.md section 4)
+        # nearest-first, the order `fpm reconstruct` uses (docs/dataset.md section 4)
         order = sorted(range(len(frames)), key=lambda i: (math.hypot(*self.f[i]), i))
         self.leds = [self.leds[i] for i in order]
         self.f = self.f[order]
@@ -121,7 +121,7 @@ class Dataset:
         self.shape = self.frames.shape[1:]
 
     def led_position_mm(self, r: int, c: int) -> tuple[float, float, float]:
-        """PHYSICS.md section 1: (x, y) in the LED plane, and the height h."""
+        """docs/dataset.md section 1: (x, y) in the LED plane, and the height h."""
         led = self.led
         d = float(led["pitch_mm"])
         r0, c0 = led.get("center", [led["rows"] // 2, led["cols"] // 2])
@@ -140,7 +140,7 @@ class Dataset:
 
 
 # --------------------------------------------------------------------------------------
-# Spectral helpers and the metric (PHYSICS.md section 6)
+# Spectral helpers and the metric (docs/dataset.md section 6)
 # --------------------------------------------------------------------------------------
 
 def cfft(a):
@@ -461,7 +461,7 @@ def main() -> int:
     print(f"\n{len(ds.leds)} frames {ds.shape[0]}x{ds.shape[1]}, {args.passes} passes, "
           f"upsample {args.upsample}, peer threads {args.threads}, {os.cpu_count()} CPUs, "
           f"{platform.processor() or platform.machine()}")
-    print("ratio = tool s/pass / ours s/pass (above 1 = slower than ours); NRMSE per PHYSICS.md 6")
+    print("ratio = tool s/pass / ours s/pass (above 1 = slower than ours); NRMSE per docs/dataset.md section 6")
     hdr = f"{'tool':<12} {'variant':<20} {'version':<10} {'thr':>3} {'s/pass':>8} {'ratio':>7} {'NRMSE':>7}  fix"
     print(hdr)
     print("-" * len(hdr))

@@ -16,12 +16,12 @@ use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent};
-use crate::label::{pair, FrameTime, StepTime};
+use crate::label::{pair, step_for, FrameTime, StepTime};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
     /// LED (row, col).
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// The camera's header.
     pub header: FrameHeader,
     /// Pixels `[row, col]`: the one copy out of shared memory, kept for the dataset.
@@ -44,7 +44,7 @@ impl Shot {
 #[derive(Clone, Copy)]
 pub struct ShotView<'a> {
     /// LED (row, col).
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// The camera's header.
     pub header: &'a FrameHeader,
     /// Pixels `[row, col]`.
@@ -74,7 +74,7 @@ pub struct CaptureReport {
     /// Frames labelled with their LED.
     pub labelled: usize,
     /// LEDs whose frame is missing (dropped, ambiguous).
-    pub missing: Vec<[usize; 2]>,
+    pub missing: Vec<LedIndex>,
     /// Frames that matched no step.
     pub extra_frames: usize,
     /// Frames refused because more than one step or frame fit.
@@ -89,8 +89,9 @@ pub struct CaptureReport {
     pub outcome: String,
     /// The capture broke off (controller lost); what arrived is still labelled.
     pub failed: bool,
-    /// Frames handed out while acquiring whose final label differs (0 expected; the
-    /// dataset follows the final labels).
+    /// Frames handed out while acquiring whose final label differs, or that the final
+    /// pairing refused (0 expected; the dataset follows the final labels, and a caller
+    /// that streamed them must not trust what it built).
     pub relabelled: usize,
 }
 
@@ -189,8 +190,9 @@ impl Drop for FrameDrain {
 /// frames of camera `camera`. Frames are labelled as soon as their step is closed (the
 /// next step's trigger was seen, or the sequence ended) and given to `on_frame` at
 /// once; the final pairing over everything is authoritative and is what the returned
-/// shots follow (a frame handed out early is never contradicted by it in practice;
-/// if it were, the caller's report says so through `relabelled`).
+/// shots follow. Every labelled frame reaches `on_frame` exactly once (those that could
+/// not be labelled while acquiring, right after the final pairing); a frame handed out
+/// early that the final pairing contradicts is counted in `relabelled`.
 pub fn capture(
     dev: &Controller,
     camera: &ServiceNames,
@@ -223,8 +225,12 @@ pub fn capture(
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
     let mut changed = false;
     let mut failure: Option<String> = None;
+    let mut anchor: Option<i64> = None;
+    let mut pending: Vec<usize> = vec![];
+    let mut given = vec![false; leds.len()];
     loop {
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
+            pending.push(received.len());
             received.push(f);
             online.push(None);
             last_frame = Instant::now();
@@ -252,36 +258,46 @@ pub fn capture(
                 }
             }
         }
-        // Label what can be labelled now: frames not yet handed out, against the steps
-        // seen so far (a window, so this stays cheap however long the run).
+        // Label what can be labelled now, so the stream gets frames while they arrive.
+        // The clock offset is anchored on the capture's first frame and first step
+        // (steps are periodic, so timestamps alone cannot tell a frame from its
+        // neighbour's when the camera lags); the final pairing below checks it, and a
+        // disagreement is reported as `relabelled`.
         if changed {
             changed = false;
-            let pending: Vec<usize> = (0..received.len())
-                .filter(|&k| online[k].is_none())
-                .collect();
-            let times: Vec<FrameTime> = pending
-                .iter()
-                .map(|&k| FrameTime {
-                    frame_number: received[k].0.frame_number,
-                    timestamp_ns: received[k].0.timestamp_ns,
-                })
-                .collect();
-            let first = step_times.len().saturating_sub(pending.len() + 64);
-            let window = &step_times[first..];
-            let p = pair(window, &times, tolerance, 10_000_000_000);
-            let newest = step_times.last().map(|s| s.step);
-            for &(si, pi) in &p.matched {
-                let step = window[si].step;
-                if outcome.is_some() || Some(step) != newest {
-                    let k = pending[pi];
+            if anchor.is_none() {
+                if let (Some((h, _)), Some(s0)) = (received.first(), step_times.first()) {
+                    anchor = Some(h.timestamp_ns as i64 - s0.trigger_ns as i64);
+                }
+            }
+            if let Some(offset) = anchor {
+                let newest = step_times.last().map(|s| s.step);
+                pending.retain(|&k| {
+                    let time = FrameTime {
+                        frame_number: received[k].0.frame_number,
+                        timestamp_ns: received[k].0.timestamp_ns,
+                    };
+                    let Some(si) = step_for(&step_times, &time, offset, tolerance) else {
+                        return true;
+                    };
+                    let step = step_times[si].step;
+                    // The newest step may still get a second, rival frame; a step index
+                    // outside the sequence is the controller's error, left to the
+                    // final pairing.
+                    if (outcome.is_none() && Some(step) == newest)
+                        || given.get(step).is_none_or(|&g| g)
+                    {
+                        return true;
+                    }
+                    given[step] = true;
                     online[k] = Some(step);
-                    let led = leds[step];
                     on_frame(ShotView {
-                        led: (led.row as usize, led.col as usize),
+                        led: leds[step],
                         header: &received[k].0,
                         pixels: received[k].1.view(),
                     });
-                }
+                    false
+                });
             }
         }
         let complete = received.len() >= leds.len();
@@ -316,28 +332,47 @@ pub fn capture(
     let p = pair(&step_times, &times, tolerance, 10_000_000_000);
     let seconds = start.elapsed().as_secs_f64();
     let mut shots = Vec::with_capacity(p.matched.len());
-    let mut matched = p.matched.clone();
-    matched.sort_by_key(|&(si, _)| step_times[si].step);
-    let mut relabelled = 0;
-    for (si, fi) in matched {
-        if online[fi].is_some_and(|s| s != step_times[si].step) {
-            relabelled += 1;
+    let mut matched: Vec<(usize, usize)> = p
+        .matched
+        .iter()
+        .map(|&(si, fi)| (step_times[si].step, fi))
+        .filter(|&(step, _)| step < leds.len())
+        .collect();
+    matched.sort_by_key(|&(step, _)| step);
+    // Frames the stream got under another label than the final one, or that the final
+    // pairing refused: the caller must not trust what it built from them.
+    let relabelled = online
+        .iter()
+        .enumerate()
+        .filter(|&(fi, label)| {
+            label.is_some()
+                && !matched
+                    .iter()
+                    .any(|&(step, f)| f == fi && Some(step) == *label)
+        })
+        .count();
+    for &(step, fi) in &matched {
+        // Every labelled frame reaches the stream once: those not handed out while
+        // acquiring go now, with their final label.
+        if online[fi].is_none() {
+            on_frame(ShotView {
+                led: leds[step],
+                header: &received[fi].0,
+                pixels: received[fi].1.view(),
+            });
         }
-        let led = leds[step_times[si].step];
+    }
+    let labelled_steps: Vec<usize> = matched.iter().map(|&(step, _)| step).collect();
+    for (step, fi) in matched {
         shots.push(Shot {
-            led: (led.row as usize, led.col as usize),
+            led: leds[step],
             header: received[fi].0,
             pixels: std::mem::take(&mut received[fi].1),
         });
     }
-    let labelled_steps: Vec<usize> = p
-        .matched
-        .iter()
-        .map(|&(si, _)| step_times[si].step)
-        .collect();
     let missing = (0..leds.len())
         .filter(|s| !labelled_steps.contains(s))
-        .map(|s| [leds[s].row as usize, leds[s].col as usize])
+        .map(|s| leds[s])
         .collect::<Vec<_>>();
     let report = CaptureReport {
         requested: leds.len(),

@@ -79,6 +79,27 @@ pub fn pair(
     out
 }
 
+/// The step `frame` belongs to when the clock offset (camera minus controller) is known:
+/// the index into `steps` (sorted by trigger time) of the one step whose trigger is
+/// within `tolerance_ns` of the frame's corrected time; None when none or several are.
+pub fn step_for(
+    steps: &[StepTime],
+    frame: &FrameTime,
+    offset_ns: i64,
+    tolerance_ns: u64,
+) -> Option<usize> {
+    let t = frame.timestamp_ns as i128 - offset_ns as i128;
+    let lo = t - tolerance_ns as i128;
+    let first = steps.partition_point(|s| (s.trigger_ns as i128) < lo);
+    let near: Vec<usize> = (first..steps.len())
+        .take_while(|&i| (steps[i].trigger_ns as i128) <= t + tolerance_ns as i128)
+        .collect();
+    match near.as_slice() {
+        [i] => Some(*i),
+        _ => None,
+    }
+}
+
 /// The clock offset most frame/step pairs agree on (0 when there is nothing to go by).
 fn estimate_offset(
     steps: &[StepTime],
@@ -118,6 +139,24 @@ fn estimate_offset(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_known_offset_gives_each_frame_its_one_step() {
+        let s = steps(10);
+        let f = frames_for(&s, 7_000_000, &[0, 1_000_000, -2_000_000]);
+        for (k, frame) in f.iter().enumerate() {
+            assert_eq!(step_for(&s, frame, 7_000_000, TOL), Some(k));
+        }
+        // A wrong offset by a step period would label every frame with its neighbour:
+        // only the right offset gives frame 0 a step before it is too late.
+        assert_eq!(step_for(&s, &f[0], 7_000_000 + PERIOD as i64, TOL), None);
+        // Between two steps, nothing.
+        let between = FrameTime {
+            frame_number: 0,
+            timestamp_ns: s[3].trigger_ns + PERIOD / 2,
+        };
+        assert_eq!(step_for(&s, &between, 0, TOL), None);
+    }
 
     const PERIOD: u64 = 40_000_000; // 40 ms steps
     const TOL: u64 = 5_000_000;

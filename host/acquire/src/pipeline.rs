@@ -18,7 +18,7 @@ use fpm_host::calibration::calibrate_dataset;
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
 use fpm_physics::calibrate::Options;
-use fpm_physics::reconstruct::{Settings, TiledStreaming};
+use fpm_physics::reconstruct::{tiled, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{LedIndex, Rgb};
 use serde::Serialize;
@@ -71,13 +71,16 @@ pub struct AcquireSummary {
     /// Frames written to the dataset.
     pub frames_in_dataset: usize,
     /// LEDs without a frame after the retake.
-    pub still_missing: Vec<[usize; 2]>,
+    pub still_missing: Vec<LedIndex>,
     /// Last frame → final image, ms (with reconstruction).
     pub last_frame_to_final_ms: Option<f64>,
     /// Streaming updates per frame, µs (mean over frames; all tiles).
     pub update_us_mean: Option<f64>,
     /// Tiles the streaming reconstruction used.
     pub tiles: Option<usize>,
+    /// How the final image was made: "streamed" (the stream, finished), or "dataset"
+    /// (the stream was not trusted: frames were relabelled after it got them).
+    pub reconstruction: Option<&'static str>,
 }
 
 /// The nominal array as the controller describes it.
@@ -88,15 +91,11 @@ pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
         cols: g.cols as usize,
         pitch_mm: g.pitch_um as f64 / 1e3,
         height_mm: g.height_um as f64 / 1e3,
-        center: (g.center.row as usize, g.center.col as usize),
+        center: g.center,
         dx_mm: 0.0,
         dy_mm: 0.0,
         theta_deg: 0.0,
     }
-}
-
-fn led_index(led: (usize, usize)) -> LedIndex {
-    LedIndex::new(led.0 as u8, led.1 as u8)
 }
 
 /// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
@@ -117,9 +116,8 @@ pub fn acquire(
         dark_level: plan.dark_level,
         ..CameraSection::default()
     };
-    let capture_leds = |id: u32, leds: &[(usize, usize)], on: &mut dyn FnMut(ShotView<'_>)| {
-        let wire: Vec<LedIndex> = leds.iter().copied().map(led_index).collect();
-        capture(dev, &plan.camera, id, &wire, plan.color, step_us, on)
+    let capture_leds = |id: u32, leds: &[LedIndex], on: &mut dyn FnMut(ShotView<'_>)| {
+        capture(dev, &plan.camera, id, leds, plan.color, step_us, on)
     };
 
     // 1. Calibration: a focused reference under the centre LED, then the 5×5 LEDs
@@ -133,14 +131,16 @@ pub fn acquire(
             slide: Slide::CalibrationTarget,
             defocus_um: plan.defocus_um,
         })?;
-        let grid: Vec<(usize, usize)> = (-2i64..=2)
-            .flat_map(|dr| (-2i64..=2).map(move |dc| (dr, dc)))
+        let around = |centre: u8, d: i16| (centre as i16 + d).clamp(0, u8::MAX as i16) as u8;
+        let grid: Vec<LedIndex> = (-2i16..=2)
+            .flat_map(|dr| (-2i16..=2).map(move |dc| (dr, dc)))
             .map(|(dr, dc)| {
-                (
-                    (nominal.center.0 as i64 + dr).max(0) as usize,
-                    (nominal.center.1 as i64 + dc).max(0) as usize,
+                LedIndex::new(
+                    around(nominal.center.row, dr),
+                    around(nominal.center.col, dc),
                 )
             })
+            .filter(|&led| nominal.contains(led))
             .collect();
         let (defocused, r2) = capture_leds(102, &grid, &mut |_| {})?;
         stage.move_to(StagePosition::in_focus(Slide::Sample))?;
@@ -167,10 +167,8 @@ pub fn acquire(
 
     // 2. The full acquisition, nearest-first under the geometry in use, streamed into
     // the reconstruction as the frames arrive.
-    let all: Vec<(usize, usize)> = (0..nominal.rows)
-        .flat_map(|r| (0..nominal.cols).map(move |c| (r, c)))
-        .collect();
-    let leds: Vec<(usize, usize)> = geometry
+    let all = nominal.leds();
+    let leds: Vec<LedIndex> = geometry
         .nearest_first(&all, (0.0, 0.0), system.wavelength_um)
         .into_iter()
         .map(|k| all[k])
@@ -205,7 +203,7 @@ pub fn acquire(
     // Frames that did not arrive (or could not be labelled) are taken again, once.
     let mut retake = None;
     if !report.failed && !report.missing.is_empty() {
-        let again: Vec<(usize, usize)> = report.missing.iter().map(|&[r, c]| (r, c)).collect();
+        let again = report.missing.clone();
         tracing::warn!("re-acquiring {} missing frame(s)", again.len());
         let (more, r) = capture_leds(104, &again, &mut stream)?;
         shots.extend(more);
@@ -226,11 +224,35 @@ pub fn acquire(
     if let Some(e) = &stream_error {
         tracing::warn!("streaming reconstruction stopped: {e}");
     }
+    let relabelled = report.relabelled + retake.as_ref().map_or(0, |r| r.relabelled);
+    let mut reconstruction = None;
     if let (Some(s), false, None) = (streaming, report.failed, &stream_error) {
         let frames = ds.in_focus();
-        let outcome = s
-            .finish(&frames, plan.passes, &|_, _| {})
-            .context("finishing the streaming reconstruction")?;
+        reconstruction = Some(if relabelled == 0 {
+            "streamed"
+        } else {
+            "dataset"
+        });
+        let outcome = if relabelled == 0 {
+            s.finish(&frames, plan.passes, &|_, _| {})
+                .context("finishing the streaming reconstruction")?
+        } else {
+            // Some frames reached the stream under a label the final pairing changed:
+            // what it built is not trusted; the dataset's frames are, so start over.
+            tracing::warn!(
+                "{relabelled} frame(s) were relabelled after streaming; reconstructing from the dataset instead"
+            );
+            tiled::reconstruct(
+                &system,
+                &geometry,
+                &frames,
+                settings,
+                plan.passes + 1,
+                plan.tile,
+                &|_, _| {},
+            )
+            .context("reconstructing the dataset")?
+        };
         let ms = last_frame_at.elapsed().as_secs_f64() * 1e3;
         last_frame_to_final_ms = Some(ms);
         let source = if plan.calibrate {
@@ -270,6 +292,7 @@ pub fn acquire(
         update_us_mean: (!update_us.is_empty())
             .then(|| update_us.iter().sum::<f64>() / update_us.len() as f64),
         tiles,
+        reconstruction,
     };
     std::fs::write(
         plan.out.join("acquisition.json"),
@@ -301,7 +324,7 @@ fn dataset(
         bit_depth.get_or_insert(shot.header.bit_depth);
         entries.push(FrameEntry {
             file: String::new(),
-            led: [shot.led.0, shot.led.1],
+            led: shot.led,
             defocus_um,
             exposure_ms: shot.header.exposure_us as f64 / 1e3,
         });

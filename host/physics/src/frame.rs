@@ -3,6 +3,7 @@
 //! the dark level and the exposure. This is the one place where counts become
 //! intensities, for datasets read from disk and for frames arriving live alike.
 
+use crate::optics::LedIndex;
 use ndarray::{s, Array2, ArrayView2};
 
 use crate::Image;
@@ -193,7 +194,7 @@ impl Measured<'_> {
 #[derive(Debug, Clone, Copy)]
 pub struct LitFrame<'a> {
     /// LED (row, col).
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// The frame.
     pub measured: Measured<'a>,
 }

@@ -28,4 +28,4 @@ pub mod study;
 pub mod tiles;
 
 pub use image::Image;
-pub use optics::{LedGeometry, System};
+pub use optics::{LedGeometry, LedIndex, System};

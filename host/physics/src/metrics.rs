@@ -5,21 +5,32 @@ use rustfft::num_complex::Complex32;
 
 use crate::fft::{bin_frequency, Fft2};
 
-/// Resample a complex field over the same field of view onto an `m × m` grid by
-/// cropping or zero-padding its spectrum, keeping only frequencies where `keep(fx, fy)`
-/// (cycles per unit of `pitch`) holds. Amplitudes are preserved.
+/// Resample a square complex field onto an `m × m` grid over the same field of view;
+/// see [`resample_to`].
 pub fn resample(
     field: &Array2<Complex32>,
     pitch: f64,
     m: usize,
     keep: impl Fn(f64, f64) -> bool,
 ) -> Array2<Complex32> {
-    let (n, n2) = field.dim();
-    assert_eq!(n, n2, "square fields only");
+    resample_to(field, pitch, (m, m), keep)
+}
+
+/// Resample a complex field over the same field of view onto a `rows × cols` grid by
+/// cropping or zero-padding its spectrum, keeping only frequencies where `keep(fx, fy)`
+/// (cycles per unit of `pitch`) holds. Amplitudes are preserved. Fields need not be
+/// square; both axes keep their own frequency step.
+pub fn resample_to(
+    field: &Array2<Complex32>,
+    pitch: f64,
+    (rows, cols): (usize, usize),
+    keep: impl Fn(f64, f64) -> bool,
+) -> Array2<Complex32> {
+    let (h, w) = field.dim();
     let mut spec: Vec<Complex32> = field.iter().copied().collect();
-    Fft2::new(n, n).forward(&mut spec);
-    let mut out = vec![Complex32::default(); m * m];
-    let half = n.min(m) / 2;
+    Fft2::new(w, h).forward(&mut spec);
+    let mut out = vec![Complex32::default(); rows * cols];
+    let (half_y, half_x) = (h.min(rows) / 2, w.min(cols) / 2);
     let signed = |k: usize, len: usize| {
         if k < len / 2 {
             k as i64
@@ -27,37 +38,41 @@ pub fn resample(
             k as i64 - len as i64
         }
     };
-    for ky in 0..n {
-        let sy = signed(ky, n);
-        if sy.unsigned_abs() as usize >= half {
+    for ky in 0..h {
+        let sy = signed(ky, h);
+        if sy.unsigned_abs() as usize >= half_y {
             continue;
         }
-        for kx in 0..n {
-            let sx = signed(kx, n);
-            if sx.unsigned_abs() as usize >= half {
+        for kx in 0..w {
+            let sx = signed(kx, w);
+            if sx.unsigned_abs() as usize >= half_x {
                 continue;
             }
-            if !keep(bin_frequency(kx, n, pitch), bin_frequency(ky, n, pitch)) {
+            if !keep(bin_frequency(kx, w, pitch), bin_frequency(ky, h, pitch)) {
                 continue;
             }
             let (oy, ox) = (
-                sy.rem_euclid(m as i64) as usize,
-                sx.rem_euclid(m as i64) as usize,
+                sy.rem_euclid(rows as i64) as usize,
+                sx.rem_euclid(cols as i64) as usize,
             );
-            out[oy * m + ox] = spec[ky * n + kx];
+            out[oy * cols + ox] = spec[ky * w + kx];
         }
     }
-    Fft2::new(m, m).inverse(&mut out);
-    let scale = (m * m) as f32 / (n * n) as f32;
-    Array2::from_shape_fn((m, m), |(r, c)| out[r * m + c] * scale)
+    Fft2::new(cols, rows).inverse(&mut out);
+    let scale = (rows * cols) as f32 / (h * w) as f32;
+    Array2::from_shape_fn((rows, cols), |(r, c)| out[r * cols + c] * scale)
 }
 
-/// The central `fraction` of a square array (docs/dataset.md compares on the central 75 %).
+/// The central `fraction` (of each side) of an array (docs/dataset.md compares on the
+/// central 75 %).
 pub fn central(a: &Array2<Complex32>, fraction: f64) -> Vec<Complex32> {
-    let n = a.dim().0;
-    let k = ((n as f64) * fraction).round() as usize;
-    let o = (n - k) / 2;
-    a.slice(ndarray::s![o..o + k, o..o + k])
+    let (h, w) = a.dim();
+    let (kh, kw) = (
+        ((h as f64) * fraction).round() as usize,
+        ((w as f64) * fraction).round() as usize,
+    );
+    let (oy, ox) = ((h - kh) / 2, (w - kw) / 2);
+    a.slice(ndarray::s![oy..oy + kh, ox..ox + kw])
         .iter()
         .copied()
         .collect()
@@ -79,7 +94,8 @@ pub struct Scores {
 
 /// Score a reconstruction against the truth: both resampled to the truth's grid and
 /// band-limited to the synthetic aperture (`in_aperture(fx, fy)`, cycles/µm), compared
-/// on the central 75 % (docs/dataset.md §6). Pitches in µm; both fields cover the same area.
+/// on the central 75 % (docs/dataset.md §6). Pitches in µm; both fields cover the same area
+/// (any aspect ratio).
 pub fn score(
     reconstruction: &Array2<Complex32>,
     reconstruction_pitch_um: f64,
@@ -87,10 +103,13 @@ pub fn score(
     truth_pitch_um: f64,
     in_aperture: impl Fn(f64, f64) -> bool,
 ) -> Scores {
-    let m = truth.dim().0;
-    let t = central(&resample(truth, truth_pitch_um, m, &in_aperture), 0.75);
+    let grid = truth.dim();
+    let t = central(
+        &resample_to(truth, truth_pitch_um, grid, &in_aperture),
+        0.75,
+    );
     let r = central(
-        &resample(reconstruction, reconstruction_pitch_um, m, &in_aperture),
+        &resample_to(reconstruction, reconstruction_pitch_um, grid, &in_aperture),
         0.75,
     );
     let complex = complex_nrmse(&r, &t);

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use fpm_protocol::LedIndex;
+
 /// Microscope and camera.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct System {
@@ -67,8 +69,8 @@ pub struct LedGeometry {
     pub pitch_mm: f64,
     /// Distance from the LED plane to the sample, mm.
     pub height_mm: f64,
-    /// Nominal centre LED (row, col).
-    pub center: (usize, usize),
+    /// Nominal centre LED.
+    pub center: LedIndex,
     /// Lateral offset Δx, mm.
     pub dx_mm: f64,
     /// Lateral offset Δy, mm.
@@ -86,7 +88,7 @@ impl LedGeometry {
             cols: 21,
             pitch_mm: 2.5,
             height_mm: 92.0,
-            center: (10, 10),
+            center: LedIndex::new(10, 10),
             dx_mm: 0.0,
             dy_mm: 0.0,
             theta_deg: 0.0,
@@ -104,17 +106,29 @@ impl LedGeometry {
         }
     }
 
-    /// Grid offsets (p, q) = (c − c₀, r − r₀) of LED (row, col).
-    pub fn grid_offset(&self, row: usize, col: usize) -> (f64, f64) {
+    /// Whether `led` is on this grid.
+    pub fn contains(&self, led: LedIndex) -> bool {
+        led.r() < self.rows && led.c() < self.cols
+    }
+
+    /// Every LED of the grid, row by row.
+    pub fn leds(&self) -> Vec<LedIndex> {
+        (0..self.rows.min(256))
+            .flat_map(|r| (0..self.cols.min(256)).map(move |c| LedIndex::new(r as u8, c as u8)))
+            .collect()
+    }
+
+    /// Grid offsets (p, q) = (c − c₀, r − r₀) of `led`.
+    pub fn grid_offset(&self, led: LedIndex) -> (f64, f64) {
         (
-            col as f64 - self.center.1 as f64,
-            row as f64 - self.center.0 as f64,
+            led.col as f64 - self.center.col as f64,
+            led.row as f64 - self.center.row as f64,
         )
     }
 
-    /// Position (x, y) of LED (row, col) in mm.
-    pub fn led_position_mm(&self, row: usize, col: usize) -> (f64, f64) {
-        let (p, q) = self.grid_offset(row, col);
+    /// Position (x, y) of `led` in mm.
+    pub fn led_position_mm(&self, led: LedIndex) -> (f64, f64) {
+        let (p, q) = self.grid_offset(led);
         let (s, c) = self.theta_deg.to_radians().sin_cos();
         (
             self.pitch_mm * (p * c - q * s) + self.dx_mm,
@@ -122,10 +136,10 @@ impl LedGeometry {
         )
     }
 
-    /// Unit propagation direction (s_x, s_y, s_z) of light from LED (row, col) at sample
-    /// point (x, y) µm.
-    pub fn direction(&self, row: usize, col: usize, x_um: f64, y_um: f64) -> [f64; 3] {
-        let (lx, ly) = self.led_position_mm(row, col);
+    /// Unit propagation direction (s_x, s_y, s_z) of light from `led` at sample point
+    /// (x, y) µm.
+    pub fn direction(&self, led: LedIndex, x_um: f64, y_um: f64) -> [f64; 3] {
+        let (lx, ly) = self.led_position_mm(led);
         let v = [x_um - lx * 1e3, y_um - ly * 1e3, self.height_mm * 1e3];
         let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         [v[0] / r, v[1] / r, v[2] / r]
@@ -135,26 +149,18 @@ impl LedGeometry {
     /// cycles/µm.
     pub fn illumination_frequency(
         &self,
-        row: usize,
-        col: usize,
+        led: LedIndex,
         x_um: f64,
         y_um: f64,
         wavelength_um: f64,
     ) -> (f64, f64) {
-        let s = self.direction(row, col, x_um, y_um);
+        let s = self.direction(led, x_um, y_um);
         (s[0] / wavelength_um, s[1] / wavelength_um)
     }
 
-    /// Whether LED (row, col) is bright-field at sample point (x, y): |f_i| < NA/λ.
-    pub fn is_bright_field(
-        &self,
-        row: usize,
-        col: usize,
-        x_um: f64,
-        y_um: f64,
-        system: &System,
-    ) -> bool {
-        let (fx, fy) = self.illumination_frequency(row, col, x_um, y_um, system.wavelength_um);
+    /// Whether `led` is bright-field at sample point (x, y): |f_i| < NA/λ.
+    pub fn is_bright_field(&self, led: LedIndex, x_um: f64, y_um: f64, system: &System) -> bool {
+        let (fx, fy) = self.illumination_frequency(led, x_um, y_um, system.wavelength_um);
         (fx * fx + fy * fy).sqrt() < system.cutoff()
     }
 
@@ -164,14 +170,14 @@ impl LedGeometry {
     /// are used.
     pub fn nearest_first(
         &self,
-        leds: &[(usize, usize)],
+        leds: &[LedIndex],
         at_um: (f64, f64),
         wavelength_um: f64,
     ) -> Vec<usize> {
         let radius: Vec<f64> = leds
             .iter()
-            .map(|&(r, c)| {
-                let f = self.illumination_frequency(r, c, at_um.0, at_um.1, wavelength_um);
+            .map(|&led| {
+                let f = self.illumination_frequency(led, at_um.0, at_um.1, wavelength_um);
                 f.0.hypot(f.1)
             })
             .collect();
@@ -180,17 +186,10 @@ impl LedGeometry {
         order
     }
 
-    /// The defocus shift (µm) of a feature at (x, y) under LED (row, col) for a sample
-    /// moved by `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (docs/dataset.md §3).
-    pub fn defocus_shift_um(
-        &self,
-        row: usize,
-        col: usize,
-        x_um: f64,
-        y_um: f64,
-        z_um: f64,
-    ) -> (f64, f64) {
-        let (lx, ly) = self.led_position_mm(row, col);
+    /// The defocus shift (µm) of a feature at (x, y) under `led` for a sample moved by
+    /// `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (docs/dataset.md §3).
+    pub fn defocus_shift_um(&self, led: LedIndex, x_um: f64, y_um: f64, z_um: f64) -> (f64, f64) {
+        let (lx, ly) = self.led_position_mm(led);
         let h = self.height_mm * 1e3;
         (z_um * (x_um - lx * 1e3) / h, z_um * (y_um - ly * 1e3) / h)
     }
@@ -221,22 +220,22 @@ mod tests {
         g.theta_deg = 90.0;
         g.dx_mm = 1.0;
         // p = 1, q = 0 turns from +x to +y.
-        let (x, y) = g.led_position_mm(10, 11);
+        let (x, y) = g.led_position_mm(LedIndex::new(10, 11));
         assert!((x - 1.0).abs() < 1e-12 && (y - 2.5).abs() < 1e-12);
         // p = 0, q = 1 turns from +y to −x.
-        let (x, y) = g.led_position_mm(11, 10);
+        let (x, y) = g.led_position_mm(LedIndex::new(11, 10));
         assert!((x - (1.0 - 2.5)).abs() < 1e-12 && y.abs() < 1e-12);
     }
 
     #[test]
     fn light_from_an_led_at_plus_x_travels_toward_minus_x() {
         let g = geometry();
-        let (fx, fy) = g.illumination_frequency(10, 11, 0.0, 0.0, 0.47);
+        let (fx, fy) = g.illumination_frequency(LedIndex::new(10, 11), 0.0, 0.0, 0.47);
         assert!(fx < 0.0 && fy.abs() < 1e-15);
         let expect = -2.5 / (2.5f64.powi(2) + 92.0f64.powi(2)).sqrt() / 0.47;
         assert!((fx - expect).abs() < 1e-12);
         // and a defocused feature moves the same way
-        let (sx, _) = g.defocus_shift_um(10, 11, 0.0, 0.0, 200.0);
+        let (sx, _) = g.defocus_shift_um(LedIndex::new(10, 11), 0.0, 0.0, 200.0);
         assert!((sx - (-200.0 * 2.5 / 92.0)).abs() < 1e-9);
     }
 
@@ -244,10 +243,10 @@ mod tests {
     fn bright_field_is_within_the_pupil() {
         let g = geometry();
         let s = System::paper();
-        assert!(g.is_bright_field(10, 10, 0.0, 0.0, &s));
+        assert!(g.is_bright_field(LedIndex::new(10, 10), 0.0, 0.0, &s));
         // NA 0.1 at 92 mm reaches ρ = 9.25 mm: 3 pitches in, 4 out.
-        assert!(g.is_bright_field(10, 13, 0.0, 0.0, &s));
-        assert!(!g.is_bright_field(10, 14, 0.0, 0.0, &s));
+        assert!(g.is_bright_field(LedIndex::new(10, 13), 0.0, 0.0, &s));
+        assert!(!g.is_bright_field(LedIndex::new(10, 14), 0.0, 0.0, &s));
     }
 
     #[test]

@@ -6,6 +6,7 @@
 //! quantisation. The sample is larger than the field of view: a padded field is imaged
 //! and the sensor region cropped.
 
+use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal, Poisson};
@@ -224,12 +225,12 @@ impl Renderer {
         system: &System,
         geometry: &LedGeometry,
         object: &ObjectField,
-        led: (usize, usize),
+        led: LedIndex,
         defocus_um: f64,
     ) -> Image {
         let n = object.n;
         let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
-        let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+        let (lx, ly) = geometry.led_position_mm(led);
         let (lx, ly, h) = (lx * 1e3, ly * 1e3, geometry.height_mm * 1e3);
         let r0 = (lx * lx + ly * ly + h * h).sqrt();
         // Spherical wave from the LED, phase relative to the field centre (f64, then
@@ -375,7 +376,7 @@ impl Camera {
 #[derive(Debug, Clone)]
 pub struct SimFrame {
     /// LED (row, col) lit.
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// Sample displacement toward the LEDs, µm.
     pub defocus_um: f64,
     /// Exposure, ms.
@@ -390,7 +391,7 @@ pub fn acquire(
     system: &System,
     geometry: &LedGeometry,
     object: &ObjectField,
-    shots: &[((usize, usize), f64)],
+    shots: &[(LedIndex, f64)],
     camera: &Camera,
     exposure: impl Fn(&Image) -> f64 + Sync,
     seed: u64,
@@ -435,7 +436,7 @@ mod tests {
         let s = system();
         let o = ObjectField::square_hole(&s, 64, 48, 2, 1000.0, (0.0, 0.0), 1.0);
         let mut r = Renderer::new(&o);
-        let img = r.render(&s, &geometry(), &o, (10, 12), 0.0);
+        let img = r.render(&s, &geometry(), &o, LedIndex::new(10, 12), 0.0);
         for v in img.iter() {
             assert!((v - 1.0).abs() < 1e-2, "{v}");
         }
@@ -446,7 +447,7 @@ mod tests {
         let s = system();
         let o = ObjectField::square_hole(&s, 64, 48, 2, 1000.0, (0.0, 0.0), 1.0);
         let mut r = Renderer::new(&o);
-        let img = r.render(&s, &geometry(), &o, (10, 16), 0.0);
+        let img = r.render(&s, &geometry(), &o, LedIndex::new(10, 16), 0.0);
         assert!(
             img.iter().all(|&v| v < 1e-3),
             "an empty sample scatters nothing into the pupil"
@@ -469,13 +470,13 @@ mod tests {
             }
             (sx / sw, sy / sw)
         };
-        let (c0, r0) = centroid(&r.render(&s, &g, &o, (10, 10), 0.0));
-        let (c1, r1) = centroid(&r.render(&s, &g, &o, (10, 12), 200.0));
+        let (c0, r0) = centroid(&r.render(&s, &g, &o, LedIndex::new(10, 10), 0.0));
+        let (c1, r1) = centroid(&r.render(&s, &g, &o, LedIndex::new(10, 12), 200.0));
         let shift_um = (
             (c1 - c0) * s.sample_pixel_um(),
             (r1 - r0) * s.sample_pixel_um(),
         );
-        let expect = g.defocus_shift_um(10, 12, 0.0, 0.0, 200.0);
+        let expect = g.defocus_shift_um(LedIndex::new(10, 12), 0.0, 0.0, 200.0);
         assert!(
             (shift_um.0 - expect.0).abs() < 0.05 * expect.0.abs(),
             "{shift_um:?} vs {expect:?}"
@@ -550,10 +551,10 @@ impl CalibrationScene {
 
     /// The shots: the focused reference under the nominal centre LED, then every LED of
     /// the grid around it, defocused.
-    pub fn shots(&self) -> Vec<((usize, usize), f64)> {
-        let (r0, c0) = self.truth.center;
+    pub fn shots(&self) -> Vec<(LedIndex, f64)> {
+        let (r0, c0) = (self.truth.center.r(), self.truth.center.c());
         let k = self.half_grid as i64;
-        let mut shots = vec![((r0, c0), 0.0)];
+        let mut shots = vec![(self.truth.center, 0.0)];
         for dr in -k..=k {
             for dc in -k..=k {
                 let (r, c) = (r0 as i64 + dr, c0 as i64 + dc);
@@ -562,7 +563,7 @@ impl CalibrationScene {
                     && (r as usize) < self.truth.rows
                     && (c as usize) < self.truth.cols
                 {
-                    shots.push(((r as usize, c as usize), self.defocus_um));
+                    shots.push((LedIndex::new(r as u8, c as u8), self.defocus_um));
                 }
             }
         }

@@ -1,6 +1,7 @@
 //! End-to-end studies on simulated data: how much a misplaced LED array costs the
 //! reconstruction, and how much calibration wins back (the paper's Fig. 1 and Fig. 5).
 
+use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
 use crate::calibrate::{self, Calibration, Options};
@@ -78,9 +79,7 @@ pub fn geometry_case(
 
     // The sample.
     let object = ObjectField::test_sample(system, camera_px, 32, 2, seed);
-    let shots: Vec<((usize, usize), f64)> = (0..nominal.rows)
-        .flat_map(|r| (0..nominal.cols).map(move |c| ((r, c), 0.0)))
-        .collect();
+    let shots: Vec<(LedIndex, f64)> = nominal.leds().into_iter().map(|l| (l, 0.0)).collect();
     let frames = acquire(
         system,
         truth,
@@ -109,7 +108,7 @@ pub fn geometry_case(
     let m = truth_field.dim().0;
     let discs: Vec<(f64, f64)> = shots
         .iter()
-        .map(|s| truth.illumination_frequency(s.0 .0, s.0 .1, 0.0, 0.0, system.wavelength_um))
+        .map(|s| truth.illumination_frequency(s.0, 0.0, 0.0, system.wavelength_um))
         .collect();
     let cutoff = system.cutoff();
     let in_aperture = |fx: f64, fy: f64| discs.iter().any(|f| (fx + f.0).hypot(fy + f.1) <= cutoff);

@@ -5,7 +5,7 @@
 use fpm_physics::metrics::{central, complex_nrmse, resample};
 use fpm_physics::reconstruct::{run, Field, Settings, Shot};
 use fpm_physics::simulate::{acquire, Camera, ObjectField};
-use fpm_physics::{Image, LedGeometry, System};
+use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rustfft::num_complex::Complex32;
 
 #[test]
@@ -16,7 +16,7 @@ fn epry_beats_the_centre_frame_by_far() {
         cols: 15,
         pitch_mm: 2.5,
         height_mm: 92.0,
-        center: (7, 7),
+        center: LedIndex::new(7, 7),
         dx_mm: 0.3,
         dy_mm: -0.2,
         theta_deg: 1.0,
@@ -24,9 +24,7 @@ fn epry_beats_the_centre_frame_by_far() {
     let w = 96;
     let object = ObjectField::test_sample(&system, w, 32, 2, 5);
     let camera = Camera::realistic();
-    let shots: Vec<((usize, usize), f64)> = (0..15)
-        .flat_map(|r| (0..15).map(move |c| ((r, c), 0.0)))
-        .collect();
+    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
     let frames = acquire(
         &system,
         &geometry,
@@ -43,16 +41,12 @@ fn epry_beats_the_centre_frame_by_far() {
             (v as f32 - camera.dark_level_dn as f32) / (frames[k].exposure_ms * unit) as f32
         })
     };
-    let centre = shots.iter().position(|s| s.0 == (7, 7)).unwrap();
-    let freq = |k: usize| {
-        geometry.illumination_frequency(
-            frames[k].led.0,
-            frames[k].led.1,
-            0.0,
-            0.0,
-            system.wavelength_um,
-        )
-    };
+    let centre = shots
+        .iter()
+        .position(|s| s.0 == LedIndex::new(7, 7))
+        .unwrap();
+    let freq =
+        |k: usize| geometry.illumination_frequency(frames[k].led, 0.0, 0.0, system.wavelength_um);
     let settings = Settings {
         upsample: 4,
         ..Settings::default()
@@ -73,7 +67,11 @@ fn epry_beats_the_centre_frame_by_far() {
         |_, _| {},
     )
     .expect("a bright-field frame");
-    assert_eq!(shots[out.initial].led, (7, 7), "starts from the axial LED");
+    assert_eq!(
+        shots[out.initial].led,
+        LedIndex::new(7, 7),
+        "starts from the axial LED"
+    );
     let errors = out.errors.clone();
     let rec = out.sample();
 
@@ -181,7 +179,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
         cols: 15,
         pitch_mm: 2.5,
         height_mm: 92.0,
-        center: (7, 7),
+        center: LedIndex::new(7, 7),
         dx_mm: 0.0,
         dy_mm: 0.0,
         theta_deg: 0.0,
@@ -190,9 +188,9 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
     let tile = Some(80);
     let object = ObjectField::test_sample(&system, w, 32, 2, 7);
     let camera = Camera::realistic();
-    let all: Vec<(usize, usize)> = (0..15).flat_map(|r| (0..15).map(move |c| (r, c))).collect();
+    let all = geometry.leds();
     let order = geometry.nearest_first(&all, (0.0, 0.0), system.wavelength_um);
-    let shots: Vec<((usize, usize), f64)> = order.iter().map(|&k| (all[k], 0.0)).collect();
+    let shots: Vec<(LedIndex, f64)> = order.iter().map(|&k| (all[k], 0.0)).collect();
     let frames = acquire(
         &system,
         &geometry,
@@ -235,7 +233,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
     let m = truth.dim().0;
     let discs: Vec<(f64, f64)> = frames
         .iter()
-        .map(|f| geometry.illumination_frequency(f.led.0, f.led.1, 0.0, 0.0, system.wavelength_um))
+        .map(|f| geometry.illumination_frequency(f.led, 0.0, 0.0, system.wavelength_um))
         .collect();
     let cutoff = system.cutoff();
     let in_aperture = |fx: f64, fy: f64| discs.iter().any(|f| (fx + f.0).hypot(fy + f.1) <= cutoff);

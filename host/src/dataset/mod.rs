@@ -10,7 +10,7 @@ pub mod image_io;
 use std::path::{Path, PathBuf};
 
 use fpm_physics::frame::{LitFrame, Measured, Region};
-use fpm_physics::{Image, LedGeometry, System};
+use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use serde::{Deserialize, Serialize};
 
 pub use image_io::{ImageError, Pixels};
@@ -42,7 +42,7 @@ pub struct LedSection {
     /// LED plane to sample, mm.
     pub height_mm: f64,
     /// (row, col) of the nominal centre LED.
-    pub center: [usize; 2],
+    pub center: LedIndex,
     /// Δx, Δy, mm.
     #[serde(default)]
     pub offset_mm: [f64; 2],
@@ -83,7 +83,7 @@ pub struct FrameEntry {
     /// Image path relative to the dataset directory.
     pub file: String,
     /// (row, col) lit.
-    pub led: [usize; 2],
+    pub led: LedIndex,
     /// Sample displacement toward the LEDs, µm.
     #[serde(default)]
     pub defocus_um: f64,
@@ -129,7 +129,7 @@ impl Manifest {
                 cols: geometry.cols,
                 pitch_mm: geometry.pitch_mm,
                 height_mm: geometry.height_mm,
-                center: [geometry.center.0, geometry.center.1],
+                center: geometry.center,
                 offset_mm: [geometry.dx_mm, geometry.dy_mm],
                 rotation_deg: geometry.theta_deg,
             },
@@ -157,7 +157,7 @@ impl Manifest {
             cols: l.cols,
             pitch_mm: l.pitch_mm,
             height_mm: l.height_mm,
-            center: (l.center[0], l.center[1]),
+            center: l.center,
             dx_mm: l.offset_mm[0],
             dy_mm: l.offset_mm[1],
             theta_deg: l.rotation_deg,
@@ -302,7 +302,7 @@ impl Dataset {
         (0..self.frames.len())
             .filter(|&k| self.frames[k].entry.defocus_um == 0.0)
             .map(|k| LitFrame {
-                led: (self.frames[k].entry.led[0], self.frames[k].entry.led[1]),
+                led: self.frames[k].entry.led,
                 measured: self.measured(k),
             })
             .collect()
@@ -433,11 +433,11 @@ impl Dataset {
 /// A frame's file name: `frames/rRR_cCC.tif`, with `_z±Z` for defocused frames.
 fn frame_file_name(entry: &FrameEntry) -> String {
     if entry.defocus_um == 0.0 {
-        format!("frames/r{:02}_c{:02}.tif", entry.led[0], entry.led[1])
+        format!("frames/r{:02}_c{:02}.tif", entry.led.row, entry.led.col)
     } else {
         format!(
             "frames/r{:02}_c{:02}_z{:+.0}.tif",
-            entry.led[0], entry.led[1], entry.defocus_um
+            entry.led.row, entry.led.col, entry.defocus_um
         )
     }
 }
@@ -494,10 +494,17 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "the array needs at least one LED",
         ));
     }
-    if m.led.center[0] >= m.led.rows || m.led.center[1] >= m.led.cols {
+    if m.led.rows > 256 || m.led.cols > 256 {
+        return Err(value(
+            "led.rows/cols",
+            format!("{}x{}", m.led.rows, m.led.cols),
+            "at most 256x256 (LED indices are 0-255)",
+        ));
+    }
+    if m.led.center.r() >= m.led.rows || m.led.center.c() >= m.led.cols {
         return Err(value(
             "led.center",
-            format!("{:?}", m.led.center),
+            m.led.center.to_string(),
             "is outside the array",
         ));
     }
@@ -535,9 +542,9 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             file: f.file.clone(),
             reason,
         };
-        if f.led[0] >= m.led.rows || f.led[1] >= m.led.cols {
+        if f.led.r() >= m.led.rows || f.led.c() >= m.led.cols {
             return Err(bad(format!(
-                "LED {:?} is outside the {}x{} array",
+                "LED {} is outside the {}x{} array",
                 f.led, m.led.rows, m.led.cols
             )));
         }

@@ -28,15 +28,13 @@ fn update_versus_ffts(c: &mut Criterion) {
             })
         });
         let mut epry = Epry::new(&system, &frame, Settings::default());
-        let leds: Vec<(usize, usize)> =
-            (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
+        let leds = geometry.leds();
         let mut k = 0;
         group.bench_function(BenchmarkId::new("update", size), |b| {
             b.iter(|| {
                 let led = leds[k % leds.len()];
                 k += 1;
-                let f =
-                    geometry.illumination_frequency(led.0, led.1, 0.0, 0.0, system.wavelength_um);
+                let f = geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
                 epry.update_amplitude(&measured, f, true)
             })
         });

@@ -43,8 +43,8 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let geometry = LedGeometry::paper();
     let camera = Camera::realistic();
     let object = ObjectField::test_sample(&system, size, 32, 2, 9);
-    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
-    let shots: Vec<((usize, usize), f64)> = geometry
+    let leds = geometry.leds();
+    let shots: Vec<(fpm_physics::LedIndex, f64)> = geometry
         .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
         .into_iter()
         .map(|k| (leds[k], 0.0))
@@ -105,7 +105,7 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let offline_ms = t.elapsed().as_secs_f64() * 1e3;
     let discs: Vec<(f64, f64)> = shots
         .iter()
-        .map(|s| geometry.illumination_frequency(s.0 .0, s.0 .1, 0.0, 0.0, system.wavelength_um))
+        .map(|s| geometry.illumination_frequency(s.0, 0.0, 0.0, system.wavelength_um))
         .collect();
     let truth = object.crop_to_camera();
     let pitch = system.sample_pixel_um() / upsample as f64;
@@ -141,10 +141,8 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
             ..Settings::default()
         },
     );
-    let leds: Vec<(usize, usize)> = (0..21).flat_map(|r| (0..21).map(move |c| (r, c))).collect();
-    let freq = |led: (usize, usize)| {
-        geometry.illumination_frequency(led.0, led.1, 0.0, 0.0, system.wavelength_um)
-    };
+    let leds = geometry.leds();
+    let freq = |led| geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
     // Baseline: the forward and inverse LR FFT an update cannot do without.
     let mut fft = Fft2::new(size, size);
     let mut buf: Vec<Complex32> = frame.iter().map(|&v| Complex32::new(v, 0.0)).collect();

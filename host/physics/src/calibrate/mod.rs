@@ -16,6 +16,7 @@ pub mod model;
 pub mod shift;
 pub mod window;
 
+use crate::optics::LedIndex;
 use serde::{Deserialize, Serialize};
 
 use crate::optics::{LedGeometry, System};
@@ -27,7 +28,7 @@ use fit::{Observation, Params, Setup};
 #[derive(Debug, Clone, Copy)]
 pub struct Frame<'a> {
     /// LED (row, col).
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// Sample displacement toward the LEDs, µm (0 = in focus).
     pub defocus_um: f64,
     /// Exposure, ms (intensities are compared per ms).
@@ -84,8 +85,8 @@ pub enum LedStatus {
 /// One LED in the result.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LedResult {
-    /// (row, col).
-    pub led: [usize; 2],
+    /// The LED.
+    pub led: LedIndex,
     /// Grid offsets (p, q) from the nominal centre LED.
     pub grid: [i64; 2],
     /// Used or why not.
@@ -172,18 +173,16 @@ impl Calibration {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
     /// No in-focus frame under the centre LED.
-    #[error("no in-focus reference frame (defocus 0) under the centre LED ({0}, {1})")]
-    NoReference(usize, usize),
+    #[error("no in-focus reference frame (defocus 0) under the centre LED ({}, {})", .0.row, .0.col)]
+    NoReference(LedIndex),
     /// No defocused frames.
     #[error("no defocused frames (frames with defocus_um ≠ 0)")]
     NoDefocused,
     /// The defocused frames disagree on the defocus.
-    #[error("defocused frames must share one defocus: LED ({led0}, {led1}) has {got} µm, others {expected} µm")]
+    #[error("defocused frames must share one defocus: LED ({}, {}) has {got} µm, others {expected} µm", led.row, led.col)]
     MixedDefocus {
-        /// The frame's LED row.
-        led0: usize,
-        /// The frame's LED column.
-        led1: usize,
+        /// The frame's LED.
+        led: LedIndex,
         /// Its defocus.
         got: f64,
         /// The first defocus seen.
@@ -220,10 +219,7 @@ pub fn calibrate(
     let reference = frames
         .iter()
         .find(|f| f.defocus_um == 0.0 && f.led == nominal.center)
-        .ok_or(CalibrationError::NoReference(
-            nominal.center.0,
-            nominal.center.1,
-        ))?;
+        .ok_or(CalibrationError::NoReference(nominal.center))?;
     let defocused: Vec<&Frame> = frames.iter().filter(|f| f.defocus_um != 0.0).collect();
     let z = defocused
         .first()
@@ -231,8 +227,7 @@ pub fn calibrate(
         .defocus_um;
     if let Some(f) = defocused.iter().find(|f| (f.defocus_um - z).abs() > 1e-9) {
         return Err(CalibrationError::MixedDefocus {
-            led0: f.led.0,
-            led1: f.led.1,
+            led: f.led,
             got: f.defocus_um,
             expected: z,
         });
@@ -276,9 +271,9 @@ pub fn calibrate(
     let mut measured: Vec<Measured> = defocused
         .iter()
         .map(|f| {
-            let grid = nominal.grid_offset(f.led.0, f.led.1);
+            let grid = nominal.grid_offset(f.led);
             let brightness = frame_brightness(f) / ref_brightness.max(1e-300);
-            let expect = nominal.defocus_shift_um(f.led.0, f.led.1, xc, yc, z);
+            let expect = nominal.defocus_shift_um(f.led, xc, yc, z);
             let start = (ref_center.0 + expect.0 / px, ref_center.1 + expect.1 / px);
             let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4);
             let saturated = |m: &shift::Moment| {
@@ -359,8 +354,7 @@ pub fn calibrate(
         let geometry = to_geometry(nominal, &fit.params);
         // Leave out LEDs near the pupil edge under the fitted geometry.
         for m in measured.iter_mut().filter(|m| m.status == LedStatus::Used) {
-            let (fx, fy) =
-                geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
+            let (fx, fy) = geometry.illumination_frequency(m.led, xc, yc, system.wavelength_um);
             if fx.hypot(fy) > system.cutoff() - spectral_margin {
                 m.status = LedStatus::NearPupilEdge;
             }
@@ -370,15 +364,14 @@ pub fn calibrate(
             break;
         }
         if let Some(model) = model.as_mut() {
-            let (rr, rc) = nominal.center;
-            let f_ref = geometry.illumination_frequency(rr, rc, xc, yc, system.wavelength_um);
+            let f_ref =
+                geometry.illumination_frequency(nominal.center, xc, yc, system.wavelength_um);
             for (m, b) in measured.iter().zip(bias.iter_mut()) {
                 if m.shift_um.is_none() {
                     continue;
                 }
-                let f_led =
-                    geometry.illumination_frequency(m.led.0, m.led.1, xc, yc, system.wavelength_um);
-                let ideal = geometry.defocus_shift_um(m.led.0, m.led.1, xc, yc, z);
+                let f_led = geometry.illumination_frequency(m.led, xc, yc, system.wavelength_um);
+                let ideal = geometry.defocus_shift_um(m.led, xc, yc, z);
                 let start = (ideal.0 / px, ideal.1 / px);
                 if let Some(pred) = model.predicted_shift_um(system, f_ref, f_led, z, start) {
                     *b = (pred.0 - ideal.0, pred.1 - ideal.1);
@@ -412,7 +405,7 @@ pub fn calibrate(
         .map(|((m, b), r)| {
             let fitted = fit::predict(&setup, &p, m.grid);
             LedResult {
-                led: [m.led.0, m.led.1],
+                led: m.led,
                 grid: [m.grid.0 as i64, m.grid.1 as i64],
                 status: m.status,
                 brightness: m.brightness,
@@ -450,7 +443,7 @@ pub fn calibrate(
 
 /// One defocused frame as measured.
 struct Measured {
-    led: (usize, usize),
+    led: LedIndex,
     grid: (f64, f64),
     brightness: f64,
     shift_um: Option<(f64, f64)>,

@@ -1,5 +1,6 @@
 //! Offline EPRY over one square field: every frame at hand, nearest-first passes.
 
+use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
 use super::schedule::passes_over;
@@ -11,7 +12,7 @@ use crate::Image;
 /// scale).
 pub struct Shot<'a> {
     /// LED (row, col).
-    pub led: (usize, usize),
+    pub led: LedIndex,
     /// Intensity.
     pub image: &'a Image,
 }
@@ -38,10 +39,10 @@ impl Outcome {
         initial: usize,
         system: &System,
         geometry: &LedGeometry,
-        led: (usize, usize),
+        led: LedIndex,
         centre_um: (f64, f64),
     ) -> Self {
-        let (lx, ly) = geometry.led_position_mm(led.0, led.1);
+        let (lx, ly) = geometry.led_position_mm(led);
         let illumination_radius_um = ((lx * 1e3 - centre_um.0).powi(2)
             + (ly * 1e3 - centre_um.1).powi(2)
             + (geometry.height_mm * 1e3).powi(2))
@@ -101,7 +102,7 @@ pub fn run(
     passes: usize,
     progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
-    let leds: Vec<(usize, usize)> = shots.iter().map(|s| s.led).collect();
+    let leds: Vec<LedIndex> = shots.iter().map(|s| s.led).collect();
     let order = geometry.nearest_first(&leds, field.centre_um, system.wavelength_um);
     let initial = *order.first()?;
     let scale = match field.clear_level {
@@ -131,7 +132,7 @@ pub fn run_amplitudes(
     system: &System,
     geometry: &LedGeometry,
     field: Field,
-    leds: &[(usize, usize)],
+    leds: &[LedIndex],
     amplitudes: &[Image],
     settings: Settings,
     passes: usize,
@@ -145,8 +146,7 @@ pub fn run_amplitudes(
     let frames: Vec<(&Image, (f64, f64))> = order
         .iter()
         .map(|&k| {
-            let f =
-                geometry.illumination_frequency(leds[k].0, leds[k].1, cx, cy, system.wavelength_um);
+            let f = geometry.illumination_frequency(leds[k], cx, cy, system.wavelength_um);
             (&amplitudes[k], f)
         })
         .collect();

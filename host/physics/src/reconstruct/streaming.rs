@@ -5,6 +5,7 @@
 //! run does. The stream keeps no copy of the frames: the caller keeps them (it writes
 //! them to the dataset anyway) and hands them back to `finish`.
 
+use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
 use super::offline::{Field, Outcome, Shot};
@@ -21,9 +22,9 @@ pub struct Streaming {
     settings: Settings,
     field: Field,
     /// Frames that arrived before the estimate could be seeded, as intensities.
-    waiting: Vec<((usize, usize), Image)>,
+    waiting: Vec<(LedIndex, Image)>,
     /// LEDs of the frames used so far, in arrival order.
-    used: Vec<(usize, usize)>,
+    used: Vec<LedIndex>,
     epry: Option<Epry>,
     /// The clear level the amplitudes are normalised by, once known.
     scale: Option<f32>,
@@ -56,20 +57,19 @@ impl Streaming {
         }
     }
 
-    fn frequency(&self, led: (usize, usize)) -> (f64, f64) {
+    fn frequency(&self, led: LedIndex) -> (f64, f64) {
         let (x, y) = self.field.centre_um;
         self.geometry
-            .illumination_frequency(led.0, led.1, x, y, self.system.wavelength_um)
+            .illumination_frequency(led, x, y, self.system.wavelength_um)
     }
 
-    fn bright_field(&self, led: (usize, usize)) -> bool {
+    fn bright_field(&self, led: LedIndex) -> bool {
         let (x, y) = self.field.centre_um;
-        self.geometry
-            .is_bright_field(led.0, led.1, x, y, &self.system)
+        self.geometry.is_bright_field(led, x, y, &self.system)
     }
 
     /// A frame (intensity per ms) arrived. Returns whether the estimate was updated.
-    pub fn push(&mut self, led: (usize, usize), image: Image) -> bool {
+    pub fn push(&mut self, led: LedIndex, image: Image) -> bool {
         if self.epry.is_none() {
             self.waiting.push((led, image));
             return self.try_seed();
@@ -81,12 +81,7 @@ impl Streaming {
 
     /// A measured frame arrived; this field is `region` of it. Returns whether the
     /// estimate was updated.
-    pub fn push_measured(
-        &mut self,
-        led: (usize, usize),
-        frame: &Measured<'_>,
-        region: Region,
-    ) -> bool {
+    pub fn push_measured(&mut self, led: LedIndex, frame: &Measured<'_>, region: Region) -> bool {
         match (self.epry.is_some(), self.scale) {
             (true, Some(scale)) => {
                 let amp = frame.amplitude(region, scale);
@@ -145,7 +140,7 @@ impl Streaming {
         true
     }
 
-    fn update(&mut self, led: (usize, usize), amplitude: &Image) {
+    fn update(&mut self, led: LedIndex, amplitude: &Image) {
         let f = self.frequency(led);
         if let Some(e) = self.epry.as_mut() {
             e.update_amplitude(amplitude, f, false);
@@ -173,7 +168,7 @@ impl Streaming {
     /// from the bright-field frames, as [`super::run`] does offline.
     pub fn finish(self, shots: &[Shot<'_>], passes: usize) -> Option<Outcome> {
         let scale = self.clear_level()?;
-        let leds: Vec<(usize, usize)> = shots.iter().map(|s| s.led).collect();
+        let leds: Vec<LedIndex> = shots.iter().map(|s| s.led).collect();
         let amplitudes: Vec<Image> = shots
             .iter()
             .map(|s| amplitude(&(s.image / scale)))
@@ -184,7 +179,7 @@ impl Streaming {
     /// [`Self::finish`] on amplitudes already normalised by [`Self::clear_level`].
     pub fn finish_amplitudes(
         mut self,
-        leds: &[(usize, usize)],
+        leds: &[LedIndex],
         amplitudes: &[Image],
         passes: usize,
         progress: impl FnMut(usize, usize),

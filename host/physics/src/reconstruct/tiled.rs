@@ -5,6 +5,7 @@
 //! ([`Mosaic`]). Offline runs and streams differ only in where each tile's estimate
 //! starts: fresh, or from the updates made while the frames arrived.
 
+use crate::optics::LedIndex;
 use std::time::Instant;
 
 use ndarray::Array2;
@@ -98,7 +99,7 @@ pub struct TileResult {
     /// Sample-plane centre, µm.
     pub centre_um: (f64, f64),
     /// The LED of the initial guess (nearest the axis from this tile).
-    pub initial_led: (usize, usize),
+    pub initial_led: LedIndex,
     /// Mean relative amplitude error per pass.
     pub errors: Vec<f64>,
     /// Time this tile took, ms.
@@ -131,7 +132,7 @@ pub enum TiledError {
         /// Its index among the frames given.
         index: usize,
         /// Its LED.
-        led: (usize, usize),
+        led: LedIndex,
     },
     /// Frames of different sizes.
     #[error("frame {index} (LED {led:?}) is {got:?} (rows, cols), the others {expected:?}")]
@@ -139,7 +140,7 @@ pub enum TiledError {
         /// Its index among the frames given.
         index: usize,
         /// Its LED.
-        led: (usize, usize),
+        led: LedIndex,
         /// Its size.
         got: (usize, usize),
         /// The size of the first.
@@ -162,7 +163,7 @@ pub fn clear_level(
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
 ) -> Result<(usize, f32), TiledError> {
-    let leds: Vec<(usize, usize)> = frames.iter().map(|f| f.led).collect();
+    let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let nearest = *geometry
         .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
         .first()
@@ -227,7 +228,7 @@ fn solve(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<TiledOutcome, TiledError> {
     let pixel_um = system.sample_pixel_um();
-    let leds: Vec<(usize, usize)> = frames.iter().map(|f| f.led).collect();
+    let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let total = layout.tiles.len() * passes * frames.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let tick = |_: usize, _: usize| {
@@ -359,7 +360,7 @@ impl TiledStreaming {
         if self.clear_level.is_none()
             && self
                 .geometry
-                .is_bright_field(frame.led.0, frame.led.1, 0.0, 0.0, &self.system)
+                .is_bright_field(frame.led, 0.0, 0.0, &self.system)
         {
             let level = frame.measured.mean_intensity();
             if level > 0.0 {

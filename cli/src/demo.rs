@@ -106,7 +106,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// The full virtual microscope: the virtual camera as a second process on the bench the
+/// The full virtual microscope: the virtual camera as a second process on the rig the
 /// emulator publishes, `fpm acquire --calibrate --reconstruct` against both, and the
 /// result compared with the hidden truth.
 fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {

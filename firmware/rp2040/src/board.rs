@@ -23,7 +23,7 @@ pub const BOARD: BoardConfig = BoardConfig::PICO_21X21;
 /// `BOARD.geometry.lanes`.
 pub const LANES: usize = BOARD.geometry.lanes as usize;
 
-/// USB identity. 0x1209/0x0001 is pid.codes' test PID: fine on the bench, register a
+/// USB identity. 0x1209/0x0001 is pid.codes' test PID: fine for development, register a
 /// PID before shipping boards.
 pub const USB_VID: u16 = 0x1209;
 /// USB product id.

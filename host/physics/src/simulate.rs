@@ -6,6 +6,7 @@
 //! quantisation. The sample is larger than the field of view: a padded field is imaged
 //! and the sensor region cropped.
 
+use crate::frame::{Counts, Measured};
 use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
@@ -327,12 +328,6 @@ impl Camera {
         self.exposure_for(peak, 0.8, 2.0, 1000.0)
     }
 
-    /// Counts back to dark-subtracted intensities (DN), as a calibrator receives them.
-    pub fn dark_subtracted(&self, counts: &Array2<u16>) -> Image {
-        let dark = self.dark_level_dn as f32;
-        counts.mapv(|v| v as f32 - dark)
-    }
-
     /// The dark-subtracted level at which pixels saturate.
     pub fn saturation(&self) -> f32 {
         (self.max_dn() - self.dark_level_dn) as f32
@@ -383,6 +378,18 @@ pub struct SimFrame {
     pub exposure_ms: f64,
     /// Camera counts.
     pub counts: Array2<u16>,
+}
+
+impl SimFrame {
+    /// The frame as measured by `camera` (its dark level), for the one conversion to
+    /// intensity in [`crate::frame`].
+    pub fn measured(&self, camera: &Camera) -> Measured<'_> {
+        Measured {
+            counts: Counts::U16(self.counts.view()),
+            dark_level: camera.dark_level_dn as f32,
+            exposure_ms: self.exposure_ms as f32,
+        }
+    }
 }
 
 /// Render and record `leds` (each with its defocus) in parallel, deterministically

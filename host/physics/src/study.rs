@@ -1,6 +1,7 @@
 //! End-to-end studies on simulated data: how much a misplaced LED array costs the
 //! reconstruction, and how much calibration wins back (the paper's Fig. 1 and Fig. 5).
 
+use crate::frame::Region;
 use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
@@ -38,7 +39,10 @@ pub fn calibrate_simulated(
 ) -> Result<(Calibration, std::time::Duration), calibrate::CalibrationError> {
     let images: Vec<Image> = frames
         .iter()
-        .map(|f| scene.camera.dark_subtracted(&f.counts))
+        .map(|f| {
+            let m = f.measured(&scene.camera);
+            m.dark_subtracted(Region::whole(m.dim()))
+        })
         .collect();
     let input: Vec<calibrate::Frame> = frames
         .iter()
@@ -92,9 +96,8 @@ pub fn geometry_case(
     let images: Vec<Image> = frames
         .iter()
         .map(|f| {
-            camera
-                .dark_subtracted(&f.counts)
-                .mapv(|v| v.max(0.0) / f.exposure_ms as f32)
+            let m = f.measured(&camera);
+            m.intensity(Region::whole(m.dim()))
         })
         .collect();
     let shot_refs: Vec<Shot> = frames

@@ -62,9 +62,8 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let images: Vec<fpm_physics::Image> = frames
         .iter()
         .map(|f| {
-            camera
-                .dark_subtracted(&f.counts)
-                .mapv(|v| v.max(0.0) / f.exposure_ms as f32)
+            let m = f.measured(&camera);
+            m.intensity(fpm_physics::frame::Region::whole(m.dim()))
         })
         .collect();
     let settings = Settings {

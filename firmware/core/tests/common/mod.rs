@@ -1,4 +1,4 @@
-//! A test bench for the controller logic: recording strip and trigger, and a
+//! Test fixtures for the controller logic: recording strip and trigger, and a
 //! request helper that speaks the real wire format (postcard-rpc header + COBS).
 #![allow(dead_code)]
 

@@ -19,7 +19,9 @@ pub struct ReconstructArgs {
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
-    /// LED geometry from `fpm calibrate` instead of the dataset's nominal one.
+    /// LED array placement instead of the dataset's nominal one: the calibration.json of
+    /// `fpm calibrate`, or a JSON file with just dx_mm, dy_mm, theta_deg and height_mm
+    /// (an array measured by other means; the grid then comes from the dataset).
     #[arg(long)]
     calibration: Option<PathBuf>,
     /// HR pixels per camera pixel.

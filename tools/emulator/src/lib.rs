@@ -10,7 +10,11 @@
 //!   trigger pulse with an exposure-active pulse ([`hardware::Camera`]);
 //! * the clock: the device sees monotonic µs since the emulator started, and the loop
 //!   wakes at the deadlines the device asks for.
+//!
+//! With `--firmware FILE.uf2` it runs the real firmware binary in an emulated RP2040
+//! instead (see `firmware`), behind the same terminal.
 
+mod firmware;
 pub mod hardware;
 mod pty;
 mod run;

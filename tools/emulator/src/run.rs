@@ -52,6 +52,10 @@ pub struct EmulatorArgs {
     /// virtual rig of this name (for `fpm virtual-camera --rig NAME`).
     #[arg(long)]
     pub rig: Option<String>,
+    /// Run this firmware image (the UF2 users flash) in an emulated RP2040 instead of
+    /// the host-compiled controller logic (needs Node and `npm ci` in tools/rp2040).
+    #[arg(long)]
+    pub firmware: Option<PathBuf>,
 }
 
 /// Longest sleep between checks for a stop signal.
@@ -59,6 +63,9 @@ const MAX_SLEEP: Duration = Duration::from_millis(100);
 
 /// Run until SIGINT, SIGTERM or SIGHUP.
 pub fn run(args: EmulatorArgs) -> Result<()> {
+    if let Some(uf2) = &args.firmware {
+        return crate::firmware::run_firmware(&args, uf2);
+    }
     let mut board = BoardConfig::PICO_21X21;
     board.name = "fpm-emulator";
     board.geometry.rows = args.rows;

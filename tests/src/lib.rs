@@ -57,6 +57,94 @@ pub fn fpm_bin() -> &'static Path {
     })
 }
 
+/// Which controller a conformance test talks to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Target {
+    /// `fpm emulator`: the firmware logic compiled for the host.
+    HostEmulator,
+    /// `fpm emulator --firmware`: the real firmware image in an emulated RP2040.
+    Firmware,
+}
+
+impl Target {
+    /// Start this target's controller linked at `link`. `host_options` configure the
+    /// host-compiled emulator; the firmware image has its board built in and takes
+    /// only the emulated camera's options among them (`--no-camera`,
+    /// `--camera-latency-us N`, `--camera-exposure-us N`).
+    pub fn start(self, link: &Path, host_options: &[&str]) -> Emulator {
+        match self {
+            Target::HostEmulator => Emulator::start_at(link, host_options),
+            Target::Firmware => {
+                let uf2 = firmware_uf2().to_string_lossy().into_owned();
+                let mut args = vec!["--firmware", uf2.as_str()];
+                let mut options = host_options.iter();
+                while let Some(&option) = options.next() {
+                    match option {
+                        "--no-camera" => args.push(option),
+                        "--camera-latency-us" | "--camera-exposure-us" => {
+                            args.push(option);
+                            args.extend(options.next());
+                        }
+                        _ => {}
+                    }
+                }
+                Emulator::start_at(link, &args)
+            }
+        }
+    }
+}
+
+fn workspace() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// The firmware image users flash (`fpm-led-controller.uf2`), built for the RP2040 if
+/// it is not there yet, with the RP2040 emulator's Node packages installed
+/// (`npm ci` in tools/rp2040).
+pub fn firmware_uf2() -> &'static Path {
+    static UF2: OnceLock<PathBuf> = OnceLock::new();
+    UF2.get_or_init(|| {
+        let root = workspace();
+        let elf = root.join("target/thumbv6m-none-eabi/release/fpm-led-controller");
+        let uf2 = elf.with_extension("uf2");
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let run = |cmd: &mut Command, what: &str| {
+            let status = cmd
+                .stdout(Stdio::null())
+                .status()
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(status.success(), "{what} failed: {status}");
+        };
+        // Built from its own directory so its .cargo/config.toml (target, linker
+        // scripts) applies; cargo makes this a no-op when nothing changed.
+        run(
+            Command::new(&cargo)
+                .args(["build", "--release", "--quiet"])
+                .current_dir(root.join("firmware/rp2040"))
+                .env_remove("CARGO_TARGET_DIR"),
+            "building the RP2040 firmware",
+        );
+        run(
+            Command::new(&cargo)
+                .args(["run", "--quiet", "-p", "fpm-fwtool", "--", "uf2"])
+                .arg(&elf)
+                .arg(&uf2)
+                .current_dir(root),
+            "writing the firmware's UF2 image",
+        );
+        let harness = root.join("tools/rp2040");
+        if !harness.join("node_modules/rp2040js").is_dir() {
+            run(
+                Command::new("npm")
+                    .args(["ci", "--no-audit", "--no-fund"])
+                    .current_dir(&harness),
+                "installing the RP2040 emulator (npm ci in tools/rp2040)",
+            );
+        }
+        uf2
+    })
+}
+
 /// The real data sets vendored in the repository (`data/`, each with its source and
 /// licence in its README).
 pub fn data_dir() -> PathBuf {

@@ -107,23 +107,57 @@ mcu.core.PC = FLASH_START;
 const log = (message) => process.stderr.write(`rp2040 harness: ${message}\n`);
 log(`${blocks} UF2 blocks loaded from ${opt.uf2}`);
 
-// USB CDC-ACM ↔ stdin/stdout.
+// USB CDC-ACM ↔ stdin/stdout. Like a real host, we leave the firmware's OUT endpoint
+// armed until there are bytes to send. rp2040js clears a buffer's AVAILABLE bit the
+// moment the firmware arms it, which embassy-rp reads as "a packet arrived"; its own
+// CDC model therefore answers every armed read at once, with zero bytes when it has
+// none, and that flood kept the firmware's main loop permanently busy (it starved the
+// trigger-in task: found by the conformance suite).
+const EP0_OUT_BUFFER_CONTROL = 0x84;
+const BUFFER_AVAILABLE = 1 << 10;
 const cdc = new USBCDC(mcu.usbCtrl);
 let connected = false;
 const toDevice = [];
+let armedRead = 0;
+function setOutAvailable(endpoint, available) {
+  const reg = EP0_OUT_BUFFER_CONTROL + endpoint * 8;
+  const view = mcu.usbDPRAMView;
+  const value = view.getUint32(reg, true);
+  view.setUint32(reg, available ? value | BUFFER_AVAILABLE : value & ~BUFFER_AVAILABLE, true);
+}
+function serveRead() {
+  const size = armedRead;
+  armedRead = 0;
+  const buffer = Uint8Array.from(toDevice.splice(0, Math.min(size, toDevice.length)));
+  if (process.env.FPM_HARNESS_DEBUG) log(`OUT ${buffer.length} byte(s) at ${mcu.clock.micros.toFixed(1)} µs, ${toDevice.length} waiting`);
+  // Received, in one step as the firmware sees it: no longer available, full, with
+  // its length.
+  setOutAvailable(cdc.outEndpoint, false);
+  mcu.usbCtrl.finishRead(cdc.outEndpoint, buffer);
+}
+mcu.usbCtrl.onEndpointRead = (endpoint, size) => {
+  if (endpoint !== cdc.outEndpoint) return;
+  armedRead = size;
+  if (connected && toDevice.length > 0) {
+    serveRead();
+  } else {
+    setOutAvailable(endpoint, true);
+  }
+};
+function flushToDevice() {
+  if (connected && armedRead > 0 && toDevice.length > 0) serveRead();
+}
 cdc.onDeviceConnected = () => {
   connected = true;
   log(`USB CDC-ACM enumerated at ${(mcu.clock.micros / 1e3).toFixed(1)} ms (emulated)`);
-  for (const b of toDevice.splice(0)) cdc.sendSerialByte(b);
+  flushToDevice();
 };
 cdc.onSerialData = (buffer) => {
   process.stdout.write(Buffer.from(buffer));
 };
 process.stdin.on('data', (chunk) => {
-  for (const b of chunk) {
-    if (connected) cdc.sendSerialByte(b);
-    else toDevice.push(b);
-  }
+  for (const b of chunk) toDevice.push(b);
+  flushToDevice();
 });
 process.stdin.on('end', () => {
   log('host side closed; stopping');
@@ -140,11 +174,16 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
   if (high === lastTrigger) return;
   lastTrigger = high;
   const us = mcu.clock.micros;
+  if (process.env.FPM_HARNESS_DEBUG) log(`GP${TRIGGER_OUT} ${high ? 'high' : 'low'} at ${us.toFixed(1)} µs`);
   if (events) events.write(`{"pin":${TRIGGER_OUT},"level":${high ? 1 : 0},"us":${us.toFixed(3)}}\n`);
   if (high && opt.camera) {
     const start = mcu.clock.createAlarm(() => {
       triggerIn.setInputValue(true);
-      const end = mcu.clock.createAlarm(() => triggerIn.setInputValue(false));
+      if (process.env.FPM_HARNESS_DEBUG) log(`GP${TRIGGER_IN} high at ${mcu.clock.micros.toFixed(1)} µs`);
+      const end = mcu.clock.createAlarm(() => {
+        triggerIn.setInputValue(false);
+        if (process.env.FPM_HARNESS_DEBUG) log(`GP${TRIGGER_IN} low at ${mcu.clock.micros.toFixed(1)} µs`);
+      });
       end.schedule(opt.cameraExposureUs * 1e3);
     });
     start.schedule(opt.cameraLatencyUs * 1e3);
@@ -169,7 +208,7 @@ function run() {
     }
   }
   const emulatedS = clock.nanos / 1e9;
-  if (emulatedS - lastReport >= 10) {
+  if (emulatedS - lastReport >= (process.env.FPM_HARNESS_DEBUG ? 1 : 10)) {
     lastReport = emulatedS;
     log(`${emulatedS.toFixed(0)} s emulated, ${(emulatedS / ((Date.now() - wallStart) / 1e3)).toFixed(2)} emulated s per wall s`);
   }

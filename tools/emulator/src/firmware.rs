@@ -98,7 +98,10 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
     });
     let started = Instant::now();
     loop {
-        if enumerated_rx.recv_timeout(Duration::from_millis(50)).is_ok() {
+        if enumerated_rx
+            .recv_timeout(Duration::from_millis(50))
+            .is_ok()
+        {
             break;
         }
         if let Some(status) = harness.0.try_wait()? {
@@ -129,7 +132,9 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
             Ok(_) | Err(nix::errno::Errno::EINTR) => {}
             Err(e) => return Err(e).context("waiting for the terminal or the emulator"),
         }
-        let host_ready = fds[0].revents().is_some_and(|r| r.contains(PollFlags::POLLIN));
+        let host_ready = fds[0]
+            .revents()
+            .is_some_and(|r| r.contains(PollFlags::POLLIN));
         let device_ready = fds[1]
             .revents()
             .is_some_and(|r| r.intersects(PollFlags::POLLIN | PollFlags::POLLHUP));

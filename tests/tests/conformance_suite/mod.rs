@@ -1,0 +1,468 @@
+//! The conformance suite: every endpoint and topic, exercised by the real host client
+//! against a controller running as a separate process behind a pseudo-terminal —
+//! the host-compiled emulator (`conformance.rs`) or the real firmware image in an
+//! emulated RP2040 (`conformance_firmware.rs`), chosen by the including test's
+//! `TARGET`.
+
+use std::time::Duration;
+
+use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
+use fpm_acquire::controller::{Controller, SequenceEvent};
+use fpm_firmware::chain::chain_index;
+use fpm_protocol::*;
+use fpm_tests::{Emulator, Target, TempDir};
+
+use crate::TARGET;
+
+const TIMEOUT: Duration = Duration::from_secs(2);
+
+/// How late the firmware may time-stamp a camera edge (interrupt, then the woken task).
+const MAX_EDGE_LATENCY_US: u64 = 50;
+
+/// A controller of the suite's target; `extra` are options of the host-compiled
+/// emulator (the firmware image has its board built in).
+fn emulator(tag: &str, extra: &[&str]) -> (TempDir, Emulator) {
+    let dir = TempDir::new(tag);
+    let emu = TARGET.start(&dir.0.join("ctl.tty"), extra);
+    (dir, emu)
+}
+
+fn timing(trigger_in: Option<TriggerIn>) -> SequenceTiming {
+    SequenceTiming {
+        settle_us: 300,
+        exposure_us: 2_000,
+        trigger_out: Some(TriggerOut {
+            delay_us: 50,
+            pulse_us: 100,
+            polarity: Polarity::ActiveHigh,
+        }),
+        trigger_in,
+        clear_at_end: true,
+    }
+}
+
+/// Collect events until the end of the run.
+fn drain(events: &mut fpm_acquire::controller::SequenceEvents) -> (Vec<StepEvent>, SequenceEnd) {
+    let mut steps = vec![];
+    loop {
+        match events.next(Duration::from_secs(5)).expect("sequence event") {
+            SequenceEvent::Step(s) => steps.push(s),
+            SequenceEvent::End(e) => return (steps, e),
+        }
+    }
+}
+
+#[test]
+fn identity_version_and_ping() {
+    let (_dir, emu) = emulator("identity", &["--serial", "1234"]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    assert_eq!(dev.version().unwrap(), PROTOCOL_VERSION);
+    let info = dev.read_info().unwrap();
+    assert_eq!(&info, dev.info());
+    match TARGET {
+        Target::HostEmulator => assert_eq!(info.serial, 1234),
+        // The serial number is the flash's unique id, which the emulated flash does
+        // not have; the board is the one the image was built for.
+        Target::Firmware => assert_eq!(info.board.as_str(), "fpm-pico-21x21"),
+    }
+    assert_eq!((info.geometry.rows, info.geometry.cols), (21, 21));
+    assert_eq!(info.geometry.center, LedIndex::new(10, 10));
+    assert_eq!(info.protocol, PROTOCOL_VERSION);
+    assert_eq!(info.limits.max_current_ma, 4000);
+    for x in [0, 1, u32::MAX, 0x0000_0100] {
+        assert_eq!(dev.ping(x).unwrap(), x);
+    }
+}
+
+#[test]
+fn lighting_endpoints_change_what_is_lit() {
+    let (_dir, emu) = emulator("lighting", &[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+
+    let lit = dev
+        .set_led(LedIndex::new(10, 10), Rgb::new(0, 255, 0))
+        .unwrap();
+    assert_eq!((lit.leds_on, lit.current_ma), (1, 20));
+    let s = dev.status().unwrap();
+    assert_eq!((s.leds_on, s.current_ma), (1, 20));
+
+    // A list longer than one request: the client splits it, the device adds.
+    let leds: Vec<LedIndex> = (0..5u8)
+        .flat_map(|r| (0..20u8).map(move |c| LedIndex::new(r, c)))
+        .collect();
+    let lit = dev.set_leds(&leds, Rgb::new(10, 0, 0), false).unwrap();
+    assert_eq!(lit.leds_on, 100);
+    let lit = dev
+        .set_leds(&[LedIndex::new(20, 20)], Rgb::new(10, 0, 0), true)
+        .unwrap();
+    assert_eq!(lit.leds_on, 101);
+
+    let bf = dev
+        .pattern(Pattern::BrightField { na: 0.1 }, Rgb::WHITE)
+        .unwrap();
+    let df = dev
+        .pattern(Pattern::DarkField { na: 0.1 }, Rgb::new(1, 1, 1))
+        .unwrap();
+    assert_eq!(bf.leds_on + df.leds_on, 441);
+    let ring = dev
+        .pattern(
+            Pattern::Annulus {
+                inner: 0.05,
+                outer: 0.1,
+            },
+            Rgb::WHITE,
+        )
+        .unwrap();
+    let inner = dev
+        .pattern(Pattern::BrightField { na: 0.05 }, Rgb::WHITE)
+        .unwrap();
+    assert_eq!(ring.leds_on + inner.leds_on, bf.leds_on);
+    // The halves leave out the dividing line through the centre: on that line, the
+    // disc reaches |p| ≤ na·h / (pitch·√(1 − na²)) pitches.
+    let reach = (0.1 * 92.0 / (2.5 * (1.0f64 - 0.01).sqrt())).floor() as u16;
+    let on_line = 2 * reach + 1;
+    let mut halves = vec![];
+    for half in [Half::Top, Half::Bottom, Half::Left, Half::Right] {
+        halves.push(
+            dev.pattern(Pattern::HalfCircle { na: 0.1, half }, Rgb::WHITE)
+                .unwrap()
+                .leds_on,
+        );
+    }
+    assert_eq!(halves[0], halves[1]);
+    assert_eq!(halves[2], halves[3]);
+    assert_eq!(halves[0] + halves[1] + on_line, bf.leds_on);
+    assert_eq!(halves[2] + halves[3] + on_line, bf.leds_on);
+    let all = dev.pattern(Pattern::All, Rgb::new(1, 0, 0)).unwrap();
+    assert_eq!(all.leds_on, 441);
+
+    let dim = dev.set_brightness(100).unwrap();
+    assert_eq!(dim.brightness, 100);
+    // 1 × 100/255 rounds to 0: every LED goes dark at this brightness.
+    assert_eq!(dim.leds_on, 0);
+    dev.set_brightness(255).unwrap();
+
+    let off = dev.clear().unwrap();
+    assert_eq!((off.leds_on, off.current_ma), (0, 0));
+    assert_eq!(dev.status().unwrap().leds_on, 0);
+}
+
+#[test]
+fn the_current_budget_holds_over_the_wire() {
+    let (_dir, emu) = emulator("budget", &["--max-current-ma", "3000"]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    // The supply's rating: 3000 mA as configured on the emulator, the board's 4000 mA
+    // in the firmware image.
+    let rating = dev.info().limits.max_current_ma;
+    assert_eq!(
+        rating,
+        match TARGET {
+            Target::HostEmulator => 3000,
+            Target::Firmware => 4000,
+        }
+    );
+    let err = dev.pattern(Pattern::All, Rgb::WHITE).unwrap_err();
+    assert_eq!(
+        err.device_error(),
+        Some(DeviceError::OverBudget {
+            required_ma: 26_460,
+            limit_ma: rating,
+            step: None
+        })
+    );
+    assert!(err.to_string().contains("26460 mA"), "{err}");
+    assert_eq!(
+        dev.status().unwrap().leds_on,
+        0,
+        "a refused request lights nothing"
+    );
+
+    let budget = dev
+        .set_budget(BudgetConfig {
+            limit_ma: 1000,
+            policy: BudgetPolicy::Scale,
+        })
+        .unwrap();
+    assert_eq!(budget.limit_ma, 1000);
+    let lit = dev.pattern(Pattern::All, Rgb::WHITE).unwrap();
+    assert!(
+        lit.scaled && lit.current_ma <= 1000 && lit.leds_on == 441,
+        "{lit:?}"
+    );
+    let s = dev.status().unwrap();
+    assert!(s.current_ma <= 1000);
+    assert_eq!(s.budget, budget);
+
+    let over = dev
+        .set_budget(BudgetConfig {
+            limit_ma: rating + 1,
+            policy: BudgetPolicy::Refuse,
+        })
+        .unwrap_err();
+    assert_eq!(
+        over.device_error(),
+        Some(DeviceError::TooMany {
+            requested: rating + 1,
+            max: rating
+        })
+    );
+}
+
+#[test]
+fn out_of_range_values_get_typed_errors() {
+    let (_dir, emu) = emulator("range", &[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    let e = dev.set_led(LedIndex::new(21, 3), Rgb::WHITE).unwrap_err();
+    assert_eq!(
+        e.device_error(),
+        Some(DeviceError::BadLed { row: 21, col: 3 })
+    );
+    assert!(e.to_string().contains("row 21, col 3"), "{e}");
+    for p in [
+        Pattern::BrightField { na: -0.1 },
+        Pattern::DarkField { na: f32::NAN },
+        Pattern::Annulus {
+            inner: 0.5,
+            outer: 0.4,
+        },
+    ] {
+        assert_eq!(
+            dev.pattern(p, Rgb::WHITE).unwrap_err().device_error(),
+            Some(DeviceError::BadParam(Param::Na))
+        );
+    }
+    assert_eq!(
+        dev.abort_sequence().unwrap_err().device_error(),
+        Some(DeviceError::NotRunning)
+    );
+    assert_eq!(
+        dev.start_sequence(77).unwrap_err().device_error(),
+        Some(DeviceError::WrongSequence {
+            requested: 77,
+            defined: 0
+        })
+    );
+    let zero = dev
+        .set_budget(BudgetConfig {
+            limit_ma: 0,
+            policy: BudgetPolicy::Refuse,
+        })
+        .unwrap_err();
+    assert_eq!(
+        zero.device_error(),
+        Some(DeviceError::BadParam(Param::Budget))
+    );
+    // Still healthy afterwards.
+    assert_eq!(dev.ping(5).unwrap(), 5);
+}
+
+#[test]
+fn a_full_scan_reports_every_step_in_order_with_device_timing() {
+    let (_dir, emu) = emulator(
+        "scan",
+        &["--camera-exposure-us", "1500", "--camera-latency-us", "25"],
+    );
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    let g = dev.info().geometry;
+    let steps = scan_steps(&g, Selection::All, Order::Nearest, Rgb::new(0, 0, 40));
+    assert_eq!(steps.len(), 441);
+    let trig_in = TriggerIn {
+        edge: Edge::Falling,
+        timeout_us: 200_000,
+    };
+    let loaded = dev
+        .upload_sequence(11, &steps, timing(Some(trig_in)))
+        .unwrap();
+    assert_eq!(
+        loaded,
+        StepsLoaded {
+            loaded: 441,
+            total: 441
+        }
+    );
+    assert_eq!(dev.sequence_status().unwrap().state, SequenceState::Ready);
+
+    let mut events = dev.subscribe().unwrap();
+    let started = dev.start_sequence(11).unwrap();
+    assert_eq!(started.steps, 441);
+    let (got, end) = drain(&mut events);
+
+    assert_eq!(end.outcome, SequenceOutcome::Done);
+    assert_eq!(end.completed, 441);
+    assert_eq!(got.len(), 441);
+    let mut prev_end = started.started_us;
+    let mut worst_latency = 0;
+    for (i, ev) in got.iter().enumerate() {
+        assert_eq!(ev.step as usize, i);
+        assert_eq!(ev.sequence_id, 11);
+        assert_eq!(ev.illumination, steps[i].illumination);
+        assert_eq!(ev.leds_on, 1);
+        // Each step starts after the previous ended, and is lit only after its LED
+        // data has been shifted out: at least as far as its own chain position.
+        let Illumination::Led(led) = ev.illumination else {
+            panic!("not an LED step")
+        };
+        let index = chain_index(&g, led).unwrap() as u64;
+        assert!(
+            ev.light_on_us >= prev_end + (index + 1) * 30 + 280,
+            "step {i}: lit too early"
+        );
+        assert!(
+            ev.trigger_us >= ev.light_on_us + 300 + 50,
+            "step {i}: triggered before settling"
+        );
+        // The emulated camera's exposure ends latency + exposure after the trigger. The
+        // host-compiled emulator stamps the edge exactly; the firmware stamps it in the
+        // task the GPIO interrupt wakes, a few µs later.
+        let exposure_end = ev.trigger_us + 25 + 1500;
+        let stamped = ev.trigger_in_us.expect("the camera's edge");
+        let late = stamped.checked_sub(exposure_end).unwrap_or(u64::MAX);
+        match TARGET {
+            Target::HostEmulator => assert_eq!(late, 0, "step {i}"),
+            Target::Firmware => assert!(late <= MAX_EDGE_LATENCY_US, "step {i}: {late} µs late"),
+        }
+        worst_latency = worst_latency.max(late);
+        assert_eq!(ev.end_us, stamped);
+        prev_end = ev.end_us;
+    }
+    eprintln!("camera edge stamped at most {worst_latency} µs after it happened");
+    assert_eq!(end.end_us, prev_end);
+    let status = dev.sequence_status().unwrap();
+    assert_eq!(
+        (status.state, status.completed),
+        (SequenceState::Ready, 441)
+    );
+    assert_eq!(dev.status().unwrap().leds_on, 0, "cleared at the end");
+}
+
+#[test]
+fn without_a_camera_the_trigger_wait_times_out_with_a_typed_error() {
+    let (_dir, emu) = emulator("nocam", &["--no-camera"]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    let g = dev.info().geometry;
+    let steps = scan_steps(
+        &g,
+        Selection::Pattern(Pattern::BrightField { na: 0.05 }),
+        Order::Nearest,
+        Rgb::WHITE,
+    );
+    let trig_in = TriggerIn {
+        edge: Edge::Rising,
+        timeout_us: 30_000,
+    };
+    dev.upload_sequence(3, &steps, timing(Some(trig_in)))
+        .unwrap();
+    let mut events = dev.subscribe().unwrap();
+    dev.start_sequence(3).unwrap();
+    let (got, end) = drain(&mut events);
+    assert!(got.is_empty());
+    assert_eq!(
+        end.outcome,
+        SequenceOutcome::Failed(DeviceError::TriggerTimeout { step: 0 })
+    );
+    // It failed at the deadline, not before.
+    let status = dev.status().unwrap();
+    assert_eq!(status.sequence.last_outcome, Some(end.outcome));
+    assert_eq!(status.leds_on, 0);
+}
+
+#[test]
+fn abort_stops_a_running_sequence_and_busy_guards_the_rest() {
+    let (_dir, emu) = emulator("abort", &[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    let g = dev.info().geometry;
+    let steps = scan_steps(&g, Selection::All, Order::Raster, Rgb::WHITE);
+    dev.upload_sequence(5, &steps, timing(None)).unwrap();
+    let mut events = dev.subscribe().unwrap();
+    dev.start_sequence(5).unwrap();
+    // Let a few steps run.
+    for _ in 0..3 {
+        assert!(matches!(
+            events.next(Duration::from_secs(2)).unwrap(),
+            SequenceEvent::Step(_)
+        ));
+    }
+    assert_eq!(
+        dev.set_led(LedIndex::new(0, 0), Rgb::WHITE)
+            .unwrap_err()
+            .device_error(),
+        Some(DeviceError::Busy)
+    );
+    assert_eq!(
+        dev.upload_sequence(6, &steps[..2], timing(None))
+            .unwrap_err()
+            .device_error(),
+        Some(DeviceError::Busy)
+    );
+    assert_eq!(dev.status().unwrap().sequence.state, SequenceState::Running);
+    let status = dev.abort_sequence().unwrap();
+    assert_eq!(status.last_outcome, Some(SequenceOutcome::Aborted));
+    let (_, end) = drain(&mut events);
+    assert_eq!(end.outcome, SequenceOutcome::Aborted);
+    assert!(end.completed >= 3 && end.completed < 441);
+    assert_eq!(dev.status().unwrap().leds_on, 0);
+}
+
+#[test]
+fn the_cli_speaks_json_and_reports_errors() {
+    let (_dir, emu) = emulator("cli", &[]);
+    let run = |args: &[&str]| {
+        std::process::Command::new(fpm_tests::fpm_bin())
+            .args(["device", "--port", &emu.port()])
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let out = run(&["--json", "info"]);
+    assert!(out.status.success());
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(info["geometry"]["rows"], 21);
+    assert_eq!(info["protocol"]["major"], PROTOCOL_VERSION.major);
+
+    let out = run(&["led", "4", "7", "--color", "#102030"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("lit 1 LED"));
+
+    let out = run(&["led", "40", "7"]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("LED (row 40, col 7) is not on the board")
+    );
+
+    let out = run(&[
+        "--json",
+        "run-sequence",
+        "--select",
+        "bright-field",
+        "--na",
+        "0.05",
+        "--exposure-us",
+        "500",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let last = lines.last().unwrap();
+    assert_eq!(last["event"], "end");
+    assert_eq!(last["outcome"], "Done");
+    assert_eq!(lines.len() as u64 - 1, last["completed"].as_u64().unwrap());
+
+    let out = std::process::Command::new(fpm_tests::fpm_bin())
+        .args(["device", "--port", "/nonexistent/tty", "info"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("cannot open serial port /nonexistent/tty")
+    );
+}

@@ -1,41 +1,15 @@
 //! Conformance against the host-compiled emulator (the firmware logic on the host,
-//! behind a pseudo-terminal): the shared suite, plus what only this emulator has.
+//! behind a pseudo-terminal): the shared suite, plus the client's own timeout.
 
 use std::time::Duration;
 
 use fpm_acquire::controller::{Controller, ControllerError};
-use fpm_protocol::*;
-use fpm_tests::{Emulator, Target, TempDir};
+use fpm_tests::Target;
 
 /// The controller the suite runs against.
 pub const TARGET: Target = Target::HostEmulator;
 
-const TIMEOUT: Duration = Duration::from_secs(2);
-
 mod conformance_suite;
-
-#[test]
-fn the_emulator_logs_what_it_lights_and_cleans_up_its_link() {
-    let dir = TempDir::new("log");
-    let link = dir.0.join("ctl.tty");
-    let mut emu = Emulator::start_at(&link, &[]);
-    {
-        let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
-        dev.set_led(LedIndex::new(2, 19), Rgb::new(1, 2, 3))
-            .unwrap();
-    }
-    let status = emu.stop().expect("emulator ran");
-    assert!(status.success(), "{status}");
-    assert!(
-        emu.log_text().contains("LEDs lit: (2,19) #010203"),
-        "{}",
-        emu.log_text()
-    );
-    assert!(
-        std::fs::symlink_metadata(&link).is_err(),
-        "link removed on exit"
-    );
-}
 
 #[test]
 fn timeouts_are_reported_per_request() {

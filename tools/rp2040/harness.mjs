@@ -8,11 +8,11 @@
 //
 // Pins, as on the board (firmware/rp2040/src/board.rs): GP14 camera trigger out, GP15
 // camera trigger in (an emulated camera answers every active trigger edge with an
-// exposure pulse), GP16.. WS2812 data. Log lines go to stderr; with --events, one JSON
-// line per trigger-out edge goes to file descriptor 3, stamped in emulated µs.
+// exposure pulse), GP16 WS2812 data (decoded). Log lines go to stderr, and so do the
+// pin events, one JSON line each after `event `, stamped in emulated µs.
 //
 // Usage: node harness.mjs --uf2 FILE --bootrom FILE [--camera-latency-us N]
-//        [--camera-exposure-us N] [--no-camera] [--events]
+//        [--camera-exposure-us N] [--no-camera]
 
 import fs from 'node:fs';
 import { BasePeripheral, RP2040, USBCDC, GPIOPinState } from 'rp2040js';
@@ -27,7 +27,7 @@ const TRIGGER_IN = 15;
 const CPU_HZ = 125e6;
 
 function args(argv) {
-  const out = { cameraLatencyUs: 20, cameraExposureUs: 2000, camera: true, events: false };
+  const out = { cameraLatencyUs: 20, cameraExposureUs: 2000, camera: true };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const next = () => {
@@ -39,7 +39,6 @@ function args(argv) {
     else if (a === '--camera-latency-us') out.cameraLatencyUs = Number(next());
     else if (a === '--camera-exposure-us') out.cameraExposureUs = Number(next());
     else if (a === '--no-camera') out.camera = false;
-    else if (a === '--events') out.events = true;
     else fail(`unknown argument ${a}`);
   }
   if (!out.uf2 || !out.bootrom) fail('--uf2 FILE and --bootrom FILE are required');
@@ -165,7 +164,6 @@ process.stdin.on('end', () => {
 });
 
 // Trigger lines and the emulated camera (active-high trigger, active-high exposure).
-const events = opt.events ? fs.createWriteStream(null, { fd: 3 }) : null;
 const triggerIn = mcu.gpio[TRIGGER_IN];
 triggerIn.setInputValue(false);
 let lastTrigger = false;
@@ -175,7 +173,7 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
   lastTrigger = high;
   const us = mcu.clock.micros;
   if (process.env.FPM_HARNESS_DEBUG) log(`GP${TRIGGER_OUT} ${high ? 'high' : 'low'} at ${us.toFixed(1)} µs`);
-  if (events) events.write(`{"pin":${TRIGGER_OUT},"level":${high ? 1 : 0},"us":${us.toFixed(3)}}\n`);
+  emit({ type: 'trigger', level: high ? 1 : 0, us: Number(us.toFixed(3)) });
   if (high && opt.camera) {
     const start = mcu.clock.createAlarm(() => {
       triggerIn.setInputValue(true);
@@ -190,6 +188,91 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
   }
 });
 
+// The WS2812 chain, decoded at the pin (GP16, lane 0). rp2040js runs the PIO one
+// instruction per step, on its own wall-clock loop; here it is stepped from the CPU
+// loop instead, in lockstep with emulated time: one instruction per PIO_STEP_CYCLES
+// system cycles, the WS2812 program's average (10 PIO cycles per bit in 3
+// instructions, at clk_sys / 15.625). Bits are told apart by how many instructions
+// the line stays high (the program's "1": two, its "0": one); a word is 24 bits, G
+// then R then B; a frame ends when the line has stayed low for FRAME_GAP_US (the
+// latch) and is reported on stderr as `event {"type":"latched",...}`. Instruction
+// delays are not modelled by rp2040js, so pulse widths are only approximate in µs.
+const WS2812_PIN = 16;
+const PIO_STEP_CYCLES = (CPU_HZ / (800e3 * 10)) * (10 / 3);
+const FRAME_GAP_US = 100;
+const pio0 = mcu.pio[0];
+pio0.run = () => {}; // stepped below, not on its own timer
+let pioDebt = 0;
+function stepPio(cycles) {
+  if (pio0.stopped) return;
+  if (pioIdle()) {
+    // Stalled on an empty FIFO: nothing to step until the CPU or DMA writes again.
+    pioDebt = 0;
+    if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= FRAME_GAP_US) closeFrame();
+    return;
+  }
+  pioDebt += cycles;
+  while (pioDebt >= PIO_STEP_CYCLES) {
+    pioDebt -= PIO_STEP_CYCLES;
+    pioSteps++;
+    pio0.step();
+  }
+  if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= FRAME_GAP_US) closeFrame();
+}
+// Every running state machine stalled on an empty TX FIFO: nothing changes at the pins
+// until the CPU (or DMA) writes again, so sleep can be skipped in one go.
+const FDEBUG_TXSTALL = 1 << 24;
+function pioIdle() {
+  return pio0.machines.every(
+    (m) => !m.enabled || (m.txFIFO.empty && (pio0.txStall & (FDEBUG_TXSTALL << m.index)) !== 0),
+  );
+}
+let pioSteps = 0;
+let riseAt = 0;
+let fallUs = 0;
+let lineHigh = false;
+let bits = 0;
+let word = 0;
+let frame = [];
+let frameOpen = false;
+let badPulses = 0;
+function emit(event) {
+  process.stderr.write(`event ${JSON.stringify(event)}\n`);
+}
+function closeFrame() {
+  if (process.env.FPM_HARNESS_DEBUG) {
+    const m = pio0.machines[0];
+    log(`frame closed: sm0 enabled ${m.enabled} waiting ${m.waiting} waitType ${m.waitType} fifo ${m.txFIFO.itemCount} txStall 0x${(pio0.txStall >>> 0).toString(16)} idle ${pioIdle()}`);
+  }
+  if (bits !== 0) badPulses++;
+  emit({ type: 'latched', us: Number(mcu.clock.micros.toFixed(3)), lane: 0, words: frame, bad: badPulses });
+  frame = [];
+  bits = 0;
+  word = 0;
+  badPulses = 0;
+  frameOpen = false;
+}
+mcu.gpio[WS2812_PIN].addListener((state) => {
+  const high = state === GPIOPinState.High;
+  if (high === lineHigh) return;
+  lineHigh = high;
+  if (high) {
+    riseAt = pioSteps;
+    frameOpen = true;
+    return;
+  }
+  fallUs = mcu.clock.micros;
+  const width = pioSteps - riseAt;
+  if (width < 1 || width > 2) badPulses++;
+  word = ((word << 1) | (width >= 2 ? 1 : 0)) >>> 0;
+  bits++;
+  if (bits === 24) {
+    frame.push(word);
+    word = 0;
+    bits = 0;
+  }
+});
+
 // Run: emulated time advances with the instructions executed (and jumps to the next
 // alarm while the core sleeps); yield to the event loop often so USB bytes flow.
 const cycleNanos = 1e9 / CPU_HZ;
@@ -199,12 +282,28 @@ function run() {
   const clock = mcu.clock;
   for (let i = 0; i < 200000; i++) {
     if (mcu.core.waiting) {
-      const skip = clock.nanosToNextAlarm;
-      if (skip > 0) clock.tick(skip);
-      else clock.tick(cycleNanos);
-      i += skip / cycleNanos;
+      // Asleep until the next alarm; the PIO keeps running meanwhile.
+      const skip = Math.max(clock.nanosToNextAlarm, cycleNanos);
+      const cycles = skip / cycleNanos;
+      if (!pio0.stopped && cycles > PIO_STEP_CYCLES && !pioIdle()) {
+        // Step through the sleep in slices, so the PIO's pin changes land in time.
+        const slice = PIO_STEP_CYCLES * cycleNanos;
+        let left = skip;
+        while (left > 0 && mcu.core.waiting) {
+          const dt = Math.min(slice, left);
+          clock.tick(dt);
+          stepPio(dt / cycleNanos);
+          left -= dt;
+        }
+      } else {
+        clock.tick(skip);
+        stepPio(cycles);
+      }
+      i += cycles;
     } else {
-      clock.tick(mcu.core.executeInstruction() * cycleNanos);
+      const cycles = mcu.core.executeInstruction();
+      clock.tick(cycles * cycleNanos);
+      stepPio(cycles);
     }
   }
   const emulatedS = clock.nanos / 1e9;
@@ -213,5 +312,8 @@ function run() {
     log(`${emulatedS.toFixed(0)} s emulated, ${(emulatedS / ((Date.now() - wallStart) / 1e3)).toFixed(2)} emulated s per wall s`);
   }
   setImmediate(run);
+}
+if (process.env.FPM_HARNESS_DEBUG) {
+  setInterval(() => log(`watch: ${mcu.clock.micros.toFixed(0)} µs, waiting ${mcu.core.waiting}, PC 0x${(mcu.core.PC >>> 0).toString(16)}, pio idle ${pioIdle()}, next alarm ${mcu.clock.nanosToNextAlarm} ns`), 2000);
 }
 run();

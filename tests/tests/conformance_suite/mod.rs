@@ -466,3 +466,28 @@ fn the_cli_speaks_json_and_reports_errors() {
         String::from_utf8_lossy(&out.stderr).contains("cannot open serial port /nonexistent/tty")
     );
 }
+
+#[test]
+/// What is lit is logged as the chain shows it (for the firmware: decoded from the
+/// WS2812 data pin, GP16), and a stopped controller removes its link.
+fn the_emulator_logs_what_it_lights_and_cleans_up_its_link() {
+    let dir = TempDir::new("log");
+    let link = dir.0.join("ctl.tty");
+    let mut emu = TARGET.start(&link, &[]);
+    {
+        let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+        dev.set_led(LedIndex::new(2, 19), Rgb::new(1, 2, 3))
+            .unwrap();
+    }
+    let status = emu.stop().expect("emulator ran");
+    assert!(status.success(), "{status}");
+    assert!(
+        emu.log_text().contains("LEDs lit: (2,19) #010203"),
+        "{}",
+        emu.log_text()
+    );
+    assert!(
+        std::fs::symlink_metadata(&link).is_err(),
+        "link removed on exit"
+    );
+}

@@ -15,6 +15,10 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use nix::poll::{PollFd, PollFlags, PollTimeout};
 
+use fpm_firmware::LedStrip;
+use fpm_protocol::Rgb;
+
+use crate::hardware::EmulatedStrip;
 use crate::pty::{Link, Pty};
 use crate::run::EmulatorArgs;
 
@@ -57,9 +61,9 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
             uf2.display()
         );
     }
-    if args.lanes != 1 || args.rows != 21 || args.cols != 21 || args.rig.is_some() {
+    if args.lanes != 1 || args.rows != 21 || args.cols != 21 {
         tracing::warn!(
-            "--lanes/--rows/--cols/--rig describe the host-compiled emulator; the firmware image has its own board"
+            "--lanes/--rows/--cols describe the host-compiled emulator; the firmware image has its own board"
         );
     }
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
@@ -86,10 +90,21 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
     let mut to_device = harness.0.stdin.take().context("harness stdin")?;
     let mut from_device = harness.0.stdout.take().context("harness stdout")?;
     let stderr = harness.0.stderr.take().context("harness stderr")?;
-    // The harness's log, line by line; its "enumerated" line means the USB port is up.
+    // The harness's log, line by line; its "enumerated" line means the USB port is up,
+    // its `event` lines are what the pins did.
     let (enumerated_tx, enumerated_rx) = mpsc::channel();
+    let (events_tx, events) = mpsc::channel::<PinEvent>();
     std::thread::spawn(move || {
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if let Some(json) = line.strip_prefix("event ") {
+                match PinEvent::parse(json) {
+                    Some(e) => {
+                        let _ = events_tx.send(e);
+                    }
+                    None => tracing::warn!(target: "rp2040", "unreadable pin event: {json}"),
+                }
+                continue;
+            }
             if line.contains("USB CDC-ACM enumerated") {
                 let _ = enumerated_tx.send(());
             }
@@ -122,13 +137,26 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
         args.link.display(),
         started.elapsed().as_secs_f64()
     );
+    let rig = match &args.rig {
+        Some(name) => Some(
+            fpm_rig_bus::PulsePublisher::create(name)
+                .with_context(|| format!("opening the virtual rig {name}"))?,
+        ),
+        None => None,
+    };
+    let mut pins = Pins {
+        strip: EmulatedStrip::new(fpm_firmware::BoardConfig::PICO_21X21.geometry),
+        rig,
+        pulses: 0,
+    };
     let mut buf = [0u8; 4096];
     while !fpm_rig_bus::stop::requested() {
+        pins.handle(events.try_iter());
         let mut fds = [
             PollFd::new(pty.controller(), PollFlags::POLLIN),
             PollFd::new(from_device.as_fd(), PollFlags::POLLIN),
         ];
-        match nix::poll::poll(&mut fds, PollTimeout::from(100u16)) {
+        match nix::poll::poll(&mut fds, PollTimeout::from(5u16)) {
             Ok(_) | Err(nix::errno::Errno::EINTR) => {}
             Err(e) => return Err(e).context("waiting for the terminal or the emulator"),
         }
@@ -157,6 +185,102 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
             }
         }
     }
+    // What the pins did just before the stop still counts (the log is read).
+    std::thread::sleep(Duration::from_millis(100));
+    pins.handle(events.try_iter());
     tracing::info!("RP2040 emulator stopped");
     Ok(())
+}
+
+/// The chain and the trigger line as seen at the pins, and where they are published.
+struct Pins {
+    strip: EmulatedStrip,
+    rig: Option<fpm_rig_bus::PulsePublisher>,
+    pulses: u64,
+}
+
+impl Pins {
+    fn handle(&mut self, events: impl Iterator<Item = PinEvent>) {
+        for event in events {
+            match event {
+                PinEvent::Latched { words, bad_pulses } => {
+                    if bad_pulses > 0 {
+                        tracing::warn!("WS2812 frame with {bad_pulses} malformed pulse(s) at GP16");
+                    }
+                    let mut pixels = vec![Rgb::OFF; self.strip.pixels().len()];
+                    for (p, w) in pixels.iter_mut().zip(&words) {
+                        // Shifted out green, red, blue.
+                        *p = Rgb::new((w >> 8) as u8, (w >> 16) as u8, *w as u8);
+                    }
+                    let n = words.len().min(pixels.len()) as u16;
+                    self.strip.write(&pixels, pixels.len(), &[n]);
+                }
+                PinEvent::Trigger { high: true, us } => {
+                    if let Some(rig) = &self.rig {
+                        let lit = self.strip.lit(fpm_rig_bus::MAX_LIT);
+                        let mut pulse = fpm_rig_bus::TriggerPulse {
+                            pulse_number: self.pulses,
+                            time_us: us,
+                            lit_count: lit.len() as u32,
+                            ..Default::default()
+                        };
+                        for (slot, (row, col, c)) in pulse.lit.iter_mut().zip(lit) {
+                            *slot = fpm_rig_bus::LitLed {
+                                row,
+                                col,
+                                rgb: [c.r, c.g, c.b],
+                                reserved: [0; 3],
+                            };
+                        }
+                        if let Err(e) = rig.publish(&pulse) {
+                            tracing::warn!("virtual rig: {e}");
+                        }
+                    }
+                    self.pulses += 1;
+                }
+                PinEvent::Trigger { high: false, .. } => {}
+            }
+        }
+    }
+}
+
+/// What the harness saw at the pins.
+#[derive(Debug, Clone, PartialEq)]
+enum PinEvent {
+    /// A WS2812 frame latched on lane 0: the 24-bit GRB words shifted out, chain order.
+    Latched {
+        /// The words.
+        words: Vec<u32>,
+        /// High pulses that were neither a 0 nor a 1 bit.
+        bad_pulses: u64,
+    },
+    /// The camera trigger output changed, at emulated µs.
+    Trigger {
+        /// Its new level.
+        high: bool,
+        /// When, device clock, µs.
+        us: u64,
+    },
+}
+
+impl PinEvent {
+    fn parse(json: &str) -> Option<Self> {
+        let v: serde_json::Value = serde_json::from_str(json).ok()?;
+        match v.get("type")?.as_str()? {
+            "latched" => Some(PinEvent::Latched {
+                words: v
+                    .get("words")?
+                    .as_array()?
+                    .iter()
+                    .map(|w| w.as_u64().map(|w| w as u32))
+                    .collect::<Option<_>>()?,
+                bad_pulses: v.get("bad")?.as_u64()?,
+            }),
+            "trigger" => Some(PinEvent::Trigger {
+                high: v.get("level")?.as_u64()? == 1,
+                us: v.get("us")?.as_f64()?.round() as u64,
+            }),
+            _ => None,
+        }
+    }
 }

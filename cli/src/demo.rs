@@ -42,6 +42,10 @@ pub struct DemoArgs {
     /// WS2812 data lanes on the emulated board (more lanes switch LEDs faster).
     #[arg(long, default_value_t = 1)]
     lanes: u8,
+    /// Run the real firmware image (the UF2 users flash) in an emulated RP2040 as the
+    /// LED controller, instead of the host-compiled controller logic.
+    #[arg(long)]
+    firmware: Option<PathBuf>,
 }
 
 /// Run the demo.
@@ -50,21 +54,28 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let exposure = a.exposure_us.to_string();
     let lanes = a.lanes.to_string();
     let rig = format!("demo-{}", std::process::id());
-    let emulator = EmulatorProcess::start(&[
-        "--camera-exposure-us",
-        &exposure,
-        "--lanes",
-        &lanes,
-        "--rig",
-        &rig,
-    ])?;
+    let firmware = a
+        .firmware
+        .as_ref()
+        .map(|p| p.to_string_lossy().into_owned());
+    let mut options = vec!["--camera-exposure-us", &exposure, "--rig", &rig];
+    match &firmware {
+        Some(uf2) => options.extend(["--firmware", uf2.as_str()]),
+        None => options.extend(["--lanes", lanes.as_str()]),
+    }
+    let emulator = EmulatorProcess::start(&options)?;
     let port = emulator.link.to_string_lossy().into_owned();
     let dev = Controller::open(&port, Duration::from_secs(2))?;
     let info = dev.info().clone();
     let g = info.geometry;
     println!(
-        "LED controller  {} (emulated, separate process) on {port}\n                firmware {}, protocol {}, {}x{} LEDs at {:.1} mm pitch, {} lane(s)",
+        "LED controller  {} ({}, separate process) on {port}\n                firmware {}, protocol {}, {}x{} LEDs at {:.1} mm pitch, {} lane(s)",
         info.board,
+        if a.firmware.is_some() {
+            "the real firmware image in an emulated RP2040"
+        } else {
+            "host-compiled emulator"
+        },
         info.firmware,
         info.protocol,
         g.rows,

@@ -223,6 +223,9 @@ function stepPio(cycles) {
 // until the CPU (or DMA) writes again, so sleep can be skipped in one go.
 const FDEBUG_TXSTALL = 1 << 24;
 function pioIdle() {
+  // A frame being shifted out may find the FIFO empty between DMA bursts, and a DMA
+  // channel waits for the PIO's DREQ, which only a stepped PIO raises: not idle.
+  if (frameOpen || mcu.dma.channels.some((c) => c.active)) return false;
   return pio0.machines.every(
     (m) => !m.enabled || (m.txFIFO.empty && (pio0.txStall & (FDEBUG_TXSTALL << m.index)) !== 0),
   );
@@ -235,6 +238,7 @@ let bits = 0;
 let word = 0;
 let frame = [];
 let frameOpen = false;
+let frameStartUs = 0;
 let badPulses = 0;
 function emit(event) {
   process.stderr.write(`event ${JSON.stringify(event)}\n`);
@@ -242,7 +246,7 @@ function emit(event) {
 function closeFrame() {
   if (process.env.FPM_HARNESS_DEBUG) {
     const m = pio0.machines[0];
-    log(`frame closed: sm0 enabled ${m.enabled} waiting ${m.waiting} waitType ${m.waitType} fifo ${m.txFIFO.itemCount} txStall 0x${(pio0.txStall >>> 0).toString(16)} idle ${pioIdle()}`);
+    log(`frame closed at ${mcu.clock.micros.toFixed(1)} µs (first rise ${frameStartUs.toFixed(1)}, last fall ${fallUs.toFixed(1)}, ${frame.length} words): sm0 enabled ${m.enabled} waiting ${m.waiting} waitType ${m.waitType} fifo ${m.txFIFO.itemCount} txStall 0x${(pio0.txStall >>> 0).toString(16)} idle ${pioIdle()}`);
   }
   if (bits !== 0) badPulses++;
   emit({ type: 'latched', us: Number(mcu.clock.micros.toFixed(3)), lane: 0, words: frame, bad: badPulses });
@@ -258,6 +262,7 @@ mcu.gpio[WS2812_PIN].addListener((state) => {
   lineHigh = high;
   if (high) {
     riseAt = pioSteps;
+    if (!frameOpen) frameStartUs = mcu.clock.micros;
     frameOpen = true;
     return;
   }
@@ -286,9 +291,10 @@ function run() {
       const skip = Math.max(clock.nanosToNextAlarm, cycleNanos);
       const cycles = skip / cycleNanos;
       if (!pio0.stopped && cycles > PIO_STEP_CYCLES && !pioIdle()) {
-        // Step through the sleep in slices, so the PIO's pin changes land in time.
+        // Step through the sleep in slices, so the PIO's pin changes land in time; at
+        // most 2 ms of it per turn, so a long sleep beside a busy PIO cannot hog the loop.
         const slice = PIO_STEP_CYCLES * cycleNanos;
-        let left = skip;
+        let left = Math.min(skip, 2e6);
         while (left > 0 && mcu.core.waiting) {
           const dt = Math.min(slice, left);
           clock.tick(dt);

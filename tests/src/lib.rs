@@ -69,8 +69,8 @@ pub enum Target {
 impl Target {
     /// Start this target's controller linked at `link`. `host_options` configure the
     /// host-compiled emulator; the firmware image has its board built in and takes
-    /// only the emulated camera's options among them (`--no-camera`,
-    /// `--camera-latency-us N`, `--camera-exposure-us N`).
+    /// only the emulated camera's and the rig's options among them (`--no-camera`,
+    /// `--camera-latency-us N`, `--camera-exposure-us N`, `--rig NAME`).
     pub fn start(self, link: &Path, host_options: &[&str]) -> Emulator {
         match self {
             Target::HostEmulator => Emulator::start_at(link, host_options),
@@ -81,6 +81,10 @@ impl Target {
                 while let Some(&option) = options.next() {
                     match option {
                         "--no-camera" => args.push(option),
+                        "--rig" => {
+                            args.push(option);
+                            args.extend(options.next());
+                        }
                         "--camera-latency-us" | "--camera-exposure-us" => {
                             args.push(option);
                             args.extend(options.next());

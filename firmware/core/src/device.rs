@@ -33,7 +33,14 @@ pub struct Device<S: LedStrip, T: TriggerOut> {
     topic_seq: u32,
     tx_buf: [u8; MAX_FRAME_LEN],
     enc_buf: [u8; MAX_ENCODED_FRAME_LEN],
+    /// A sequence step written to a strip that `latches_later`: its LEDs lit, and the
+    /// model's latch time, until the shell reports the real one.
+    awaiting_latch: Option<(u16, u64)>,
 }
+
+/// How long after the model's latch time a sequence waits for the shell's report
+/// before it goes on with the model (a shell that never reports must not hang it).
+const LATCH_REPORT_GRACE_US: u64 = 100_000;
 
 impl<S: LedStrip, T: TriggerOut> Device<S, T> {
     /// A controller for `board`, all LEDs off, trigger line idle low, full brightness,
@@ -60,12 +67,18 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             rx: FrameReceiver::new(),
             stats: LinkStats::default(),
             topic_seq: 0,
+            awaiting_latch: None,
             tx_buf: [0; MAX_FRAME_LEN],
             enc_buf: [0; MAX_ENCODED_FRAME_LEN],
         })
     }
 
     /// The LED strip driver (the emulator inspects it).
+    pub fn strip_mut(&mut self) -> &mut S {
+        &mut self.strip
+    }
+
+    /// The LED strip.
     pub fn strip(&self) -> &S {
         &self.strip
     }
@@ -122,11 +135,21 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
     /// Advance the capture sequence to `now`. Returns the next time anything is due
     /// (`None`: nothing until a request or an edge arrives).
     pub fn poll(&mut self, now: u64, out: &mut impl FrameSink) -> Option<u64> {
+        if let Some((leds_on, model)) = self.awaiting_latch {
+            if now >= model.saturating_add(LATCH_REPORT_GRACE_US) {
+                self.awaiting_latch = None;
+                self.engine.lit(now, leds_on);
+            }
+        }
         for _ in 0..MAX_ACTIONS_PER_POLL {
             match self.engine.next(now) {
                 Action::Light { step } => {
                     let lit = self.light_step(step, now);
                     match lit {
+                        // Data queued for a later shift: wait for the shell's report.
+                        Ok(lit) if self.strip.latches_later() && lit.latched_us > now => {
+                            self.awaiting_latch = Some((lit.leds_on, lit.latched_us));
+                        }
                         Ok(lit) => self.engine.lit(lit.latched_us, lit.leds_on),
                         Err(e) => {
                             if let Some(end) = self.engine.stop(SequenceOutcome::Failed(e), now) {
@@ -138,10 +161,28 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
                 Action::Trigger(active) => self.set_trigger(active),
                 Action::StepDone(event) => self.publish::<StepTopic>(&event, out),
                 Action::End(end) => self.finish(end, now, out),
-                Action::WaitUntil(t) => return t,
+                Action::WaitUntil(t) => {
+                    let grace = self
+                        .awaiting_latch
+                        .map(|(_, model)| model.saturating_add(LATCH_REPORT_GRACE_US));
+                    return match (t, grace) {
+                        (Some(a), Some(b)) => Some(a.min(b)),
+                        (a, b) => a.or(b),
+                    };
+                }
             }
         }
         Some(now)
+    }
+
+    /// The strip (one that `latches_later`) has shifted out and latched everything
+    /// written to it, at `at` (µs): a sequence step waiting for its LEDs settles from
+    /// there. Returns when to poll next.
+    pub fn strip_latched(&mut self, at: u64, now: u64, out: &mut impl FrameSink) -> Option<u64> {
+        if let Some((leds_on, _)) = self.awaiting_latch.take() {
+            self.engine.lit(at, leds_on);
+        }
+        self.poll(now, out)
     }
 
     // ---------------------------------------------------------------- dispatch
@@ -386,6 +427,7 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             check_step(&self.board, &mut self.leds, self.budget, i as u16, step)?;
         }
         self.engine.start(id, now)?;
+        self.awaiting_latch = None;
         let status = self.engine.status();
         let started = SequenceStarted {
             id,

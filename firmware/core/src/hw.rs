@@ -10,6 +10,15 @@ pub trait LedStrip {
     /// `shift[k]` LEDs (0 = leave that lane alone). LEDs past the shifted ones keep
     /// their colour, which is what makes partial updates fast.
     fn write(&mut self, pixels: &[Rgb], lane_len: usize, shift: &[u16]);
+
+    /// Whether `write` only queues the data and the shift happens later (a DMA task
+    /// that runs when the shell's main loop yields). The shell then reports when the
+    /// LEDs have latched with [`crate::Device::strip_latched`], and a capture sequence
+    /// waits for that report before it settles and triggers the camera, instead of
+    /// trusting the shift-time model. Strips that shift inside `write` keep `false`.
+    fn latches_later(&self) -> bool {
+        false
+    }
 }
 
 /// The camera trigger output line.

@@ -366,6 +366,45 @@ fn a_sequence_runs_with_exact_timing_and_reports_every_step() {
     assert_eq!(status.last_outcome, Some(SequenceOutcome::Done));
 }
 
+/// A strip whose shift runs later (a DMA task, as on the RP2040) reports when it
+/// latched: a sequence step does not settle and trigger on the shift-time model but
+/// from the reported time, however late it comes, and reports that as its light-on.
+#[test]
+fn a_step_waits_for_a_strip_that_latches_later() {
+    let mut dev = device();
+    dev.strip_mut().latches_later = true;
+    upload(&mut dev, 5, &led_steps(2), timing(None));
+    ok::<SequenceStartEndpoint>(&mut dev, &5, T0).unwrap();
+    let mut wire = Wire::default();
+    let next = dev.poll(T0, &mut |b: &[u8]| wire.bytes.extend_from_slice(b));
+    // Written, not yet latched: no trigger pulse, only the report's grace deadline.
+    assert_eq!(dev.strip().writes.len(), 1);
+    let pulses = |dev: &Dev| {
+        let levels = &dev.trigger().levels;
+        levels.windows(2).filter(|w| w[0] && !w[1]).count()
+    };
+    assert_eq!(pulses(&dev), 0, "active-low trigger still idle");
+    let model = T0 + 30 + 280;
+    assert_eq!(next, Some(model + 100_000));
+    // The shift really finished 2 ms late: settle and trigger delay count from there.
+    let late = T0 + 2_000;
+    let next = dev.strip_latched(late, late, &mut |b: &[u8]| wire.bytes.extend_from_slice(b));
+    assert_eq!(next, Some(late + 1000 + 100));
+    let frames = run_until(&mut dev, late, late + 50_000);
+    let mut events = topics::<StepTopic>(&frames);
+    let first = events.remove(0);
+    assert_eq!(first.light_on_us, late);
+    assert_eq!(first.trigger_us, late + 1000 + 100);
+    // A shell that never reports does not hang the sequence: after the grace time the
+    // model's latch is taken as now.
+    let ends = topics::<SequenceEndTopic>(&frames);
+    assert!(ends.is_empty(), "step 1 still waits for its report");
+    let frames = run_until(&mut dev, late + 50_000, late + 1_000_000);
+    let ends = topics::<SequenceEndTopic>(&frames);
+    assert_eq!(ends.len(), 1);
+    assert_eq!(ends[0].outcome, SequenceOutcome::Done);
+}
+
 #[test]
 fn trigger_in_ends_each_step_at_the_camera_edge() {
     let mut dev = device();

@@ -1,8 +1,8 @@
-//! Start-up and the main loop: bytes from USB, edges from the camera and the
-//! controller's own deadlines, handled in arrival order.
+//! Start-up and the main loop: bytes from USB, edges from the camera, the LED task's
+//! latch reports and the controller's own deadlines, handled in arrival order.
 
 use embassy_executor::Spawner;
-use embassy_futures::select::{select3, Either3};
+use embassy_futures::select::{select4, Either4};
 use embassy_rp::flash::{Blocking, Flash};
 use embassy_rp::gpio::{Input, Level, Output, Pull};
 use embassy_rp::peripherals::{PIO0, USB};
@@ -109,20 +109,21 @@ async fn main(spawner: Spawner) {
             rx.wait_connection().await;
             rx.read_packet(&mut packet).await
         };
-        match select3(read, EDGES.receive(), deadline).await {
-            Either3::First(Ok(n)) => {
+        match select4(read, EDGES.receive(), PENDING.latched.wait(), deadline).await {
+            Either4::First(Ok(n)) => {
                 status_led.set_high();
                 next = device.receive(&packet[..n], now_us(), &mut outbox);
             }
-            Either3::First(Err(_)) => {
+            Either4::First(Err(_)) => {
                 // The host went away; sequences keep running on the device clock.
                 status_led.set_low();
                 next = device.poll(now_us(), &mut outbox);
             }
-            Either3::Second((edge, at)) => {
+            Either4::Second((edge, at)) => {
                 next = device.trigger_edge(edge, at, now_us(), &mut outbox)
             }
-            Either3::Third(()) => next = device.poll(now_us(), &mut outbox),
+            Either4::Third(at) => next = device.strip_latched(at, now_us(), &mut outbox),
+            Either4::Fourth(()) => next = device.poll(now_us(), &mut outbox),
         }
         outbox.flush(&mut tx).await;
     }

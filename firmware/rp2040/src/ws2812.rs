@@ -145,6 +145,8 @@ struct Frame {
 pub struct PendingFrame {
     frame: Mutex<CriticalSectionRawMutex, RefCell<Frame>>,
     ready: Signal<CriticalSectionRawMutex, ()>,
+    /// When the last shift had latched (device µs), for the main loop to report.
+    pub latched: Signal<CriticalSectionRawMutex, u64>,
 }
 
 impl PendingFrame {
@@ -157,6 +159,7 @@ impl PendingFrame {
                 lane_len: 0,
             })),
             ready: Signal::new(),
+            latched: Signal::new(),
         }
     }
 }
@@ -204,6 +207,12 @@ impl LedStrip for RpStrip {
         });
         self.pending.ready.signal(());
     }
+
+    /// The DMA task shifts when the main loop next yields, which can be milliseconds
+    /// later (USB writes): the logic waits for the task's report instead of the model.
+    fn latches_later(&self) -> bool {
+        true
+    }
 }
 
 /// Shift pending frames out as they come.
@@ -225,5 +234,8 @@ pub async fn led_task(
         });
         chain.shift(&words, lane_len, &shift).await;
         Timer::after_micros(latch_us as u64).await;
+        pending
+            .latched
+            .signal(embassy_time::Instant::now().as_micros());
     }
 }

@@ -13,6 +13,8 @@ use serde::{de::DeserializeOwned, Serialize};
 pub struct Strip {
     pub pixels: Vec<Rgb>,
     pub writes: Vec<Vec<u16>>,
+    /// Behave like a DMA-driven strip: the shell reports the latch.
+    pub latches_later: bool,
 }
 
 impl LedStrip for Strip {
@@ -26,6 +28,10 @@ impl LedStrip for Strip {
             self.pixels[range.clone()].copy_from_slice(&pixels[range]);
         }
         self.writes.push(shift.to_vec());
+    }
+
+    fn latches_later(&self) -> bool {
+        self.latches_later
     }
 }
 

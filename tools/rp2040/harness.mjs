@@ -15,7 +15,7 @@
 //        [--camera-exposure-us N] [--no-camera]
 
 import fs from 'node:fs';
-import { BasePeripheral, RP2040, USBCDC, GPIOPinState } from 'rp2040js';
+import { BasePeripheral, RP2040, USBCDC, GPIOPinState, getDescriptorPacket, createSetupPacket } from 'rp2040js';
 
 const FLASH_START = 0x10000000;
 const UF2_MAGIC = [0x0a324655, 0x9e5d5157];
@@ -150,7 +150,69 @@ cdc.onDeviceConnected = () => {
   connected = true;
   log(`USB CDC-ACM enumerated at ${(mcu.clock.micros / 1e3).toFixed(1)} ms (emulated)`);
   flushToDevice();
+  readIdentity();
 };
+
+// The device's USB identity, read as a host reads it after enumeration: the device
+// descriptor (VID:PID) and its strings, reported as `event {"type":"usb",...}`.
+const USB_DESCRIPTOR_DEVICE = 1;
+const USB_DESCRIPTOR_STRING = 3;
+const LANGUAGE_EN_US = 0x0409;
+let controlIn = null;
+const cdcEndpointWrite = mcu.usbCtrl.onEndpointWrite;
+mcu.usbCtrl.onEndpointWrite = (endpoint, buffer) => {
+  if (endpoint === 0 && controlIn && buffer.length > 0) {
+    const take = controlIn;
+    controlIn = null;
+    take(buffer);
+    return;
+  }
+  cdcEndpointWrite(endpoint, buffer);
+};
+function controlRead(setup) {
+  return new Promise((resolve, reject) => {
+    const timer = setTimeout(() => reject(new Error('no answer on endpoint 0')), 5000);
+    controlIn = (buffer) => {
+      clearTimeout(timer);
+      resolve(Uint8Array.from(buffer));
+    };
+    mcu.usbCtrl.sendSetupPacket(setup);
+  });
+}
+function stringPacket(index) {
+  return createSetupPacket({
+    dataDirection: 1,
+    type: 0,
+    recipient: 0,
+    bRequest: 6,
+    wValue: (USB_DESCRIPTOR_STRING << 8) | index,
+    wIndex: LANGUAGE_EN_US,
+    wLength: 255,
+  });
+}
+async function readString(index) {
+  if (!index) return null;
+  const d = await controlRead(stringPacket(index));
+  let text = '';
+  for (let i = 2; i + 1 < Math.min(d[0], d.length); i += 2) text += String.fromCharCode(d[i] | (d[i + 1] << 8));
+  return text;
+}
+async function readIdentity() {
+  try {
+    const device = await controlRead(getDescriptorPacket(USB_DESCRIPTOR_DEVICE, 18));
+    const word = (k) => device[k] | (device[k + 1] << 8);
+    emit({
+      type: 'usb',
+      vid: word(8),
+      pid: word(10),
+      manufacturer: await readString(device[14]),
+      product: await readString(device[15]),
+      serial: await readString(device[16]),
+    });
+  } catch (e) {
+    log(`could not read the USB identity: ${e.message}`);
+  }
+}
 cdc.onSerialData = (buffer) => {
   process.stdout.write(Buffer.from(buffer));
 };

@@ -63,7 +63,18 @@ fn identity_version_and_ping() {
         Target::HostEmulator => assert_eq!(info.serial, 1234),
         // The serial number is the flash's unique id, which the emulated flash does
         // not have; the board is the one the image was built for.
-        Target::Firmware => assert_eq!(info.board.as_str(), "fpm-pico-21x21"),
+        Target::Firmware => {
+            assert_eq!(info.board.as_str(), "fpm-pico-21x21");
+            // The USB identity of firmware/rp2040/src/board.rs and link.rs, as a host
+            // reads it from the device descriptor and its strings.
+            let expected =
+                "USB device 1209:0001, manufacturer \"fpm\", product \"fpm LED controller\"";
+            let deadline = std::time::Instant::now() + Duration::from_secs(10);
+            while !emu.log_text().contains(expected) && std::time::Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            assert!(emu.log_text().contains(expected), "{}", emu.log_text());
+        }
     }
     assert_eq!((info.geometry.rows, info.geometry.cols), (21, 21));
     assert_eq!(info.geometry.center, LedIndex::new(10, 10));

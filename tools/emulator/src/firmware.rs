@@ -239,6 +239,12 @@ impl Pins {
                     self.pulses += 1;
                 }
                 PinEvent::Trigger { high: false, .. } => {}
+                PinEvent::Usb { vid, pid, strings } => {
+                    let [manufacturer, product, serial] = strings.map(|s| s.unwrap_or_default());
+                    tracing::info!(
+                        "USB device {vid:04x}:{pid:04x}, manufacturer \"{manufacturer}\", product \"{product}\", serial \"{serial}\""
+                    );
+                }
             }
         }
     }
@@ -253,6 +259,15 @@ enum PinEvent {
         words: Vec<u32>,
         /// High pulses that were neither a 0 nor a 1 bit.
         bad_pulses: u64,
+    },
+    /// The device's USB identity, as a host reads it after enumeration.
+    Usb {
+        /// Vendor id.
+        vid: u16,
+        /// Product id.
+        pid: u16,
+        /// Strings: manufacturer, product, serial number.
+        strings: [Option<String>; 3],
     },
     /// The camera trigger output changed, at emulated µs.
     Trigger {
@@ -276,6 +291,14 @@ impl PinEvent {
                     .collect::<Option<_>>()?,
                 bad_pulses: v.get("bad")?.as_u64()?,
             }),
+            "usb" => {
+                let text = |k: &str| v.get(k).and_then(|s| s.as_str()).map(str::to_owned);
+                Some(PinEvent::Usb {
+                    vid: v.get("vid")?.as_u64()? as u16,
+                    pid: v.get("pid")?.as_u64()? as u16,
+                    strings: [text("manufacturer"), text("product"), text("serial")],
+                })
+            }
             "trigger" => Some(PinEvent::Trigger {
                 high: v.get("level")?.as_u64()? == 1,
                 us: v.get("us")?.as_f64()?.round() as u64,

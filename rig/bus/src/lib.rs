@@ -63,6 +63,30 @@ impl Default for TriggerPulse {
 }
 
 impl TriggerPulse {
+    /// Pulse `pulse_number` at `time_us` (controller clock) with the LEDs `lit`
+    /// (row, col, colour), at most [`MAX_LIT`] of them.
+    pub fn new(
+        pulse_number: u64,
+        time_us: u64,
+        lit: impl IntoIterator<Item = (u8, u8, [u8; 3])>,
+    ) -> Self {
+        let mut pulse = Self {
+            pulse_number,
+            time_us,
+            ..Self::default()
+        };
+        for (slot, (row, col, rgb)) in pulse.lit.iter_mut().zip(lit) {
+            *slot = LitLed {
+                row,
+                col,
+                rgb,
+                reserved: [0; 3],
+            };
+            pulse.lit_count += 1;
+        }
+        pulse
+    }
+
     /// The lit LEDs.
     pub fn lit(&self) -> &[LitLed] {
         &self.lit[..(self.lit_count as usize).min(MAX_LIT)]

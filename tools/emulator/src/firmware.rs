@@ -218,20 +218,12 @@ impl Pins {
                 PinEvent::Trigger { high: true, us } => {
                     if let Some(rig) = &self.rig {
                         let lit = self.strip.lit(fpm_rig_bus::MAX_LIT);
-                        let mut pulse = fpm_rig_bus::TriggerPulse {
-                            pulse_number: self.pulses,
-                            time_us: us,
-                            lit_count: lit.len() as u32,
-                            ..Default::default()
-                        };
-                        for (slot, (row, col, c)) in pulse.lit.iter_mut().zip(lit) {
-                            *slot = fpm_rig_bus::LitLed {
-                                row,
-                                col,
-                                rgb: [c.r, c.g, c.b],
-                                reserved: [0; 3],
-                            };
-                        }
+                        let pulse = fpm_rig_bus::TriggerPulse::new(
+                            self.pulses,
+                            us,
+                            lit.into_iter()
+                                .map(|(r, c, rgb)| (r, c, [rgb.r, rgb.g, rgb.b])),
+                        );
                         if let Err(e) = rig.publish(&pulse) {
                             tracing::warn!("virtual rig: {e}");
                         }

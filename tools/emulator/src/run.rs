@@ -192,21 +192,13 @@ fn stamp_trigger(
             cam.trigger_line(level, now, active_level);
         }
         if let (Some(rig), true) = (rig, level == active_level) {
-            let mut pulse = fpm_rig_bus::TriggerPulse {
-                pulse_number: *pulses,
-                time_us: now,
-                ..Default::default()
-            };
             let lit = device.strip().lit(fpm_rig_bus::MAX_LIT);
-            pulse.lit_count = lit.len() as u32;
-            for (slot, (row, col, c)) in pulse.lit.iter_mut().zip(lit) {
-                *slot = fpm_rig_bus::LitLed {
-                    row,
-                    col,
-                    rgb: [c.r, c.g, c.b],
-                    reserved: [0; 3],
-                };
-            }
+            let pulse = fpm_rig_bus::TriggerPulse::new(
+                *pulses,
+                now,
+                lit.into_iter()
+                    .map(|(r, c, rgb)| (r, c, [rgb.r, rgb.g, rgb.b])),
+            );
             if let Err(e) = rig.publish(&pulse) {
                 tracing::warn!("virtual rig: {e}");
             }

@@ -337,6 +337,44 @@ fn a_full_scan_reports_every_step_in_order_with_device_timing() {
         prev_end = ev.end_us;
     }
     eprintln!("camera edge stamped at most {worst_latency} µs after it happened");
+    if TARGET == Target::Firmware {
+        // The trigger pulses as measured at the pin (GP14): one per step, active high,
+        // as wide as asked, fired when the step's event says, after settling.
+        let pulses: Vec<(u64, u64)> = emu
+            .log_text()
+            .lines()
+            .filter_map(|l| {
+                let rest = l.split("trigger out at GP14: high at ").nth(1)?;
+                let (at, width) = rest.split_once(" µs for ")?;
+                Some((
+                    at.parse().ok()?,
+                    width.trim_end_matches(" µs").parse().ok()?,
+                ))
+            })
+            .collect();
+        assert_eq!(pulses.len(), got.len(), "one pulse per step at the pin");
+        for (i, (ev, &(at, width))) in got.iter().zip(&pulses).enumerate() {
+            assert!(
+                at.abs_diff(ev.trigger_us) <= 5,
+                "step {i}: pin {at} vs event {}",
+                ev.trigger_us
+            );
+            // The firmware ends the pulse on its own deadline, as late as it stamps edges.
+            assert!(
+                (100..=100 + MAX_EDGE_LATENCY_US).contains(&width),
+                "step {i}: pulse {width} µs, asked 100"
+            );
+            assert!(
+                at >= ev.light_on_us + 300 + 50,
+                "step {i}: fired before settling"
+            );
+        }
+        let widest = pulses.iter().map(|p| p.1).max().unwrap_or(0);
+        eprintln!(
+            "trigger pulses at GP14: {} of 100–{widest} µs",
+            pulses.len()
+        );
+    }
     assert_eq!(end.end_us, prev_end);
     let status = dev.sequence_status().unwrap();
     assert_eq!(

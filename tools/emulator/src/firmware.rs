@@ -148,6 +148,7 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
         strip: EmulatedStrip::new(fpm_firmware::BoardConfig::PICO_21X21.geometry),
         rig,
         pulses: 0,
+        trigger_high_at: None,
     };
     let mut buf = [0u8; 4096];
     while !fpm_rig_bus::stop::requested() {
@@ -197,6 +198,8 @@ struct Pins {
     strip: EmulatedStrip,
     rig: Option<fpm_rig_bus::PulsePublisher>,
     pulses: u64,
+    /// When the trigger line last went high, µs.
+    trigger_high_at: Option<u64>,
 }
 
 impl Pins {
@@ -216,6 +219,7 @@ impl Pins {
                     self.strip.write(&pixels, pixels.len(), &[n]);
                 }
                 PinEvent::Trigger { high: true, us } => {
+                    self.trigger_high_at = Some(us);
                     if let Some(rig) = &self.rig {
                         let lit = self.strip.lit(fpm_rig_bus::MAX_LIT);
                         let pulse = fpm_rig_bus::TriggerPulse::new(
@@ -230,7 +234,15 @@ impl Pins {
                     }
                     self.pulses += 1;
                 }
-                PinEvent::Trigger { high: false, .. } => {}
+                PinEvent::Trigger { high: false, us } => {
+                    // As measured at GP14, for comparison with the sequence's timing.
+                    if let Some(at) = self.trigger_high_at.take() {
+                        tracing::info!(
+                            "trigger out at GP14: high at {at} µs for {} µs",
+                            us.saturating_sub(at)
+                        );
+                    }
+                }
                 PinEvent::Usb { vid, pid, strings } => {
                     let [manufacturer, product, serial] = strings.map(|s| s.unwrap_or_default());
                     tracing::info!(

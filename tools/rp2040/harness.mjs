@@ -267,13 +267,15 @@ pio0.run = () => {}; // stepped below, not on its own timer
 let pioDebt = 0;
 function stepPio(cycles) {
   if (pio0.stopped) return;
+  pioDebt += cycles;
+  // Called on every CPU instruction: look at the PIO only once a step is due.
+  if (pioDebt < PIO_STEP_CYCLES) return;
   if (pioIdle()) {
-    // Stalled on an empty FIFO: nothing to step until the CPU or DMA writes again.
+    // Stalled on an empty FIFO (no frame open): nothing to step until the CPU or DMA
+    // writes again.
     pioDebt = 0;
-    if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= FRAME_GAP_US) closeFrame();
     return;
   }
-  pioDebt += cycles;
   while (pioDebt >= PIO_STEP_CYCLES) {
     pioDebt -= PIO_STEP_CYCLES;
     pioSteps++;

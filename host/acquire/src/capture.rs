@@ -273,10 +273,7 @@ pub fn capture(
             if let Some(offset) = anchor {
                 let newest = step_times.last().map(|s| s.step);
                 pending.retain(|&k| {
-                    let time = FrameTime {
-                        frame_number: received[k].0.frame_number,
-                        timestamp_ns: received[k].0.timestamp_ns,
-                    };
+                    let time = frame_time(&received[k].0);
                     let Some(si) = step_for(&step_times, &time, offset, tolerance) else {
                         return true;
                     };
@@ -322,13 +319,7 @@ pub fn capture(
         }
     }
     drop(drain);
-    let times: Vec<FrameTime> = received
-        .iter()
-        .map(|(h, _)| FrameTime {
-            frame_number: h.frame_number,
-            timestamp_ns: h.timestamp_ns,
-        })
-        .collect();
+    let times: Vec<FrameTime> = received.iter().map(|(h, _)| frame_time(h)).collect();
     let p = pair(&step_times, &times, tolerance, 10_000_000_000);
     let seconds = start.elapsed().as_secs_f64();
     let mut shots = Vec::with_capacity(p.matched.len());
@@ -341,15 +332,14 @@ pub fn capture(
     matched.sort_by_key(|&(step, _)| step);
     // Frames the stream got under another label than the final one, or that the final
     // pairing refused: the caller must not trust what it built from them.
+    let mut final_label: Vec<Option<usize>> = vec![None; received.len()];
+    for &(step, fi) in &matched {
+        final_label[fi] = Some(step);
+    }
     let relabelled = online
         .iter()
-        .enumerate()
-        .filter(|&(fi, label)| {
-            label.is_some()
-                && !matched
-                    .iter()
-                    .any(|&(step, f)| f == fi && Some(step) == *label)
-        })
+        .zip(&final_label)
+        .filter(|(streamed, label)| streamed.is_some() && streamed != label)
         .count();
     for &(step, fi) in &matched {
         // Every labelled frame reaches the stream once: those not handed out while
@@ -362,7 +352,10 @@ pub fn capture(
             });
         }
     }
-    let labelled_steps: Vec<usize> = matched.iter().map(|&(step, _)| step).collect();
+    let mut labelled = vec![false; leds.len()];
+    for &(step, _) in &matched {
+        labelled[step] = true;
+    }
     for (step, fi) in matched {
         shots.push(Shot {
             led: leds[step],
@@ -371,7 +364,7 @@ pub fn capture(
         });
     }
     let missing = (0..leds.len())
-        .filter(|s| !labelled_steps.contains(s))
+        .filter(|&s| !labelled[s])
         .map(|s| leds[s])
         .collect::<Vec<_>>();
     let report = CaptureReport {
@@ -393,4 +386,12 @@ pub fn capture(
         failed: failure.is_some(),
     };
     Ok((shots, report))
+}
+
+/// What the pairing needs of a frame's header.
+fn frame_time(h: &FrameHeader) -> FrameTime {
+    FrameTime {
+        frame_number: h.frame_number,
+        timestamp_ns: h.timestamp_ns,
+    }
 }

@@ -28,17 +28,24 @@ pub struct Streaming {
     epry: Option<Epry>,
     /// The clear level the amplitudes are normalised by, once known.
     scale: Option<f32>,
+    /// Whether the stream may take the clear level from its own seed frame (a whole
+    /// field); a tile waits for the level its stream shares ([`Self::set_clear_level`]).
+    own_scale: bool,
 }
 
 impl Streaming {
     /// Nothing received yet; the whole frame is the field (its centre on the axis), the
     /// clear level is the first bright-field frame's mean.
     pub fn new(system: System, geometry: LedGeometry, settings: Settings) -> Self {
-        Self::for_field(system, geometry, settings, Field::default())
+        Self {
+            own_scale: true,
+            ..Self::for_field(system, geometry, settings, Field::default())
+        }
     }
 
     /// Nothing received yet, for `field` (a tile: its centre, its free border, and the
-    /// clear level shared by all tiles once [`Self::set_clear_level`] gives it).
+    /// clear level shared by all tiles; without one in `field`, the stream waits for
+    /// [`Self::set_clear_level`] before it seeds).
     pub fn for_field(
         system: System,
         geometry: LedGeometry,
@@ -54,6 +61,7 @@ impl Streaming {
             used: vec![],
             epry: None,
             scale: field.clear_level.filter(|l| *l > 0.0),
+            own_scale: false,
         }
     }
 
@@ -119,6 +127,7 @@ impl Streaming {
         };
         let scale = match self.scale {
             Some(s) => s,
+            None if !self.own_scale => return false,
             None => match self.waiting[seed].1.mean().filter(|m| *m > 0.0) {
                 Some(m) => m,
                 None => return false,

@@ -36,9 +36,14 @@ pub struct AcquireArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Calibrate the LED array first (pdcFPM: a focused reference, then the bright-field
-    /// LEDs with the sample defocused).
+    /// LEDs with the sample defocused). Without it, the geometry stored on the
+    /// controller is used (`fpm device geometry`), else the nominal one.
     #[arg(long)]
     pub calibrate: bool,
+    /// Store the calibration on the controller (firmware with protocol ≥ 1.1), so that
+    /// later acquisitions without --calibrate start from it.
+    #[arg(long, requires = "calibrate")]
+    pub store_geometry: bool,
     /// Reconstruct while the frames arrive (streaming EPRY).
     #[arg(long)]
     pub reconstruct: bool,
@@ -110,6 +115,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         camera: ServiceNames::for_camera(&a.frames),
         out: a.out.clone(),
         calibrate: a.calibrate,
+        store_geometry: a.store_geometry,
         reconstruct: a.reconstruct,
         step_ms: a.step_ms,
         defocus_um: a.defocus_um,
@@ -161,8 +167,16 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
     }
     let g = &s.geometry;
     println!(
-        "geometry used: Δx {:.3} mm, Δy {:.3} mm, θ {:.3}°, h {:.2} mm",
-        g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
+        "geometry used ({}): Δx {:.3} mm, Δy {:.3} mm, θ {:.3}°, h {:.2} mm",
+        match s.geometry_source {
+            "board" => "stored on the board",
+            "calibration.json" => "calibrated now",
+            _ => "nominal: not calibrated",
+        },
+        g.dx_mm,
+        g.dy_mm,
+        g.theta_deg,
+        g.height_mm
     );
     if let Some(ms) = s.last_frame_to_final_ms {
         println!("last frame → final image: {ms:.0} ms");

@@ -164,6 +164,7 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
         frames: id.clone(),
         out: out.clone(),
         calibrate: true,
+        store_geometry: false,
         reconstruct: true,
         stage: StageKind::Virtual,
         rig: Some(id.clone()),

@@ -7,6 +7,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use fpm_protocol::*;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use fpm_acquire::board_geometry;
 use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
 use fpm_acquire::controller::{Controller, SequenceEvent};
 
@@ -90,6 +91,17 @@ enum DeviceCommand {
     Abort,
     /// State of the sequence engine.
     SequenceStatus,
+    /// The array geometry stored on the board (Δx, Δy, θ, h with their σ, the date and
+    /// the fit residual of the calibration): show it, store one, or forget it.
+    Geometry {
+        /// Store the geometry of this calibration.json (from `fpm calibrate` or `fpm
+        /// acquire --calibrate`, or the minimal four-key form).
+        #[arg(long, value_name = "CALIBRATION_JSON")]
+        set: Option<std::path::PathBuf>,
+        /// Forget the stored geometry.
+        #[arg(long, conflicts_with = "set")]
+        clear: bool,
+    },
 }
 
 #[derive(Subcommand, Debug, Clone, Copy)]
@@ -273,7 +285,55 @@ pub fn run(args: DeviceArgs) -> Result<()> {
         DeviceCommand::RunSequence(seq) => run_sequence(&dev, seq, json)?,
         DeviceCommand::Abort => emit(&dev.abort_sequence()?, json, print_sequence_status),
         DeviceCommand::SequenceStatus => emit(&dev.sequence_status()?, json, print_sequence_status),
+        DeviceCommand::Geometry { set, clear } => geometry(&dev, set.as_deref(), clear, json)?,
     }
+    Ok(())
+}
+
+/// `fpm device geometry`: what the board stores, after storing or forgetting if asked.
+fn geometry(
+    dev: &Controller,
+    set: Option<&std::path::Path>,
+    clear: bool,
+    json: bool,
+) -> Result<()> {
+    let stored = if let Some(path) = set {
+        let nominal = fpm_acquire::pipeline::nominal_geometry(dev);
+        let record = board_geometry::from_calibration_file(path, &nominal)?;
+        dev.store_calibration(Some(record))?
+    } else if clear {
+        dev.store_calibration(None)?
+    } else {
+        dev.stored_calibration()?
+    };
+    #[derive(serde::Serialize)]
+    struct Report<'a> {
+        serial: u64,
+        calibrated: bool,
+        damaged: bool,
+        calibration: Option<&'a BoardCalibration>,
+        description: String,
+    }
+    let report = Report {
+        serial: dev.info().serial,
+        calibrated: matches!(stored, StoredCalibration::Calibrated(_)),
+        damaged: matches!(stored, StoredCalibration::Damaged),
+        calibration: match &stored {
+            StoredCalibration::Calibrated(c) => Some(c),
+            _ => None,
+        },
+        description: board_geometry::describe_stored(&stored),
+    };
+    emit(&report, json, |r| {
+        let verb = if set.is_some() {
+            "stored: "
+        } else if clear {
+            "forgotten: "
+        } else {
+            ""
+        };
+        println!("board {:#x}: {verb}{}", r.serial, r.description)
+    });
     Ok(())
 }
 

@@ -17,22 +17,25 @@ pub type StartResult = Result<SequenceStarted, DeviceError>;
 
 endpoints! {
     list = ENDPOINT_LIST;
-    | EndpointTy             | RequestTy      | ResponseTy      | Path                   |
-    | ----------             | ---------      | ----------      | ----                   |
-    | VersionEndpoint        | ()             | ProtocolVersion | "fpm/version"          |
-    | InfoEndpoint           | ()             | DeviceInfo      | "fpm/info"             |
-    | StatusEndpoint         | ()             | DeviceStatus    | "fpm/status"           |
-    | SetLedEndpoint         | SetLed         | LitResult       | "fpm/light/led"        |
-    | SetLedsEndpoint        | SetLeds        | LitResult       | "fpm/light/leds"       |
-    | ClearEndpoint          | ()             | LitResult       | "fpm/light/clear"      |
-    | PatternEndpoint        | PatternRequest | LitResult       | "fpm/light/pattern"    |
-    | BrightnessEndpoint     | u8             | LitResult       | "fpm/light/brightness" |
-    | BudgetEndpoint         | BudgetConfig   | BudgetResult    | "fpm/light/budget"     |
-    | SequenceDefineEndpoint | SequenceDefine | StatusResult    | "fpm/seq/define"       |
-    | SequenceStepsEndpoint  | StepChunk      | StepsResult     | "fpm/seq/steps"        |
-    | SequenceStartEndpoint  | u32            | StartResult     | "fpm/seq/start"        |
-    | SequenceAbortEndpoint  | ()             | StatusResult    | "fpm/seq/abort"        |
-    | SequenceStatusEndpoint | ()             | SequenceStatus  | "fpm/seq/status"       |
+    | EndpointTy             | RequestTy         | ResponseTy        | Path                     |
+    | ----------             | ---------         | ----------        | ----                     |
+    | VersionEndpoint        | ()                | ProtocolVersion   | "fpm/version"            |
+    | InfoEndpoint           | ()                | DeviceInfo        | "fpm/info"               |
+    | StatusEndpoint         | ()                | DeviceStatus      | "fpm/status"             |
+    | SetLedEndpoint         | SetLed            | LitResult         | "fpm/light/led"          |
+    | SetLedsEndpoint        | SetLeds           | LitResult         | "fpm/light/leds"         |
+    | ClearEndpoint          | ()                | LitResult         | "fpm/light/clear"        |
+    | PatternEndpoint        | PatternRequest    | LitResult         | "fpm/light/pattern"      |
+    | BrightnessEndpoint     | u8                | LitResult         | "fpm/light/brightness"   |
+    | BudgetEndpoint         | BudgetConfig      | BudgetResult      | "fpm/light/budget"       |
+    | SequenceDefineEndpoint | SequenceDefine    | StatusResult      | "fpm/seq/define"         |
+    | SequenceStepsEndpoint  | StepChunk         | StepsResult       | "fpm/seq/steps"          |
+    | SequenceStartEndpoint  | u32               | StartResult       | "fpm/seq/start"          |
+    | SequenceAbortEndpoint  | ()                | StatusResult      | "fpm/seq/abort"          |
+    | SequenceStatusEndpoint | ()                | SequenceStatus    | "fpm/seq/status"         |
+    // 1.1
+    | GeometryEndpoint       | ()                | StoredCalibration | "fpm/board/geometry"     |
+    | GeometrySetEndpoint    | CalibrationUpdate | StoreResult       | "fpm/board/geometry/set" |
 }
 
 topics! {
@@ -61,7 +64,7 @@ mod tests {
     /// message keys collide at 8 bytes.
     #[test]
     fn keys_are_unique() {
-        let mut keys: [Key; 16] = [
+        let mut keys: [Key; 18] = [
             VersionEndpoint::REQ_KEY,
             InfoEndpoint::REQ_KEY,
             StatusEndpoint::REQ_KEY,
@@ -76,6 +79,8 @@ mod tests {
             SequenceStartEndpoint::REQ_KEY,
             SequenceAbortEndpoint::REQ_KEY,
             SequenceStatusEndpoint::REQ_KEY,
+            GeometryEndpoint::REQ_KEY,
+            GeometrySetEndpoint::REQ_KEY,
             StepTopic::TOPIC_KEY,
             SequenceEndTopic::TOPIC_KEY,
         ];
@@ -85,8 +90,8 @@ mod tests {
         }
         assert_eq!(
             ENDPOINT_LIST.endpoints.len(),
-            14 + 2,
-            "14 ours + 2 standard"
+            16 + 2,
+            "16 ours + 2 standard"
         );
     }
 
@@ -102,6 +107,45 @@ mod tests {
             VersionEndpoint::RESP_KEY.to_bytes(),
             Key::for_path::<ProtocolVersion>("fpm/version").to_bytes()
         );
+    }
+
+    /// Old hosts keep working with new firmware only if the keys of what they use never
+    /// change: these are the 1.0 keys (request, response, topic), as a 1.0 host sends
+    /// and expects them. A change to any message type they carry changes its key.
+    #[test]
+    fn keys_of_protocol_1_0_are_unchanged() {
+        let pinned: [([u8; 8], [u8; 8]); 6] = [
+            (
+                InfoEndpoint::REQ_KEY.to_bytes(),
+                [0x4c, 0x94, 0x95, 0x08, 0xae, 0x58, 0x33, 0x4a],
+            ),
+            (
+                InfoEndpoint::RESP_KEY.to_bytes(),
+                [0x7b, 0xf5, 0x9c, 0x9a, 0xb9, 0x70, 0x42, 0x76],
+            ),
+            (
+                SetLedEndpoint::REQ_KEY.to_bytes(),
+                [0x28, 0x6f, 0x25, 0x7d, 0x7b, 0x09, 0x4f, 0xc4],
+            ),
+            (
+                SetLedEndpoint::RESP_KEY.to_bytes(),
+                [0x87, 0xd6, 0x50, 0x0c, 0x94, 0xbb, 0x4d, 0xed],
+            ),
+            (
+                SequenceStepsEndpoint::REQ_KEY.to_bytes(),
+                [0xd5, 0x22, 0x7a, 0xc0, 0xb1, 0xe4, 0xfd, 0x01],
+            ),
+            (
+                StepTopic::TOPIC_KEY.to_bytes(),
+                [0xf7, 0x19, 0xef, 0x75, 0xe7, 0x5a, 0xc7, 0xf8],
+            ),
+        ];
+        for (i, (now, then)) in pinned.iter().enumerate() {
+            assert_eq!(
+                now, then,
+                "key {i} changed: a 1.0 host would no longer be understood"
+            );
+        }
     }
 
     #[test]

@@ -18,6 +18,7 @@
 #![deny(missing_docs)]
 
 pub mod board;
+pub mod calibration;
 pub mod error;
 pub mod icd;
 pub mod light;
@@ -25,6 +26,7 @@ pub mod limits;
 pub mod sequence;
 
 pub use board::*;
+pub use calibration::*;
 pub use error::*;
 pub use icd::*;
 pub use light::*;
@@ -39,9 +41,14 @@ use serde::{Deserialize, Serialize};
 /// Version of this wire contract.
 ///
 /// `major` changes when an existing message changes meaning or layout; `minor` when
-/// endpoints or topics are added. A host talks to a device with the same `major` and a
-/// `minor` at least as high as the one it was built against.
-pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion { major: 1, minor: 0 };
+/// endpoints or topics are added. A host talks to any device with the same `major`;
+/// before using an endpoint added in a later minor version it checks
+/// [`ProtocolVersion::supports`], so that an older device gets a clear "update the
+/// firmware" instead of an unknown key.
+///
+/// History: 1.0 lighting, budget, sequences; 1.1 the stored board geometry
+/// (`fpm/board/geometry`).
+pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
 
 /// A protocol version, as reported by [`VersionEndpoint`].
 #[derive(Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,9 +61,15 @@ pub struct ProtocolVersion {
 }
 
 impl ProtocolVersion {
-    /// Whether a host built against `self` can talk to a device speaking `device`.
+    /// Whether a host built against `self` can talk to a device speaking `device` at
+    /// all (same major version; later additions are checked with [`Self::supports`]).
     pub fn accepts(&self, device: &ProtocolVersion) -> bool {
-        self.major == device.major && device.minor >= self.minor
+        self.major == device.major
+    }
+
+    /// Whether a device speaking `self` has what was added in `since`.
+    pub fn supports(&self, since: ProtocolVersion) -> bool {
+        self.major == since.major && self.minor >= since.minor
     }
 }
 

@@ -69,8 +69,9 @@ pub enum Target {
 impl Target {
     /// Start this target's controller linked at `link`. `host_options` configure the
     /// host-compiled emulator; the firmware image has its board built in and takes
-    /// only the emulated camera's and the rig's options among them (`--no-camera`,
-    /// `--camera-latency-us N`, `--camera-exposure-us N`, `--rig NAME`).
+    /// only the emulated camera's, the rig's and the flash's options among them
+    /// (`--no-camera`, `--camera-latency-us N`, `--camera-exposure-us N`, `--rig NAME`,
+    /// `--serial N`, `--flash FILE`, `--power-cut-after N`).
     pub fn start(self, link: &Path, host_options: &[&str]) -> Emulator {
         match self {
             Target::HostEmulator => Emulator::start_at(link, host_options),
@@ -85,7 +86,11 @@ impl Target {
                             args.push(option);
                             args.extend(options.next());
                         }
-                        "--camera-latency-us" | "--camera-exposure-us" => {
+                        "--camera-latency-us"
+                        | "--camera-exposure-us"
+                        | "--serial"
+                        | "--flash"
+                        | "--power-cut-after" => {
                             args.push(option);
                             args.extend(options.next());
                         }

@@ -70,6 +70,24 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
             "90",
         ],
     );
+    // The board was calibrated earlier and remembers it (`fpm device geometry --set`):
+    // the acquisition starts from that geometry without being told.
+    let calibration = dir.0.join("board-calibration.json");
+    std::fs::write(
+        &calibration,
+        r#"{"dx_mm": 1.3, "dy_mm": -0.7, "theta_deg": 3.0, "height_mm": 90.0}"#,
+    )
+    .unwrap();
+    let set = Command::new(fpm_bin())
+        .args(["device", "--port", &emu.port(), "geometry", "--set"])
+        .arg(&calibration)
+        .output()
+        .unwrap();
+    assert!(
+        set.status.success(),
+        "{}",
+        String::from_utf8_lossy(&set.stderr)
+    );
     let out = dir.0.join("data");
     let run = acquire_command(&emu, &id, &out).output().unwrap();
     assert!(
@@ -83,6 +101,10 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
     assert!(!stderr.contains("config file"), "{stderr}");
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(text.contains("acquired 441/441 frames"), "{text}");
+    assert!(
+        text.contains("geometry used (stored on the board)"),
+        "{text}"
+    );
 
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), 441);
@@ -118,6 +140,21 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
             .unwrap();
     assert_eq!(report["capture"]["labelled"], 441);
     assert_eq!(report["capture"]["missing"].as_array().unwrap().len(), 0);
+    assert_eq!(report["geometry_source"], "board");
+    let used = &report["geometry"];
+    for (key, value) in [
+        ("dx_mm", 1.3),
+        ("dy_mm", -0.7),
+        ("theta_deg", 3.0),
+        ("height_mm", 90.0),
+    ] {
+        let got = used[key].as_f64().unwrap();
+        // Stored as f32 on the board.
+        assert!(
+            (got - value).abs() < 1e-5,
+            "{key}: {got} used, {value} stored"
+        );
+    }
 }
 
 fn rate_of_clear_field() -> f32 {
@@ -322,6 +359,8 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     // frame must still reach the stream under its final label.
     assert_eq!(report["capture"]["relabelled"], 0);
     assert_eq!(report["reconstruction"], "streamed");
+    // A board that was never calibrated: the nominal geometry, and the summary says so.
+    assert_eq!(report["geometry_source"], "nominal");
     let tiles = report["tiles"].as_u64().expect("streamed in tiles") as usize;
     assert!(tiles > 1, "a 512×384 frame is cut into tiles, got {tiles}");
     let rec: serde_json::Value = serde_json::from_str(

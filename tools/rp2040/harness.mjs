@@ -11,11 +11,20 @@
 // exposure pulse), GP16 WS2812 data (decoded). Log lines go to stderr, and so do the
 // pin events, one JSON line each after `event `, stamped in emulated µs.
 //
+// The flash chip is modelled behind the SSI (flash.mjs): the firmware can program it,
+// and with --flash-image the whole 2 MiB chip is kept in a file between runs, as on a
+// board (loading a UF2 then rewrites only the sectors it covers, as the boot ROM's UF2
+// loader does). --uid gives the chip's unique id (the board's serial number);
+// --power-cut-after N stops the chip, saves the image and exits (code 3) after N erased
+// or programmed bytes.
+//
 // Usage: node harness.mjs --uf2 FILE --bootrom FILE [--camera-latency-us N]
-//        [--camera-exposure-us N] [--no-camera]
+//        [--camera-exposure-us N] [--no-camera] [--flash-image FILE] [--uid HEX16]
+//        [--power-cut-after N]
 
 import fs from 'node:fs';
 import { BasePeripheral, RP2040, USBCDC, GPIOPinState, getDescriptorPacket, createSetupPacket } from 'rp2040js';
+import { FlashSsi, QspiIo, SpiNorFlash } from './flash.mjs';
 
 const FLASH_START = 0x10000000;
 const UF2_MAGIC = [0x0a324655, 0x9e5d5157];
@@ -25,9 +34,12 @@ const RP2040_FAMILY = 0xe48bff56;
 const TRIGGER_OUT = 14;
 const TRIGGER_IN = 15;
 const CPU_HZ = 125e6;
+// The Pico's W25Q16JV.
+const FLASH_BYTES = 2 * 1024 * 1024;
+const SECTOR = 4096;
 
 function args(argv) {
-  const out = { cameraLatencyUs: 20, cameraExposureUs: 2000, camera: true };
+  const out = { cameraLatencyUs: 20, cameraExposureUs: 2000, camera: true, uid: 'e6605481db2b8e2a' };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     const next = () => {
@@ -39,9 +51,14 @@ function args(argv) {
     else if (a === '--camera-latency-us') out.cameraLatencyUs = Number(next());
     else if (a === '--camera-exposure-us') out.cameraExposureUs = Number(next());
     else if (a === '--no-camera') out.camera = false;
+    else if (a === '--flash-image') out.flashImage = next();
+    else if (a === '--uid') out.uid = next();
+    else if (a === '--power-cut-after') out.powerCutAfter = Number(next());
     else fail(`unknown argument ${a}`);
   }
   if (!out.uf2 || !out.bootrom) fail('--uf2 FILE and --bootrom FILE are required');
+  if (!/^[0-9a-fA-F]{16}$/.test(out.uid)) fail(`--uid ${out.uid}: 16 hex digits expected`);
+  if (out.powerCutAfter !== undefined && !(out.powerCutAfter >= 0)) fail('--power-cut-after needs a byte count');
   return out;
 }
 
@@ -51,7 +68,10 @@ function fail(message) {
 }
 
 // UF2: 512-byte blocks, each with 256 (or up to 476) payload bytes for a flash address.
+// Each 4 KiB sector a block lands in is erased first, as the boot ROM's UF2 loader
+// does; sectors the image does not cover keep what they held.
 function loadUf2(path, flash) {
+  const erased = new Set();
   const data = fs.readFileSync(path);
   if (data.length === 0 || data.length % 512 !== 0) {
     fail(`${path}: ${data.length} bytes is not a whole number of 512-byte UF2 blocks`);
@@ -71,6 +91,12 @@ function loadUf2(path, flash) {
     }
     if (size > 476 || address < FLASH_START || address + size > FLASH_START + flash.length) {
       fail(`${path}: block ${offset / 512} writes ${size} bytes at 0x${address.toString(16)}, outside the flash`);
+    }
+    for (let s = Math.floor((address - FLASH_START) / SECTOR); s * SECTOR < address - FLASH_START + size; s++) {
+      if (!erased.has(s)) {
+        flash.fill(0xff, s * SECTOR, (s + 1) * SECTOR);
+        erased.add(s);
+      }
     }
     flash.set(data.subarray(offset + 32, offset + 32 + size), address - FLASH_START);
     blocks++;
@@ -97,8 +123,37 @@ mcu.logger = { debug: quiet('debug'), info: quiet('info'), warn: quiet('warn'), 
 const bootrom = fs.readFileSync(opt.bootrom);
 if (bootrom.length !== 16 * 1024) fail(`${opt.bootrom}: a B1 boot ROM is 16384 bytes, not ${bootrom.length}`);
 mcu.loadBootrom(new Uint32Array(bootrom.buffer, bootrom.byteOffset, bootrom.length / 4));
+if (opt.flashImage && fs.existsSync(opt.flashImage)) {
+  const image = fs.readFileSync(opt.flashImage);
+  if (image.length !== FLASH_BYTES) fail(`${opt.flashImage}: a flash image of ${image.length} bytes, expected ${FLASH_BYTES} (the Pico's 2 MiB chip)`);
+  mcu.flash.set(image);
+}
 const blocks = loadUf2(opt.uf2, mcu.flash);
 mcu.peripherals[0x14000] = new XipControl(mcu, 'XIP_CTRL');
+function saveFlash() {
+  if (!opt.flashImage) return;
+  const tmp = `${opt.flashImage}.tmp`;
+  fs.writeFileSync(tmp, mcu.flash.subarray(0, FLASH_BYTES));
+  fs.renameSync(tmp, opt.flashImage);
+}
+const chip = new SpiNorFlash(mcu.flash, {
+  size: FLASH_BYTES,
+  uid: Buffer.from(opt.uid, 'hex'),
+  onChange: () => {
+    saveFlash();
+    emit({ type: 'flash', us: Number(mcu.clock.micros.toFixed(3)) });
+  },
+  powerCutAfter: opt.powerCutAfter,
+  onPowerCut: () => {
+    saveFlash();
+    emit({ type: 'power-cut', us: Number(mcu.clock.micros.toFixed(3)) });
+    log('power cut during a flash write (--power-cut-after)');
+    process.exit(3);
+  },
+});
+const ssi = new FlashSsi(mcu, chip);
+mcu.peripherals[0x18000] = ssi;
+mcu.peripherals[0x40018] = new QspiIo(mcu, ssi);
 // boot2 sits at the start of flash; starting there is what the boot ROM does after
 // checking it (the ROM's own flash probing is not emulated).
 mcu.core.PC = FLASH_START;

@@ -14,17 +14,21 @@ use crate::leds::LedState;
 use crate::link::{encode, Feed, FrameReceiver};
 use crate::patterns;
 use crate::sequence::{Action, Engine};
+use crate::storage::CalibrationStore;
+use embedded_storage::nor_flash::NorFlash;
 
 /// Most engine actions carried out in one poll before yielding back to the shell.
 const MAX_ACTIONS_PER_POLL: usize = 64;
 
 /// The LED controller: feed it bytes, edges and time; it drives the strip and the
-/// trigger line and answers through a [`FrameSink`].
-pub struct Device<S: LedStrip, T: TriggerOut> {
+/// trigger line, keeps the board's calibration in flash `F`, and answers through a
+/// [`FrameSink`].
+pub struct Device<S: LedStrip, T: TriggerOut, F: NorFlash> {
     board: BoardConfig,
     serial: u64,
     strip: S,
     trigger: T,
+    calibration: CalibrationStore<F>,
     leds: LedState,
     budget: BudgetConfig,
     engine: Engine,
@@ -42,14 +46,16 @@ pub struct Device<S: LedStrip, T: TriggerOut> {
 /// before it goes on with the model (a shell that never reports must not hang it).
 const LATCH_REPORT_GRACE_US: u64 = 100_000;
 
-impl<S: LedStrip, T: TriggerOut> Device<S, T> {
+impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
     /// A controller for `board`, all LEDs off, trigger line idle low, full brightness,
-    /// budget at the board's maximum and refusing anything above it.
+    /// budget at the board's maximum and refusing anything above it, its calibration
+    /// kept in `calibration`.
     pub fn new(
         board: BoardConfig,
         serial: u64,
         strip: S,
         mut trigger: T,
+        calibration: CalibrationStore<F>,
     ) -> Result<Self, &'static str> {
         board.validate()?;
         trigger.set_level(false);
@@ -63,6 +69,7 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             serial,
             strip,
             trigger,
+            calibration,
             engine: Engine::new(),
             rx: FrameReceiver::new(),
             stats: LinkStats::default(),
@@ -81,6 +88,11 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
     /// The LED strip.
     pub fn strip(&self) -> &S {
         &self.strip
+    }
+
+    /// The calibration store (the emulator saves its flash image from it).
+    pub fn calibration_store(&self) -> &CalibrationStore<F> {
+        &self.calibration
     }
 
     /// The trigger line driver.
@@ -219,6 +231,8 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             SequenceStartEndpoint => seq_start,
             SequenceAbortEndpoint => seq_abort,
             SequenceStatusEndpoint => seq_status,
+            GeometryEndpoint => geometry,
+            GeometrySetEndpoint => set_geometry,
         }
         self.stats.unknown_keys = self.stats.unknown_keys.wrapping_add(1);
         self.send(ERROR_KEY, hdr.seq_no, &WireError::UnknownKey, out);
@@ -317,6 +331,23 @@ impl<S: LedStrip, T: TriggerOut> Device<S, T> {
             triggers: self.board.triggers,
             limits: self.board.limits(),
         }
+    }
+
+    fn geometry(&mut self, _: (), _: u64, _: &mut impl FrameSink) -> StoredCalibration {
+        self.calibration.load()
+    }
+
+    fn set_geometry(
+        &mut self,
+        update: CalibrationUpdate,
+        _: u64,
+        _: &mut impl FrameSink,
+    ) -> StoreResult {
+        // Programming flash stalls the whole chip for milliseconds: never mid-sequence.
+        if self.engine.is_running() {
+            return Err(StorageError::Busy);
+        }
+        self.calibration.save(update.as_ref())
     }
 
     fn status(&mut self, _: (), now: u64, _: &mut impl FrameSink) -> DeviceStatus {

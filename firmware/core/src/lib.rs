@@ -35,7 +35,9 @@ pub mod leds;
 pub mod link;
 pub mod patterns;
 pub mod sequence;
+pub mod storage;
 
 pub use board::BoardConfig;
 pub use device::Device;
 pub use hw::{FrameSink, LedStrip, TriggerOut};
+pub use storage::{CalibrationStore, RamNor};

@@ -9,7 +9,7 @@ use embassy_rp::peripherals::{PIO0, USB};
 use embassy_rp::pio::Pio;
 use embassy_rp::{bind_interrupts, pio, usb};
 use embassy_time::{Instant, Timer};
-use fpm_firmware::Device;
+use fpm_firmware::{CalibrationStore, Device};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -24,6 +24,8 @@ bind_interrupts!(struct Irqs {
 });
 
 const FLASH_SIZE: usize = 2 * 1024 * 1024;
+/// The calibration store: the last two sectors, left out of program space in memory.x.
+const CALIBRATION_BASE: u32 = (FLASH_SIZE - 2 * embassy_rp::flash::ERASE_SIZE) as u32;
 
 static PENDING: PendingFrame = PendingFrame::new();
 static EDGES: Edges = Edges::new();
@@ -78,7 +80,8 @@ async fn main(spawner: Spawner) {
     let mut status_led = Output::new(p.PIN_25, Level::Low);
 
     let strip = RpStrip::new(&PENDING, BOARD.max_current_ma, BOARD.channel_current_ua);
-    let mut device = match Device::new(BOARD, serial, strip, trigger_out) {
+    let store = CalibrationStore::new(flash, CALIBRATION_BASE);
+    let mut device = match Device::new(BOARD, serial, strip, trigger_out, store) {
         Ok(d) => d,
         Err(e) => {
             // A bad board.rs: say so forever rather than run with wrong limits.

@@ -8,11 +8,13 @@
 //!   frames are taken off the iceoryx2 frame service (the one copy out of shared
 //!   memory) and every frame is labelled with the LED that lit it ([`label`]);
 //! * [`stage`]: how the focus stage moves (by hand, or a motorised or virtual stage);
+//! * [`board_geometry`]: the array geometry a board stores, from and to a calibration;
 //! * [`pipeline`]: the acquisition — calibrate (pdcFPM) → order nearest-first → capture
 //!   → retake what is missing → stream into the reconstruction → write the dataset.
 //!
 //! Nothing here knows whether the rig is real or virtual.
 
+pub mod board_geometry;
 pub mod capture;
 pub mod controller;
 pub mod label;

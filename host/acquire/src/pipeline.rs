@@ -20,9 +20,10 @@ use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
 use fpm_physics::calibrate::Options;
 use fpm_physics::reconstruct::{tiled, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
-use fpm_protocol::{LedIndex, Rgb};
+use fpm_protocol::{BoardCalibration, LedIndex, Rgb, StoredCalibration};
 use serde::Serialize;
 
+use crate::board_geometry;
 use crate::capture::{capture, CaptureReport, Shot, ShotView};
 use crate::controller::Controller;
 use crate::stage::{FocusStage, Slide, StagePosition};
@@ -37,6 +38,9 @@ pub struct Plan {
     pub out: PathBuf,
     /// Calibrate the LED array first.
     pub calibrate: bool,
+    /// Store the calibration on the board (protocol ≥ 1.1), so later acquisitions
+    /// without `calibrate` start from it.
+    pub store_geometry: bool,
     /// Reconstruct while the frames arrive.
     pub reconstruct: bool,
     /// How long each LED stays lit, ms.
@@ -62,6 +66,12 @@ pub struct AcquireSummary {
     pub nominal: LedGeometry,
     /// The geometry used for the acquisition order and the reconstruction.
     pub geometry: LedGeometry,
+    /// Where it came from: "calibration.json", "board" (the calibration stored on the
+    /// controller) or "nominal".
+    pub geometry_source: &'static str,
+    /// The calibration stored on the board, as read at the start (None: none, or the
+    /// firmware predates stored geometry).
+    pub board_calibration: Option<BoardCalibration>,
     /// Calibration captures.
     pub calibration: Vec<CaptureReport>,
     /// The full capture.
@@ -98,6 +108,22 @@ pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
     }
 }
 
+/// The calibration stored on the board, if any. A board that cannot say (older
+/// firmware, a damaged record, a link error) has none, with a note in the log.
+fn stored_calibration(dev: &Controller) -> Option<BoardCalibration> {
+    match dev.stored_calibration() {
+        Ok(StoredCalibration::Calibrated(c)) => Some(c),
+        Ok(other) => {
+            tracing::info!("the board: {}", board_geometry::describe_stored(&other));
+            None
+        }
+        Err(e) => {
+            tracing::info!("no stored geometry: {e}");
+            None
+        }
+    }
+}
+
 /// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
 /// `on_frame(done, total)` after every frame of the full capture. Frames that arrived
 /// are labelled and written even when the controller is lost; the error then says so.
@@ -123,7 +149,24 @@ pub fn acquire(
     // 1. Calibration: a focused reference under the centre LED, then the 5×5 LEDs
     // around it with the calibration slide defocused.
     let mut geometry = nominal;
+    let mut geometry_source = "nominal";
+    let board_calibration = stored_calibration(dev);
     let mut calibration_reports = vec![];
+    if !plan.calibrate {
+        match &board_calibration {
+            Some(c) => {
+                geometry = board_geometry::geometry(&nominal, c);
+                geometry_source = "board";
+                tracing::info!(
+                    "starting from the geometry stored on the board: {}",
+                    board_geometry::describe(c)
+                );
+            }
+            None => tracing::warn!(
+                "no calibration given and none stored on the board: using the nominal geometry (calibrate with --calibrate --store-geometry)"
+            ),
+        }
+    }
     if plan.calibrate {
         stage.move_to(StagePosition::in_focus(Slide::CalibrationTarget))?;
         let (reference, r1) = capture_leds(101, &[nominal.center], &mut |_| {})?;
@@ -163,6 +206,20 @@ pub fn acquire(
             serde_json::to_string_pretty(&cal)?,
         )?;
         geometry = cal.geometry();
+        geometry_source = "calibration.json";
+        if plan.store_geometry {
+            let record = board_geometry::from_calibration_file(
+                &plan.out.join("calibration.json"),
+                &nominal,
+            )?;
+            let stored = dev
+                .store_calibration(Some(record))
+                .context("storing the calibration on the board")?;
+            tracing::info!(
+                "stored on the board: {}",
+                board_geometry::describe_stored(&stored)
+            );
+        }
     }
 
     // 2. The full acquisition, nearest-first under the geometry in use, streamed into
@@ -255,10 +312,10 @@ pub fn acquire(
         };
         let ms = last_frame_at.elapsed().as_secs_f64() * 1e3;
         last_frame_to_final_ms = Some(ms);
-        let source = if plan.calibrate {
-            "calibration.json"
-        } else {
-            "nominal (controller)"
+        let source = match geometry_source {
+            "board" => "stored on the board",
+            "nominal" => "nominal (controller)",
+            other => other,
         };
         let report = Report::new(
             &ds.dir,
@@ -283,6 +340,8 @@ pub fn acquire(
     let summary = AcquireSummary {
         nominal,
         geometry,
+        geometry_source,
+        board_calibration,
         calibration: calibration_reports,
         capture: report,
         retake,

@@ -443,6 +443,13 @@ fn abort_stops_a_running_sequence_and_busy_guards_the_rest() {
             .device_error(),
         Some(DeviceError::Busy)
     );
+    // Writing flash would stall the running sequence: the geometry waits for its end.
+    assert!(matches!(
+        dev.store_calibration(None),
+        Err(fpm_acquire::controller::ControllerError::Storage(
+            StorageError::Busy
+        ))
+    ));
     assert_eq!(dev.status().unwrap().sequence.state, SequenceState::Running);
     let status = dev.abort_sequence().unwrap();
     assert_eq!(status.last_outcome, Some(SequenceOutcome::Aborted));
@@ -528,15 +535,129 @@ fn the_emulator_logs_what_it_lights_and_cleans_up_its_link() {
         dev.set_led(LedIndex::new(2, 19), Rgb::new(1, 2, 3))
             .unwrap();
     }
+    // The reply comes before the chain has shifted out and latched (on the firmware,
+    // the emulated PIO runs on after it): wait for the log, within reason.
+    let lit = "LEDs lit: (2,19) #010203";
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while !emu.log_text().contains(lit) && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let status = emu.stop().expect("emulator ran");
     assert!(status.success(), "{status}");
-    assert!(
-        emu.log_text().contains("LEDs lit: (2,19) #010203"),
-        "{}",
-        emu.log_text()
-    );
+    assert!(emu.log_text().contains(lit), "{}", emu.log_text());
     assert!(
         std::fs::symlink_metadata(&link).is_err(),
         "link removed on exit"
     );
+}
+
+fn board_calibration(dx_mm: f32) -> BoardCalibration {
+    BoardCalibration {
+        dx_mm,
+        dy_mm: -0.87,
+        theta_deg: 4.9,
+        height_mm: 91.6,
+        sigma: PlacementSigma {
+            dx_mm: 0.002,
+            dy_mm: 0.002,
+            theta_deg: 0.02,
+            height_mm: 0.3,
+        },
+        rms_residual_um: 0.5,
+        calibrated_unix_s: 1_796_000_000,
+    }
+}
+
+#[test]
+/// The board keeps its calibration in flash (protocol 1.1): stored, read back after a
+/// restart with the flash kept (a board unplugged and plugged in again), refused when
+/// unusable, forgotten on request. On the real firmware the chip's own flash routines
+/// program an emulated SPI NOR chip, the serial number is the chip's unique id, and a
+/// power cut in the middle of a write leaves the old record.
+fn the_board_remembers_its_geometry_across_restarts() {
+    let dir = TempDir::new("geometry");
+    let link = dir.0.join("ctl.tty");
+    let flash = dir.0.join("flash.img").to_string_lossy().into_owned();
+    let serial: u64 = 0x1234_5678_90ab_cf01;
+    let serial_arg = serial.to_string();
+    let start = |extra: &[&str]| {
+        let mut args = vec!["--flash", flash.as_str(), "--serial", serial_arg.as_str()];
+        args.extend_from_slice(extra);
+        TARGET.start(&link, &args)
+    };
+    let first = board_calibration(1.52);
+    let second = board_calibration(-2.75);
+
+    let mut emu = start(&[]);
+    {
+        let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+        assert_eq!(dev.info().protocol, PROTOCOL_VERSION);
+        assert_eq!(dev.info().serial, serial, "serial number (flash unique id)");
+        assert_eq!(
+            dev.stored_calibration().unwrap(),
+            StoredCalibration::NotCalibrated
+        );
+        assert_eq!(
+            dev.store_calibration(Some(first)).unwrap(),
+            StoredCalibration::Calibrated(first)
+        );
+        let bad = BoardCalibration {
+            height_mm: -1.0,
+            ..second
+        };
+        assert!(matches!(
+            dev.store_calibration(Some(bad)),
+            Err(fpm_acquire::controller::ControllerError::Storage(
+                StorageError::Invalid
+            ))
+        ));
+        assert_eq!(
+            dev.stored_calibration().unwrap(),
+            StoredCalibration::Calibrated(first)
+        );
+    }
+    assert!(emu.stop().expect("emulator ran").success());
+
+    if TARGET == Target::Firmware {
+        // Power lost 20 bytes into the next record: the old one survives.
+        let mut emu = start(&["--power-cut-after", "20"]);
+        {
+            let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+            assert!(dev.store_calibration(Some(second)).is_err());
+        }
+        let status = emu.stop();
+        assert!(
+            emu.log_text().contains("power cut during a flash write"),
+            "{status:?}\n{}",
+            emu.log_text()
+        );
+    }
+
+    let mut emu = start(&[]);
+    {
+        let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+        assert_eq!(
+            dev.stored_calibration().unwrap(),
+            StoredCalibration::Calibrated(first),
+            "kept across the restart"
+        );
+        assert_eq!(
+            dev.store_calibration(Some(second)).unwrap(),
+            StoredCalibration::Calibrated(second)
+        );
+        assert_eq!(
+            dev.store_calibration(None).unwrap(),
+            StoredCalibration::NotCalibrated
+        );
+    }
+    assert!(emu.stop().expect("emulator ran").success());
+    let mut emu = start(&[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    assert_eq!(
+        dev.stored_calibration().unwrap(),
+        StoredCalibration::NotCalibrated,
+        "forgetting is kept too"
+    );
+    drop(dev);
+    emu.stop();
 }

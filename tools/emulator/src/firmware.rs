@@ -82,6 +82,14 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
     if args.no_camera {
         command.arg("--no-camera");
     }
+    // The board's serial number is its flash chip's unique id.
+    command.args(["--uid", &format!("{:016x}", args.serial)]);
+    if let Some(image) = &args.flash {
+        command.arg("--flash-image").arg(image);
+    }
+    if let Some(n) = args.power_cut_after {
+        command.args(["--power-cut-after", &n.to_string()]);
+    }
     let mut harness = Harness(
         command
             .spawn()
@@ -243,6 +251,10 @@ impl Pins {
                         );
                     }
                 }
+                PinEvent::Flash => tracing::info!("the firmware wrote its flash"),
+                PinEvent::PowerCut => {
+                    tracing::warn!("power cut during a flash write (--power-cut-after)")
+                }
                 PinEvent::Usb { vid, pid, strings } => {
                     let [manufacturer, product, serial] = strings.map(|s| s.unwrap_or_default());
                     tracing::info!(
@@ -273,6 +285,10 @@ enum PinEvent {
         /// Strings: manufacturer, product, serial number.
         strings: [Option<String>; 3],
     },
+    /// The firmware erased or programmed flash (the image file is up to date).
+    Flash,
+    /// The board lost power mid-write (`--power-cut-after`); the harness has stopped.
+    PowerCut,
     /// The camera trigger output changed, at emulated µs.
     Trigger {
         /// Its new level.
@@ -303,6 +319,8 @@ impl PinEvent {
                     strings: [text("manufacturer"), text("product"), text("serial")],
                 })
             }
+            "flash" => Some(PinEvent::Flash),
+            "power-cut" => Some(PinEvent::PowerCut),
             "trigger" => Some(PinEvent::Trigger {
                 high: v.get("level")?.as_u64()? == 1,
                 us: v.get("us")?.as_f64()?.round() as u64,

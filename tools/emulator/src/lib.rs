@@ -8,6 +8,8 @@
 //!   changes, as on real LEDs, and every change is logged as grid positions;
 //! * the trigger output, and an emulated camera on the trigger input that answers each
 //!   trigger pulse with an exposure-active pulse ([`hardware::Camera`]);
+//! * the flash that keeps the board's calibration ([`flash::EmulatedFlash`], a NOR
+//!   model with the chip's erase/program rules), in a file with `--flash`;
 //! * the clock: the device sees monotonic µs since the emulator started, and the loop
 //!   wakes at the deadlines the device asks for.
 //!
@@ -15,6 +17,7 @@
 //! instead (see `firmware`), behind the same terminal.
 
 mod firmware;
+pub mod flash;
 pub mod hardware;
 mod pty;
 mod run;

@@ -6,10 +6,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use fpm_firmware::{BoardConfig, Device};
+use fpm_firmware::{BoardConfig, CalibrationStore, Device};
 use nix::poll::{PollFd, PollFlags};
 use nix::sys::time::TimeSpec;
 
+use crate::flash::{EmulatedFlash, FlashFile};
 use crate::hardware::{Camera, EmulatedStrip, EmulatedTrigger};
 use crate::pty::{Link, Pty};
 
@@ -52,6 +53,16 @@ pub struct EmulatorArgs {
     /// virtual rig of this name (for `fpm virtual-camera --rig NAME`).
     #[arg(long)]
     pub rig: Option<String>,
+    /// Keep the controller's flash (the stored board calibration) in this file, so it
+    /// survives restarts like a real board's; created if missing. Without it the
+    /// flash starts erased and is forgotten at exit.
+    #[arg(long)]
+    pub flash: Option<PathBuf>,
+    /// With --firmware: cut the emulated board's power after this many flash bytes
+    /// are erased or programmed (the flash image keeps what was written; for testing
+    /// that a stored calibration survives a power cut).
+    #[arg(long, requires = "firmware")]
+    pub power_cut_after: Option<u64>,
     /// Run this firmware image (the UF2 users flash) in an emulated RP2040 instead of
     /// the host-compiled controller logic (needs Node and `npm ci` in tools/rp2040).
     #[arg(long)]
@@ -80,7 +91,9 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
 
     let strip = EmulatedStrip::new(board.geometry);
-    let mut device = Device::new(board, args.serial, strip, EmulatedTrigger::default())
+    let mut flash = FlashFile::open(args.flash.as_deref())?;
+    let store = CalibrationStore::new(flash.load()?, 0);
+    let mut device = Device::new(board, args.serial, strip, EmulatedTrigger::default(), store)
         .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
     let mut camera =
         (!args.no_camera).then(|| Camera::new(args.camera_latency_us, args.camera_exposure_us));
@@ -159,6 +172,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
                 let now = now_us();
                 next = device.receive(&buf[..n], now, &mut send);
                 stamp_trigger(&device, camera.as_mut(), now, rig.as_ref(), &mut pulses);
+                flash.save_if_changed(device.calibration_store().flash())?;
             }
         }
     }
@@ -172,7 +186,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
 /// Hand trigger-line changes to the camera, stamped with the time they happened, and
 /// publish each active edge with what is lit on the virtual rig.
 fn stamp_trigger(
-    device: &Device<EmulatedStrip, EmulatedTrigger>,
+    device: &Device<EmulatedStrip, EmulatedTrigger, EmulatedFlash>,
     mut camera: Option<&mut Camera>,
     now: u64,
     rig: Option<&fpm_rig_bus::PulsePublisher>,

@@ -46,7 +46,10 @@ impl TriggerOut for Trigger {
     }
 }
 
-pub type Dev = Device<Strip, Trigger>;
+/// Flash of the test board: the calibration store in its first two sectors.
+pub type Flash = fpm_firmware::RamNor<{ 2 * 4096 }>;
+
+pub type Dev = Device<Strip, Trigger, Flash>;
 
 /// Decoded frames: header and body.
 pub type Frames = Vec<(VarHeader, Vec<u8>)>;
@@ -57,6 +60,7 @@ pub fn device() -> Dev {
         42,
         Strip::default(),
         Trigger::default(),
+        fpm_firmware::CalibrationStore::new(Flash::erased(), 0),
     )
     .unwrap()
 }

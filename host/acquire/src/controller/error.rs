@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use fpm_protocol::{DeviceError, ProtocolVersion, WireError};
+use fpm_protocol::{DeviceError, ProtocolVersion, StorageError, WireError};
 
 /// An error from the LED controller client.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +79,21 @@ pub enum ControllerError {
         /// The device's reason.
         error: DeviceError,
     },
+    /// The device's firmware predates the request.
+    #[error("the controller at {port} speaks fpm protocol {device}, which has no {request} (added in {since}); flash newer firmware onto it")]
+    Unsupported {
+        /// Port path.
+        port: String,
+        /// Endpoint path.
+        request: &'static str,
+        /// The version that added it.
+        since: ProtocolVersion,
+        /// The device's version.
+        device: ProtocolVersion,
+    },
+    /// The device did not store its calibration.
+    #[error("the controller did not store the geometry: {0}")]
+    Storage(StorageError),
     /// Invalid input on the host side, before anything was sent.
     #[error("{0}")]
     Invalid(String),

@@ -209,6 +209,38 @@ impl Controller {
         }
     }
 
+    /// Fail with [`ControllerError::Unsupported`] if the device predates `since`.
+    fn require(&self, since: ProtocolVersion, request: &'static str) -> Result<()> {
+        let device = self.info.protocol;
+        if device.supports(since) {
+            Ok(())
+        } else {
+            Err(ControllerError::Unsupported {
+                port: self.port.clone(),
+                request,
+                since,
+                device,
+            })
+        }
+    }
+
+    /// The array geometry stored on the board (protocol ≥ 1.1).
+    pub fn stored_calibration(&self) -> Result<StoredCalibration> {
+        self.require(BoardCalibration::SINCE, GeometryEndpoint::PATH)?;
+        self.request::<GeometryEndpoint>(&())
+    }
+
+    /// Store `calibration` on the board (`None`: forget it); returns what the board
+    /// reads back (protocol ≥ 1.1).
+    pub fn store_calibration(
+        &self,
+        calibration: Option<BoardCalibration>,
+    ) -> Result<StoredCalibration> {
+        self.require(BoardCalibration::SINCE, GeometrySetEndpoint::PATH)?;
+        self.request::<GeometrySetEndpoint>(&calibration)?
+            .map_err(ControllerError::Storage)
+    }
+
     /// Echo a number (link check).
     pub fn ping(&self, x: u32) -> Result<u32> {
         self.request::<PingEndpoint>(&x)

@@ -76,6 +76,14 @@ enum DeviceCommand {
         /// Level.
         level: u8,
     },
+    /// Gamma correction of the LED colours (smart-leds' table, for colours as the eye
+    /// sees them): on, off, or show. Off (the default) keeps light proportional to the
+    /// value, as quantitative imaging wants.
+    Gamma {
+        /// on or off; omit to show the setting.
+        #[arg(value_parser = ["on", "off"])]
+        state: Option<String>,
+    },
     /// Set the current budget.
     Budget {
         /// Limit in mA (at most the board's rating).
@@ -271,6 +279,12 @@ pub fn run(args: DeviceArgs) -> Result<()> {
         }
         DeviceCommand::Off => emit(&dev.clear()?, json, print_lit),
         DeviceCommand::Brightness { level } => emit(&dev.set_brightness(level)?, json, print_lit),
+        DeviceCommand::Gamma { state } => {
+            let on = dev.gamma(state.as_deref().map(|s| s == "on"))?;
+            emit(&on, json, |on| {
+                println!("gamma correction {}", if *on { "on" } else { "off" })
+            });
+        }
         DeviceCommand::Budget { limit_ma, scale } => {
             let policy = if scale {
                 BudgetPolicy::Scale

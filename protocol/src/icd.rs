@@ -12,6 +12,10 @@ pub type BudgetResult = Result<BudgetConfig, DeviceError>;
 pub type StatusResult = Result<SequenceStatus, DeviceError>;
 /// Reply of [`SequenceStepsEndpoint`].
 pub type StepsResult = Result<StepsLoaded, DeviceError>;
+/// Request of [`GammaEndpoint`]: gamma correction on or off, `None` to only ask.
+pub type GammaRequest = Option<bool>;
+/// Reply of [`GammaEndpoint`]: whether gamma correction is on (after the change).
+pub type GammaResult = Result<bool, DeviceError>;
 /// Reply of [`SequenceStartEndpoint`].
 pub type StartResult = Result<SequenceStarted, DeviceError>;
 
@@ -36,6 +40,7 @@ endpoints! {
     // 1.1
     | GeometryEndpoint       | ()                | StoredCalibration | "fpm/board/geometry"     |
     | GeometrySetEndpoint    | CalibrationUpdate | StoreResult       | "fpm/board/geometry/set" |
+    | GammaEndpoint          | GammaRequest      | GammaResult       | "fpm/light/gamma"        |
 }
 
 topics! {
@@ -64,7 +69,7 @@ mod tests {
     /// message keys collide at 8 bytes.
     #[test]
     fn keys_are_unique() {
-        let mut keys: [Key; 18] = [
+        let mut keys: [Key; 19] = [
             VersionEndpoint::REQ_KEY,
             InfoEndpoint::REQ_KEY,
             StatusEndpoint::REQ_KEY,
@@ -81,6 +86,7 @@ mod tests {
             SequenceStatusEndpoint::REQ_KEY,
             GeometryEndpoint::REQ_KEY,
             GeometrySetEndpoint::REQ_KEY,
+            GammaEndpoint::REQ_KEY,
             StepTopic::TOPIC_KEY,
             SequenceEndTopic::TOPIC_KEY,
         ];
@@ -90,8 +96,8 @@ mod tests {
         }
         assert_eq!(
             ENDPOINT_LIST.endpoints.len(),
-            16 + 2,
-            "16 ours + 2 standard"
+            17 + 2,
+            "17 ours + 2 standard"
         );
     }
 

@@ -47,7 +47,7 @@ use serde::{Deserialize, Serialize};
 /// firmware" instead of an unknown key.
 ///
 /// History: 1.0 lighting, budget, sequences; 1.1 the stored board geometry
-/// (`fpm/board/geometry`).
+/// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`).
 pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
 
 /// A protocol version, as reported by [`VersionEndpoint`].

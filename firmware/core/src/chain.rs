@@ -109,7 +109,7 @@ pub fn update_time_us(shift: &[u16], led_shift_ns: u32, latch_us: u32) -> u64 {
 
 /// One LED's data word as a WS2812 expects it: green, red, blue, most significant bit
 /// first, left-aligned in 32 bits for a 24-bit PIO autopull.
-pub const fn grb_word(c: fpm_protocol::Rgb) -> u32 {
+pub const fn grb_word(c: smart_leds::RGB8) -> u32 {
     ((c.g as u32) << 24) | ((c.r as u32) << 16) | ((c.b as u32) << 8)
 }
 
@@ -226,9 +226,10 @@ mod tests {
 
     #[test]
     fn data_words_are_green_red_blue_from_the_top_bit() {
-        assert_eq!(grb_word(Rgb::new(0x12, 0x34, 0x56)), 0x3412_5600);
+        use smart_leds::RGB8;
+        assert_eq!(grb_word(RGB8::new(0x12, 0x34, 0x56)), 0x3412_5600);
         assert_eq!(
-            grb_word(Rgb::new(0, 0x80, 0)) >> 31,
+            grb_word(RGB8::new(0, 0x80, 0)) >> 31,
             1,
             "green's MSB goes out first"
         );

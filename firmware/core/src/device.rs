@@ -8,6 +8,7 @@ use postcard_rpc::{Endpoint, Key, Topic};
 use serde::{de::DeserializeOwned, Serialize};
 
 use crate::board::{BoardConfig, FIRMWARE_VERSION};
+use crate::budget::Output;
 use crate::chain::{chain_index, led_at};
 use crate::hw::{FrameSink, LedStrip, TriggerOut};
 use crate::leds::LedState;
@@ -225,6 +226,7 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             ClearEndpoint => clear,
             PatternEndpoint => pattern,
             BrightnessEndpoint => brightness,
+            GammaEndpoint => gamma,
             BudgetEndpoint => set_budget,
             SequenceDefineEndpoint => seq_define,
             SequenceStepsEndpoint => seq_steps,
@@ -415,6 +417,22 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
         self.commit(level, self.budget, now)
     }
 
+    /// Gamma correction on or off (`None`: only ask). What is lit is shown again
+    /// through the new setting, within the budget as for any change.
+    fn gamma(&mut self, on: Option<bool>, now: u64, _: &mut impl FrameSink) -> GammaResult {
+        let Some(on) = on else {
+            return Ok(self.leds.output().gamma);
+        };
+        self.not_running()?;
+        self.leds.stage(true);
+        let output = Output {
+            gamma: on,
+            ..self.leds.output()
+        };
+        self.commit_output(output, self.budget, now)?;
+        Ok(on)
+    }
+
     /// A new budget takes effect at once: what is lit is dimmed to fit if needed.
     fn set_budget(&mut self, req: BudgetConfig, now: u64, _: &mut impl FrameSink) -> BudgetResult {
         self.not_running()?;
@@ -494,10 +512,15 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
     }
 
     fn commit(&mut self, brightness: u8, budget: BudgetConfig, now: u64) -> LitResult {
+        let output = self.leds.output().at(brightness);
+        self.commit_output(output, budget, now)
+    }
+
+    fn commit_output(&mut self, output: Output, budget: BudgetConfig, now: u64) -> LitResult {
         let b = &self.board;
         self.leds.commit(
             &b.geometry,
-            brightness,
+            output,
             budget,
             b.channel_current_ua,
             (b.led_shift_ns, b.latch_us),
@@ -628,7 +651,7 @@ fn check_step(
     step: &Step,
 ) -> Result<(), DeviceError> {
     render(board, leds, step.illumination, step.color)?;
-    let need = leds.staged_current_ua(leds.brightness(), board.channel_current_ua);
+    let need = leds.staged_current_ua(leds.output(), board.channel_current_ua);
     if need > budget.limit_ma as u64 * 1000 {
         return Err(DeviceError::OverBudget {
             required_ma: crate::budget::ua_to_ma(need),

@@ -5,19 +5,21 @@ use fpm_protocol::{
     limits::MAX_LEDS, BoardGeometry, BudgetConfig, BudgetPolicy, DeviceError, Lit, Rgb,
 };
 
-use crate::budget::{current_at, current_ua, dim_rgb, fit_brightness, ua_to_ma};
+use smart_leds::RGB8;
+
+use crate::budget::{current_at, current_ua, fit_brightness, ua_to_ma, Output};
 use crate::chain::{lane_len, update_time_us, MAX_LANES};
 use crate::hw::LedStrip;
 
 /// Colours by chain position. `requested` is what the host asked for (before
-/// brightness), `shown` what the LEDs hold now (after brightness), `staged` the state
-/// being prepared by a request.
+/// gamma and brightness), `shown` what the LEDs hold now (as shifted out), `staged`
+/// the state being prepared by a request.
 pub struct LedState {
     requested: [Rgb; MAX_LEDS],
-    shown: [Rgb; MAX_LEDS],
+    shown: [RGB8; MAX_LEDS],
     staged: [Rgb; MAX_LEDS],
     len: usize,
-    brightness: u8,
+    output: Output,
     effective: u8,
 }
 
@@ -31,10 +33,13 @@ impl LedState {
         };
         Self {
             requested: [Rgb::OFF; MAX_LEDS],
-            shown: [Rgb::OFF; MAX_LEDS],
+            shown: [RGB8::new(0, 0, 0); MAX_LEDS],
             staged: [Rgb::OFF; MAX_LEDS],
             len,
-            brightness,
+            output: Output {
+                brightness,
+                gamma: false,
+            },
             effective: brightness,
         }
     }
@@ -55,18 +60,18 @@ impl LedState {
         &self.staged[..self.len]
     }
 
-    /// Current the staged state would draw at `brightness`, µA.
-    pub fn staged_current_ua(&self, brightness: u8, channel_current_ua: u32) -> u64 {
-        current_at(&self.staged[..self.len], brightness, channel_current_ua)
+    /// Current the staged state would draw through `output`, µA.
+    pub fn staged_current_ua(&self, output: Output, channel_current_ua: u32) -> u64 {
+        current_at(&self.staged[..self.len], output, channel_current_ua)
     }
 
-    /// Make the staged state real at `brightness`, within `budget`, and shift it out.
+    /// Make the staged state real through `output`, within `budget`, and shift it out.
     /// On refusal nothing changes.
     #[allow(clippy::too_many_arguments)]
     pub fn commit(
         &mut self,
         geometry: &BoardGeometry,
-        brightness: u8,
+        output: Output,
         budget: BudgetConfig,
         channel_current_ua: u32,
         timing: (u32, u32),
@@ -75,7 +80,8 @@ impl LedState {
     ) -> Result<Lit, DeviceError> {
         let n = self.len;
         let limit_ua = budget.limit_ma as u64 * 1000;
-        let need_ua = current_at(&self.staged[..n], brightness, channel_current_ua);
+        let brightness = output.brightness;
+        let need_ua = current_at(&self.staged[..n], output, channel_current_ua);
         let effective = if need_ua <= limit_ua {
             brightness
         } else {
@@ -88,16 +94,17 @@ impl LedState {
                     })
                 }
                 BudgetPolicy::Scale => {
-                    fit_brightness(&self.staged[..n], brightness, channel_current_ua, limit_ua)
+                    fit_brightness(&self.staged[..n], output, channel_current_ua, limit_ua)
                 }
             }
         };
 
-        // Dim into `shown`, noting per lane the last LED that changed.
+        // Into `shown` as it will be shifted out, noting per lane the last LED that
+        // changed.
         let per_lane = lane_len(geometry).max(1);
         let mut shift = [0u16; MAX_LANES];
         for i in 0..n {
-            let px = dim_rgb(self.staged[i], effective);
+            let px = output.at(effective).apply(self.staged[i]);
             if px != self.shown[i] {
                 self.shown[i] = px;
                 if let Some(s) = shift.get_mut(i / per_lane) {
@@ -106,7 +113,7 @@ impl LedState {
             }
         }
         self.requested[..n].copy_from_slice(&self.staged[..n]);
-        self.brightness = brightness;
+        self.output = output;
         self.effective = effective;
         let lanes = (geometry.lanes as usize).clamp(1, MAX_LANES);
         if shift.iter().any(|&s| s > 0) {
@@ -126,7 +133,7 @@ impl LedState {
     pub fn leds_on(&self) -> u16 {
         self.shown[..self.len]
             .iter()
-            .filter(|p| !p.is_off())
+            .filter(|p| (p.r, p.g, p.b) != (0, 0, 0))
             .count() as u16
     }
 
@@ -137,11 +144,16 @@ impl LedState {
 
     /// Brightness asked for.
     pub fn brightness(&self) -> u8 {
-        self.brightness
+        self.output.brightness
     }
 
-    /// What the LEDs hold now, in chain order.
-    pub fn shown(&self) -> &[Rgb] {
+    /// Brightness and gamma asked for.
+    pub fn output(&self) -> Output {
+        self.output
+    }
+
+    /// What the LEDs hold now, in chain order, as shifted out.
+    pub fn shown(&self) -> &[RGB8] {
         &self.shown[..self.len]
     }
 }

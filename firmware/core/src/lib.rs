@@ -40,4 +40,5 @@ pub mod storage;
 pub use board::BoardConfig;
 pub use device::Device;
 pub use hw::{FrameSink, LedStrip, TriggerOut};
+pub use smart_leds::{SmartLedsWrite, RGB8};
 pub use storage::{CalibrationStore, RamNor};

@@ -79,7 +79,7 @@ async fn main(spawner: Spawner) {
     let (mut tx, mut rx) = class.split();
     let mut status_led = Output::new(p.PIN_25, Level::Low);
 
-    let strip = RpStrip::new(&PENDING, BOARD.max_current_ma, BOARD.channel_current_ua);
+    let strip = RpStrip::new(&PENDING, &BOARD);
     let store = CalibrationStore::new(flash, CALIBRATION_BASE);
     let mut device = match Device::new(BOARD, serial, strip, trigger_out, store) {
         Ok(d) => d,

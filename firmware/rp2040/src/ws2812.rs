@@ -21,9 +21,8 @@ use embassy_sync::signal::Signal;
 use embassy_time::Timer;
 use fixed::types::U24F8;
 use fpm_firmware::chain::{grb_word, MAX_LANES};
-use fpm_firmware::LedStrip;
+use fpm_firmware::{LedStrip, SmartLedsWrite, RGB8};
 use fpm_protocol::limits::MAX_LEDS;
-use fpm_protocol::Rgb;
 
 // Bit timing in PIO cycles: 10 cycles per bit at 8 MHz = 800 kbit/s.
 const T1: u8 = 2; // start of bit: high
@@ -169,25 +168,41 @@ pub struct RpStrip {
     pending: &'static PendingFrame,
     max_current_ua: u64,
     channel_current_ua: u32,
+    led_count: usize,
+    lanes: usize,
 }
 
 impl RpStrip {
-    /// A strip that never drives more than `max_current_ma` in total.
-    pub fn new(
-        pending: &'static PendingFrame,
-        max_current_ma: u32,
-        channel_current_ua: u32,
-    ) -> Self {
+    /// A strip of `board`'s LEDs that never drives more than its current rating.
+    pub fn new(pending: &'static PendingFrame, board: &fpm_firmware::BoardConfig) -> Self {
         Self {
             pending,
-            max_current_ua: max_current_ma as u64 * 1000,
-            channel_current_ua,
+            max_current_ua: board.max_current_ma as u64 * 1000,
+            channel_current_ua: board.channel_current_ua,
+            led_count: board.geometry.led_count() as usize,
+            lanes: board.geometry.lanes as usize,
         }
     }
 }
 
+/// A whole-chain write, for code that drives the chain as any smart-leds strip.
+impl SmartLedsWrite for RpStrip {
+    type Error = core::convert::Infallible;
+    type Color = RGB8;
+
+    fn write<T, I>(&mut self, colors: T) -> Result<(), Self::Error>
+    where
+        T: IntoIterator<Item = I>,
+        I: Into<RGB8>,
+    {
+        let (count, lanes) = (self.led_count, self.lanes);
+        fpm_firmware::hw::write_whole_chain(self, colors, count, lanes);
+        Ok(())
+    }
+}
+
 impl LedStrip for RpStrip {
-    fn write(&mut self, pixels: &[Rgb], lane_len: usize, shift: &[u16]) {
+    fn write(&mut self, pixels: &[RGB8], lane_len: usize, shift: &[u16]) {
         // Last line of defence, independent of the logic that already keeps the budget:
         // a frame that would overload the supply is never shifted out.
         let need = fpm_firmware::budget::current_ua(pixels, self.channel_current_ua);

@@ -661,3 +661,30 @@ fn the_board_remembers_its_geometry_across_restarts() {
     drop(dev);
     emu.stop();
 }
+
+#[test]
+/// Gamma correction (smart-leds' table) changes what is shifted out, as the chain shows
+/// it (for the firmware: decoded at GP16), and the current is counted on those values.
+fn gamma_changes_what_is_shifted_out_and_the_current_counts_it() {
+    let (_dir, emu) = emulator("gamma", &[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    assert!(!dev.gamma(None).unwrap(), "off by default: light ∝ value");
+    let lit = dev
+        .set_led(LedIndex::new(3, 4), Rgb::new(128, 0, 255))
+        .unwrap();
+    // (128 + 255) × 20 mA / 255, rounded up.
+    assert_eq!(lit.current_ma, 31);
+    assert!(dev.gamma(Some(true)).unwrap());
+    assert!(dev.gamma(None).unwrap());
+    // 128 → 37 through the table; 255 stays.
+    let status = dev.status().unwrap();
+    assert_eq!(status.current_ma, ((37 + 255) * 20u32).div_ceil(255));
+    let shown = "LEDs lit: (3,4) #2500ff";
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while !emu.log_text().contains(shown) && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(emu.log_text().contains(shown), "{}", emu.log_text());
+    assert!(!dev.gamma(Some(false)).unwrap());
+    assert_eq!(dev.status().unwrap().current_ma, 31);
+}

@@ -15,8 +15,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use nix::poll::{PollFd, PollFlags, PollTimeout};
 
-use fpm_firmware::LedStrip;
-use fpm_protocol::Rgb;
+use fpm_firmware::{LedStrip, RGB8};
 
 use crate::hardware::EmulatedStrip;
 use crate::pty::{Link, Pty};
@@ -218,13 +217,13 @@ impl Pins {
                     if bad_pulses > 0 {
                         tracing::warn!("WS2812 frame with {bad_pulses} malformed pulse(s) at GP16");
                     }
-                    let mut pixels = vec![Rgb::OFF; self.strip.pixels().len()];
+                    let mut pixels = vec![RGB8::default(); self.strip.pixels().len()];
                     for (p, w) in pixels.iter_mut().zip(&words) {
                         // Shifted out green, red, blue.
-                        *p = Rgb::new((w >> 8) as u8, (w >> 16) as u8, *w as u8);
+                        *p = RGB8::new((w >> 8) as u8, (w >> 16) as u8, *w as u8);
                     }
                     let n = words.len().min(pixels.len()) as u16;
-                    self.strip.write(&pixels, pixels.len(), &[n]);
+                    LedStrip::write(&mut self.strip, &pixels, pixels.len(), &[n]);
                 }
                 PinEvent::Trigger { high: true, us } => {
                     self.trigger_high_at = Some(us);

@@ -5,7 +5,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use fpm_firmware::chain::led_at;
-use fpm_firmware::{LedStrip, TriggerOut};
+use fpm_firmware::{LedStrip, SmartLedsWrite, TriggerOut, RGB8};
 use fpm_protocol::{BoardGeometry, Edge, Rgb};
 
 /// A WS2812 chain: each lane latches only the LEDs shifted into it; the rest keep their
@@ -48,15 +48,34 @@ impl EmulatedStrip {
     }
 }
 
+/// A whole-chain write, as any smart-leds user would drive the chain.
+impl SmartLedsWrite for EmulatedStrip {
+    type Error = std::convert::Infallible;
+    type Color = RGB8;
+
+    fn write<T, I>(&mut self, colors: T) -> Result<(), Self::Error>
+    where
+        T: IntoIterator<Item = I>,
+        I: Into<RGB8>,
+    {
+        let (count, lanes) = (self.pixels.len(), self.geometry.lanes as usize);
+        fpm_firmware::hw::write_whole_chain(self, colors, count, lanes);
+        Ok(())
+    }
+}
+
 impl LedStrip for EmulatedStrip {
-    fn write(&mut self, pixels: &[Rgb], lane_len: usize, shift: &[u16]) {
+    fn write(&mut self, pixels: &[RGB8], lane_len: usize, shift: &[u16]) {
         for (lane, &n) in shift.iter().enumerate() {
             let start = lane * lane_len;
             let end = (start + n as usize)
                 .min(pixels.len())
                 .min(self.pixels.len());
-            if start < end {
-                self.pixels[start..end].copy_from_slice(&pixels[start..end]);
+            for (mine, &theirs) in self.pixels[start.min(end)..end]
+                .iter_mut()
+                .zip(&pixels[start.min(end)..end])
+            {
+                *mine = fpm_firmware::hw::to_rgb(theirs);
             }
         }
         self.writes += 1;

@@ -2,7 +2,7 @@
 //! request helper that speaks the real wire format (postcard-rpc header + COBS).
 #![allow(dead_code)]
 
-use fpm_firmware::{BoardConfig, Device, LedStrip, TriggerOut};
+use fpm_firmware::{BoardConfig, Device, LedStrip, TriggerOut, RGB8};
 use fpm_protocol::{Rgb, WireError};
 use postcard_rpc::header::{VarHeader, VarKey, VarSeq};
 use postcard_rpc::standard_icd::ERROR_KEY;
@@ -18,14 +18,16 @@ pub struct Strip {
 }
 
 impl LedStrip for Strip {
-    fn write(&mut self, pixels: &[Rgb], lane_len: usize, shift: &[u16]) {
+    fn write(&mut self, pixels: &[RGB8], lane_len: usize, shift: &[u16]) {
         if self.pixels.len() != pixels.len() {
             self.pixels = vec![Rgb::OFF; pixels.len()];
         }
         // Emulate the physics: only shifted LEDs change.
         for (lane, &n) in shift.iter().enumerate() {
             let range = lane * lane_len..lane * lane_len + n as usize;
-            self.pixels[range.clone()].copy_from_slice(&pixels[range]);
+            for (mine, &theirs) in self.pixels[range.clone()].iter_mut().zip(&pixels[range]) {
+                *mine = fpm_firmware::hw::to_rgb(theirs);
+            }
         }
         self.writes.push(shift.to_vec());
     }

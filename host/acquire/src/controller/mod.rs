@@ -224,6 +224,13 @@ impl Controller {
         }
     }
 
+    /// Gamma correction on or off (`None`: only ask); returns whether it is on
+    /// (protocol ≥ 1.1).
+    pub fn gamma(&self, on: Option<bool>) -> Result<bool> {
+        self.require(BoardCalibration::SINCE, GammaEndpoint::PATH)?;
+        self.checked::<GammaEndpoint, _>(&on)
+    }
+
     /// The array geometry stored on the board (protocol ≥ 1.1).
     pub fn stored_calibration(&self) -> Result<StoredCalibration> {
         self.require(BoardCalibration::SINCE, GeometryEndpoint::PATH)?;

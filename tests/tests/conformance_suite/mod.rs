@@ -688,3 +688,56 @@ fn gamma_changes_what_is_shifted_out_and_the_current_counts_it() {
     assert!(!dev.gamma(Some(false)).unwrap());
     assert_eq!(dev.status().unwrap().current_ma, 31);
 }
+
+#[test]
+/// A change shifts out only up to the last LED that changed, in each lane (for the
+/// firmware: the words counted at GP16 before the latch).
+fn a_partial_shift_stops_at_the_last_changed_led() {
+    let (_dir, emu) = emulator("partial", &[]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    let g = dev.info().geometry;
+    let led_at_chain = |k: u16| fpm_firmware::chain::led_at(&g, k).unwrap();
+    let wait_for = |text: &str| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        while std::time::Instant::now() < deadline {
+            let log = emu.log_text();
+            if log.contains(text) {
+                return log;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("no \"{text}\" in the log:\n{}", emu.log_text());
+    };
+    // From dark, the LED at chain position 100: 101 LEDs go out.
+    dev.set_led(led_at_chain(100), Rgb::new(0, 0, 9)).unwrap();
+    wait_for("chain shifted [101] LED(s)");
+    // Moving it to position 5 changes positions 5 and 100: still 101.
+    let before = emu.log_text().matches("chain shifted").count();
+    dev.set_led(led_at_chain(5), Rgb::new(0, 0, 9)).unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while emu.log_text().matches("chain shifted").count() == before
+        && std::time::Instant::now() < deadline
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let log = emu.log_text();
+    let last = log
+        .lines()
+        .filter(|l| l.contains("chain shifted"))
+        .next_back()
+        .unwrap();
+    assert!(last.contains("[101]"), "{last}");
+    // Adding position 3 changes only it: 4 LEDs go out, the rest keep their colour.
+    dev.set_leds(&[led_at_chain(3)], Rgb::new(0, 0, 9), true)
+        .unwrap();
+    let log = wait_for("chain shifted [4] LED(s)");
+    let lit = log
+        .lines()
+        .filter(|l| l.contains("LEDs lit"))
+        .next_back()
+        .unwrap();
+    for k in [3, 5] {
+        let led = led_at_chain(k);
+        assert!(lit.contains(&format!("({},{})", led.row, led.col)), "{lit}");
+    }
+}

@@ -83,6 +83,7 @@ impl LedStrip for EmulatedStrip {
         if !tracing::enabled!(tracing::Level::INFO) {
             return;
         }
+        tracing::info!("chain shifted {shift:?} LED(s) per lane");
         let lit: Vec<(usize, Rgb)> = self
             .pixels
             .iter()

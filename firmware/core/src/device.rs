@@ -106,6 +106,16 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
         &self.board
     }
 
+    /// Current drawn by what is lit now, mA.
+    pub fn current_ma(&self) -> u32 {
+        self.leds.current_ma(self.board.channel_current_ua)
+    }
+
+    /// The current budget in force.
+    pub fn budget(&self) -> BudgetConfig {
+        self.budget
+    }
+
     /// Link counters.
     pub fn link_stats(&self) -> LinkStats {
         self.stats

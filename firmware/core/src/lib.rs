@@ -30,6 +30,9 @@ pub mod board;
 pub mod budget;
 pub mod chain;
 mod device;
+#[cfg(any(test, feature = "fuzzing"))]
+#[allow(clippy::panic)] // panicking is how it reports a broken invariant to the fuzzer
+pub mod fuzz_script;
 pub mod hw;
 pub mod leds;
 pub mod link;

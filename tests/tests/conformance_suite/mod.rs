@@ -721,21 +721,13 @@ fn a_partial_shift_stops_at_the_last_changed_led() {
         std::thread::sleep(Duration::from_millis(20));
     }
     let log = emu.log_text();
-    let last = log
-        .lines()
-        .filter(|l| l.contains("chain shifted"))
-        .next_back()
-        .unwrap();
+    let last = log.lines().rfind(|l| l.contains("chain shifted")).unwrap();
     assert!(last.contains("[101]"), "{last}");
     // Adding position 3 changes only it: 4 LEDs go out, the rest keep their colour.
     dev.set_leds(&[led_at_chain(3)], Rgb::new(0, 0, 9), true)
         .unwrap();
     let log = wait_for("chain shifted [4] LED(s)");
-    let lit = log
-        .lines()
-        .filter(|l| l.contains("LEDs lit"))
-        .next_back()
-        .unwrap();
+    let lit = log.lines().rfind(|l| l.contains("LEDs lit")).unwrap();
     for k in [3, 5] {
         let led = led_at_chain(k);
         assert!(lit.contains(&format!("({},{})", led.row, led.col)), "{lit}");

@@ -305,38 +305,80 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
   }
 });
 
-// The WS2812 chain, decoded at the pin (GP16, lane 0). rp2040js runs the PIO one
-// instruction per step, on its own wall-clock loop; here it is stepped from the CPU
-// loop instead, in lockstep with emulated time: one instruction per PIO_STEP_CYCLES
-// system cycles, the WS2812 program's average (10 PIO cycles per bit in 3
-// instructions, at clk_sys / 15.625). Bits are told apart by how many instructions
-// the line stays high (the program's "1": two, its "0": one); a word is 24 bits, G
-// then R then B; a frame ends when the line has stayed low for FRAME_GAP_US (the
-// latch) and is reported on stderr as `event {"type":"latched",...}`. Instruction
-// delays are not modelled by rp2040js, so pulse widths are only approximate in µs.
+// The WS2812 chain, decoded at the pin (GP16, lane 0). rp2040js runs a state machine's
+// next instruction at once, counting the instruction's delay cycles but not waiting
+// them out, on its own wall-clock timer. Here each state machine is stepped cycle by
+// cycle in emulated time instead: one PIO cycle every clk_sys / CLKDIV system cycles
+// (the firmware's own divider), an instruction only once the delay cycles of the one
+// before have passed (rp2040js's `cycles` counter), so pulse widths at the pin are the
+// program's. Edges are stamped with the PIO cycle they happen in.
+//
+// Decoding follows the WS2812B datasheet: a high pulse of 0.25–0.55 µs is a 0 (T0H
+// 0.4 µs ± 150 ns), of 0.65–0.95 µs a 1 (T1H 0.8 µs ± 150 ns), anything else is a bad
+// pulse; 24 bits make a word, G then R then B; the line low for LATCH_US (280 µs)
+// latches the frame, reported on stderr as `event {"type":"latched",...}` with the
+// words and the timing measured: first rise to last fall, the shortest and longest
+// T0H, T1H and bit period, the longest low inside the frame, and the gap since the
+// previous frame.
 const WS2812_PIN = 16;
-const PIO_STEP_CYCLES = (CPU_HZ / (800e3 * 10)) * (10 / 3);
-const FRAME_GAP_US = 100;
+const LATCH_US = 280;
+const T0H_NS = [250, 550];
+const T1H_NS = [650, 950];
 const pio0 = mcu.pio[0];
 pio0.run = () => {}; // stepped below, not on its own timer
-let pioDebt = 0;
-function stepPio(cycles) {
+// Per machine: the system cycle of its next PIO cycle, and that PIO cycle's number.
+const smNext = [0, 0, 0, 0];
+const smTick = [0, 0, 0, 0];
+let pinTimeUs = 0;
+// Called after every CPU instruction: does nothing until a PIO cycle is due.
+let pioDueAt = 0;
+// While idle, how often to look for new data in the FIFOs (system cycles, 0.5 µs).
+const IDLE_RECHECK_CYCLES = 64;
+// While the CPU sleeps beside a running PIO, the clock advances in slices this long.
+const PIO_SLICE_CYCLES = 2000;
+function clockDivider(m) {
+  return (m.clockDivInt || 65536) + m.clockDivFrac / 256;
+}
+function stepPio() {
   if (pio0.stopped) return;
-  pioDebt += cycles;
-  // Called on every CPU instruction: look at the PIO only once a step is due.
-  if (pioDebt < PIO_STEP_CYCLES) return;
+  const now = mcu.clock.nanos / cycleNanos;
+  if (now < pioDueAt) return;
   if (pioIdle()) {
     // Stalled on an empty FIFO (no frame open): nothing to step until the CPU or DMA
     // writes again.
-    pioDebt = 0;
+    for (let k = 0; k < 4; k++) {
+      smNext[k] = now;
+      pio0.machines[k].cycles = smTick[k];
+    }
+    pioDueAt = now + IDLE_RECHECK_CYCLES;
     return;
   }
-  while (pioDebt >= PIO_STEP_CYCLES) {
-    pioDebt -= PIO_STEP_CYCLES;
-    pioSteps++;
-    pio0.step();
+  for (let k = 0; k < 4; k++) {
+    const m = pio0.machines[k];
+    if (!m.enabled) {
+      smNext[k] = now;
+      continue;
+    }
+    const div = clockDivider(m);
+    while (smNext[k] <= now) {
+      if (m.cycles <= smTick[k]) {
+        pinTimeUs = (smNext[k] * cycleNanos) / 1e3;
+        m.step();
+        // A stall takes this cycle; the instruction runs when it clears.
+        if (m.waiting) m.cycles = smTick[k] + 1;
+        pio0.checkChangedPins();
+      }
+      smTick[k]++;
+      smNext[k] += div;
+    }
   }
-  if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= FRAME_GAP_US) closeFrame();
+  pioDueAt = Math.min(...pio0.machines.map((m, k) => (m.enabled ? smNext[k] : Infinity)));
+  if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= LATCH_US) {
+    closeFrame();
+    pioDueAt = now;
+  }
+  // An open frame must be closed on time even if no machine runs.
+  if (frameOpen) pioDueAt = Math.min(pioDueAt, now + IDLE_RECHECK_CYCLES);
 }
 // Every running state machine stalled on an empty TX FIFO: nothing changes at the pins
 // until the CPU (or DMA) writes again, so sleep can be skipped in one go.
@@ -349,9 +391,9 @@ function pioIdle() {
     (m) => !m.enabled || (m.txFIFO.empty && (pio0.txStall & (FDEBUG_TXSTALL << m.index)) !== 0),
   );
 }
-let pioSteps = 0;
-let riseAt = 0;
-let fallUs = 0;
+let riseUs = 0;
+let fallUs = -Infinity;
+let lastFrameEndUs = null;
 let lineHigh = false;
 let bits = 0;
 let word = 0;
@@ -359,6 +401,15 @@ let frame = [];
 let frameOpen = false;
 let frameStartUs = 0;
 let badPulses = 0;
+let timing = null;
+function newTiming() {
+  return { t0h: [Infinity, -Infinity], t1h: [Infinity, -Infinity], period: [Infinity, -Infinity], lowMax: 0 };
+}
+function widen(range, x) {
+  range[0] = Math.min(range[0], x);
+  range[1] = Math.max(range[1], x);
+}
+const ns = (range) => (Number.isFinite(range[0]) ? [Math.round(range[0]), Math.round(range[1])] : null);
 function emit(event) {
   process.stderr.write(`event ${JSON.stringify(event)}\n`);
 }
@@ -368,7 +419,20 @@ function closeFrame() {
     log(`frame closed at ${mcu.clock.micros.toFixed(1)} µs (first rise ${frameStartUs.toFixed(1)}, last fall ${fallUs.toFixed(1)}, ${frame.length} words): sm0 enabled ${m.enabled} waiting ${m.waiting} waitType ${m.waitType} fifo ${m.txFIFO.itemCount} txStall 0x${(pio0.txStall >>> 0).toString(16)} idle ${pioIdle()}`);
   }
   if (bits !== 0) badPulses++;
-  emit({ type: 'latched', us: Number(mcu.clock.micros.toFixed(3)), lane: 0, words: frame, bad: badPulses });
+  emit({
+    type: 'latched',
+    us: Number(mcu.clock.micros.toFixed(3)),
+    lane: 0,
+    words: frame,
+    bad: badPulses,
+    shift_us: Number((fallUs - frameStartUs).toFixed(3)),
+    t0h_ns: ns(timing.t0h),
+    t1h_ns: ns(timing.t1h),
+    period_ns: ns(timing.period),
+    low_max_ns: Math.round(timing.lowMax),
+    gap_us: timing.gapUs === null ? null : Number(timing.gapUs.toFixed(3)),
+  });
+  lastFrameEndUs = fallUs;
   frame = [];
   bits = 0;
   word = 0;
@@ -379,16 +443,35 @@ mcu.gpio[WS2812_PIN].addListener((state) => {
   const high = state === GPIOPinState.High;
   if (high === lineHigh) return;
   lineHigh = high;
+  const at = pinTimeUs;
   if (high) {
-    riseAt = pioSteps;
-    if (!frameOpen) frameStartUs = mcu.clock.micros;
-    frameOpen = true;
+    if (!frameOpen) {
+      frameStartUs = at;
+      timing = newTiming();
+      timing.gapUs = lastFrameEndUs === null ? null : at - lastFrameEndUs;
+      frameOpen = true;
+    } else {
+      widen(timing.period, (at - riseUs) * 1e3);
+      timing.lowMax = Math.max(timing.lowMax, (at - fallUs) * 1e3);
+    }
+    riseUs = at;
     return;
   }
-  fallUs = mcu.clock.micros;
-  const width = pioSteps - riseAt;
-  if (width < 1 || width > 2) badPulses++;
-  word = ((word << 1) | (width >= 2 ? 1 : 0)) >>> 0;
+  fallUs = at;
+  const width = (at - riseUs) * 1e3;
+  let bit;
+  if (width >= T0H_NS[0] && width <= T0H_NS[1]) {
+    bit = 0;
+    widen(timing.t0h, width);
+  } else if (width >= T1H_NS[0] && width <= T1H_NS[1]) {
+    bit = 1;
+    widen(timing.t1h, width);
+  } else {
+    badPulses++;
+    bit = width > (T0H_NS[1] + T1H_NS[0]) / 2 ? 1 : 0;
+    widen(bit ? timing.t1h : timing.t0h, width);
+  }
+  word = ((word << 1) | bit) >>> 0;
   bits++;
   if (bits === 24) {
     frame.push(word);
@@ -400,35 +483,39 @@ mcu.gpio[WS2812_PIN].addListener((state) => {
 // Run: emulated time advances with the instructions executed (and jumps to the next
 // alarm while the core sleeps); yield to the event loop often so USB bytes flow.
 const cycleNanos = 1e9 / CPU_HZ;
+const MAX_SLEEP_NS = 1e6;
 let wallStart = Date.now();
 let lastReport = 0;
 function run() {
   const clock = mcu.clock;
   for (let i = 0; i < 200000; i++) {
     if (mcu.core.waiting) {
-      // Asleep until the next alarm; the PIO keeps running meanwhile.
-      const skip = Math.max(clock.nanosToNextAlarm, cycleNanos);
+      // Asleep until the next alarm; the PIO keeps running meanwhile. At most
+      // MAX_SLEEP_NS at a time: with no alarm armed (the firmware waiting for USB)
+      // rp2040js reports the timer's wrap-around, and jumping there would put the
+      // device clock years ahead and cost the µs timestamps their precision.
+      const skip = Math.min(Math.max(clock.nanosToNextAlarm, cycleNanos), MAX_SLEEP_NS);
       const cycles = skip / cycleNanos;
-      if (!pio0.stopped && cycles > PIO_STEP_CYCLES && !pioIdle()) {
+      if (!pio0.stopped && cycles > PIO_SLICE_CYCLES && !pioIdle()) {
         // Step through the sleep in slices, so the PIO's pin changes land in time; at
         // most 2 ms of it per turn, so a long sleep beside a busy PIO cannot hog the loop.
-        const slice = PIO_STEP_CYCLES * cycleNanos;
+        const slice = PIO_SLICE_CYCLES * cycleNanos;
         let left = Math.min(skip, 2e6);
         while (left > 0 && mcu.core.waiting) {
           const dt = Math.min(slice, left);
           clock.tick(dt);
-          stepPio(dt / cycleNanos);
+          stepPio();
           left -= dt;
         }
       } else {
         clock.tick(skip);
-        stepPio(cycles);
+        stepPio();
       }
       i += cycles;
     } else {
       const cycles = mcu.core.executeInstruction();
       clock.tick(cycles * cycleNanos);
-      stepPio(cycles);
+      stepPio();
     }
   }
   const emulatedS = clock.nanos / 1e9;

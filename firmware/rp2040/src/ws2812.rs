@@ -24,10 +24,15 @@ use fpm_firmware::chain::{grb_word, MAX_LANES};
 use fpm_firmware::{LedStrip, SmartLedsWrite, RGB8};
 use fpm_protocol::limits::MAX_LEDS;
 
-// Bit timing in PIO cycles: 10 cycles per bit at 8 MHz = 800 kbit/s.
-const T1: u8 = 2; // start of bit: high
-const T2: u8 = 5; // data: high for a 1, low for a 0
-const T3: u8 = 3; // end of bit: low
+// Bit timing in PIO cycles: 10 cycles per bit at 8 MHz = 800 kbit/s. A 0 is high for
+// T1 (375 ns), a 1 for T1 + T2 (750 ns): inside both the WS2812B's T0H 0.4 µs ± 150 ns,
+// T1H 0.8 µs ± 150 ns and the V5 parts' T0H 220–380 ns, T1H 580–1000 ns. The
+// datasheet's T1 = 2 gives a T0H of 250 ns, on the edge of the first window (and below
+// it by a system cycle when the fractional divider rounds down); measured at GP16 by
+// tests/tests/conformance_firmware.rs.
+const T1: u8 = 3; // start of bit: high
+const T2: u8 = 3; // data: high for a 1, low for a 0
+const T3: u8 = 4; // end of bit: low
 const CYCLES_PER_BIT: u32 = (T1 + T2 + T3) as u32;
 
 /// Load the WS2812 program (the RP2040 datasheet's, §3.6.2) into a PIO block.

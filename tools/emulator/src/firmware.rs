@@ -213,10 +213,20 @@ impl Pins {
     fn handle(&mut self, events: impl Iterator<Item = PinEvent>) {
         for event in events {
             match event {
-                PinEvent::Latched { words, bad_pulses } => {
+                PinEvent::Latched {
+                    words,
+                    bad_pulses,
+                    timing,
+                } => {
                     if bad_pulses > 0 {
                         tracing::warn!("WS2812 frame with {bad_pulses} malformed pulse(s) at GP16");
                     }
+                    tracing::info!(
+                        "WS2812 frame at GP16: {} LEDs in {:.1} µs; {}",
+                        words.len(),
+                        timing.shift_us,
+                        timing
+                    );
                     let mut pixels = vec![RGB8::default(); self.strip.pixels().len()];
                     for (p, w) in pixels.iter_mut().zip(&words) {
                         // Shifted out green, red, blue.
@@ -274,6 +284,8 @@ enum PinEvent {
         words: Vec<u32>,
         /// High pulses that were neither a 0 nor a 1 bit.
         bad_pulses: u64,
+        /// The frame's timing as measured at the pin.
+        timing: FrameTiming,
     },
     /// The device's USB identity, as a host reads it after enumeration.
     Usb {
@@ -309,6 +321,7 @@ impl PinEvent {
                     .map(|w| w.as_u64().map(|w| w as u32))
                     .collect::<Option<_>>()?,
                 bad_pulses: v.get("bad")?.as_u64()?,
+                timing: FrameTiming::parse(&v)?,
             }),
             "usb" => {
                 let text = |k: &str| v.get(k).and_then(|s| s.as_str()).map(str::to_owned);
@@ -326,5 +339,59 @@ impl PinEvent {
             }),
             _ => None,
         }
+    }
+}
+
+/// A WS2812 frame's timing at the pin, ns unless stated (ranges are shortest–longest).
+#[derive(Debug, Clone, PartialEq)]
+struct FrameTiming {
+    /// First rise to last fall, µs.
+    shift_us: f64,
+    t0h_ns: Option<[u64; 2]>,
+    t1h_ns: Option<[u64; 2]>,
+    period_ns: Option<[u64; 2]>,
+    /// Longest low between two bits of the frame.
+    low_max_ns: u64,
+    /// Low time since the previous frame, µs (the latch it had).
+    gap_us: Option<f64>,
+}
+
+impl FrameTiming {
+    fn parse(v: &serde_json::Value) -> Option<Self> {
+        let range = |k: &str| -> Option<Option<[u64; 2]>> {
+            match v.get(k)? {
+                serde_json::Value::Null => Some(None),
+                r => Some(Some([r.get(0)?.as_u64()?, r.get(1)?.as_u64()?])),
+            }
+        };
+        Some(Self {
+            shift_us: v.get("shift_us")?.as_f64()?,
+            t0h_ns: range("t0h_ns")?,
+            t1h_ns: range("t1h_ns")?,
+            period_ns: range("period_ns")?,
+            low_max_ns: v.get("low_max_ns")?.as_u64()?,
+            gap_us: v.get("gap_us").and_then(|g| g.as_f64()),
+        })
+    }
+}
+
+impl std::fmt::Display for FrameTiming {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let range = |r: Option<[u64; 2]>| match r {
+            Some([a, b]) => format!("{a}-{b} ns"),
+            None => "none".into(),
+        };
+        write!(
+            f,
+            "T0H {}, T1H {}, bit period {}, longest low inside {} ns, latch before it {}",
+            range(self.t0h_ns),
+            range(self.t1h_ns),
+            range(self.period_ns),
+            self.low_max_ns,
+            match self.gap_us {
+                Some(g) => format!("{g:.1} µs"),
+                None => "n/a (first frame)".into(),
+            }
+        )
     }
 }

@@ -19,6 +19,9 @@ use postcard_rpc::{Endpoint, Key};
 use rand::{Rng, SeedableRng};
 
 /// Open the port raw, write `bytes`, and collect what comes back for `wait`.
+/// Send `bytes` while reading the replies, until the link has been quiet for `wait`
+/// (at most a minute: the emulated RP2040 runs slower than a real one on a loaded
+/// machine, and what is tested is that requests are answered, not how fast).
 fn exchange(port: &str, bytes: &[u8], wait: Duration) -> Vec<u8> {
     let mut p = serialport::new(port, 115_200)
         .timeout(Duration::from_millis(20))
@@ -37,10 +40,16 @@ fn exchange(port: &str, bytes: &[u8], wait: Duration) -> Vec<u8> {
     });
     let mut got = vec![];
     let mut buf = [0u8; 4096];
-    let end = Instant::now() + wait;
-    while Instant::now() < end {
+    let start = Instant::now();
+    let mut last_byte = Instant::now();
+    while last_byte.elapsed() < wait && start.elapsed() < Duration::from_secs(60) {
         match p.read(&mut buf) {
-            Ok(n) => got.extend_from_slice(&buf[..n]),
+            Ok(n) => {
+                got.extend_from_slice(&buf[..n]);
+                if n > 0 {
+                    last_byte = Instant::now();
+                }
+            }
             Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
             Err(e) => panic!("read failed: {e}"),
         }

@@ -55,6 +55,21 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // `fpm device status | head` should end quietly like any Unix tool, not panic on a
+    // closed pipe. Not for the long-running services, which write to child processes
+    // and report a child that went away themselves.
+    if !matches!(
+        cli.command,
+        Command::Emulator(_) | Command::VirtualCamera(_) | Command::Demo(_)
+    ) {
+        // SAFETY: set before any thread exists; the default action only ends the process.
+        unsafe {
+            let _ = nix::sys::signal::signal(
+                nix::sys::signal::Signal::SIGPIPE,
+                nix::sys::signal::SigHandler::SigDfl,
+            );
+        }
+    }
     let default_level = match (&cli.command, cli.verbose) {
         (Command::Emulator(_) | Command::VirtualCamera(_), 0) => "info",
         (_, 0) => "warn",

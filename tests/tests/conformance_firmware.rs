@@ -105,3 +105,34 @@ fn ws2812_timing_at_the_pin_meets_the_datasheet() {
     assert!(frames[0].starts_with("441 LEDs"), "{}", frames[0]);
     assert!(frames[1].starts_with("1 LEDs"), "{}", frames[1]);
 }
+
+/// Request round trips over USB, in emulated time (what a board would show, whatever
+/// the emulator's speed): from the packet that ends a request reaching the firmware
+/// to its first reply bytes (rp2040js delivers packets at once: no 1 ms USB frames).
+#[test]
+fn request_round_trips_in_emulated_time() {
+    use fpm_acquire::controller::Controller;
+    use std::time::Duration;
+
+    let dir = fpm_tests::TempDir::new("round-trip");
+    let mut emu = TARGET.start(&dir.0.join("ctl.tty"), &[]);
+    {
+        let dev = Controller::open(&emu.port(), Duration::from_secs(2)).unwrap();
+        for i in 0..50 {
+            assert_eq!(dev.ping(i).unwrap(), i);
+        }
+    }
+    emu.stop();
+    let log = emu.log_text();
+    let line = log
+        .lines()
+        .find(|l| l.contains("USB request to reply, emulated"))
+        .unwrap_or_else(|| panic!("no round-trip summary:\n{log}"));
+    let after = |key: &str| -> f64 {
+        let rest = line.split_once(key).unwrap().1;
+        rest.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    assert!(after("emulated: ") >= 50.0, "{line}");
+    let p50 = after("p50 ");
+    assert!(p50 > 0.0 && p50 < 1_000.0, "{line}");
+}

@@ -187,6 +187,7 @@ function serveRead() {
   // Received, in one step as the firmware sees it: no longer available, full, with
   // its length.
   setOutAvailable(cdc.outEndpoint, false);
+  if (buffer.includes(0)) requestEndUs = mcu.clock.micros;
   mcu.usbCtrl.finishRead(cdc.outEndpoint, buffer);
 }
 mcu.usbCtrl.onEndpointRead = (endpoint, size) => {
@@ -268,7 +269,15 @@ async function readIdentity() {
     log(`could not read the USB identity: ${e.message}`);
   }
 }
+// Request round trips in emulated time: from the USB packet that ends a request frame
+// (its zero delimiter) reaching the firmware to the first bytes it sends back, reported
+// as `event {"type":"round-trip","us":...}`.
+let requestEndUs = null;
 cdc.onSerialData = (buffer) => {
+  if (requestEndUs !== null) {
+    emit({ type: 'round-trip', us: Number((mcu.clock.micros - requestEndUs).toFixed(3)) });
+    requestEndUs = null;
+  }
   process.stdout.write(Buffer.from(buffer));
 };
 process.stdin.on('data', (chunk) => {

@@ -156,6 +156,7 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
         rig,
         pulses: 0,
         trigger_high_at: None,
+        round_trips_us: vec![],
     };
     let mut buf = [0u8; 4096];
     while !fpm_rig_bus::stop::requested() {
@@ -196,6 +197,9 @@ pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
     // What the pins did just before the stop still counts (the log is read).
     std::thread::sleep(Duration::from_millis(100));
     pins.handle(events.try_iter());
+    if let Some(line) = pins.round_trip_summary() {
+        tracing::info!("{line}");
+    }
     tracing::info!("RP2040 emulator stopped");
     Ok(())
 }
@@ -207,6 +211,27 @@ struct Pins {
     pulses: u64,
     /// When the trigger line last went high, µs.
     trigger_high_at: Option<u64>,
+    /// Request round trips seen, emulated µs.
+    round_trips_us: Vec<f64>,
+}
+
+impl Pins {
+    /// One log line on the request round trips, for the end of a run.
+    fn round_trip_summary(&self) -> Option<String> {
+        let mut t = self.round_trips_us.clone();
+        if t.is_empty() {
+            return None;
+        }
+        t.sort_by(f64::total_cmp);
+        let at = |q: f64| t[((t.len() - 1) as f64 * q).round() as usize];
+        Some(format!(
+            "USB request to reply, emulated: {} requests, p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+            t.len(),
+            at(0.5),
+            at(0.99),
+            at(1.0)
+        ))
+    }
 }
 
 impl Pins {
@@ -261,6 +286,7 @@ impl Pins {
                     }
                 }
                 PinEvent::Flash => tracing::info!("the firmware wrote its flash"),
+                PinEvent::RoundTrip(us) => self.round_trips_us.push(us),
                 PinEvent::PowerCut => {
                     tracing::warn!("power cut during a flash write (--power-cut-after)")
                 }
@@ -298,6 +324,9 @@ enum PinEvent {
     },
     /// The firmware erased or programmed flash (the image file is up to date).
     Flash,
+    /// A request's round trip, emulated µs: the USB packet ending its frame reaching
+    /// the firmware → the first reply bytes leaving it.
+    RoundTrip(f64),
     /// The board lost power mid-write (`--power-cut-after`); the harness has stopped.
     PowerCut,
     /// The camera trigger output changed, at emulated µs.
@@ -332,6 +361,7 @@ impl PinEvent {
                 })
             }
             "flash" => Some(PinEvent::Flash),
+            "round-trip" => Some(PinEvent::RoundTrip(v.get("us")?.as_f64()?)),
             "power-cut" => Some(PinEvent::PowerCut),
             "trigger" => Some(PinEvent::Trigger {
                 high: v.get("level")?.as_u64()? == 1,

@@ -117,14 +117,7 @@ impl Placement {
     pub fn geometry(&self, dataset_nominal: &LedGeometry) -> LedGeometry {
         let grid = match self.nominal {
             Some(n) => {
-                if (n.rows, n.cols, n.center)
-                    != (
-                        dataset_nominal.rows,
-                        dataset_nominal.cols,
-                        dataset_nominal.center,
-                    )
-                    || (n.pitch_mm - dataset_nominal.pitch_mm).abs() > 1e-9
-                {
+                if !n.same_grid(dataset_nominal) {
                     tracing::warn!(
                         "the calibration's LED grid ({}x{}, pitch {} mm, centre {}) differs from the dataset's ({}x{}, pitch {} mm, centre {}); using the calibration's",
                         n.rows, n.cols, n.pitch_mm, n.center,

@@ -47,33 +47,21 @@ pub struct BoardCalibration {
 
 impl BoardCalibration {
     /// The protocol version that introduced the geometry endpoints.
-    pub const SINCE: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
+    pub const SINCE: ProtocolVersion = crate::PROTOCOL_1_1;
 
     /// Whether every number is usable: finite, h > 0, σ and residual ≥ 0.
     pub fn is_valid(&self) -> bool {
-        let finite = [
-            self.dx_mm,
-            self.dy_mm,
-            self.theta_deg,
-            self.height_mm,
+        let placement = [self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm];
+        let spreads = [
             self.rms_residual_um,
             self.sigma.dx_mm,
             self.sigma.dy_mm,
             self.sigma.theta_deg,
             self.sigma.height_mm,
-        ]
-        .iter()
-        .all(|x| x.is_finite());
-        let non_negative = [
-            self.rms_residual_um,
-            self.sigma.dx_mm,
-            self.sigma.dy_mm,
-            self.sigma.theta_deg,
-            self.sigma.height_mm,
-        ]
-        .iter()
-        .all(|&x| x >= 0.0);
-        finite && non_negative && self.height_mm > 0.0
+        ];
+        placement.iter().all(|x| x.is_finite())
+            && spreads.iter().all(|x| x.is_finite() && *x >= 0.0)
+            && self.height_mm > 0.0
     }
 }
 

@@ -48,7 +48,10 @@ use serde::{Deserialize, Serialize};
 ///
 /// History: 1.0 lighting, budget, sequences; 1.1 the stored board geometry
 /// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`).
-pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
+pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_1;
+
+/// Protocol 1.1: what a device must speak for the stored geometry and gamma endpoints.
+pub const PROTOCOL_1_1: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
 
 /// A protocol version, as reported by [`VersionEndpoint`].
 #[derive(Serialize, Deserialize, Schema, Debug, Clone, Copy, PartialEq, Eq)]

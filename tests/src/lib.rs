@@ -226,6 +226,20 @@ impl Emulator {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
+    /// Its log once `ready` holds for it, or when `timeout` has passed (the caller's
+    /// assertions then say what is missing). A controller logs what its chain shows
+    /// after it has replied, so tests wait for the log instead of sleeping.
+    pub fn log_when(&self, ready: impl Fn(&str) -> bool, timeout: std::time::Duration) -> String {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            let log = self.log_text();
+            if ready(&log) || std::time::Instant::now() >= deadline {
+                return log;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     /// Kill it without warning (SIGKILL): the link stays behind, as after a crash.
     pub fn kill(&mut self) {
         self.process.process.kill();

@@ -19,7 +19,7 @@ mod conformance_suite;
 fn ws2812_timing_at_the_pin_meets_the_datasheet() {
     use fpm_acquire::controller::Controller;
     use fpm_protocol::{LedIndex, Pattern, Rgb};
-    use std::time::{Duration, Instant};
+    use std::time::Duration;
 
     let dir = fpm_tests::TempDir::new("ws2812");
     let emu = TARGET.start(&dir.0.join("ctl.tty"), &[]);
@@ -37,10 +37,7 @@ fn ws2812_timing_at_the_pin_meets_the_datasheet() {
             .collect()
     };
     let wait_for_frames = |n: usize| {
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while frames(&emu.log_text()).len() < before + n && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        emu.log_when(|l| frames(l).len() >= before + n, Duration::from_secs(20));
     };
     // The whole chain, then (once it has latched) only the first LED: two frames.
     dev.pattern(Pattern::All, Rgb::new(8, 4, 2)).unwrap();

@@ -381,7 +381,11 @@ function stepPio() {
       smNext[k] += div;
     }
   }
-  pioDueAt = Math.min(...pio0.machines.map((m, k) => (m.enabled ? smNext[k] : Infinity)));
+  // The earliest next PIO cycle (runs after every few CPU instructions: no allocation).
+  pioDueAt = Infinity;
+  for (let k = 0; k < 4; k++) {
+    if (pio0.machines[k].enabled && smNext[k] < pioDueAt) pioDueAt = smNext[k];
+  }
   if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= LATCH_US) {
     closeFrame();
     pioDueAt = now;

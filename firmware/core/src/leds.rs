@@ -103,8 +103,9 @@ impl LedState {
         // changed.
         let per_lane = lane_len(geometry).max(1);
         let mut shift = [0u16; MAX_LANES];
+        let shifted_out = output.at(effective);
         for i in 0..n {
-            let px = output.at(effective).apply(self.staged[i]);
+            let px = shifted_out.apply(self.staged[i]);
             if px != self.shown[i] {
                 self.shown[i] = px;
                 if let Some(s) = shift.get_mut(i / per_lane) {
@@ -133,7 +134,7 @@ impl LedState {
     pub fn leds_on(&self) -> u16 {
         self.shown[..self.len]
             .iter()
-            .filter(|p| (p.r, p.g, p.b) != (0, 0, 0))
+            .filter(|&&p| p != RGB8::default())
             .count() as u16
     }
 

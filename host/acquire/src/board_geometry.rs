@@ -14,11 +14,11 @@ use fpm_protocol::{BoardCalibration, PlacementSigma, StoredCalibration};
 /// form), checked against the board's own grid. The date stored is the file's
 /// modification time (when the calibration was written).
 pub fn from_calibration_file(path: &Path, board: &LedGeometry) -> Result<BoardCalibration> {
-    let placement = Placement::read(path)?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let placement = Placement::parse(&text).with_context(|| format!("{}", path.display()))?;
     if let Some(grid) = placement.nominal {
-        let same = (grid.rows, grid.cols, grid.center) == (board.rows, board.cols, board.center)
-            && (grid.pitch_mm - board.pitch_mm).abs() < 1e-6;
-        if !same {
+        if !grid.same_grid(board) {
             bail!(
                 "{}: computed for a {}x{} grid at {} mm pitch centred on {}, but this board is {}x{} at {} mm centred on {}: not its calibration",
                 path.display(),
@@ -33,8 +33,7 @@ pub fn from_calibration_file(path: &Path, board: &LedGeometry) -> Result<BoardCa
             );
         }
     }
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    // Placement::parse has checked that the text is a JSON object.
     let json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
     let number = |v: Option<&serde_json::Value>, key: &str| -> Result<f32> {

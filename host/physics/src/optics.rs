@@ -106,6 +106,13 @@ impl LedGeometry {
         }
     }
 
+    /// Whether `other` is the same grid (rows, columns, pitch, centre LED), wherever
+    /// either is placed.
+    pub fn same_grid(&self, other: &LedGeometry) -> bool {
+        (self.rows, self.cols, self.center) == (other.rows, other.cols, other.center)
+            && (self.pitch_mm - other.pitch_mm).abs() < 1e-6
+    }
+
     /// Whether `led` is on this grid.
     pub fn contains(&self, led: LedIndex) -> bool {
         led.r() < self.rows && led.c() < self.cols

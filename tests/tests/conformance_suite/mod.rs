@@ -69,11 +69,8 @@ fn identity_version_and_ping() {
             // reads it from the device descriptor and its strings.
             let expected =
                 "USB device 1209:0001, manufacturer \"fpm\", product \"fpm LED controller\"";
-            let deadline = std::time::Instant::now() + Duration::from_secs(10);
-            while !emu.log_text().contains(expected) && std::time::Instant::now() < deadline {
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            assert!(emu.log_text().contains(expected), "{}", emu.log_text());
+            let log = emu.log_when(|l| l.contains(expected), Duration::from_secs(10));
+            assert!(log.contains(expected), "{log}");
         }
     }
     assert_eq!((info.geometry.rows, info.geometry.cols), (21, 21));
@@ -538,10 +535,7 @@ fn the_emulator_logs_what_it_lights_and_cleans_up_its_link() {
     // The reply comes before the chain has shifted out and latched (on the firmware,
     // the emulated PIO runs on after it): wait for the log, within reason.
     let lit = "LEDs lit: (2,19) #010203";
-    let deadline = std::time::Instant::now() + Duration::from_secs(5);
-    while !emu.log_text().contains(lit) && std::time::Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    emu.log_when(|l| l.contains(lit), Duration::from_secs(5));
     let status = emu.stop().expect("emulator ran");
     assert!(status.success(), "{status}");
     assert!(emu.log_text().contains(lit), "{}", emu.log_text());
@@ -680,11 +674,8 @@ fn gamma_changes_what_is_shifted_out_and_the_current_counts_it() {
     let status = dev.status().unwrap();
     assert_eq!(status.current_ma, ((37 + 255) * 20u32).div_ceil(255));
     let shown = "LEDs lit: (3,4) #2500ff";
-    let deadline = std::time::Instant::now() + Duration::from_secs(5);
-    while !emu.log_text().contains(shown) && std::time::Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    assert!(emu.log_text().contains(shown), "{}", emu.log_text());
+    let log = emu.log_when(|l| l.contains(shown), Duration::from_secs(5));
+    assert!(log.contains(shown), "{log}");
     assert!(!dev.gamma(Some(false)).unwrap());
     assert_eq!(dev.status().unwrap().current_ma, 31);
 }
@@ -698,15 +689,9 @@ fn a_partial_shift_stops_at_the_last_changed_led() {
     let g = dev.info().geometry;
     let led_at_chain = |k: u16| fpm_firmware::chain::led_at(&g, k).unwrap();
     let wait_for = |text: &str| {
-        let deadline = std::time::Instant::now() + Duration::from_secs(5);
-        while std::time::Instant::now() < deadline {
-            let log = emu.log_text();
-            if log.contains(text) {
-                return log;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        panic!("no \"{text}\" in the log:\n{}", emu.log_text());
+        let log = emu.log_when(|l| l.contains(text), Duration::from_secs(5));
+        assert!(log.contains(text), "no \"{text}\" in the log:\n{log}");
+        log
     };
     // From dark, the LED at chain position 100: 101 LEDs go out.
     dev.set_led(led_at_chain(100), Rgb::new(0, 0, 9)).unwrap();
@@ -714,13 +699,10 @@ fn a_partial_shift_stops_at_the_last_changed_led() {
     // Moving it to position 5 changes positions 5 and 100: still 101.
     let before = emu.log_text().matches("chain shifted").count();
     dev.set_led(led_at_chain(5), Rgb::new(0, 0, 9)).unwrap();
-    let deadline = std::time::Instant::now() + Duration::from_secs(5);
-    while emu.log_text().matches("chain shifted").count() == before
-        && std::time::Instant::now() < deadline
-    {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let log = emu.log_text();
+    let log = emu.log_when(
+        |l| l.matches("chain shifted").count() > before,
+        Duration::from_secs(5),
+    );
     let last = log.lines().rfind(|l| l.contains("chain shifted")).unwrap();
     assert!(last.contains("[101]"), "{last}");
     // Adding position 3 changes only it: 4 LEDs go out, the rest keep their colour.

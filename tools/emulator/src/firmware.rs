@@ -232,9 +232,7 @@ impl Pins {
             at(1.0)
         ))
     }
-}
 
-impl Pins {
     fn handle(&mut self, events: impl Iterator<Item = PinEvent>) {
         for event in events {
             match event {

@@ -20,11 +20,11 @@ pub struct FlashFile {
 
 impl FlashFile {
     /// The image at `path` (`None`: in memory only).
-    pub fn open(path: Option<&Path>) -> Result<Self> {
-        Ok(Self {
+    pub fn new(path: Option<&Path>) -> Self {
+        Self {
             path: path.map(Path::to_path_buf),
             saved_ops: 0,
-        })
+        }
     }
 
     /// The flash as the file holds it; erased if the file does not exist yet.

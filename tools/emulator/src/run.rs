@@ -91,7 +91,7 @@ pub fn run(args: EmulatorArgs) -> Result<()> {
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
 
     let strip = EmulatedStrip::new(board.geometry);
-    let mut flash = FlashFile::open(args.flash.as_deref())?;
+    let mut flash = FlashFile::new(args.flash.as_deref());
     let store = CalibrationStore::new(flash.load()?, 0);
     let mut device = Device::new(board, args.serial, strip, EmulatedTrigger::default(), store)
         .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;

@@ -227,7 +227,7 @@ impl Controller {
     /// Gamma correction on or off (`None`: only ask); returns whether it is on
     /// (protocol ≥ 1.1).
     pub fn gamma(&self, on: Option<bool>) -> Result<bool> {
-        self.require(BoardCalibration::SINCE, GammaEndpoint::PATH)?;
+        self.require(PROTOCOL_1_1, GammaEndpoint::PATH)?;
         self.checked::<GammaEndpoint, _>(&on)
     }
 

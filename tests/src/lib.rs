@@ -107,15 +107,20 @@ fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
 }
 
-/// The firmware image users flash (`fpm-led-controller.uf2`), built for the RP2040 if
-/// it is not there yet, with the RP2040 emulator's Node packages installed
-/// (`npm ci` in tools/rp2040).
+/// The firmware image users flash (`fpm-led-controller.uf2`, the chain on one data
+/// line), built for the RP2040 if it is not there yet, with the RP2040 emulator's Node
+/// packages installed (`npm ci` in tools/rp2040).
 pub fn firmware_uf2() -> &'static Path {
-    static UF2: OnceLock<PathBuf> = OnceLock::new();
-    UF2.get_or_init(|| {
+    firmware_uf2_with_lanes(1)
+}
+
+/// The firmware image for a chain wired as `lanes` data lanes (1, 2 or 4), as
+/// [`firmware_uf2`].
+pub fn firmware_uf2_with_lanes(lanes: u8) -> &'static Path {
+    static UF2: OnceLock<Vec<(u8, PathBuf)>> = OnceLock::new();
+    let images = UF2.get_or_init(|| {
         let root = workspace();
-        let elf = root.join("target/thumbv6m-none-eabi/release/fpm-led-controller");
-        let uf2 = elf.with_extension("uf2");
+        let release = root.join("target/thumbv6m-none-eabi/release");
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let run = |cmd: &mut Command, what: &str| {
             let status = cmd
@@ -133,14 +138,26 @@ pub fn firmware_uf2() -> &'static Path {
                 .env_remove("CARGO_TARGET_DIR"),
             "building the RP2040 firmware",
         );
-        run(
-            Command::new(&cargo)
-                .args(["run", "--quiet", "-p", "fpm-fwtool", "--", "uf2"])
-                .arg(&elf)
-                .arg(&uf2)
-                .current_dir(root),
-            "writing the firmware's UF2 image",
-        );
+        let images: Vec<(u8, PathBuf)> = [
+            (1, "fpm-led-controller"),
+            (2, "fpm-led-controller-2lanes"),
+            (4, "fpm-led-controller-4lanes"),
+        ]
+        .into_iter()
+        .map(|(lanes, name)| {
+            let elf = release.join(name);
+            let uf2 = elf.with_extension("uf2");
+            run(
+                Command::new(&cargo)
+                    .args(["run", "--quiet", "-p", "fpm-fwtool", "--", "uf2"])
+                    .arg(&elf)
+                    .arg(&uf2)
+                    .current_dir(root),
+                "writing the firmware's UF2 image",
+            );
+            (lanes, uf2)
+        })
+        .collect();
         let harness = root.join("tools/rp2040");
         if !harness.join("node_modules/rp2040js").is_dir() {
             run(
@@ -150,8 +167,13 @@ pub fn firmware_uf2() -> &'static Path {
                 "installing the RP2040 emulator (npm ci in tools/rp2040)",
             );
         }
-        uf2
-    })
+        images
+    });
+    images
+        .iter()
+        .find(|(n, _)| *n == lanes)
+        .map(|(_, uf2)| uf2.as_path())
+        .unwrap_or_else(|| panic!("no firmware image for {lanes} lanes (1, 2 or 4)"))
 }
 
 /// The real data sets vendored in the repository (`data/`, each with its source and

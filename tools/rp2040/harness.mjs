@@ -8,7 +8,7 @@
 //
 // Pins, as on the board (firmware/rp2040/src/board.rs): GP14 camera trigger out, GP15
 // camera trigger in (an emulated camera answers every active trigger edge with an
-// exposure pulse), GP16 WS2812 data (decoded). Log lines go to stderr, and so do the
+// exposure pulse), GP16–GP19 WS2812 data, lanes 0–3 (decoded). Log lines go to stderr, and so do the
 // pin events, one JSON line each after `event `, stamped in emulated µs.
 //
 // The flash chip is modelled behind the SSI (flash.mjs): the firmware can program it,
@@ -314,9 +314,9 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
   }
 });
 
-// The WS2812 chain, decoded at the pin (GP16, lane 0). rp2040js runs a state machine's
-// next instruction at once, counting the instruction's delay cycles but not waiting
-// them out, on its own wall-clock timer. Here each state machine is stepped cycle by
+// The WS2812 chain, decoded at the pins (GP16–GP19, lanes 0–3: one PIO state machine
+// each). rp2040js runs a state machine's next instruction at once, counting the
+// instruction's delay cycles but not waiting them out, on its own wall-clock timer. Here each state machine is stepped cycle by
 // cycle in emulated time instead: one PIO cycle every clk_sys / CLKDIV system cycles
 // (the firmware's own divider), an instruction only once the delay cycles of the one
 // before have passed (rp2040js's `cycles` counter), so pulse widths at the pin are the
@@ -324,12 +324,14 @@ mcu.gpio[TRIGGER_OUT].addListener((state) => {
 //
 // Decoding follows the WS2812B datasheet: a high pulse of 0.25–0.55 µs is a 0 (T0H
 // 0.4 µs ± 150 ns), of 0.65–0.95 µs a 1 (T1H 0.8 µs ± 150 ns), anything else is a bad
-// pulse; 24 bits make a word, G then R then B; the line low for LATCH_US (280 µs)
-// latches the frame, reported on stderr as `event {"type":"latched",...}` with the
-// words and the timing measured: first rise to last fall, the shortest and longest
-// T0H, T1H and bit period, the longest low inside the frame, and the gap since the
-// previous frame.
-const WS2812_PIN = 16;
+// pulse; 24 bits make a word, G then R then B. Each lane is decoded on its own; the
+// lanes are shifted together, so a frame ends when every lane has been low for
+// LATCH_US (280 µs), and is reported on stderr as one `event {"type":"latched",...}`
+// with, per lane driven (the pins of the enabled state machines' side-set, in order):
+// the words and the timing measured at that pin — first rise to last fall, the
+// shortest and longest T0H, T1H and bit period, the longest low inside the frame, and
+// the gap since that lane's previous frame.
+const LANE_PINS = [16, 17, 18, 19];
 const LATCH_US = 280;
 const T0H_NS = [250, 550];
 const T1H_NS = [650, 950];
@@ -386,7 +388,7 @@ function stepPio() {
   for (let k = 0; k < 4; k++) {
     if (pio0.machines[k].enabled && smNext[k] < pioDueAt) pioDueAt = smNext[k];
   }
-  if (frameOpen && !lineHigh && mcu.clock.micros - fallUs >= LATCH_US) {
+  if (frameOpen && latchedOnEveryLane()) {
     closeFrame();
     pioDueAt = now;
   }
@@ -404,19 +406,85 @@ function pioIdle() {
     (m) => !m.enabled || (m.txFIFO.empty && (pio0.txStall & (FDEBUG_TXSTALL << m.index)) !== 0),
   );
 }
-let riseUs = 0;
-let fallUs = -Infinity;
-let lastFrameEndUs = null;
-let lineHigh = false;
-let bits = 0;
-let word = 0;
-let frame = [];
+// One data line's decoder.
+class LaneDecoder {
+  constructor(pin) {
+    this.pin = pin;
+    this.high = false;
+    this.riseUs = 0;
+    this.fallUs = -Infinity;
+    this.lastFrameEndUs = null;
+    this.clear();
+  }
+  clear() {
+    this.bits = 0;
+    this.word = 0;
+    this.words = [];
+    this.bad = 0;
+    this.startUs = null;
+    this.timing = newTiming();
+  }
+  edge(high, at) {
+    if (high === this.high) return;
+    this.high = high;
+    if (high) {
+      if (this.startUs === null) {
+        this.startUs = at;
+        this.timing.gapUs = this.lastFrameEndUs === null ? null : at - this.lastFrameEndUs;
+        frameOpen = true;
+      } else {
+        widen(this.timing.period, (at - this.riseUs) * 1e3);
+        this.timing.lowMax = Math.max(this.timing.lowMax, (at - this.fallUs) * 1e3);
+      }
+      this.riseUs = at;
+      return;
+    }
+    this.fallUs = at;
+    const width = (at - this.riseUs) * 1e3;
+    let bit;
+    if (width >= T0H_NS[0] && width <= T0H_NS[1]) {
+      bit = 0;
+      widen(this.timing.t0h, width);
+    } else if (width >= T1H_NS[0] && width <= T1H_NS[1]) {
+      bit = 1;
+      widen(this.timing.t1h, width);
+    } else {
+      this.bad++;
+      bit = width > (T0H_NS[1] + T1H_NS[0]) / 2 ? 1 : 0;
+      widen(bit ? this.timing.t1h : this.timing.t0h, width);
+    }
+    this.word = ((this.word << 1) | bit) >>> 0;
+    this.bits++;
+    if (this.bits === 24) {
+      this.words.push(this.word);
+      this.word = 0;
+      this.bits = 0;
+    }
+  }
+  // This lane's part of a latched frame (no words if it was not shifted).
+  report() {
+    const shifted = this.startUs !== null;
+    if (this.bits !== 0) this.bad++;
+    const out = {
+      pin: this.pin,
+      words: this.words,
+      bad: this.bad,
+      shift_us: shifted ? Number((this.fallUs - this.startUs).toFixed(3)) : 0,
+      t0h_ns: ns(this.timing.t0h),
+      t1h_ns: ns(this.timing.t1h),
+      period_ns: ns(this.timing.period),
+      low_max_ns: Math.round(this.timing.lowMax),
+      gap_us: shifted && this.timing.gapUs !== null ? Number(this.timing.gapUs.toFixed(3)) : null,
+    };
+    if (shifted) this.lastFrameEndUs = this.fallUs;
+    this.clear();
+    return out;
+  }
+}
+const decoders = new Map(LANE_PINS.map((pin) => [pin, new LaneDecoder(pin)]));
 let frameOpen = false;
-let frameStartUs = 0;
-let badPulses = 0;
-let timing = null;
 function newTiming() {
-  return { t0h: [Infinity, -Infinity], t1h: [Infinity, -Infinity], period: [Infinity, -Infinity], lowMax: 0 };
+  return { t0h: [Infinity, -Infinity], t1h: [Infinity, -Infinity], period: [Infinity, -Infinity], lowMax: 0, gapUs: null };
 }
 function widen(range, x) {
   range[0] = Math.min(range[0], x);
@@ -426,72 +494,35 @@ const ns = (range) => (Number.isFinite(range[0]) ? [Math.round(range[0]), Math.r
 function emit(event) {
   process.stderr.write(`event ${JSON.stringify(event)}\n`);
 }
-function closeFrame() {
-  if (process.env.FPM_HARNESS_DEBUG) {
-    const m = pio0.machines[0];
-    log(`frame closed at ${mcu.clock.micros.toFixed(1)} µs (first rise ${frameStartUs.toFixed(1)}, last fall ${fallUs.toFixed(1)}, ${frame.length} words): sm0 enabled ${m.enabled} waiting ${m.waiting} waitType ${m.waitType} fifo ${m.txFIFO.itemCount} txStall 0x${(pio0.txStall >>> 0).toString(16)} idle ${pioIdle()}`);
+// Every lane low for the latch time since its last fall.
+function latchedOnEveryLane() {
+  const now = mcu.clock.micros;
+  for (const d of decoders.values()) {
+    if (d.high || now - d.fallUs < LATCH_US) return false;
   }
-  if (bits !== 0) badPulses++;
+  return true;
+}
+// The pins the enabled state machines drive (their side-set base), in lane order.
+function drivenPins() {
+  const pins = pio0.machines.filter((m) => m.enabled).map((m) => m.sidesetBase);
+  return [...new Set(pins)].filter((pin) => decoders.has(pin)).sort((a, b) => a - b);
+}
+function closeFrame() {
+  const pins = drivenPins();
+  for (const [pin, d] of decoders) {
+    // A pin no state machine drives that still toggled: report it too, it is wrong.
+    if (d.startUs !== null && !pins.includes(pin)) pins.push(pin);
+  }
   emit({
     type: 'latched',
     us: Number(mcu.clock.micros.toFixed(3)),
-    lane: 0,
-    words: frame,
-    bad: badPulses,
-    shift_us: Number((fallUs - frameStartUs).toFixed(3)),
-    t0h_ns: ns(timing.t0h),
-    t1h_ns: ns(timing.t1h),
-    period_ns: ns(timing.period),
-    low_max_ns: Math.round(timing.lowMax),
-    gap_us: timing.gapUs === null ? null : Number(timing.gapUs.toFixed(3)),
+    lanes: pins.map((pin) => decoders.get(pin).report()),
   });
-  lastFrameEndUs = fallUs;
-  frame = [];
-  bits = 0;
-  word = 0;
-  badPulses = 0;
   frameOpen = false;
 }
-mcu.gpio[WS2812_PIN].addListener((state) => {
-  const high = state === GPIOPinState.High;
-  if (high === lineHigh) return;
-  lineHigh = high;
-  const at = pinTimeUs;
-  if (high) {
-    if (!frameOpen) {
-      frameStartUs = at;
-      timing = newTiming();
-      timing.gapUs = lastFrameEndUs === null ? null : at - lastFrameEndUs;
-      frameOpen = true;
-    } else {
-      widen(timing.period, (at - riseUs) * 1e3);
-      timing.lowMax = Math.max(timing.lowMax, (at - fallUs) * 1e3);
-    }
-    riseUs = at;
-    return;
-  }
-  fallUs = at;
-  const width = (at - riseUs) * 1e3;
-  let bit;
-  if (width >= T0H_NS[0] && width <= T0H_NS[1]) {
-    bit = 0;
-    widen(timing.t0h, width);
-  } else if (width >= T1H_NS[0] && width <= T1H_NS[1]) {
-    bit = 1;
-    widen(timing.t1h, width);
-  } else {
-    badPulses++;
-    bit = width > (T0H_NS[1] + T1H_NS[0]) / 2 ? 1 : 0;
-    widen(bit ? timing.t1h : timing.t0h, width);
-  }
-  word = ((word << 1) | bit) >>> 0;
-  bits++;
-  if (bits === 24) {
-    frame.push(word);
-    word = 0;
-    bits = 0;
-  }
-});
+for (const [pin, d] of decoders) {
+  mcu.gpio[pin].addListener((state) => d.edge(state === GPIOPinState.High, pinTimeUs));
+}
 
 // Run: emulated time advances with the instructions executed (and jumps to the next
 // alarm while the core sleeps); yield to the event loop often so USB bytes flow.

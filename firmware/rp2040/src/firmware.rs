@@ -9,11 +9,10 @@ use embassy_rp::peripherals::{PIO0, USB};
 use embassy_rp::pio::Pio;
 use embassy_rp::{bind_interrupts, pio, usb};
 use embassy_time::{Instant, Timer};
-use fpm_firmware::{CalibrationStore, Device};
+use fpm_firmware::{BoardConfig, CalibrationStore, Device};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board::{BOARD, LANES};
 use crate::link::{self, Outbox};
 use crate::triggers::{self, Edges, TriggerPin};
 use crate::ws2812::{self, Chain, Lane, PendingFrame, RpStrip};
@@ -34,9 +33,11 @@ fn now_us() -> u64 {
     Instant::now().as_micros()
 }
 
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
+/// Run the controller for `board` (each image's `main` calls this with its wiring).
+pub async fn run(spawner: Spawner, board: BoardConfig) -> ! {
     let p = embassy_rp::init(Default::default());
+    let lanes = board.geometry.lanes;
+    let led_count = board.geometry.led_count();
 
     // The flash chip's unique id is the board's serial number.
     let mut uid = [0u8; 8];
@@ -60,11 +61,11 @@ async fn main(spawner: Spawner) {
     let program = ws2812::load_program(&mut common);
     let chain = Chain {
         lane0: Lane::new(&mut common, sm0, p.DMA_CH0, p.PIN_16, &program),
-        lane1: (LANES > 1).then(|| Lane::new(&mut common, sm1, p.DMA_CH1, p.PIN_17, &program)),
-        lane2: (LANES > 2).then(|| Lane::new(&mut common, sm2, p.DMA_CH2, p.PIN_18, &program)),
-        lane3: (LANES > 3).then(|| Lane::new(&mut common, sm3, p.DMA_CH3, p.PIN_19, &program)),
+        lane1: (lanes > 1).then(|| Lane::new(&mut common, sm1, p.DMA_CH1, p.PIN_17, &program)),
+        lane2: (lanes > 2).then(|| Lane::new(&mut common, sm2, p.DMA_CH2, p.PIN_18, &program)),
+        lane3: (lanes > 3).then(|| Lane::new(&mut common, sm3, p.DMA_CH3, p.PIN_19, &program)),
     };
-    spawner.must_spawn(ws2812::led_task(chain, &PENDING, BOARD.latch_us));
+    spawner.must_spawn(ws2812::led_task(chain, &PENDING, board.latch_us));
 
     // Camera trigger lines.
     let trigger_out = TriggerPin(Output::new(p.PIN_14, Level::Low));
@@ -79,9 +80,9 @@ async fn main(spawner: Spawner) {
     let (mut tx, mut rx) = class.split();
     let mut status_led = Output::new(p.PIN_25, Level::Low);
 
-    let strip = RpStrip::new(&PENDING, &BOARD);
+    let strip = RpStrip::new(&PENDING, &board);
     let store = CalibrationStore::new(flash, CALIBRATION_BASE);
-    let mut device = match Device::new(BOARD, serial, strip, trigger_out, store) {
+    let mut device = match Device::new(board, serial, strip, trigger_out, store) {
         Ok(d) => d,
         Err(e) => {
             // A bad board.rs: say so forever rather than run with wrong limits.
@@ -94,8 +95,8 @@ async fn main(spawner: Spawner) {
     defmt::info!(
         "fpm LED controller ready: serial {=u64:x}, {} LEDs, {} lane(s)",
         serial,
-        BOARD.geometry.led_count(),
-        LANES
+        led_count,
+        lanes
     );
 
     let mut outbox = Outbox::new();

@@ -83,6 +83,11 @@ impl<'d, P: Instance, const S: usize> Lane<'d, P, S> {
             direction: ShiftDirection::Left,
         };
         sm.set_config(&cfg);
+        // As the pico-sdk's pio_sm_init: empty FIFOs and an empty output shift register,
+        // so the first `out` waits for data instead of shifting out whatever the register
+        // held (24 zero bits at power-up: a stray frame on every lane at start-up).
+        sm.clear_fifos();
+        sm.restart();
         sm.set_enable(true);
         Self {
             sm,
@@ -107,7 +112,7 @@ impl<'d, P: Instance, const S: usize> Lane<'d, P, S> {
     }
 }
 
-/// Up to four lanes on one PIO block; lanes beyond [`crate::board::LANES`] are `None`.
+/// Up to four lanes on one PIO block; lanes the board does not wire are `None`.
 pub struct Chain<'d, P: Instance> {
     pub lane0: Lane<'d, P, 0>,
     pub lane1: Option<Lane<'d, P, 1>>,

@@ -233,31 +233,55 @@ impl Pins {
         ))
     }
 
+    /// A frame decoded at the data pins: logged per lane, then shown on the chain as
+    /// the LEDs would show it (each lane's words from the start of its run of LEDs).
+    fn latched(&mut self, lanes: &[LaneFrame]) {
+        for lane in lanes {
+            if lane.bad_pulses > 0 {
+                tracing::warn!(
+                    "WS2812 frame with {} malformed pulse(s) at GP{}",
+                    lane.bad_pulses,
+                    lane.pin
+                );
+            }
+            if !lane.words.is_empty() {
+                tracing::info!(
+                    "WS2812 frame at GP{}: {} LEDs in {:.1} µs; {}",
+                    lane.pin,
+                    lane.words.len(),
+                    lane.timing.shift_us,
+                    lane.timing
+                );
+            }
+        }
+        let mut geometry = self.strip.geometry();
+        geometry.lanes = lanes.len().clamp(1, fpm_firmware::chain::MAX_LANES) as u8;
+        let lane_len = fpm_firmware::chain::lane_len(&geometry);
+        let mut pixels = vec![RGB8::default(); self.strip.pixels().len()];
+        let mut shift = vec![0u16; lanes.len()];
+        for (k, lane) in lanes.iter().enumerate() {
+            let start = (k * lane_len).min(pixels.len());
+            let end = (start + lane_len).min(pixels.len());
+            for (p, w) in pixels[start..end].iter_mut().zip(&lane.words) {
+                // Shifted out green, red, blue.
+                *p = RGB8::new((w >> 8) as u8, (w >> 16) as u8, *w as u8);
+            }
+            if lane.words.len() > lane_len {
+                tracing::warn!(
+                    "{} words at GP{} for a run of {lane_len} LEDs: the rest fell off the chain",
+                    lane.words.len(),
+                    lane.pin
+                );
+            }
+            shift[k] = lane.words.len().min(lane_len) as u16;
+        }
+        LedStrip::write(&mut self.strip, &pixels, lane_len, &shift);
+    }
+
     fn handle(&mut self, events: impl Iterator<Item = PinEvent>) {
         for event in events {
             match event {
-                PinEvent::Latched {
-                    words,
-                    bad_pulses,
-                    timing,
-                } => {
-                    if bad_pulses > 0 {
-                        tracing::warn!("WS2812 frame with {bad_pulses} malformed pulse(s) at GP16");
-                    }
-                    tracing::info!(
-                        "WS2812 frame at GP16: {} LEDs in {:.1} µs; {}",
-                        words.len(),
-                        timing.shift_us,
-                        timing
-                    );
-                    let mut pixels = vec![RGB8::default(); self.strip.pixels().len()];
-                    for (p, w) in pixels.iter_mut().zip(&words) {
-                        // Shifted out green, red, blue.
-                        *p = RGB8::new((w >> 8) as u8, (w >> 16) as u8, *w as u8);
-                    }
-                    let n = words.len().min(pixels.len()) as u16;
-                    LedStrip::write(&mut self.strip, &pixels, pixels.len(), &[n]);
-                }
+                PinEvent::Latched(lanes) => self.latched(&lanes),
                 PinEvent::Trigger { high: true, us } => {
                     self.trigger_high_at = Some(us);
                     if let Some(rig) = &self.rig {
@@ -302,15 +326,8 @@ impl Pins {
 /// What the harness saw at the pins.
 #[derive(Debug, Clone, PartialEq)]
 enum PinEvent {
-    /// A WS2812 frame latched on lane 0: the 24-bit GRB words shifted out, chain order.
-    Latched {
-        /// The words.
-        words: Vec<u32>,
-        /// High pulses that were neither a 0 nor a 1 bit.
-        bad_pulses: u64,
-        /// The frame's timing as measured at the pin.
-        timing: FrameTiming,
-    },
+    /// A WS2812 frame latched: what each lane driven shifted out, in lane order.
+    Latched(Vec<LaneFrame>),
     /// The device's USB identity, as a host reads it after enumeration.
     Usb {
         /// Vendor id.
@@ -340,16 +357,13 @@ impl PinEvent {
     fn parse(json: &str) -> Option<Self> {
         let v: serde_json::Value = serde_json::from_str(json).ok()?;
         match v.get("type")?.as_str()? {
-            "latched" => Some(PinEvent::Latched {
-                words: v
-                    .get("words")?
+            "latched" => Some(PinEvent::Latched(
+                v.get("lanes")?
                     .as_array()?
                     .iter()
-                    .map(|w| w.as_u64().map(|w| w as u32))
+                    .map(LaneFrame::parse)
                     .collect::<Option<_>>()?,
-                bad_pulses: v.get("bad")?.as_u64()?,
-                timing: FrameTiming::parse(&v)?,
-            }),
+            )),
             "usb" => {
                 let text = |k: &str| v.get(k).and_then(|s| s.as_str()).map(str::to_owned);
                 Some(PinEvent::Usb {
@@ -367,6 +381,35 @@ impl PinEvent {
             }),
             _ => None,
         }
+    }
+}
+
+/// One lane's part of a latched WS2812 frame, decoded at its pin.
+#[derive(Debug, Clone, PartialEq)]
+struct LaneFrame {
+    /// The GPIO.
+    pin: u8,
+    /// The 24-bit GRB words shifted out, in chain order (none if the lane kept still).
+    words: Vec<u32>,
+    /// High pulses that were neither a 0 nor a 1 bit.
+    bad_pulses: u64,
+    /// The lane's timing as measured at its pin.
+    timing: FrameTiming,
+}
+
+impl LaneFrame {
+    fn parse(v: &serde_json::Value) -> Option<Self> {
+        Some(Self {
+            pin: u8::try_from(v.get("pin")?.as_u64()?).ok()?,
+            words: v
+                .get("words")?
+                .as_array()?
+                .iter()
+                .map(|w| w.as_u64().and_then(|w| u32::try_from(w).ok()))
+                .collect::<Option<_>>()?,
+            bad_pulses: v.get("bad")?.as_u64()?,
+            timing: FrameTiming::parse(v)?,
+        })
     }
 }
 

@@ -31,6 +31,11 @@ impl EmulatedStrip {
         &self.pixels
     }
 
+    /// The board this strip was made for.
+    pub fn geometry(&self) -> BoardGeometry {
+        self.geometry
+    }
+
     /// The LEDs shining now: (row, col, colour), at most `max`.
     pub fn lit(&self, max: usize) -> Vec<(u8, u8, Rgb)> {
         self.pixels

@@ -61,6 +61,16 @@ pub struct VirtualCameraArgs {
     /// Fault injection: deliver every frame this much later, ms (a slow driver).
     #[arg(long, default_value_t = 0.0)]
     pub late_ms: f64,
+    /// The camera's own clock: this many seconds ahead of the controller's (a real
+    /// camera counts from its own power-up).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub clock_offset_s: f64,
+    /// The camera's clock runs this many ppm fast (negative: slow).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub clock_drift_ppm: f64,
+    /// Random jitter of each frame's stamp, ms (uniform, this wide).
+    #[arg(long, default_value_t = 0.0)]
+    pub clock_jitter_ms: f64,
 }
 
 /// The hidden state, written to `truth_dir/virtual-camera.json`.
@@ -75,6 +85,18 @@ pub struct Hidden {
 }
 
 impl VirtualCameraArgs {
+    /// A frame's stamp on the camera's clock, for a trigger at `controller_us`.
+    fn camera_clock_ns(&self, controller_us: u64, rng: &mut impl Rng) -> u64 {
+        let t = controller_us as f64 * 1e3;
+        let jitter = if self.clock_jitter_ms > 0.0 {
+            (rng.gen::<f64>() - 0.5) * self.clock_jitter_ms * 1e6
+        } else {
+            0.0
+        };
+        let stamp = self.clock_offset_s * 1e9 + t * (1.0 + self.clock_drift_ppm * 1e-6) + jitter;
+        stamp.max(0.0) as u64
+    }
+
     /// The hidden array: given values, or drawn from the seed.
     pub fn hidden_geometry(&self) -> LedGeometry {
         let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x05EE_D0FA_77A7);
@@ -157,6 +179,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         hidden.height_mm
     );
     let mut frame_number = 0u64;
+    let mut clock_rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0xC10C);
     while !fpm_rig_bus::stop::requested() {
         let Some(pulse) = rig.next_pulse(Duration::from_millis(100))? else {
             continue;
@@ -198,7 +221,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         publisher.publish(
             FrameHeader {
                 frame_number,
-                timestamp_ns: pulse.time_us * 1000,
+                timestamp_ns: a.camera_clock_ns(pulse.time_us, &mut clock_rng),
                 exposure_us: (exposure_ms * 1e3).round() as u32,
                 width: width as u32,
                 height: height as u32,

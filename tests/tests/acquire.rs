@@ -404,3 +404,97 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
         "streamed {streamed} vs offline {offline}"
     );
 }
+
+/// LEDs whose frame's brightness contradicts the hidden array's bright-field disc
+/// (LEDs right at the pupil edge, whose brightness is in between, are skipped).
+fn contradicted_by_physics(
+    ds: &Dataset,
+    hidden: &LedGeometry,
+) -> Vec<(fpm_physics::LedIndex, f32)> {
+    let system = System::paper();
+    let mut wrong = vec![];
+    for (k, f) in ds.frames.iter().enumerate() {
+        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
+        let led = f.entry.led;
+        let fr = hidden.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
+        if (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs() < 0.08 {
+            continue;
+        }
+        let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
+        if bright != (rate > 0.3 * rate_of_clear_field()) {
+            wrong.push((led, rate));
+        }
+    }
+    wrong
+}
+
+/// A camera whose clock is 3.7 s ahead of the controller's, runs 100 ppm fast and
+/// stamps each frame with 0.5 ms of jitter: the mapping is fitted as frames arrive,
+/// every one of the 441 frames is labelled, and none is mislabelled (judged by
+/// physics, as above).
+#[test]
+fn a_drifting_camera_clock_is_fitted_and_nothing_is_mislabelled() {
+    let id = format!("acq-drift-{}", std::process::id());
+    let dir = TempDir::new("acquire-drift");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let _cam = camera(
+        &id,
+        &dir.0.join("truth"),
+        &[
+            "--dx-mm",
+            "-0.8",
+            "--dy-mm",
+            "1.1",
+            "--theta-deg",
+            "-2",
+            "--height-mm",
+            "93",
+            "--clock-offset-s",
+            "3.7",
+            "--clock-drift-ppm",
+            "100",
+            "--clock-jitter-ms",
+            "0.5",
+        ],
+    );
+    let out = dir.0.join("data");
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    let capture = &report["capture"];
+    assert_eq!(capture["labelled"], 441, "{capture}");
+    assert_eq!(capture["relabelled"], 0, "{capture}");
+    let drift = capture["clock_drift_ppm"].as_f64().unwrap();
+    assert!((drift - 100.0).abs() < 20.0, "fitted drift {drift} ppm");
+    let offset_s = capture["clock_offset_ns"].as_f64().unwrap() / 1e9;
+    assert!((offset_s - 3.7).abs() < 0.01, "fitted offset {offset_s} s");
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), 441);
+    let hidden = LedGeometry::paper().placed(-0.8, 1.1, -2.0, 93.0);
+    let wrong = contradicted_by_physics(&ds, &hidden);
+    assert!(wrong.is_empty(), "mislabelled: {wrong:?}");
+}
+
+/// Stamps that follow no clock the steps could be mapped to (jitter of 60 ms at
+/// 15 ms steps): the acquisition refuses to label, with an error that says why.
+#[test]
+fn clocks_that_cannot_be_reconciled_stop_the_acquisition_with_the_reason() {
+    let id = format!("acq-noclock-{}", std::process::id());
+    let dir = TempDir::new("acquire-noclock");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let _cam = camera(&id, &dir.0.join("truth"), &["--clock-jitter-ms", "60"]);
+    let out = dir.0.join("data");
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
+    assert!(!run.status.success());
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("could be labelled with its LED") && stderr.contains("clock"),
+        "{stderr}"
+    );
+}

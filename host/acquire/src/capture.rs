@@ -16,7 +16,7 @@ use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent};
-use crate::label::{pair, step_for, FrameTime, StepTime};
+use crate::label::{pair_with_arrivals, step_for, Arrivals, FrameTime, StepTime};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -79,8 +79,18 @@ pub struct CaptureReport {
     pub extra_frames: usize,
     /// Frames refused because more than one step or frame fit.
     pub ambiguous_frames: usize,
-    /// Camera clock minus controller clock, ns.
+    /// Camera clock minus controller clock at the first step, ns, as fitted.
     pub clock_offset_ns: i64,
+    /// How much faster the camera's clock runs than the controller's, ppm, as fitted.
+    pub clock_drift_ppm: f64,
+    /// Spread of the labelled frames' stamps around the fitted clock mapping, ms (the
+    /// camera's trigger-to-stamp jitter).
+    pub stamp_spread_ms: f64,
+    /// Why no frame could be labelled, when the camera's clock could not be reconciled
+    /// with the controller's.
+    pub clock_problem: Option<String>,
+    /// An assumption the labelling had to make, if it had to.
+    pub clock_note: Option<String>,
     /// From sequence start to the last frame, s.
     pub seconds: f64,
     /// Frames per second.
@@ -218,6 +228,10 @@ pub fn capture(
     let start = Instant::now();
     dev.start_sequence(sequence_id)?;
     let mut step_times: Vec<StepTime> = vec![];
+    // When each step report and each frame reached this host (ns since the start), to
+    // decide between clock offsets a whole step apart (label::pair_with_arrivals).
+    let mut step_arrival_ns: Vec<i64> = vec![];
+    let mut frame_arrival_ns: Vec<i64> = vec![];
     let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
     let mut online: Vec<Option<usize>> = vec![];
     let mut outcome = None;
@@ -226,11 +240,13 @@ pub fn capture(
     let mut changed = false;
     let mut failure: Option<String> = None;
     let mut anchor: Option<i64> = None;
+    let mut anchored_at = 0usize;
     let mut pending: Vec<usize> = vec![];
     let mut given = vec![false; leds.len()];
     loop {
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             pending.push(received.len());
+            frame_arrival_ns.push(start.elapsed().as_nanos() as i64);
             received.push(f);
             online.push(None);
             last_frame = Instant::now();
@@ -243,6 +259,7 @@ pub fn capture(
                         step: s.step as usize,
                         trigger_ns: s.trigger_us * 1000,
                     });
+                    step_arrival_ns.push(start.elapsed().as_nanos() as i64);
                     changed = true;
                 }
                 Ok(SequenceEvent::End(e)) => {
@@ -259,16 +276,34 @@ pub fn capture(
             }
         }
         // Label what can be labelled now, so the stream gets frames while they arrive.
-        // The clock offset is anchored on the capture's first frame and first step
-        // (steps are periodic, so timestamps alone cannot tell a frame from its
-        // neighbour's when the camera lags); the final pairing below checks it, and a
-        // disagreement is reported as `relabelled`.
+        // The clock offset is fitted on what has arrived (the same pairing as the final
+        // one, on fewer frames), from 8 frames on and again as the count doubles; until
+        // it is known, or while it is ambiguous, frames wait. The final pairing below
+        // checks every label, and a disagreement is reported as `relabelled`.
         if changed {
             changed = false;
-            if anchor.is_none() {
-                if let (Some((h, _)), Some(s0)) = (received.first(), step_times.first()) {
-                    anchor = Some(h.timestamp_ns as i64 - s0.trigger_ns as i64);
-                }
+            if received.len() >= 8.max(anchored_at * 2) && step_times.len() >= 8 {
+                anchored_at = received.len();
+                // As many steps as frames: steps run ahead of frames still in flight, and
+                // with extra steps an offset a step later would fit as well.
+                let n = received.len().min(step_times.len());
+                let times: Vec<FrameTime> =
+                    received[..n].iter().map(|(h, _)| frame_time(h)).collect();
+                let arrivals = Arrivals {
+                    steps_ns: &step_arrival_ns[..n],
+                    frames_ns: &frame_arrival_ns[..n],
+                };
+                let p = pair_with_arrivals(
+                    &step_times[..n],
+                    &times,
+                    tolerance,
+                    u64::MAX,
+                    Some(arrivals),
+                );
+                anchor = (p.clock_problem.is_none()
+                    && p.clock_note.is_none()
+                    && p.matched.len() * 4 >= n * 3)
+                    .then_some(p.clock_offset_ns);
             }
             if let Some(offset) = anchor {
                 let newest = step_times.last().map(|s| s.step);
@@ -305,6 +340,7 @@ pub fn capture(
             // Frames already on their way still count.
             std::thread::sleep(Duration::from_millis(300));
             while let Ok(f) = drain.rx.try_recv() {
+                frame_arrival_ns.push(start.elapsed().as_nanos() as i64);
                 received.push(f);
                 online.push(None);
             }
@@ -320,8 +356,24 @@ pub fn capture(
     }
     drop(drain);
     let times: Vec<FrameTime> = received.iter().map(|(h, _)| frame_time(h)).collect();
-    let p = pair(&step_times, &times, tolerance, 10_000_000_000);
+    // A real camera's clock may be anything (seconds since it powered up, the Unix
+    // epoch): no bound on the offset.
+    let arrivals = Arrivals {
+        steps_ns: &step_arrival_ns,
+        frames_ns: &frame_arrival_ns,
+    };
+    let p = pair_with_arrivals(&step_times, &times, tolerance, u64::MAX, Some(arrivals));
     let seconds = start.elapsed().as_secs_f64();
+    log_residuals(&p, &step_times, &times);
+    if let Some(problem) = &p.clock_problem {
+        bail!(
+            "none of the {} frames could be labelled with its LED: {problem}; is the camera triggered by the controller's trigger-out, and its clock steady?",
+            received.len()
+        );
+    }
+    if let Some(note) = &p.clock_note {
+        tracing::warn!("{note}");
+    }
     let mut shots = Vec::with_capacity(p.matched.len());
     let mut matched: Vec<(usize, usize)> = p
         .matched
@@ -374,6 +426,10 @@ pub fn capture(
         extra_frames: p.extra_frames.len(),
         ambiguous_frames: p.ambiguous_frames.len(),
         clock_offset_ns: p.clock_offset_ns,
+        clock_drift_ppm: p.clock_drift_ppm,
+        stamp_spread_ms: p.residual_spread_ns as f64 / 1e6,
+        clock_problem: p.clock_problem.clone(),
+        clock_note: p.clock_note.clone(),
         seconds,
         frames_per_s: shots.len() as f64 / seconds.max(1e-9),
         relabelled,
@@ -386,6 +442,34 @@ pub fn capture(
         failed: failure.is_some(),
     };
     Ok((shots, report))
+}
+
+/// The fitted clock mapping and how tightly the labelled frames follow it (the
+/// camera's trigger-to-stamp jitter), and every frame that found no step, for whoever
+/// tunes a camera.
+fn log_residuals(p: &crate::label::Pairing, steps: &[StepTime], frames: &[FrameTime]) {
+    if !p.matched.is_empty() {
+        tracing::info!(
+            "camera clock: offset {:.6} s, drift {:+.1} ppm; labelled frames within {:.1} ms of the fitted mapping",
+            p.clock_offset_ns as f64 / 1e9,
+            p.clock_drift_ppm,
+            p.residual_spread_ns as f64 / 1e6
+        );
+    }
+    for &fi in p.extra_frames.iter().chain(&p.ambiguous_frames) {
+        let t = frames[fi].timestamp_ns as i128 - p.clock_offset_ns as i128;
+        let nearest = steps
+            .iter()
+            .min_by_key(|s| (s.trigger_ns as i128 - t).unsigned_abs());
+        if let Some(s) = nearest {
+            tracing::debug!(
+                "frame {} unlabelled: about {:+.1} ms from step {}'s trigger",
+                frames[fi].frame_number,
+                (t - s.trigger_ns as i128) as f64 / 1e6,
+                s.step
+            );
+        }
+    }
 }
 
 /// What the pairing needs of a frame's header.

@@ -33,31 +33,239 @@ pub struct Pairing {
     pub extra_frames: Vec<usize>,
     /// Frames that fit more than one step, or a step that more than one frame fits.
     pub ambiguous_frames: Vec<usize>,
-    /// Camera clock minus controller clock, ns, as estimated.
+    /// Camera clock minus controller clock at the first step, ns, as fitted.
     pub clock_offset_ns: i64,
+    /// How much faster the camera's clock runs than the controller's, ppm, as fitted.
+    pub clock_drift_ppm: f64,
+    /// Spread of the labelled frames' stamps around the fitted clock mapping
+    /// (largest minus smallest residual), ns: the camera's latency jitter.
+    pub residual_spread_ns: u64,
+    /// Why the two clocks could not be reconciled, if they could not (then nothing is
+    /// labelled: every frame is reported unlabelled rather than guessed).
+    pub clock_problem: Option<String>,
+    /// An assumption the pairing had to make, if it had to (see
+    /// [`pair_with_arrivals`]).
+    pub clock_note: Option<String>,
 }
 
-/// Pair `frames` with `steps`. The two clocks may differ by a constant offset, which is
-/// estimated as the median difference over the candidate pairs (each frame against
-/// every step within `max_offset_ns`), the most common difference winning; then a frame
-/// belongs to a step when their offset-corrected times differ by at most `tolerance_ns`
-/// and no other step or frame is that close. Keep `tolerance_ns` below half the step
-/// period.
+/// The camera's clock as a function of the controller's: `camera = t + offset +
+/// drift · (t − t0)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ClockMap {
+    t0_ns: i128,
+    offset_ns: f64,
+    drift: f64,
+}
+
+impl ClockMap {
+    /// A frame stamp's residual against a step: its stamp minus the stamp predicted.
+    fn residual_ns(&self, step: &StepTime, frame: &FrameTime) -> f64 {
+        let t = step.trigger_ns as i128;
+        let predicted = t as f64 + self.offset_ns + self.drift * (t - self.t0_ns) as f64;
+        (frame.timestamp_ns as i128 as f64) - predicted
+    }
+}
+
+/// Drift beyond this is no clock of a working camera: the data are inconsistent.
+const MAX_DRIFT_PPM: f64 = 1000.0;
+
+/// Pair `frames` with `steps`. The camera's clock may differ from the controller's by
+/// any offset and a small drift (tens of ppm), with jitter: the offset is first
+/// estimated as the densest cluster of frame-minus-step differences (true pairs
+/// cluster there, wrong pairs spread out by multiples of the step period), then offset
+/// and drift are fitted by least squares over the pairs that agree, outliers
+/// rejected, and the pairing redone with the fitted mapping. A frame belongs to a step
+/// when its stamp is within `tolerance_ns` of the mapped trigger time and no other
+/// step or frame is that close. Keep `tolerance_ns` below half the step period.
+/// `max_offset_ns` bounds the offset searched (`u64::MAX`: any).
+///
+/// When the clocks cannot be reconciled (fewer than half the frames fit one mapping,
+/// or the fitted drift is beyond any real clock's), nothing is labelled and
+/// [`Pairing::clock_problem`] says why.
 pub fn pair(
     steps: &[StepTime],
     frames: &[FrameTime],
     tolerance_ns: u64,
     max_offset_ns: u64,
 ) -> Pairing {
-    let offset = estimate_offset(steps, frames, tolerance_ns, max_offset_ns);
-    let corrected = |f: &FrameTime| f.timestamp_ns as i128 - offset as i128;
-    let near = |s: &StepTime, f: &FrameTime| {
-        (corrected(f) - s.trigger_ns as i128).unsigned_abs() <= tolerance_ns as u128
+    pair_with_arrivals(steps, frames, tolerance_ns, max_offset_ns, None)
+}
+
+/// When each step's report and each frame reached the host, on one host clock (ns),
+/// for [`pair_with_arrivals`].
+#[derive(Debug, Clone, Copy)]
+pub struct Arrivals<'a> {
+    /// Per step, in the order of `steps`.
+    pub steps_ns: &'a [i64],
+    /// Per frame, in the order of `frames`.
+    pub frames_ns: &'a [i64],
+}
+
+/// [`pair`], with the host's arrival times to decide between clock offsets a whole
+/// step apart that fit the stamps equally well (a frame lost at either end of a
+/// periodic run). The decision assumes that a frame reaches the host within one step
+/// period of its trigger: of the offsets that fit equally well, the one whose frames
+/// arrive soonest after their step without arriving before it is taken, and the
+/// report says so. Without arrivals, or when none or both of them are possible under
+/// that assumption, nothing is labelled.
+pub fn pair_with_arrivals(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    tolerance_ns: u64,
+    max_offset_ns: u64,
+    arrivals: Option<Arrivals<'_>>,
+) -> Pairing {
+    let Some(first) = steps.iter().map(|s| s.trigger_ns).min() else {
+        return Pairing {
+            extra_frames: (0..frames.len()).collect(),
+            ..Pairing::default()
+        };
     };
-    let mut out = Pairing {
-        clock_offset_ns: offset,
-        ..Pairing::default()
+    let densest = estimate_offset(steps, frames, tolerance_ns, max_offset_ns) as f64;
+    // Steps are periodic, so offsets a whole period apart explain the data almost as
+    // well: fit each and keep the one that labels the most frames. A tie cannot be
+    // decided from the stamps (e.g. the first frame lost): nothing is labelled then.
+    let period = step_period_ns(steps);
+    let mut fits: Vec<(ClockMap, Pairing)> = (-10i32..=10)
+        .filter(|&j| j == 0 || period > 0.0)
+        .map(|j| {
+            let start = ClockMap {
+                t0_ns: first as i128,
+                offset_ns: densest + j as f64 * period,
+                drift: 0.0,
+            };
+            refine(steps, frames, start, tolerance_ns)
+        })
+        .collect();
+    fits.sort_by_key(|(_, p)| std::cmp::Reverse(p.matched.len()));
+    fits.dedup_by(|a, b| (a.0.offset_ns - b.0.offset_ns).abs() < tolerance_ns as f64);
+    let best = fits.first().map_or(0, |f| f.1.matched.len());
+    let tied: Vec<usize> = (0..fits.len())
+        .filter(|&k| best > 0 && fits[k].1.matched.len() == best)
+        .collect();
+    let mut tie_note = None;
+    let mut tie = tied.len() > 1;
+    if tie {
+        if let Some(a) = arrivals {
+            // The median arrival lag of each tied offset's frames after their steps.
+            let lag = |k: usize| {
+                let mut l: Vec<i64> = fits[k]
+                    .1
+                    .matched
+                    .iter()
+                    .filter_map(|&(si, fi)| Some(a.frames_ns.get(fi)? - a.steps_ns.get(si)?))
+                    .collect();
+                l.sort_unstable();
+                l.get(l.len() / 2).copied()
+            };
+            let causal: Vec<(usize, i64)> = tied
+                .iter()
+                .filter_map(|&k| lag(k).map(|l| (k, l)))
+                .filter(|&(_, l)| l >= -(tolerance_ns as i64))
+                .collect();
+            if let Some(&(k, l)) = causal.iter().min_by_key(|(_, l)| *l) {
+                tie = false;
+                tie_note = Some(format!(
+                    "{} clock offsets a whole step apart fit equally well; took the one whose frames reached the host {:.1} ms after their step (assumes frames arrive within one step period)",
+                    tied.len(),
+                    l as f64 / 1e6
+                ));
+                fits.swap(0, k);
+            }
+        }
+    }
+    let (map, mut out) = fits.swap_remove(0);
+    out.clock_note = tie_note;
+    let drift_ppm = map.drift * 1e6;
+    let usable = frames.len().min(steps.len());
+    let problem = if usable >= 4 && out.matched.len() * 2 < usable {
+        Some(format!(
+            "only {} of {usable} frames fit one clock mapping (offset {:.3} s, drift {drift_ppm:+.1} ppm) within ±{:.1} ms",
+            out.matched.len(),
+            map.offset_ns / 1e9,
+            tolerance_ns as f64 / 1e6
+        ))
+    } else if tie {
+        Some(format!(
+            "{} frames fit two clock offsets a whole step apart equally well (a frame lost at the start or end of a periodic sequence): which LED each frame belongs to cannot be told",
+            out.matched.len()
+        ))
+    } else if drift_ppm.abs() > MAX_DRIFT_PPM {
+        Some(format!(
+            "the camera's clock would run {drift_ppm:+.0} ppm off the controller's"
+        ))
+    } else {
+        None
     };
+    let residuals: Vec<f64> = out
+        .matched
+        .iter()
+        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
+        .collect();
+    let spread = residuals.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        - residuals.iter().cloned().fold(f64::INFINITY, f64::min);
+    out.clock_offset_ns = map.offset_ns.round() as i64;
+    out.clock_drift_ppm = drift_ppm;
+    out.residual_spread_ns = if spread.is_finite() { spread as u64 } else { 0 };
+    if let Some(p) = problem {
+        out.matched.clear();
+        out.missing_steps = (0..steps.len()).collect();
+        out.extra_frames = (0..frames.len()).collect();
+        out.ambiguous_frames.clear();
+        out.clock_problem = Some(p);
+    }
+    out
+}
+
+/// From a first guess of the mapping, alternately pair and fit offset and drift until
+/// no more frames pair.
+fn refine(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    mut map: ClockMap,
+    tolerance_ns: u64,
+) -> (ClockMap, Pairing) {
+    let mut out = match_with(steps, frames, &map, tolerance_ns);
+    // Each fit over the pairs found can reach pairs further along the drift.
+    for _ in 0..20 {
+        let Some(better) = fit(steps, frames, &out.matched, map) else {
+            break;
+        };
+        let next = match_with(steps, frames, &better, tolerance_ns);
+        if next.matched.len() < out.matched.len() {
+            break;
+        }
+        let grew = next.matched.len() > out.matched.len();
+        (map, out) = (better, next);
+        if !grew {
+            break;
+        }
+    }
+    (map, out)
+}
+
+/// The median interval between consecutive triggers, ns (0 for fewer than 2 steps).
+fn step_period_ns(steps: &[StepTime]) -> f64 {
+    let mut t: Vec<u64> = steps.iter().map(|s| s.trigger_ns).collect();
+    t.sort_unstable();
+    let mut d: Vec<u64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    d.sort_unstable();
+    d[d.len() / 2] as f64
+}
+
+/// Pair with a known clock mapping: a frame gets the one step near its stamp, if that
+/// step has no rival frame.
+fn match_with(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    map: &ClockMap,
+    tolerance_ns: u64,
+) -> Pairing {
+    let near = |s: &StepTime, f: &FrameTime| map.residual_ns(s, f).abs() <= tolerance_ns as f64;
+    let mut out = Pairing::default();
     let mut step_taken = vec![false; steps.len()];
     for (fi, f) in frames.iter().enumerate() {
         let candidates: Vec<usize> = (0..steps.len()).filter(|&si| near(&steps[si], f)).collect();
@@ -77,6 +285,60 @@ pub fn pair(
     }
     out.missing_steps = (0..steps.len()).filter(|&si| !step_taken[si]).collect();
     out
+}
+
+/// Least-squares offset and drift over `matched`, with pairs further than 4 robust
+/// standard deviations (or 1 µs, whichever is more) from the median residual left
+/// out. None with fewer than 3 pairs (drift is then taken as 0).
+fn fit(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    matched: &[(usize, usize)],
+    map: ClockMap,
+) -> Option<ClockMap> {
+    if matched.len() < 3 {
+        return None;
+    }
+    let mut residuals: Vec<f64> = matched
+        .iter()
+        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
+        .collect();
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let m = median(&mut residuals.clone());
+    let mad = median(&mut residuals.iter().map(|r| (r - m).abs()).collect()) * 1.4826;
+    let keep = (4.0 * mad).max(1_000.0);
+    // x: controller time since t0 (s); y: camera minus controller (ns).
+    let points: Vec<(f64, f64)> = matched
+        .iter()
+        .zip(&mut residuals)
+        .filter(|(_, r)| (**r - m).abs() <= keep)
+        .map(|(&(si, fi), _)| {
+            let t = steps[si].trigger_ns as i128;
+            (
+                (t - map.t0_ns) as f64 / 1e9,
+                (frames[fi].timestamp_ns as i128 - t) as f64,
+            )
+        })
+        .collect();
+    if points.len() < 3 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let sxx: f64 = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
+    let sxy: f64 = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    // Over less than a millisecond of controller time drift is not observable.
+    let slope = if sxx > 1e-6 { sxy / sxx } else { 0.0 };
+    Some(ClockMap {
+        t0_ns: map.t0_ns,
+        offset_ns: my - slope * mx,
+        drift: slope / 1e9,
+    })
 }
 
 /// The step `frame` belongs to when the clock offset (camera minus controller) is known:
@@ -100,7 +362,8 @@ pub fn step_for(
     }
 }
 
-/// The clock offset most frame/step pairs agree on (0 when there is nothing to go by).
+/// The clock offset most frame/step pairs agree on: the centre of the densest window
+/// of frame-minus-step differences (0 when there is nothing to go by).
 fn estimate_offset(
     steps: &[StepTime],
     frames: &[FrameTime],
@@ -133,7 +396,9 @@ fn estimate_offset(
         }
     }
     let window = &diffs[best..best + best_count];
-    window[window.len() / 2]
+    // Its centre, not its median: a camera's latency is often skewed (a trigger waits
+    // for the sensor's next line or tick), and the centre keeps both ends inside.
+    window[0] + (window[window.len() - 1] - window[0]) / 2
 }
 
 #[cfg(test)]
@@ -190,6 +455,126 @@ mod tests {
         assert!(p.matched.iter().all(|&(si, fi)| si == fi));
         assert!(p.missing_steps.is_empty() && p.extra_frames.is_empty());
         assert!((p.clock_offset_ns - 123_456_789).abs() < 1_000_000);
+    }
+
+    /// A camera clock seconds away from the controller's, running 100 ppm fast, with
+    /// 0.5 ms of jitter, over a 441-step run: every frame gets its own step, and the
+    /// fitted drift is the one put in.
+    #[test]
+    fn offset_drift_and_jitter_are_fitted_and_every_frame_labelled() {
+        let s = steps(441);
+        let mut rng = 0x1234_5678_u64;
+        let mut uniform = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng % 1_000_000) as f64 / 1e6
+        };
+        let t0 = s[0].trigger_ns as f64;
+        let f: Vec<FrameTime> = s
+            .iter()
+            .enumerate()
+            .map(|(k, st)| {
+                let t = st.trigger_ns as f64;
+                let camera = 3_700_000_000_000.0 + t + 100e-6 * (t - t0) + (uniform() - 0.5) * 1e6;
+                FrameTime {
+                    frame_number: k as u64,
+                    timestamp_ns: camera as u64,
+                }
+            })
+            .collect();
+        let p = pair(&s, &f, TOL, u64::MAX);
+        assert_eq!(p.clock_problem, None);
+        assert_eq!(p.matched.len(), 441, "{:?}", p.missing_steps);
+        assert!(p.matched.iter().all(|&(si, fi)| si == fi));
+        assert!(
+            (p.clock_drift_ppm - 100.0).abs() < 2.0,
+            "{}",
+            p.clock_drift_ppm
+        );
+        assert!(
+            p.residual_spread_ns <= 1_100_000,
+            "{}",
+            p.residual_spread_ns
+        );
+        // Without the drift fit the last frames would be 1.76 ms off: with a tolerance
+        // tighter than that, only the fit labels them all.
+        let tight = pair(&s, &f, 1_500_000, u64::MAX);
+        assert_eq!(
+            tight.matched.len(),
+            441,
+            "{:?} {} {} {:?}",
+            tight.missing_steps,
+            tight.clock_drift_ppm,
+            tight.residual_spread_ns,
+            tight.extra_frames
+        );
+    }
+
+    /// Frames whose stamps follow no common clock with the steps are refused as a
+    /// whole, with the reason, rather than some of them guessed.
+    #[test]
+    fn clocks_that_cannot_be_reconciled_label_nothing() {
+        let s = steps(60);
+        let mut x = 7u64;
+        let f: Vec<FrameTime> = (0..60)
+            .map(|k| {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                FrameTime {
+                    frame_number: k,
+                    timestamp_ns: 5_000_000_000 + (x >> 33) % 2_400_000_000,
+                }
+            })
+            .collect();
+        let p = pair(&s, &f, TOL, u64::MAX);
+        assert!(p.matched.is_empty());
+        assert_eq!(p.missing_steps.len(), 60);
+        let why = p.clock_problem.expect("a reason");
+        assert!(why.contains("fit one clock mapping"), "{why}");
+    }
+
+    /// With the first frame lost, a periodic sequence's frames fit their own steps and
+    /// the steps one earlier equally well: refused from the stamps alone; decided by
+    /// when the frames reached the host, which only the right offset makes both
+    /// causal and soonest.
+    #[test]
+    fn a_lost_first_frame_of_a_periodic_run_is_not_guessed_around() {
+        let s = steps(30);
+        let mut f = frames_for(&s, 2_000_000_000, &[0, 200_000]);
+        f.remove(0);
+        let p = pair(&s, &f, TOL, u64::MAX);
+        assert!(p.matched.is_empty(), "{:?}", p.matched);
+        let why = p.clock_problem.expect("a reason");
+        assert!(why.contains("a whole step apart"), "{why}");
+        // Reports reach the host 1 ms after each trigger, frames 25 ms after theirs
+        // (frame k is step k + 1's).
+        let steps_ns: Vec<i64> = s
+            .iter()
+            .map(|st| st.trigger_ns as i64 + 1_000_000)
+            .collect();
+        let frames_ns: Vec<i64> = (0..f.len())
+            .map(|k| s[k + 1].trigger_ns as i64 + 25_000_000)
+            .collect();
+        let arrivals = Arrivals {
+            steps_ns: &steps_ns,
+            frames_ns: &frames_ns,
+        };
+        let p = pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals));
+        assert_eq!(p.clock_problem, None);
+        assert!(p
+            .clock_note
+            .as_deref()
+            .unwrap()
+            .contains("within one step period"));
+        assert_eq!(p.matched.len(), 29);
+        assert!(
+            p.matched.iter().all(|&(si, fi)| si == fi + 1),
+            "{:?}",
+            p.matched
+        );
+        assert_eq!(p.missing_steps, vec![0]);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 
 mod acquire;
 mod calibrate;
+mod camera;
 mod color;
 mod demo;
 mod device;
@@ -38,6 +39,9 @@ enum Command {
     /// each triggered exposure for a hidden, misplaced LED array and publishes frames
     /// on iceoryx2.
     VirtualCamera(fpm_rig::camera::VirtualCameraArgs),
+    /// Real cameras: list GenICam cameras, run one into the frame contract.
+    #[command(subcommand)]
+    Camera(camera::CameraCommand),
     /// Make simulated datasets with the full wave-optics model.
     #[command(subcommand)]
     Simulate(simulate::SimulateCommand),
@@ -60,7 +64,10 @@ fn main() -> ExitCode {
     // and report a child that went away themselves.
     if !matches!(
         cli.command,
-        Command::Emulator(_) | Command::VirtualCamera(_) | Command::Demo(_)
+        Command::Emulator(_)
+            | Command::VirtualCamera(_)
+            | Command::Demo(_)
+            | Command::Camera(camera::CameraCommand::Run(_))
     ) {
         // SAFETY: set before any thread exists; the default action only ends the process.
         unsafe {
@@ -71,7 +78,12 @@ fn main() -> ExitCode {
         }
     }
     let default_level = match (&cli.command, cli.verbose) {
-        (Command::Emulator(_) | Command::VirtualCamera(_), 0) => "info",
+        (
+            Command::Emulator(_)
+            | Command::VirtualCamera(_)
+            | Command::Camera(camera::CameraCommand::Run(_)),
+            0,
+        ) => "info",
         (_, 0) => "warn",
         (_, 1) => "info",
         _ => "debug",
@@ -97,6 +109,7 @@ fn main() -> ExitCode {
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
         Command::VirtualCamera(args) => fpm_rig::camera::run(args),
+        Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),

@@ -63,6 +63,46 @@ impl FramePublisher {
         Ok(receivers)
     }
 
+    /// Publish a `header.width × header.height` frame whose pixels `fill` writes
+    /// straight into shared memory (e.g. decoding a camera's packed pixels there): the
+    /// one copy between a driver's buffer and the subscribers, and no zeroing first.
+    /// `fill` must write every pixel; its error is reported as the frame's.
+    pub fn publish_filled<E: std::fmt::Display>(
+        &self,
+        header: FrameHeader,
+        fill: impl FnOnce(&mut [std::mem::MaybeUninit<u16>]) -> Result<(), E>,
+    ) -> Result<usize, FrameError> {
+        let pixels = header.width as usize * header.height as usize;
+        let header = FrameHeader {
+            pixel_count: pixels as u64,
+            ..header
+        };
+        crate::subscriber::validate(&header, pixels)?;
+        if pixels > self.max_pixels {
+            return Err(FrameError::TooLarge {
+                pixels,
+                max: self.max_pixels,
+            });
+        }
+        let mut sample = self
+            .port
+            .loan_slice_uninit(pixels)
+            .map_err(|e| ipc("loaning a frame buffer")(&e))?;
+        *sample.user_header_mut() = header;
+        fill(sample.payload_mut()).map_err(|e| FrameError::Invalid {
+            frame_number: header.frame_number,
+            field: "pixels",
+            problem: e.to_string(),
+        })?;
+        // SAFETY: `fill` returned Ok, promising every pixel written.
+        let sample = unsafe { sample.assume_init() };
+        let receivers = sample.send().map_err(|e| ipc("sending a frame")(&e))?;
+        self.notifier
+            .notify_with_custom_event_id(EventId::new(FRAME_READY))
+            .map_err(|e| ipc("signalling a frame")(&e))?;
+        Ok(receivers)
+    }
+
     /// Borrow a buffer in shared memory for a `width × height` frame, for a driver
     /// that writes (or DMAs) pixels straight into it: no copy at all. The buffer is
     /// zeroed; fill [`FrameLoan::pixels_mut`], then [`FrameLoan::send`].

@@ -1,0 +1,357 @@
+//! `fpm camera run --aravis`: a GenICam camera publishing into the frame contract.
+//! Buffers go back to the stream as soon as their pixels are in shared memory; a
+//! camera that stops answering ends the run with an error naming it.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
+
+use crate::aravis::{Aravis, Camera, Stream, StreamStats};
+use crate::pixels::{decode, PixelFormat};
+use crate::settings::{AppliedSettings, CameraSettings};
+
+/// Run a GenICam camera (through aravis) as an fpm camera.
+#[derive(Args, Debug, Clone)]
+pub struct RunArgs {
+    /// The camera: its aravis device id, or its IP address (by address nothing is
+    /// broadcast: aravis asks that address only).
+    #[arg(long, value_name = "DEVICE-ID-OR-IP")]
+    pub aravis: String,
+    /// Publish frames as this camera (`fpm/camera/<ID>/frames`).
+    #[arg(long, default_value = "0")]
+    pub camera: String,
+    /// Camera settings (TOML: pixel_format, exposure_us, gain, roi, binning, trigger,
+    /// trigger_activation); flags override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// PixelFormat (Mono8, Mono10/12/14/16, Mono10p/12p, Mono10Packed/12Packed).
+    #[arg(long)]
+    pub pixel_format: Option<String>,
+    /// ExposureTime, µs.
+    #[arg(long)]
+    pub exposure_us: Option<f64>,
+    /// Gain (the camera's unit, usually dB).
+    #[arg(long)]
+    pub gain: Option<f64>,
+    /// Region of interest: X,Y,WIDTH,HEIGHT.
+    #[arg(long, value_parser = parse_roi)]
+    pub roi: Option<[i32; 4]>,
+    /// Binning, both directions.
+    #[arg(long)]
+    pub binning: Option<i32>,
+    /// Trigger source for each frame: Line0 (the LED controller's trigger-out wired to
+    /// the camera), Software, any source the camera offers, or Off (free running).
+    #[arg(long)]
+    pub trigger: Option<String>,
+    /// TriggerActivation (RisingEdge, FallingEdge, ...).
+    #[arg(long)]
+    pub trigger_activation: Option<String>,
+    /// Fire a software trigger on each trigger-out pulse of this virtual rig
+    /// (`fpm emulator --rig NAME`): a stand-in for the trigger cable. Sets the trigger
+    /// to Software.
+    #[arg(long)]
+    pub rig: Option<String>,
+    /// Buffers queued on the stream.
+    #[arg(long, default_value_t = 8)]
+    pub buffers: usize,
+    /// Stop after this many frames.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Write the settings in force (read back from the camera) here, as JSON.
+    #[arg(long)]
+    pub settings_out: Option<PathBuf>,
+    /// Seconds without a frame or an answer after which the camera counts as gone.
+    #[arg(long, default_value_t = 5.0)]
+    pub lost_after_s: f64,
+}
+
+fn parse_roi(s: &str) -> Result<[i32; 4], String> {
+    let v: Vec<i32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<i32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("{s}: {e} (expected X,Y,WIDTH,HEIGHT)"))?;
+    <[i32; 4]>::try_from(v).map_err(|_| format!("{s}: expected X,Y,WIDTH,HEIGHT"))
+}
+
+impl RunArgs {
+    /// The settings asked for: the file, then the flags.
+    pub fn settings(&self) -> Result<CameraSettings> {
+        let file = match &self.config {
+            Some(path) => CameraSettings::load(path)?,
+            None => CameraSettings::default(),
+        };
+        let trigger = match (&self.rig, &self.trigger) {
+            (Some(_), Some(t)) if !t.eq_ignore_ascii_case("software") => {
+                bail!("--rig fires software triggers; it cannot go with --trigger {t}")
+            }
+            (Some(_), _) => Some("Software".to_owned()),
+            (None, t) => t.clone(),
+        };
+        Ok(file.overridden_by(CameraSettings {
+            pixel_format: self.pixel_format.clone(),
+            exposure_us: self.exposure_us,
+            gain: self.gain,
+            roi: self.roi,
+            binning: self.binning,
+            trigger,
+            trigger_activation: self.trigger_activation.clone(),
+        }))
+    }
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct RunSummary {
+    /// Frames published.
+    pub published: u64,
+    /// Buffers that arrived incomplete (a gap in frame numbers each).
+    pub incomplete: u64,
+    /// Software triggers fired for the rig.
+    pub triggers: u64,
+    /// The stream's counters at the end.
+    pub stream: StreamStats,
+    /// Per published frame, µs from the filled buffer leaving the stream to the frame
+    /// being sent to the subscribers (decode into shared memory, send, signal).
+    pub handoff_us: Vec<f64>,
+    /// This process's CPU time per published frame, ms (Linux; None elsewhere).
+    pub cpu_ms_per_frame: Option<f64>,
+}
+
+impl RunSummary {
+    /// The hand-off time at quantile `q` (0–1), µs.
+    pub fn handoff_quantile_us(&self, q: f64) -> Option<f64> {
+        let mut t = self.handoff_us.clone();
+        if t.is_empty() {
+            return None;
+        }
+        t.sort_by(f64::total_cmp);
+        Some(t[((t.len() - 1) as f64 * q).round() as usize])
+    }
+}
+
+/// CPU time this process has used, s (user + system, from /proc; None elsewhere).
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) in parentheses.
+    let rest = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    // The kernel's USER_HZ is 100 on every Linux configuration in use.
+    Some((utime + stime) / 100.0)
+}
+
+/// Run until SIGINT/SIGTERM, `--frames`, or the camera is lost (an error).
+pub fn run(args: RunArgs) -> Result<RunSummary> {
+    fpm_rig_bus::stop::install().context("installing signal handlers")?;
+    let settings = args.settings()?;
+    let aravis = Aravis::load()?;
+    let camera = aravis.open(&args.aravis)?;
+    settings
+        .apply(&camera)
+        .with_context(|| format!("configuring camera {}", args.aravis))?;
+    let applied = AppliedSettings::read(&camera)?;
+    tracing::info!(
+        "camera {} {} (serial {}): {} {}x{} at ({}, {}), binning {}x{}, exposure {} µs, gain {:?}, trigger {} {}",
+        applied.vendor,
+        applied.model,
+        applied.serial,
+        applied.pixel_format,
+        applied.roi[2],
+        applied.roi[3],
+        applied.roi[0],
+        applied.roi[1],
+        applied.binning[0],
+        applied.binning[1],
+        applied.exposure_us,
+        applied.gain,
+        applied.trigger_mode.as_deref().unwrap_or("?"),
+        applied.trigger_source.as_deref().unwrap_or("")
+    );
+    if applied.bit_depth.is_none() {
+        bail!(
+            "camera {}: pixel format {} cannot be decoded (choose Mono8/10/12/14/16, Mono10p/12p or Mono10Packed/12Packed with --pixel-format)",
+            args.aravis,
+            applied.pixel_format
+        );
+    }
+    if let Some(path) = &args.settings_out {
+        std::fs::write(path, serde_json::to_string_pretty(&applied)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let names = ServiceNames::for_camera(&args.camera);
+    let max_pixels = (applied.roi[2].max(1) as usize) * (applied.roi[3].max(1) as usize);
+    let publisher = FramePublisher::create(&names, max_pixels)?;
+    let stream = camera.stream()?;
+    let payload = camera.payload()?;
+    for _ in 0..args.buffers.max(2) {
+        stream.push(stream.new_buffer(payload)?);
+    }
+    let mut rig = match &args.rig {
+        Some(name) => Some(
+            fpm_rig_bus::RigListener::create(name)
+                .with_context(|| format!("listening to the virtual rig {name}"))?,
+        ),
+        None => None,
+    };
+    camera.start()?;
+    let cpu_at_start = cpu_seconds();
+    tracing::info!(
+        "publishing on {} ({} buffers of {payload} bytes)",
+        names.frames,
+        args.buffers
+    );
+    let result = stream_frames(&args, &camera, &stream, &publisher, rig.as_mut(), &applied);
+    let stats = stream.stats();
+    if let Err(e) = camera.stop() {
+        tracing::debug!("stopping the acquisition: {e}");
+    }
+    log_stats(&stats);
+    let mut summary = result?;
+    summary.stream = stats;
+    if let (Some(a), Some(b)) = (cpu_at_start, cpu_seconds()) {
+        if summary.published > 0 {
+            summary.cpu_ms_per_frame = Some((b - a) * 1e3 / summary.published as f64);
+        }
+    }
+    if let (Some(p50), Some(p99)) = (
+        summary.handoff_quantile_us(0.5),
+        summary.handoff_quantile_us(0.99),
+    ) {
+        tracing::info!(
+            "hand-off, camera buffer to subscribers: p50 {p50:.0} µs, p99 {p99:.0} µs over {} frames of {}x{}; CPU {} per frame",
+            summary.handoff_us.len(),
+            applied.roi[2],
+            applied.roi[3],
+            summary
+                .cpu_ms_per_frame
+                .map_or("n/a".into(), |c| format!("{c:.2} ms"))
+        );
+    }
+    Ok(summary)
+}
+
+fn log_stats(s: &StreamStats) {
+    tracing::info!(
+        "stream: {} completed, {} failed, {} underruns, {} packets resent, {} missing",
+        s.completed,
+        s.failures,
+        s.underruns,
+        s.resent_packets,
+        s.missing_packets
+    );
+}
+
+fn stream_frames(
+    args: &RunArgs,
+    camera: &Camera,
+    stream: &Stream,
+    publisher: &FramePublisher,
+    mut rig: Option<&mut fpm_rig_bus::RigListener>,
+    applied: &AppliedSettings,
+) -> Result<RunSummary> {
+    let mut summary = RunSummary::default();
+    let mut frame_number = 0u64;
+    let exposure_us = applied.exposure_us.round().clamp(0.0, u32::MAX as f64) as u32;
+    let lost_after = Duration::from_secs_f64(args.lost_after_s.max(0.5));
+    let mut last_sign_of_life = Instant::now();
+    let mut last_stats = Instant::now();
+    let poll = if rig.is_some() {
+        Duration::from_millis(1)
+    } else {
+        Duration::from_millis(20)
+    };
+    while !fpm_rig_bus::stop::requested() {
+        if args.frames.is_some_and(|n| summary.published >= n) {
+            break;
+        }
+        if let Some(rig) = rig.as_deref_mut() {
+            while rig.next_pulse(Duration::ZERO)?.is_some() {
+                camera
+                    .software_trigger()
+                    .with_context(|| format!("camera {} is gone", args.aravis))?;
+                summary.triggers += 1;
+            }
+        }
+        let Some(buffer) = stream.pop(poll) else {
+            if last_sign_of_life.elapsed() >= lost_after {
+                // Idle, or gone? Ask it something.
+                camera.exposure_us().with_context(|| {
+                    format!(
+                        "camera {} stopped answering after {} frames",
+                        args.aravis, summary.published
+                    )
+                })?;
+                last_sign_of_life = Instant::now();
+            }
+            continue;
+        };
+        last_sign_of_life = Instant::now();
+        if !buffer.is_complete() {
+            tracing::warn!(
+                "frame {frame_number} arrived incomplete (aravis status {}): dropped",
+                buffer.status()
+            );
+            summary.incomplete += 1;
+            frame_number += 1;
+            stream.push(buffer);
+            continue;
+        }
+        let popped = Instant::now();
+        let (width, height, code) = buffer.image();
+        let format =
+            PixelFormat::from_pfnc(code).with_context(|| format!("camera {}", args.aravis))?;
+        let header = FrameHeader {
+            frame_number,
+            timestamp_ns: buffer.timestamp_ns(),
+            exposure_us,
+            width,
+            height,
+            bit_depth: format.bit_depth(),
+            ..FrameHeader::default()
+        };
+        let sent = publisher.publish_filled(header, |dst| {
+            decode(format, width, height, buffer.data(), dst)
+        });
+        summary
+            .handoff_us
+            .push(popped.elapsed().as_secs_f64() * 1e6);
+        stream.push(buffer);
+        sent.with_context(|| format!("publishing frame {frame_number}"))?;
+        summary.published += 1;
+        frame_number += 1;
+        if last_stats.elapsed() >= Duration::from_secs(10) {
+            last_stats = Instant::now();
+            log_stats(&stream.stats());
+        }
+    }
+    Ok(summary)
+}
+
+/// `fpm camera list`: one camera asked by address (no broadcast), or every camera
+/// aravis discovers.
+pub fn list(address: Option<&str>) -> Result<Vec<crate::aravis::DeviceInfo>> {
+    let aravis = Aravis::load()?;
+    match address {
+        Some(address) => {
+            let camera = aravis.open(address)?;
+            Ok(vec![crate::aravis::DeviceInfo {
+                id: camera.device_id().unwrap_or_default(),
+                address: address.to_owned(),
+                vendor: camera.vendor().unwrap_or_default(),
+                model: camera.model().unwrap_or_default(),
+                serial: camera.serial().unwrap_or_default(),
+                protocol: if camera.is_gige() {
+                    "GigEVision".into()
+                } else {
+                    String::new()
+                },
+            }])
+        }
+        None => Ok(aravis.discover()),
+    }
+}

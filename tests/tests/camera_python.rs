@@ -1,0 +1,117 @@
+//! The Python side of the frame contract (`tools/camera-python/fpm_camera.py`), as a
+//! vendor SDK's frame loop would use it: its NumPy example camera answers the trigger
+//! pulses of the emulated controller, and a whole `fpm acquire` takes its frames.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use fpm_host::dataset::Dataset;
+use fpm_tests::{child, fpm_bin, Emulator, Ready, TempDir};
+
+fn workspace() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// A Python with the contract's packages (iceoryx2, NumPy; pinned in
+/// tools/camera-python/requirements.txt), in a virtual environment under target/,
+/// made on first use.
+fn python() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        let venv = workspace().join("target/python-camera");
+        let python = venv.join("bin/python");
+        let requirements = workspace().join("tools/camera-python/requirements.txt");
+        let stamp = venv.join("requirements.txt");
+        let current = std::fs::read(&stamp).ok() == std::fs::read(&requirements).ok();
+        if !python.exists() || !current {
+            let run = |cmd: &mut Command, what: &str| {
+                let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
+                assert!(
+                    out.status.success(),
+                    "{what}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            };
+            run(
+                Command::new("python3").args(["-m", "venv"]).arg(&venv),
+                "making a Python virtual environment (python3 -m venv)",
+            );
+            run(
+                Command::new(&python)
+                    .args(["-m", "pip", "install", "--quiet", "-r"])
+                    .arg(&requirements),
+                "installing tools/camera-python/requirements.txt",
+            );
+            std::fs::copy(&requirements, &stamp).unwrap();
+        }
+        python
+    })
+}
+
+/// Every LED labelled, and every frame the one its LED made: the NumPy camera draws
+/// 1000 + 32·row + col into each frame from the pulse's lit LED, and stamps it on a
+/// clock 2.5 s ahead of the controller's.
+#[test]
+fn a_python_publisher_feeds_a_whole_acquisition() {
+    let id = format!("py-{}", std::process::id());
+    let dir = TempDir::new("camera-python");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let ready = dir.0.join("camera.ready");
+    let mut command = Command::new(python());
+    command
+        .current_dir(workspace().join("tools/camera-python"))
+        .args(["example_numpy_camera.py", "--rig", &id, "--camera", &id])
+        .arg("--ready-file")
+        .arg(&ready)
+        .stdout(Stdio::null());
+    let _camera = child(
+        command,
+        "Python example camera",
+        Ready::FileExists(&ready, Duration::from_secs(60)),
+    );
+    let out = dir.0.join("data");
+    let run = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--step-ms",
+            "15",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    let capture = &report["capture"];
+    assert_eq!(capture["labelled"], 441, "{capture}");
+    assert_eq!(capture["extra_frames"], 0, "{capture}");
+    assert_eq!(capture["relabelled"], 0, "{capture}");
+    let offset_s = capture["clock_offset_ns"].as_f64().unwrap() / 1e9;
+    assert!((offset_s - 2.5).abs() < 0.01, "clock offset {offset_s} s");
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), 441);
+    let dark = 100.0; // fpm acquire's default --dark-level
+    for (k, f) in ds.frames.iter().enumerate() {
+        let led = f.entry.led;
+        let want = 1000.0 + 32.0 * led.row as f32 + led.col as f32 - dark;
+        let got = ds.corrected(k).mean().unwrap();
+        assert!(
+            (got - want).abs() < 0.5,
+            "the frame labelled ({}, {}) shows {got}, its LED would give {want}",
+            led.row,
+            led.col
+        );
+    }
+}

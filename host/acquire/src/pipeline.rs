@@ -72,6 +72,10 @@ pub struct AcquireSummary {
     /// The calibration stored on the board, as read at the start (None: none, or the
     /// firmware predates stored geometry).
     pub board_calibration: Option<BoardCalibration>,
+    /// The settings the camera reported it applied (`fpm/camera/<id>/settings`: pixel
+    /// format and bit depth, region, binning, exposure, gain, trigger, pixel pitch), if
+    /// its driver publishes them.
+    pub camera_settings: Option<serde_json::Value>,
     /// Calibration captures.
     pub calibration: Vec<CaptureReport>,
     /// The full capture.
@@ -91,6 +95,35 @@ pub struct AcquireSummary {
     /// How the final image was made: "streamed" (the stream, finished), or "dataset"
     /// (the stream was not trusted: frames were relabelled after it got them).
     pub reconstruction: Option<&'static str>,
+}
+
+/// What the camera's driver says it applied, if it says (an optional extra: never an
+/// error). A reported pixel pitch that disagrees with the system's is warned about.
+fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json::Value> {
+    let text = fpm_frames::read_settings(camera, std::time::Duration::from_millis(300))?;
+    let value: serde_json::Value = match serde_json::from_str(&text) {
+        Ok(v) => v,
+        Err(e) => {
+            tracing::warn!("the camera's settings are not JSON ({e}); left out");
+            return None;
+        }
+    };
+    tracing::info!("camera settings as applied: {value}");
+    if let Some(pitch) = value.get("pixel_size_um").and_then(|v| v.as_f64()) {
+        let binning = value
+            .get("binning")
+            .and_then(|b| b.get(0))
+            .and_then(|b| b.as_f64())
+            .unwrap_or(1.0);
+        let effective = pitch * binning;
+        if (effective - system.pixel_size_um).abs() > 0.01 * system.pixel_size_um {
+            tracing::warn!(
+                "the camera reports {effective:.3} µm pixels ({pitch} µm × binning {binning}), the system says {:.3} µm (--pixel-um)",
+                system.pixel_size_um
+            );
+        }
+    }
+    Some(value)
 }
 
 /// The nominal array as the controller describes it.
@@ -137,6 +170,7 @@ pub fn acquire(
     let system = plan.system;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("creating {}", plan.out.display()))?;
+    let camera_settings = camera_settings(&plan.camera, &system);
     let step_us = (plan.step_ms * 1e3).round().max(1_000.0) as u32;
     let camera = CameraSection {
         dark_level: plan.dark_level,
@@ -342,6 +376,7 @@ pub fn acquire(
         geometry,
         geometry_source,
         board_calibration,
+        camera_settings,
         calibration: calibration_reports,
         capture: report,
         retake,

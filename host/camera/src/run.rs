@@ -184,6 +184,9 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     let names = ServiceNames::for_camera(&args.camera);
+    // For the acquisition's record (acquisition.json): what the camera applied.
+    let settings_channel =
+        fpm_frames::SettingsPublisher::create(&names, &serde_json::to_string(&applied)?)?;
     let max_pixels = (applied.roi[2].max(1) as usize) * (applied.roi[3].max(1) as usize);
     let publisher = FramePublisher::create(&names, max_pixels)?;
     let stream = camera.stream()?;
@@ -205,7 +208,15 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
         names.frames,
         args.buffers
     );
-    let result = stream_frames(&args, &camera, &stream, &publisher, rig.as_mut(), &applied);
+    let result = stream_frames(
+        &args,
+        &camera,
+        &stream,
+        &publisher,
+        rig.as_mut(),
+        &applied,
+        &settings_channel,
+    );
     let stats = stream.stats();
     if let Err(e) = camera.stop() {
         tracing::debug!("stopping the acquisition: {e}");
@@ -253,6 +264,7 @@ fn stream_frames(
     publisher: &FramePublisher,
     mut rig: Option<&mut fpm_rig_bus::RigListener>,
     applied: &AppliedSettings,
+    settings_channel: &fpm_frames::SettingsPublisher,
 ) -> Result<RunSummary> {
     let mut summary = RunSummary::default();
     let mut frame_number = 0u64;
@@ -269,6 +281,7 @@ fn stream_frames(
         if args.frames.is_some_and(|n| summary.published >= n) {
             break;
         }
+        settings_channel.serve();
         if let Some(rig) = rig.as_deref_mut() {
             while rig.next_pulse(Duration::ZERO)?.is_some() {
                 camera

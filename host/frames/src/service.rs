@@ -33,6 +33,8 @@ pub struct ServiceNames {
     pub frames: String,
     /// Event: a frame was published.
     pub ready: String,
+    /// Publish-subscribe, history 1: the settings the camera applied, JSON.
+    pub settings: String,
 }
 
 impl ServiceNames {
@@ -42,6 +44,7 @@ impl ServiceNames {
         Self {
             frames: format!("fpm/camera/{id}/frames"),
             ready: format!("fpm/camera/{id}/frame-ready"),
+            settings: format!("fpm/camera/{id}/settings"),
         }
     }
 }

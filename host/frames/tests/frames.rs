@@ -154,3 +154,28 @@ fn a_slow_consumer_loses_the_oldest_frames_and_sees_the_gap() {
     );
     assert!(seen[0] > 0, "the gap is visible in frame_number: {seen:?}");
 }
+
+/// A camera's settings reach an acquisition that starts after the camera (history of
+/// one), and a camera that publishes none reads as None, quickly.
+#[test]
+fn camera_settings_reach_a_late_reader() {
+    let names = unique("settings");
+    let json = r#"{"pixel_format":"Mono12Packed","binning":[2,2]}"#;
+    let camera = fpm_frames::SettingsPublisher::create(&names, json).unwrap();
+    let reader = {
+        let names = names.clone();
+        std::thread::spawn(move || fpm_frames::read_settings(&names, Duration::from_secs(2)))
+    };
+    while !reader.is_finished() {
+        camera.serve();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert_eq!(reader.join().unwrap().as_deref(), Some(json));
+    let silent = unique("no-settings");
+    let started = Instant::now();
+    assert_eq!(
+        fpm_frames::read_settings(&silent, Duration::from_millis(100)),
+        None
+    );
+    assert!(started.elapsed() < Duration::from_secs(1));
+}

@@ -200,6 +200,36 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         std::fs::write(d.join("frames/r00_c00.tif"), b"not a tiff").unwrap()
     });
     assert!(e.contains("frame 0") && e.contains("TIFF"), "{e}");
+
+    // Colour sensors: a mosaic needs its channel, a channel needs a mosaic, the
+    // pattern must be one of the four, and a mosaic's channel pixels need even sizes.
+    let colour = |keys: &'static str| {
+        move |d: &Path| edit_toml(d, |t| t.replace("[camera]\n", &format!("[camera]\n{keys}")))
+    };
+    let e = broken("bayer-no-channel", colour("bayer = \"RGGB\"\n"));
+    assert!(e.contains("camera.channel"), "{e}");
+    let e = broken("channel-no-bayer", colour("channel = \"G\"\n"));
+    assert!(
+        e.contains("camera.channel") && e.contains("camera.bayer"),
+        "{e}"
+    );
+    let e = broken(
+        "bayer-pattern",
+        colour("bayer = \"RGBG\"\nchannel = \"G\"\n"),
+    );
+    assert!(e.contains("RGBG"), "{e}");
+    let e = broken("bayer-odd", |d| {
+        colour("bayer = \"RGGB\"\nchannel = \"R\"\n")(d);
+        for f in [
+            "frames/r00_c00.tif",
+            "frames/r01_c07_z-36.tif",
+            "frames/r02_c14_z-36.tif",
+        ] {
+            let odd = Array2::<u16>::zeros((15, 16));
+            fpm_host::dataset::image_io::write_tiff_u16(&d.join(f), odd.view()).unwrap();
+        }
+    });
+    assert!(e.contains("frame 0") && e.contains("even"), "{e}");
 }
 
 fn fpm(args: &[&str]) -> std::process::Output {

@@ -16,6 +16,7 @@
 //! * [`reconstruct`]: EPRY, offline, streaming and tiled; [`tiles`]: tile geometry and
 //!   blending.
 
+pub mod bayer;
 pub mod calibrate;
 pub mod fft;
 pub mod frame;

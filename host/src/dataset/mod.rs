@@ -9,6 +9,7 @@ pub mod image_io;
 
 use std::path::{Path, PathBuf};
 
+use fpm_physics::bayer::{self, BayerChannel, BayerPattern};
 use fpm_physics::frame::{LitFrame, Measured, Region};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use serde::{Deserialize, Serialize};
@@ -70,6 +71,16 @@ pub struct CameraSection {
     /// Swap rows and columns before the flips.
     #[serde(default)]
     pub transpose: bool,
+    /// A colour sensor's raw mosaic: the filter of the top-left 2 × 2 cell, as stored.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bayer: Option<BayerPattern>,
+    /// With `bayer`: the channel the LEDs' light is measured in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<BayerChannel>,
+    /// With `bayer`: interpolate the channel at every pixel (full size, the sensor's
+    /// pitch) instead of taking its own pixels (half size, twice the pitch).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub demosaic: bool,
 }
 
 fn one() -> f64 {
@@ -244,6 +255,8 @@ impl Dataset {
             reason: e.to_string(),
         })?;
         validate(&path, &manifest)?;
+        let mut manifest = manifest;
+        let colour = manifest.camera.bayer.zip(manifest.camera.channel);
         let mut frames: Vec<Frame> = Vec::with_capacity(manifest.frames.len());
         for (index, entry) in manifest.frames.iter().enumerate() {
             let bad = |reason: String| DatasetError::Frame {
@@ -256,7 +269,23 @@ impl Dataset {
             if !file.is_file() {
                 return Err(bad(format!("file {} does not exist", file.display())));
             }
-            let pixels = image_io::read(&file).map_err(|e| bad(e.reason()))?;
+            let mut pixels = image_io::read(&file).map_err(|e| bad(e.reason()))?;
+            // The mosaic refers to the sensor as stored: one channel out first, then
+            // the orientation.
+            if let Some((pattern, channel)) = colour {
+                let (h, w) = pixels.dim();
+                if !manifest.camera.demosaic && (h % 2 == 1 || w % 2 == 1) {
+                    return Err(bad(format!(
+                        "{w}x{h}: a Bayer mosaic taken by its channel's pixels needs even sizes"
+                    )));
+                }
+                let raw = pixels.to_f32();
+                pixels = Pixels::F32(if manifest.camera.demosaic {
+                    bayer::demosaic(raw.view(), pattern, channel)
+                } else {
+                    bayer::subsample(raw.view(), pattern, channel)
+                });
+            }
             let raw = match pixels {
                 Pixels::U8(a) => Pixels::U8(orient(a, &manifest.camera)),
                 Pixels::U16(a) => Pixels::U16(orient(a, &manifest.camera)),
@@ -280,6 +309,16 @@ impl Dataset {
                 entry: entry.clone(),
                 raw,
             });
+        }
+        if colour.is_some() {
+            // In memory the frames are the channel's image: a saved copy says so, and a
+            // channel taken by its own pixels has twice the sensor's pitch.
+            if !manifest.camera.demosaic {
+                manifest.system.pixel_size_um *= 2.0;
+            }
+            manifest.camera.bayer = None;
+            manifest.camera.channel = None;
+            manifest.camera.demosaic = false;
         }
         Ok(Self {
             dir: dir.to_path_buf(),
@@ -527,6 +566,30 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "camera.dark_level",
             m.camera.dark_level.to_string(),
             "must be finite",
+        ));
+    }
+    match (m.camera.bayer, m.camera.channel) {
+        (Some(_), None) => {
+            return Err(value(
+                "camera.channel",
+                "absent".into(),
+                "a Bayer mosaic needs the channel to use: \"R\", \"G\" or \"B\"",
+            ))
+        }
+        (None, Some(c)) => {
+            return Err(value(
+                "camera.channel",
+                format!("{c:?}"),
+                "only means something with camera.bayer",
+            ))
+        }
+        _ => {}
+    }
+    if m.camera.demosaic && m.camera.bayer.is_none() {
+        return Err(value(
+            "camera.demosaic",
+            "true".into(),
+            "only means something with camera.bayer",
         ));
     }
     if m.frames.is_empty() {

@@ -215,6 +215,69 @@ fn wait_exit(run: &mut ChildProcess, timeout: Duration) -> std::process::ExitSta
 }
 
 #[test]
+/// A colour camera (the simulator's BayerRG8) publishes the LEDs' channel: its own
+/// pixels, one per 2 × 2 cell, half the region each way; without a channel it refuses,
+/// naming the mosaic.
+fn a_colour_camera_publishes_the_leds_channel() {
+    let _turn = ONE_CAMERA_AT_A_TIME
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    let _camera = fake_camera(&unique("RGB"));
+    let out = fpm(&[
+        "camera",
+        "run",
+        "--aravis",
+        "127.0.0.1",
+        "--camera",
+        "rgb",
+        "--pixel-format",
+        "BayerRG8",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("BayerRG8") && err.contains("--channel"),
+        "{err}"
+    );
+    let dir = TempDir::new("camera-colour");
+    let id = unique("cam-rgb");
+    let frames = FrameSubscriber::create(&ServiceNames::for_camera(&id)).unwrap();
+    let _run = camera_run(
+        &dir.0,
+        &id,
+        &[
+            "--pixel-format",
+            "BayerRG8",
+            "--channel",
+            "G",
+            "--roi",
+            "0,0,320,240",
+            "--trigger",
+            "Off",
+        ],
+    );
+    let applied: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.0.join("applied.json")).unwrap())
+            .unwrap();
+    assert_eq!(applied["bayer"], "RGGB", "{applied}");
+    assert_eq!(applied["channel"], "G", "{applied}");
+    assert_eq!(applied["published_size"], serde_json::json!([160, 120]));
+    assert_eq!(applied["published_pixel_factor"], 2);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let frame = loop {
+        if let Some(f) = frames.next(Duration::from_millis(200)).unwrap() {
+            break *f.header();
+        }
+        assert!(Instant::now() < deadline, "no frame: {}", log(&dir.0));
+    };
+    assert_eq!(
+        (frame.width, frame.height, frame.bit_depth),
+        (160, 120, 8),
+        "{frame:?}"
+    );
+}
+
+#[test]
 /// Settings the camera cannot take are refused before anything streams, naming them.
 fn impossible_settings_are_refused_by_name() {
     let _turn = ONE_CAMERA_AT_A_TIME

@@ -115,10 +115,15 @@ fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json:
             .and_then(|b| b.get(0))
             .and_then(|b| b.as_f64())
             .unwrap_or(1.0);
-        let effective = pitch * binning;
+        // A colour mosaic's channel is published one pixel per 2 × 2 cell.
+        let factor = value
+            .get("published_pixel_factor")
+            .and_then(|f| f.as_f64())
+            .unwrap_or(1.0);
+        let effective = pitch * binning * factor;
         if (effective - system.pixel_size_um).abs() > 0.01 * system.pixel_size_um {
             tracing::warn!(
-                "the camera reports {effective:.3} µm pixels ({pitch} µm × binning {binning}), the system says {:.3} µm (--pixel-um)",
+                "the camera reports {effective:.3} µm pixels ({pitch} µm × binning {binning} × {factor} for a colour channel), the system says {:.3} µm (--pixel-um)",
                 system.pixel_size_um
             );
         }

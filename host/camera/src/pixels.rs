@@ -58,6 +58,9 @@ pub enum DecodeError {
         /// Bytes received.
         got: usize,
     },
+    /// A channel was asked of a mono format.
+    #[error("{0:?} is not a colour mosaic: there is no channel to take")]
+    NotAMosaic(PixelFormat),
     /// A packed format whose pixel count does not fill its groups.
     #[error("{format:?} needs a pixel count divisible by {group}, got {pixels}")]
     Ragged {
@@ -217,6 +220,107 @@ pub fn decode(
     Ok(())
 }
 
+/// A colour channel of a raw mosaic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channel {
+    /// Red.
+    R,
+    /// Green.
+    G,
+    /// Blue.
+    B,
+}
+
+impl std::str::FromStr for Channel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "R" | "r" => Ok(Self::R),
+            "G" | "g" => Ok(Self::G),
+            "B" | "b" => Ok(Self::B),
+            other => Err(format!("channel {other:?}: expected R, G or B")),
+        }
+    }
+}
+
+/// Where `channel` sits in the 2 × 2 cell of mosaic `pattern` ("RGGB", ...), as
+/// (row, col): one site for red and blue, two for green.
+fn sites(pattern: &str, channel: Channel) -> Vec<(usize, usize)> {
+    let want = match channel {
+        Channel::R => b'R',
+        Channel::G => b'G',
+        Channel::B => b'B',
+    };
+    pattern
+        .bytes()
+        .enumerate()
+        .filter(|&(_, f)| f == want)
+        .map(|(k, _)| (k / 2, k % 2))
+        .collect()
+}
+
+/// One channel of a raw mosaic (`Bayer8`/`Bayer16` formats), straight from the
+/// camera's bytes into `dst`: the channel's own pixels, one value per 2 × 2 cell (the
+/// two green pixels averaged), so `dst` holds (width / 2) · (height / 2) pixels of
+/// twice the sensor's pitch. Width and height must be even.
+pub fn decode_channel(
+    format: PixelFormat,
+    width: u32,
+    height: u32,
+    src: &[u8],
+    channel: Channel,
+    dst: &mut [MaybeUninit<u16>],
+) -> Result<(), DecodeError> {
+    let (w, h) = (width as usize, height as usize);
+    let Some(pattern) = format.bayer() else {
+        return Err(DecodeError::NotAMosaic(format));
+    };
+    if w % 2 == 1 || h % 2 == 1 {
+        return Err(DecodeError::Ragged {
+            format,
+            group: 2,
+            pixels: w * h,
+        });
+    }
+    let bytes = if matches!(format, PixelFormat::Bayer8(_)) {
+        1
+    } else {
+        2
+    };
+    let needed = w * h * bytes;
+    if src.len() < needed {
+        return Err(DecodeError::Short {
+            format,
+            width,
+            height,
+            needed,
+            got: src.len(),
+        });
+    }
+    assert_eq!(
+        dst.len(),
+        (w / 2) * (h / 2),
+        "the destination holds the channel's pixels"
+    );
+    let at = |r: usize, c: usize| -> u32 {
+        let k = r * w + c;
+        if bytes == 1 {
+            src[k] as u32
+        } else {
+            u16::from_le_bytes([src[2 * k], src[2 * k + 1]]) as u32
+        }
+    };
+    let sites = sites(pattern, channel);
+    let n = sites.len() as u32;
+    for (k, d) in dst.iter_mut().enumerate() {
+        let (i, j) = (k / (w / 2), k % (w / 2));
+        let sum: u32 = sites.iter().map(|&(r, c)| at(2 * i + r, 2 * j + c)).sum();
+        // Rounded half up: the mean of two green pixels.
+        d.write(((sum + n / 2) / n) as u16);
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -328,6 +432,34 @@ mod tests {
         assert!(matches!(e, DecodeError::Ragged { group: 2, .. }), "{e}");
         let e = PixelFormat::from_pfnc(0x0218_0014).unwrap_err();
         assert!(e.to_string().contains("0x02180014"), "{e}");
+    }
+
+    #[test]
+    fn a_mosaic_channel_is_its_own_pixels_one_per_cell() {
+        // RGGB, 4 × 2: each site holds a code of its filter and position.
+        let raw: Vec<u8> = (0..2)
+            .flat_map(|r| {
+                (0..4).map(move |c| match (r % 2, c % 2) {
+                    (0, 0) => 10 + c as u8,       // R
+                    (1, 1) => 200 + c as u8,      // B
+                    _ => 100 + (r * 4 + c) as u8, // G
+                })
+            })
+            .collect();
+        let take = |ch| {
+            let mut dst = vec![MaybeUninit::<u16>::uninit(); 2];
+            decode_channel(PixelFormat::Bayer8("RGGB"), 4, 2, &raw, ch, &mut dst).unwrap();
+            dst.into_iter()
+                .map(|p| unsafe { p.assume_init() })
+                .collect::<Vec<u16>>()
+        };
+        assert_eq!(take(Channel::R), [10, 12]);
+        assert_eq!(take(Channel::B), [201, 203]);
+        // Cell 0: greens at (0,1) = 101 and (1,0) = 104 → 102.5 → 103.
+        assert_eq!(take(Channel::G), [103, 105]);
+        let mut dst = vec![MaybeUninit::<u16>::uninit(); 2];
+        let e = decode_channel(PixelFormat::Mono8, 4, 2, &raw, Channel::G, &mut dst).unwrap_err();
+        assert!(e.to_string().contains("not a colour mosaic"), "{e}");
     }
 
     #[test]

@@ -10,7 +10,7 @@ use clap::Args;
 use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
 
 use crate::aravis::{Aravis, Camera, Stream, StreamStats};
-use crate::pixels::{decode, PixelFormat};
+use crate::pixels::{decode, decode_channel, Channel, PixelFormat};
 use crate::settings::{AppliedSettings, CameraSettings};
 
 /// Run a GenICam camera (through aravis) as an fpm camera.
@@ -49,6 +49,10 @@ pub struct RunArgs {
     /// TriggerActivation (RisingEdge, FallingEdge, ...).
     #[arg(long)]
     pub trigger_activation: Option<String>,
+    /// Colour sensors (Bayer pixel formats): publish this channel (R, G or B), its own
+    /// pixels, one per 2 × 2 cell (half the size, twice the pitch).
+    #[arg(long)]
+    pub channel: Option<String>,
     /// Fire a software trigger on each trigger-out pulse of this virtual rig
     /// (`fpm emulator --rig NAME`): a stand-in for the trigger cable. Sets the trigger
     /// to Software.
@@ -99,6 +103,7 @@ impl RunArgs {
             binning: self.binning,
             trigger,
             trigger_activation: self.trigger_activation.clone(),
+            channel: self.channel.clone(),
         }))
     }
 }
@@ -154,7 +159,8 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
     settings
         .apply(&camera)
         .with_context(|| format!("configuring camera {}", args.aravis))?;
-    let applied = AppliedSettings::read(&camera)?;
+    let mut applied = AppliedSettings::read(&camera)?;
+    let channel = colour_channel(&args.aravis, &settings, &mut applied)?;
     tracing::info!(
         "camera {} {} (serial {}): {} {}x{} at ({}, {}), binning {}x{}, exposure {} µs, gain {:?}, trigger {} {}",
         applied.vendor,
@@ -187,7 +193,8 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
     // For the acquisition's record (acquisition.json): what the camera applied.
     let settings_channel =
         fpm_frames::SettingsPublisher::create(&names, &serde_json::to_string(&applied)?)?;
-    let max_pixels = (applied.roi[2].max(1) as usize) * (applied.roi[3].max(1) as usize);
+    let max_pixels =
+        (applied.published_size[0].max(1) as usize) * (applied.published_size[1].max(1) as usize);
     let publisher = FramePublisher::create(&names, max_pixels)?;
     let stream = camera.stream()?;
     let payload = camera.payload()?;
@@ -208,15 +215,13 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
         names.frames,
         args.buffers
     );
-    let result = stream_frames(
-        &args,
-        &camera,
-        &stream,
-        &publisher,
-        rig.as_mut(),
-        &applied,
-        &settings_channel,
-    );
+    let ends = Ends {
+        camera: &camera,
+        stream: &stream,
+        publisher: &publisher,
+        settings: &settings_channel,
+    };
+    let result = stream_frames(&args, channel, &ends, rig.as_mut(), &applied);
     let stats = stream.stats();
     if let Err(e) = camera.stop() {
         tracing::debug!("stopping the acquisition: {e}");
@@ -246,6 +251,40 @@ pub fn run(args: RunArgs) -> Result<RunSummary> {
     Ok(summary)
 }
 
+/// The channel to publish: required for a colour mosaic, refused for a mono format;
+/// recorded in `applied` with the published size.
+fn colour_channel(
+    camera: &str,
+    settings: &CameraSettings,
+    applied: &mut AppliedSettings,
+) -> Result<Option<Channel>> {
+    let asked = match &settings.channel {
+        Some(c) => Some(c.parse::<Channel>().map_err(anyhow::Error::msg)?),
+        None => None,
+    };
+    match (&applied.bayer, asked) {
+        (Some(pattern), None) => bail!(
+            "camera {camera}: pixel format {} is a colour mosaic ({pattern}); choose the channel the LEDs light with --channel R|G|B",
+            applied.pixel_format
+        ),
+        (None, Some(_)) => bail!(
+            "camera {camera}: --channel is for colour mosaics, and {} is not one",
+            applied.pixel_format
+        ),
+        (Some(_), Some(ch)) => {
+            let [_, _, w, h] = applied.roi;
+            if w % 2 == 1 || h % 2 == 1 {
+                bail!("camera {camera}: a mosaic's channel needs an even region, not {w}x{h}");
+            }
+            applied.channel = Some(format!("{ch:?}"));
+            applied.published_size = [w / 2, h / 2];
+            applied.published_pixel_factor = 2;
+            Ok(Some(ch))
+        }
+        (None, None) => Ok(None),
+    }
+}
+
 fn log_stats(s: &StreamStats) {
     tracing::info!(
         "stream: {} completed, {} failed, {} underruns, {} packets resent, {} missing",
@@ -257,15 +296,27 @@ fn log_stats(s: &StreamStats) {
     );
 }
 
+/// Both ends of the driver: the camera and its stream, the frame contract's services.
+struct Ends<'a> {
+    camera: &'a Camera,
+    stream: &'a Stream,
+    publisher: &'a FramePublisher,
+    settings: &'a fpm_frames::SettingsPublisher,
+}
+
 fn stream_frames(
     args: &RunArgs,
-    camera: &Camera,
-    stream: &Stream,
-    publisher: &FramePublisher,
+    channel: Option<Channel>,
+    ends: &Ends<'_>,
     mut rig: Option<&mut fpm_rig_bus::RigListener>,
     applied: &AppliedSettings,
-    settings_channel: &fpm_frames::SettingsPublisher,
 ) -> Result<RunSummary> {
+    let Ends {
+        camera,
+        stream,
+        publisher,
+        settings: settings_channel,
+    } = *ends;
     let mut summary = RunSummary::default();
     let mut frame_number = 0u64;
     let exposure_us = applied.exposure_us.round().clamp(0.0, u32::MAX as f64) as u32;
@@ -318,17 +369,22 @@ fn stream_frames(
         let (width, height, code) = buffer.image();
         let format =
             PixelFormat::from_pfnc(code).with_context(|| format!("camera {}", args.aravis))?;
+        let (out_w, out_h) = match channel {
+            Some(_) => (width / 2, height / 2),
+            None => (width, height),
+        };
         let header = FrameHeader {
             frame_number,
             timestamp_ns: buffer.timestamp_ns(),
             exposure_us,
-            width,
-            height,
+            width: out_w,
+            height: out_h,
             bit_depth: format.bit_depth(),
             ..FrameHeader::default()
         };
-        let sent = publisher.publish_filled(header, |dst| {
-            decode(format, width, height, buffer.data(), dst)
+        let sent = publisher.publish_filled(header, |dst| match channel {
+            Some(ch) => decode_channel(format, width, height, buffer.data(), ch, dst),
+            None => decode(format, width, height, buffer.data(), dst),
         });
         summary
             .handoff_us

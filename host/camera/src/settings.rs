@@ -20,6 +20,7 @@ use crate::pixels::PixelFormat;
 /// binning = 1
 /// trigger = "Line0"               # a TriggerSource ("Line0", "Software", ...) or "Off"
 /// trigger_activation = "RisingEdge"
+/// channel = "G"                   # colour sensors (Bayer formats): the LEDs' channel
 /// ```
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -38,6 +39,9 @@ pub struct CameraSettings {
     pub trigger: Option<String>,
     /// TriggerActivation ("RisingEdge", "FallingEdge", ...).
     pub trigger_activation: Option<String>,
+    /// For a colour sensor's mosaic (Bayer formats): the channel to publish ("R", "G",
+    /// "B"), its own pixels, one per 2 × 2 cell.
+    pub channel: Option<String>,
 }
 
 impl CameraSettings {
@@ -58,6 +62,7 @@ impl CameraSettings {
             binning: over.binning.or(self.binning),
             trigger: over.trigger.or(self.trigger),
             trigger_activation: over.trigger_activation.or(self.trigger_activation),
+            channel: over.channel.or(self.channel),
         }
     }
 
@@ -134,6 +139,12 @@ pub struct AppliedSettings {
     pub trigger_activation: Option<String>,
     /// The sensor's pixel pitch, µm, if the camera reports it (SensorPixelWidth).
     pub pixel_size_um: Option<f64>,
+    /// The channel published from a colour mosaic, if one is.
+    pub channel: Option<String>,
+    /// Width and height of the frames published.
+    pub published_size: [i32; 2],
+    /// Published pixels per sensor pixel, each way (2 for a mosaic's channel).
+    pub published_pixel_factor: i32,
 }
 
 impl AppliedSettings {
@@ -171,6 +182,9 @@ impl AppliedSettings {
                 .has_feature("SensorPixelWidth")
                 .then(|| camera.float("SensorPixelWidth").ok())
                 .flatten(),
+            channel: None,
+            published_size: [w, h],
+            published_pixel_factor: 1,
         })
     }
 
@@ -196,6 +210,14 @@ pub fn pixel_format_code(name: &str) -> Option<PixelFormat> {
         "BayerRG8" => 0x0108_0009,
         "BayerGB8" => 0x0108_000A,
         "BayerBG8" => 0x0108_000B,
+        "BayerGR10" => 0x0110_000C,
+        "BayerRG10" => 0x0110_000D,
+        "BayerGB10" => 0x0110_000E,
+        "BayerBG10" => 0x0110_000F,
+        "BayerGR12" => 0x0110_0010,
+        "BayerRG12" => 0x0110_0011,
+        "BayerGB12" => 0x0110_0012,
+        "BayerBG12" => 0x0110_0013,
         "BayerGR16" => 0x0110_002E,
         "BayerRG16" => 0x0110_002F,
         "BayerGB16" => 0x0110_0030,

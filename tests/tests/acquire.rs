@@ -162,10 +162,13 @@ fn rate_of_clear_field() -> f32 {
     (c.electrons_per_ms * c.gain_dn_per_e) as f32
 }
 
-/// The camera dies mid-sequence: the acquisition ends with a clear report, keeps every
-/// frame it got (labelled), and lists the LEDs it is missing.
+/// The camera dies mid-sequence. Its frames cover the first part of a periodic
+/// sequence: their stamps fit that part as well as any later stretch of the same
+/// length, and the camera here is slower than a step, so neither do the arrival times
+/// tell. The acquisition refuses to guess, and says why. (Before, it labelled them
+/// with LEDs a few hundred steps later and wrote them.)
 #[test]
-fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
+fn a_camera_killed_mid_sequence_is_reported_and_nothing_is_mislabelled() {
     let id = format!("acqkill-{}", std::process::id());
     let dir = TempDir::new("acquire-kill");
     let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
@@ -183,22 +186,16 @@ fn a_camera_killed_mid_sequence_leaves_a_labelled_partial_dataset() {
     std::thread::sleep(Duration::from_secs(3));
     cam.kill();
     let run = acquire.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&run.stdout);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{stderr}");
     assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
+        stderr.contains("could be labelled with its LED") && stderr.contains("whole step apart"),
+        "{stderr}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
-    let labelled = report["capture"]["labelled"].as_u64().unwrap() as usize;
-    let missing = report["capture"]["missing"].as_array().unwrap().len();
-    assert!(labelled > 10 && labelled < 441, "{text}");
-    assert_eq!(labelled + missing, 441, "{text}");
-    assert!(text.contains("missing LEDs"), "{text}");
-    let ds = Dataset::load(&out).unwrap();
-    assert_eq!(ds.frames.len(), labelled, "what was acquired is on disk");
+    assert!(
+        Dataset::load(&out).is_err(),
+        "no dataset of guessed labels is written"
+    );
 
     // The crashed camera left its shared memory behind; a new camera on the same
     // services and a new acquisition work regardless.

@@ -406,7 +406,7 @@ fn an_acquisition_with_the_fake_camera_labels_every_led() {
             "--frames",
             &id,
             "--step-ms",
-            "150",
+            "180",
             "--out",
         ])
         .arg(&out_dir)

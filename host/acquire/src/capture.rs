@@ -302,6 +302,7 @@ pub fn capture(
                 );
                 anchor = (p.clock_problem.is_none()
                     && p.clock_note.is_none()
+                    && p.arrivals_agree
                     && p.matched.len() * 4 >= n * 3)
                     .then_some(p.clock_offset_ns);
             }
@@ -331,6 +332,9 @@ pub fn capture(
                     false
                 });
             }
+            // Time spent labelling and streaming is not the camera being idle: frames
+            // that arrived meanwhile are still to be drained.
+            last_frame = Instant::now();
         }
         let complete = received.len() >= leds.len();
         if outcome.is_some() && (complete || last_frame.elapsed() > idle_after_end) {

@@ -46,6 +46,11 @@ pub struct Pairing {
     /// An assumption the pairing had to make, if it had to (see
     /// [`pair_with_arrivals`]).
     pub clock_note: Option<String>,
+    /// With arrival times: whether, among the offsets labelling nearly as many frames,
+    /// the one taken is also the one whose frames arrive soonest after their steps
+    /// without arriving before them (always true without arrival times). Labels given
+    /// while frames still arrive should wait until it is.
+    pub arrivals_agree: bool,
 }
 
 /// The camera's clock as a function of the controller's: `camera = t + offset +
@@ -143,39 +148,52 @@ pub fn pair_with_arrivals(
     let tied: Vec<usize> = (0..fits.len())
         .filter(|&k| best > 0 && fits[k].1.matched.len() == best)
         .collect();
-    let mut tie_note = None;
+    // The median arrival lag of a candidate's frames after their steps.
+    let lag = |k: usize| -> Option<i64> {
+        let a = arrivals?;
+        let mut l: Vec<i64> = fits[k]
+            .1
+            .matched
+            .iter()
+            .filter_map(|&(si, fi)| Some(a.frames_ns.get(fi)? - a.steps_ns.get(si)?))
+            .collect();
+        l.sort_unstable();
+        l.get(l.len() / 2).copied()
+    };
+    // Of the candidates labelling at least `at_least` frames, the one whose frames
+    // arrive soonest after their steps without arriving before them.
+    let soonest = |at_least: usize| -> Option<(usize, i64)> {
+        (0..fits.len())
+            .filter(|&k| at_least > 0 && fits[k].1.matched.len() >= at_least)
+            .filter_map(|k| lag(k).map(|l| (k, l)))
+            .filter(|&(_, l)| l >= -(tolerance_ns as i64))
+            .min_by_key(|&(_, l)| l)
+    };
     let mut tie = tied.len() > 1;
-    if tie {
-        if let Some(a) = arrivals {
-            // The median arrival lag of each tied offset's frames after their steps.
-            let lag = |k: usize| {
-                let mut l: Vec<i64> = fits[k]
-                    .1
-                    .matched
-                    .iter()
-                    .filter_map(|&(si, fi)| Some(a.frames_ns.get(fi)? - a.steps_ns.get(si)?))
-                    .collect();
-                l.sort_unstable();
-                l.get(l.len() / 2).copied()
-            };
-            let causal: Vec<(usize, i64)> = tied
-                .iter()
-                .filter_map(|&k| lag(k).map(|l| (k, l)))
-                .filter(|&(_, l)| l >= -(tolerance_ns as i64))
-                .collect();
-            if let Some(&(k, l)) = causal.iter().min_by_key(|(_, l)| *l) {
-                tie = false;
-                tie_note = Some(format!(
-                    "{} clock offsets a whole step apart fit equally well; took the one whose frames reached the host {:.1} ms after their step (assumes frames arrive within one step period)",
-                    tied.len(),
-                    l as f64 / 1e6
-                ));
-                fits.swap(0, k);
-            }
-        }
+    let tie_choice = if tie { soonest(best) } else { None };
+    let nearly = soonest(best.saturating_sub(1));
+    let mut tie_note = None;
+    let mut chosen = 0;
+    if let Some((k, l)) = tie_choice {
+        tie = false;
+        tie_note = Some(format!(
+            "{} clock offsets a whole step apart fit equally well; took the one whose frames reached the host {:.1} ms after their step (assumes frames arrive within one step period)",
+            tied.len(),
+            l as f64 / 1e6
+        ));
+        chosen = k;
     }
+    // Whether the arrivals agree with the choice even among offsets one frame short of
+    // it (a shifted offset always is: it loses one frame at an end).
+    let arrivals_agree = match (arrivals, nearly) {
+        (None, _) => true,
+        (Some(_), Some((k, _))) => k == chosen,
+        (Some(_), None) => false,
+    };
+    fits.swap(0, chosen);
     let (map, mut out) = fits.swap_remove(0);
     out.clock_note = tie_note;
+    out.arrivals_agree = arrivals_agree;
     let drift_ppm = map.drift * 1e6;
     let usable = frames.len().min(steps.len());
     let problem = if usable >= 4 && out.matched.len() * 2 < usable {
@@ -187,7 +205,7 @@ pub fn pair_with_arrivals(
         ))
     } else if tie {
         Some(format!(
-            "{} frames fit two clock offsets a whole step apart equally well (a frame lost at the start or end of a periodic sequence): which LED each frame belongs to cannot be told",
+            "{} frames fit clock offsets a whole step apart equally well (frames lost at the start or end of a periodic sequence, e.g. a camera that stopped): which LED each frame belongs to cannot be told from the stamps",
             out.matched.len()
         ))
     } else if drift_ppm.abs() > MAX_DRIFT_PPM {
@@ -575,6 +593,37 @@ mod tests {
             p.matched
         );
         assert_eq!(p.missing_steps, vec![0]);
+    }
+
+    /// A camera slower than a step period: the stamps decide (no frame lost), and the
+    /// arrivals, which would point at the neighbouring offset, are reported as
+    /// disagreeing, so labels given while frames arrive wait.
+    #[test]
+    fn arrivals_that_point_elsewhere_are_flagged_not_followed() {
+        let s = steps(30);
+        let f = frames_for(&s, 900_000_000, &[0, 150_000]);
+        let steps_ns: Vec<i64> = s.iter().map(|st| st.trigger_ns as i64).collect();
+        // Each frame reaches the host 1.5 periods after its own trigger.
+        let frames_ns: Vec<i64> = s
+            .iter()
+            .map(|st| st.trigger_ns as i64 + 3 * PERIOD as i64 / 2)
+            .collect();
+        let arrivals = Arrivals {
+            steps_ns: &steps_ns,
+            frames_ns: &frames_ns,
+        };
+        let p = pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals));
+        assert_eq!(p.matched.len(), 30);
+        assert!(p.matched.iter().all(|&(si, fi)| si == fi));
+        assert_eq!(p.clock_note, None);
+        assert!(!p.arrivals_agree);
+        // Frames arriving soon after their trigger agree.
+        let prompt: Vec<i64> = steps_ns.iter().map(|t| t + 3_000_000).collect();
+        let arrivals = Arrivals {
+            steps_ns: &steps_ns,
+            frames_ns: &prompt,
+        };
+        assert!(pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals)).arrivals_agree);
     }
 
     #[test]

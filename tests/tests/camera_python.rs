@@ -115,3 +115,64 @@ fn a_python_publisher_feeds_a_whole_acquisition() {
         );
     }
 }
+
+/// A real camera SDK without hardware: Basler's pypylon on pylon's camera emulation
+/// (only that transport layer is opened: no discovery broadcast), triggered in
+/// software on each trigger-out pulse of the emulated controller, Mono12 frames
+/// published through `fpm_camera`: every LED labelled, none extra.
+#[test]
+fn pypylons_emulated_camera_feeds_a_whole_acquisition() {
+    let id = format!("pylon-{}", std::process::id());
+    let dir = TempDir::new("camera-pypylon");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let ready = dir.0.join("camera.ready");
+    let mut command = Command::new(python());
+    command
+        .current_dir(workspace().join("tools/camera-python"))
+        .args([
+            "example_pypylon_camera.py",
+            "--emulated",
+            "--rig",
+            &id,
+            "--camera",
+            &id,
+        ])
+        .arg("--ready-file")
+        .arg(&ready)
+        .stdout(Stdio::null());
+    let _camera = child(
+        command,
+        "pypylon example camera",
+        Ready::FileExists(&ready, Duration::from_secs(60)),
+    );
+    let out = dir.0.join("data");
+    let run = Command::new(fpm_bin())
+        .args([
+            "acquire",
+            "--port",
+            &emu.port(),
+            "--frames",
+            &id,
+            "--step-ms",
+            "15",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
+            .unwrap();
+    let capture = &report["capture"];
+    assert_eq!(capture["labelled"], 441, "{capture}");
+    assert_eq!(capture["extra_frames"], 0, "{capture}");
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), 441);
+    assert_eq!(ds.frames[0].raw.dim(), (64, 64));
+    assert_eq!(ds.manifest.camera.bit_depth, Some(12));
+}

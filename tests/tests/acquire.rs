@@ -165,8 +165,8 @@ fn rate_of_clear_field() -> f32 {
 /// The camera dies mid-sequence. Its frames cover the first part of a periodic
 /// sequence: their stamps fit that part as well as any later stretch of the same
 /// length, and the camera here is slower than a step, so neither do the arrival times
-/// tell. The acquisition refuses to guess, and says why. (Before, it labelled them
-/// with LEDs a few hundred steps later and wrote them.)
+/// tell. The acquisition refuses to guess, and says why. (Before, it took one of the
+/// offsets by the order of its search and wrote the frames under those labels.)
 #[test]
 fn a_camera_killed_mid_sequence_is_reported_and_nothing_is_mislabelled() {
     let id = format!("acqkill-{}", std::process::id());

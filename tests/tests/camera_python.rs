@@ -154,7 +154,7 @@ fn pypylons_emulated_camera_feeds_a_whole_acquisition() {
             "--frames",
             &id,
             "--step-ms",
-            "15",
+            "40",
             "--out",
         ])
         .arg(&out)
@@ -168,9 +168,22 @@ fn pypylons_emulated_camera_feeds_a_whole_acquisition() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
             .unwrap();
+    // The emulation stamps 0, so the example stamps the host's clock when Python fires
+    // the trigger: on a loaded machine that can lag the pulse by more than the
+    // labelling tolerance, and such a frame is reported extra and its LED taken again.
     let capture = &report["capture"];
-    assert_eq!(capture["labelled"], 441, "{capture}");
-    assert_eq!(capture["extra_frames"], 0, "{capture}");
+    let missing = capture["missing"].as_array().unwrap().len();
+    assert!(missing <= 3, "{capture}");
+    assert!(
+        capture["extra_frames"].as_u64().unwrap() as usize <= missing,
+        "{capture}"
+    );
+    assert_eq!(capture["relabelled"], 0, "{capture}");
+    assert_eq!(
+        report["still_missing"].as_array().map(Vec::len),
+        Some(0),
+        "{report}"
+    );
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), 441);
     assert_eq!(ds.frames[0].raw.dim(), (64, 64));

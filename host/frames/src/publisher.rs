@@ -39,17 +39,7 @@ impl FramePublisher {
     /// `pixel_count` is filled in. The one copy is the write into shared memory;
     /// subscribers read it in place. Returns how many subscribers received it.
     pub fn publish(&self, header: FrameHeader, pixels: &[u16]) -> Result<usize, FrameError> {
-        let header = FrameHeader {
-            pixel_count: pixels.len() as u64,
-            ..header
-        };
-        crate::subscriber::validate(&header, pixels.len())?;
-        if pixels.len() > self.max_pixels {
-            return Err(FrameError::TooLarge {
-                pixels: pixels.len(),
-                max: self.max_pixels,
-            });
-        }
+        let header = self.checked(header, pixels.len())?;
         let mut sample = self
             .port
             .loan_slice_uninit(pixels.len())
@@ -57,9 +47,7 @@ impl FramePublisher {
         *sample.user_header_mut() = header;
         let sample = sample.write_from_slice(pixels);
         let receivers = sample.send().map_err(|e| ipc("sending a frame")(&e))?;
-        self.notifier
-            .notify_with_custom_event_id(EventId::new(FRAME_READY))
-            .map_err(|e| ipc("signalling a frame")(&e))?;
+        signal(&self.notifier)?;
         Ok(receivers)
     }
 
@@ -73,17 +61,7 @@ impl FramePublisher {
         fill: impl FnOnce(&mut [std::mem::MaybeUninit<u16>]) -> Result<(), E>,
     ) -> Result<usize, FrameError> {
         let pixels = header.width as usize * header.height as usize;
-        let header = FrameHeader {
-            pixel_count: pixels as u64,
-            ..header
-        };
-        crate::subscriber::validate(&header, pixels)?;
-        if pixels > self.max_pixels {
-            return Err(FrameError::TooLarge {
-                pixels,
-                max: self.max_pixels,
-            });
-        }
+        let header = self.checked(header, pixels)?;
         let mut sample = self
             .port
             .loan_slice_uninit(pixels)
@@ -97,9 +75,7 @@ impl FramePublisher {
         // SAFETY: `fill` returned Ok, promising every pixel written.
         let sample = unsafe { sample.assume_init() };
         let receivers = sample.send().map_err(|e| ipc("sending a frame")(&e))?;
-        self.notifier
-            .notify_with_custom_event_id(EventId::new(FRAME_READY))
-            .map_err(|e| ipc("signalling a frame")(&e))?;
+        signal(&self.notifier)?;
         Ok(receivers)
     }
 
@@ -108,17 +84,7 @@ impl FramePublisher {
     /// zeroed; fill [`FrameLoan::pixels_mut`], then [`FrameLoan::send`].
     pub fn loan(&self, header: FrameHeader) -> Result<FrameLoan<'_>, FrameError> {
         let pixels = header.width as usize * header.height as usize;
-        let header = FrameHeader {
-            pixel_count: pixels as u64,
-            ..header
-        };
-        crate::subscriber::validate(&header, pixels)?;
-        if pixels > self.max_pixels {
-            return Err(FrameError::TooLarge {
-                pixels,
-                max: self.max_pixels,
-            });
-        }
+        let header = self.checked(header, pixels)?;
         let mut sample = self
             .port
             .loan_slice(pixels)
@@ -134,6 +100,31 @@ impl FramePublisher {
     pub fn max_pixels(&self) -> usize {
         self.max_pixels
     }
+
+    /// `header` carrying `pixels` pixels, checked against the contract and this
+    /// publisher's maximum before anything is loaned.
+    fn checked(&self, header: FrameHeader, pixels: usize) -> Result<FrameHeader, FrameError> {
+        let header = FrameHeader {
+            pixel_count: pixels as u64,
+            ..header
+        };
+        crate::subscriber::validate(&header, pixels)?;
+        if pixels > self.max_pixels {
+            return Err(FrameError::TooLarge {
+                pixels,
+                max: self.max_pixels,
+            });
+        }
+        Ok(header)
+    }
+}
+
+/// Tell the subscribers a frame is there.
+fn signal(notifier: &Notifier<ipc::Service>) -> Result<(), FrameError> {
+    notifier
+        .notify_with_custom_event_id(EventId::new(FRAME_READY))
+        .map_err(|e| ipc("signalling a frame")(&e))?;
+    Ok(())
 }
 
 /// A frame buffer in shared memory, being filled.
@@ -156,9 +147,7 @@ impl FrameLoan<'_> {
     /// Hand the frame to the subscribers and signal it. Returns how many received it.
     pub fn send(self) -> Result<usize, FrameError> {
         let receivers = self.sample.send().map_err(|e| ipc("sending a frame")(&e))?;
-        self.notifier
-            .notify_with_custom_event_id(EventId::new(FRAME_READY))
-            .map_err(|e| ipc("signalling a frame")(&e))?;
+        signal(&self.notifier)?;
         Ok(receivers)
     }
 }

@@ -139,6 +139,23 @@ impl PixelFormat {
     }
 }
 
+/// The first `needed` bytes of `src`, or the error naming what is short.
+fn leading(
+    src: &[u8],
+    needed: usize,
+    format: PixelFormat,
+    width: u32,
+    height: u32,
+) -> Result<&[u8], DecodeError> {
+    src.get(..needed).ok_or(DecodeError::Short {
+        format,
+        width,
+        height,
+        needed,
+        got: src.len(),
+    })
+}
+
 /// Decode a `width × height` image in `format` from `src` into `dst` (exactly
 /// `width · height` pixels, every one written).
 pub fn decode(
@@ -162,16 +179,7 @@ pub fn decode(
             pixels,
         });
     }
-    if src.len() < needed {
-        return Err(DecodeError::Short {
-            format,
-            width,
-            height,
-            needed,
-            got: src.len(),
-        });
-    }
-    let src = &src[..needed];
+    let src = leading(src, needed, format, width, height)?;
     match format {
         PixelFormat::Mono8 | PixelFormat::Bayer8(_) => {
             for (d, &s) in dst.iter_mut().zip(src) {
@@ -282,21 +290,9 @@ pub fn decode_channel(
             pixels: w * h,
         });
     }
-    let bytes = if matches!(format, PixelFormat::Bayer8(_)) {
-        1
-    } else {
-        2
-    };
-    let needed = w * h * bytes;
-    if src.len() < needed {
-        return Err(DecodeError::Short {
-            format,
-            width,
-            height,
-            needed,
-            got: src.len(),
-        });
-    }
+    let (needed, _) = format.layout(w * h);
+    let bytes = needed / (w * h).max(1);
+    let src = leading(src, needed, format, width, height)?;
     assert_eq!(
         dst.len(),
         (w / 2) * (h / 2),

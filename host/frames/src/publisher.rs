@@ -147,7 +147,7 @@ impl FrameLoan<'_> {
     /// Hand the frame to the subscribers and signal it. Returns how many received it.
     pub fn send(self) -> Result<usize, FrameError> {
         let receivers = self.sample.send().map_err(|e| ipc("sending a frame")(&e))?;
-        signal(&self.notifier)?;
+        signal(self.notifier)?;
         Ok(receivers)
     }
 }

@@ -176,6 +176,23 @@ pub fn firmware_uf2_with_lanes(lanes: u8) -> &'static Path {
         .unwrap_or_else(|| panic!("no firmware image for {lanes} lanes (1, 2 or 4)"))
 }
 
+/// `fpm acquire` against controller `port` and camera `camera` (its frame service
+/// id), `step_ms` per LED, into `out`.
+pub fn acquire_command(port: &str, camera: &str, step_ms: u32, out: &Path) -> Command {
+    let mut cmd = Command::new(fpm_bin());
+    cmd.args(["acquire", "--port", port, "--frames", camera, "--out"])
+        .arg(out)
+        .args(["--step-ms", &step_ms.to_string()]);
+    cmd
+}
+
+/// The `acquisition.json` an acquisition wrote into `out`.
+pub fn acquisition_report(out: &Path) -> serde_json::Value {
+    let path = out.join("acquisition.json");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
 /// The real data sets vendored in the repository (`data/`, each with its source and
 /// licence in its README).
 pub fn data_dir() -> PathBuf {

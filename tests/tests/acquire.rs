@@ -12,11 +12,7 @@ use fpm_tests::{child, fpm_bin, ChildProcess, Emulator, Ready, TempDir};
 
 /// `fpm acquire` against emulator `emu` and camera `id`, into `out`, 15 ms per LED.
 fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
-    let mut cmd = Command::new(fpm_bin());
-    cmd.args(["acquire", "--port", &emu.port(), "--frames", id, "--out"])
-        .arg(out)
-        .args(["--step-ms", "15"]);
-    cmd
+    fpm_tests::acquire_command(&emu.port(), id, 15, out)
 }
 
 fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildProcess {
@@ -109,35 +105,16 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), 441);
     let hidden = LedGeometry::paper().placed(1.3, -0.7, 3.0, 90.0);
-    let system = System::paper();
     let mut leds: Vec<_> = ds.frames.iter().map(|f| f.entry.led).collect();
     leds.sort();
     leds.dedup();
     assert_eq!(leds.len(), 441, "every LED exactly once");
-    let mut wrong = vec![];
-    for (k, f) in ds.frames.iter().enumerate() {
-        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
-        let led = f.entry.led;
-        // Stay clear of LEDs right at the pupil edge, whose brightness is in between.
-        let fr = hidden.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
-        let margin = (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs();
-        if margin < 0.08 {
-            continue;
-        }
-        let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
-        // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
-        let looks_bright = rate > 0.3 * rate_of_clear_field();
-        if bright != looks_bright {
-            wrong.push((f.entry.led, rate));
-        }
-    }
+    let wrong = contradicted_by_physics(&ds, &hidden);
     assert!(
         wrong.is_empty(),
         "frames whose brightness contradicts their LED: {wrong:?}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
     assert_eq!(report["capture"]["labelled"], 441);
     assert_eq!(report["capture"]["missing"].as_array().unwrap().len(), 0);
     assert_eq!(report["geometry_source"], "board");
@@ -250,9 +227,7 @@ fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
     assert_eq!(
         report["capture"]["missing"].as_array().unwrap().len(),
         1,
@@ -304,9 +279,7 @@ fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success());
     assert!(err.contains("LED controller was lost"), "{err}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
     let kept = report["frames_in_dataset"].as_u64().unwrap() as usize;
     assert!(kept > 10 && kept < 441, "{err}");
     assert_eq!(Dataset::load(&out).unwrap().frames.len(), kept);
@@ -348,9 +321,7 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
     assert_eq!(report["capture"]["labelled"], 441);
     // The camera (≈10 frames/s at this size) lags far behind the 15 ms steps: every
     // frame must still reach the stream under its final label.
@@ -418,6 +389,7 @@ fn contradicted_by_physics(
             continue;
         }
         let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
+        // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
         if bright != (rate > 0.3 * rate_of_clear_field()) {
             wrong.push((led, rate));
         }
@@ -461,9 +433,7 @@ fn a_drifting_camera_clock_is_fitted_and_nothing_is_mislabelled() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
     let capture = &report["capture"];
     assert_eq!(capture["labelled"], 441, "{capture}");
     assert_eq!(capture["relabelled"], 0, "{capture}");

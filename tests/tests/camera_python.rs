@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
-use fpm_tests::{child, fpm_bin, Emulator, Ready, TempDir};
+use fpm_tests::{child, Emulator, Ready, TempDir};
 
 fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
@@ -50,40 +50,36 @@ fn python() -> &'static Path {
     })
 }
 
-/// Every LED labelled, and every frame the one its LED made: the NumPy camera draws
-/// 1000 + 32·row + col into each frame from the pulse's lit LED, and stamps it on a
-/// clock 2.5 s ahead of the controller's.
-#[test]
-fn a_python_publisher_feeds_a_whole_acquisition() {
-    let id = format!("py-{}", std::process::id());
-    let dir = TempDir::new("camera-python");
+/// An acquisition from an example camera of tools/camera-python (`script` with
+/// `args`, plus the rig and camera ids and a ready file) behind the emulated
+/// controller, `step_ms` per LED: the scratch directory (kept alive), the dataset
+/// directory and `acquisition.json`.
+fn acquire_from(
+    tag: &str,
+    script: &str,
+    args: &[&str],
+    step_ms: u32,
+) -> (TempDir, PathBuf, serde_json::Value) {
+    let id = format!("{tag}-{}", std::process::id());
+    let dir = TempDir::new(tag);
     let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     let ready = dir.0.join("camera.ready");
     let mut command = Command::new(python());
     command
         .current_dir(workspace().join("tools/camera-python"))
-        .args(["example_numpy_camera.py", "--rig", &id, "--camera", &id])
+        .arg(script)
+        .args(args)
+        .args(["--rig", &id, "--camera", &id])
         .arg("--ready-file")
         .arg(&ready)
         .stdout(Stdio::null());
     let _camera = child(
         command,
-        "Python example camera",
+        script,
         Ready::FileExists(&ready, Duration::from_secs(60)),
     );
     let out = dir.0.join("data");
-    let run = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--step-ms",
-            "15",
-            "--out",
-        ])
-        .arg(&out)
+    let run = fpm_tests::acquire_command(&emu.port(), &id, step_ms, &out)
         .output()
         .unwrap();
     assert!(
@@ -91,9 +87,16 @@ fn a_python_publisher_feeds_a_whole_acquisition() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out);
+    (dir, out, report)
+}
+
+/// Every LED labelled, and every frame the one its LED made: the NumPy camera draws
+/// 1000 + 32·row + col into each frame from the pulse's lit LED, and stamps it on a
+/// clock 2.5 s ahead of the controller's.
+#[test]
+fn a_python_publisher_feeds_a_whole_acquisition() {
+    let (_dir, out, report) = acquire_from("camera-python", "example_numpy_camera.py", &[], 15);
     let capture = &report["capture"];
     assert_eq!(capture["labelled"], 441, "{capture}");
     assert_eq!(capture["extra_frames"], 0, "{capture}");
@@ -122,52 +125,12 @@ fn a_python_publisher_feeds_a_whole_acquisition() {
 /// published through `fpm_camera`: every LED labelled, none extra.
 #[test]
 fn pypylons_emulated_camera_feeds_a_whole_acquisition() {
-    let id = format!("pylon-{}", std::process::id());
-    let dir = TempDir::new("camera-pypylon");
-    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
-    let ready = dir.0.join("camera.ready");
-    let mut command = Command::new(python());
-    command
-        .current_dir(workspace().join("tools/camera-python"))
-        .args([
-            "example_pypylon_camera.py",
-            "--emulated",
-            "--rig",
-            &id,
-            "--camera",
-            &id,
-        ])
-        .arg("--ready-file")
-        .arg(&ready)
-        .stdout(Stdio::null());
-    let _camera = child(
-        command,
-        "pypylon example camera",
-        Ready::FileExists(&ready, Duration::from_secs(60)),
+    let (_dir, out, report) = acquire_from(
+        "camera-pypylon",
+        "example_pypylon_camera.py",
+        &["--emulated"],
+        40,
     );
-    let out = dir.0.join("data");
-    let run = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--step-ms",
-            "40",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("acquisition.json")).unwrap())
-            .unwrap();
     // The emulation stamps 0, so the example stamps the host's clock when Python fires
     // the trigger: on a loaded machine that can lag the pulse by more than the
     // labelling tolerance, and such a frame is reported extra and its LED taken again.

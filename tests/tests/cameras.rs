@@ -16,6 +16,23 @@ static ONE_CAMERA_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 const FAKE_CAMERA: &str = "arv-fake-gv-camera-0.8";
 
+/// This test's turn with a fresh fake camera (serial from `tag`): hold both.
+fn own_fake_camera(tag: &str) -> (std::sync::MutexGuard<'static, ()>, ChildProcess) {
+    let turn = ONE_CAMERA_AT_A_TIME
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    (turn, fake_camera(&unique(tag)))
+}
+
+/// `fpm camera run --aravis 127.0.0.1 ARGS`, which must fail: its stderr.
+fn refused(args: &[&str]) -> String {
+    let mut all = vec!["camera", "run", "--aravis", "127.0.0.1"];
+    all.extend_from_slice(args);
+    let out = fpm(&all);
+    assert!(!out.status.success(), "fpm {all:?} ran");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 /// A fresh fake camera on 127.0.0.1 with serial `serial`, answering.
 fn fake_camera(serial: &str) -> ChildProcess {
     let mut command = Command::new(FAKE_CAMERA);
@@ -115,10 +132,7 @@ fn the_camera_is_listed_by_address() {
 /// camera's clock at its frame rate; Mono8 pixels are the simulator's diagonal ramp
 /// (value = x + y + frame id, mod 255), so rows, columns and order are checked too.
 fn frames_at_each_pixel_format_reach_the_contract() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    let _camera = fake_camera(&unique("FMT"));
+    let (_turn, _camera) = own_fake_camera("FMT");
     for (format, bits) in [("Mono8", 8u32), ("Mono16", 16)] {
         let dir = TempDir::new(&format!("camera-{format}"));
         let id = unique(&format!("cam-{format}"));
@@ -219,22 +233,8 @@ fn wait_exit(run: &mut ChildProcess, timeout: Duration) -> std::process::ExitSta
 /// pixels, one per 2 × 2 cell, half the region each way; without a channel it refuses,
 /// naming the mosaic.
 fn a_colour_camera_publishes_the_leds_channel() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    let _camera = fake_camera(&unique("RGB"));
-    let out = fpm(&[
-        "camera",
-        "run",
-        "--aravis",
-        "127.0.0.1",
-        "--camera",
-        "rgb",
-        "--pixel-format",
-        "BayerRG8",
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (_turn, _camera) = own_fake_camera("RGB");
+    let err = refused(&["--camera", "rgb", "--pixel-format", "BayerRG8"]);
     assert!(
         err.contains("BayerRG8") && err.contains("--channel"),
         "{err}"
@@ -280,22 +280,8 @@ fn a_colour_camera_publishes_the_leds_channel() {
 #[test]
 /// Settings the camera cannot take are refused before anything streams, naming them.
 fn impossible_settings_are_refused_by_name() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    let _camera = fake_camera(&unique("BAD"));
-    let out = fpm(&[
-        "camera",
-        "run",
-        "--aravis",
-        "127.0.0.1",
-        "--camera",
-        "bad",
-        "--pixel-format",
-        "Mono12Packed",
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (_turn, _camera) = own_fake_camera("BAD");
+    let err = refused(&["--camera", "bad", "--pixel-format", "Mono12Packed"]);
     assert!(
         err.contains("Mono12Packed") && err.contains("Mono16"),
         "{err}"
@@ -303,16 +289,7 @@ fn impossible_settings_are_refused_by_name() {
     let dir = TempDir::new("camera-bad-config");
     let config = dir.0.join("camera.toml");
     std::fs::write(&config, "exposure = 100\n").unwrap();
-    let out = fpm(&[
-        "camera",
-        "run",
-        "--aravis",
-        "127.0.0.1",
-        "--config",
-        config.to_str().unwrap(),
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&["--config", config.to_str().unwrap()]);
     assert!(
         err.contains("camera.toml") && err.contains("exposure"),
         "{err}"
@@ -325,10 +302,7 @@ fn impossible_settings_are_refused_by_name() {
 /// A camera that disappears mid-stream ends the run with an error that names it,
 /// within seconds, instead of waiting forever.
 fn a_camera_that_disappears_ends_the_run_with_a_clear_error() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    let mut camera = fake_camera(&unique("GONE"));
+    let (_turn, mut camera) = own_fake_camera("GONE");
     let dir = TempDir::new("camera-gone");
     let id = unique("cam-gone");
     let frames = FrameSubscriber::create(&ServiceNames::for_camera(&id)).unwrap();
@@ -377,10 +351,7 @@ fn a_camera_that_disappears_ends_the_run_with_a_clear_error() {
 /// has nothing in common with the controller's, and it starts a frame only on its own
 /// 40 ms tick: every LED is still labelled, and no frame is extra.
 fn an_acquisition_with_the_fake_camera_labels_every_led() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    let _camera = fake_camera(&unique("ACQ"));
+    let (_turn, _camera) = own_fake_camera("ACQ");
     let dir = TempDir::new("camera-acquire");
     let rig = unique("rig-acq");
     let id = unique("cam-acq");
@@ -398,18 +369,7 @@ fn an_acquisition_with_the_fake_camera_labels_every_led() {
         ],
     );
     let out_dir = dir.0.join("acq");
-    let out = Command::new(fpm_bin())
-        .args([
-            "acquire",
-            "--port",
-            &emu.port(),
-            "--frames",
-            &id,
-            "--step-ms",
-            "180",
-            "--out",
-        ])
-        .arg(&out_dir)
+    let out = fpm_tests::acquire_command(&emu.port(), &id, 180, &out_dir)
         .output()
         .unwrap();
     assert!(
@@ -418,9 +378,7 @@ fn an_acquisition_with_the_fake_camera_labels_every_led() {
         String::from_utf8_lossy(&out.stderr),
         log(&dir.0)
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("acquisition.json")).unwrap())
-            .unwrap();
+    let report = fpm_tests::acquisition_report(&out_dir);
     let capture = &report["capture"];
     assert_eq!(capture["requested"], 441, "{capture}");
     // The simulator now and then loses a software trigger, or answers one far later

@@ -89,8 +89,6 @@ pub struct CaptureReport {
     /// Why no frame could be labelled, when the camera's clock could not be reconciled
     /// with the controller's.
     pub clock_problem: Option<String>,
-    /// An assumption the labelling had to make, if it had to.
-    pub clock_note: Option<String>,
     /// From sequence start to the last frame, s.
     pub seconds: f64,
     /// Frames per second.
@@ -300,11 +298,9 @@ pub fn capture(
                     u64::MAX,
                     Some(arrivals),
                 );
-                anchor = (p.clock_problem.is_none()
-                    && p.clock_note.is_none()
-                    && p.arrivals_agree
-                    && p.matched.len() * 4 >= n * 3)
-                    .then_some(p.clock_offset_ns);
+                anchor =
+                    (p.clock_problem.is_none() && p.arrivals_agree && p.matched.len() * 4 >= n * 3)
+                        .then_some(p.clock_offset_ns);
             }
             if let Some(offset) = anchor {
                 let newest = step_times.last().map(|s| s.step);
@@ -375,9 +371,6 @@ pub fn capture(
             received.len()
         );
     }
-    if let Some(note) = &p.clock_note {
-        tracing::warn!("{note}");
-    }
     let mut shots = Vec::with_capacity(p.matched.len());
     let mut matched: Vec<(usize, usize)> = p
         .matched
@@ -433,7 +426,6 @@ pub fn capture(
         clock_drift_ppm: p.clock_drift_ppm,
         stamp_spread_ms: p.residual_spread_ns as f64 / 1e6,
         clock_problem: p.clock_problem.clone(),
-        clock_note: p.clock_note.clone(),
         seconds,
         frames_per_s: shots.len() as f64 / seconds.max(1e-9),
         relabelled,

@@ -43,9 +43,6 @@ pub struct Pairing {
     /// Why the two clocks could not be reconciled, if they could not (then nothing is
     /// labelled: every frame is reported unlabelled rather than guessed).
     pub clock_problem: Option<String>,
-    /// An assumption the pairing had to make, if it had to (see
-    /// [`pair_with_arrivals`]).
-    pub clock_note: Option<String>,
     /// With arrival times: whether, among the offsets labelling nearly as many frames,
     /// the one taken is also the one whose frames arrive soonest after their steps
     /// without arriving before them (always true without arrival times). Labels given
@@ -70,6 +67,13 @@ impl ClockMap {
         (frame.timestamp_ns as i128 as f64) - predicted
     }
 }
+
+/// Offsets that label as many frames are told apart by their stamp residuals only
+/// when the next best's rms is this many times the best's, plus
+/// [`MIN_RMS_DIFFERENCE_NS`].
+const DECISIVE_RMS_RATIO: f64 = 4.0;
+/// See [`DECISIVE_RMS_RATIO`]: below this, both are within any camera's stamp jitter.
+const MIN_RMS_DIFFERENCE_NS: f64 = 100_000.0;
 
 /// Drift beyond this is no clock of a working camera: the data are inconsistent.
 const MAX_DRIFT_PPM: f64 = 1000.0;
@@ -106,13 +110,15 @@ pub struct Arrivals<'a> {
     pub frames_ns: &'a [i64],
 }
 
-/// [`pair`], with the host's arrival times to decide between clock offsets a whole
-/// step apart that fit the stamps equally well (a frame lost at either end of a
-/// periodic run). The decision assumes that a frame reaches the host within one step
-/// period of its trigger: of the offsets that fit equally well, the one whose frames
-/// arrive soonest after their step without arriving before it is taken, and the
-/// report says so. Without arrivals, or when none or both of them are possible under
-/// that assumption, nothing is labelled.
+/// [`pair`], and with the host's arrival times a check for labels given while frames
+/// still arrive ([`Pairing::arrivals_agree`]).
+///
+/// Arrival times never decide between clock offsets a whole step apart that fit the
+/// stamps equally well (a frame lost at either end of a periodic run, a camera that
+/// stopped): they could only by assuming how late a frame may reach the host, and a
+/// camera slower than a step (a large frame over GigE, a loaded host) breaks that
+/// assumption silently, shifting every label by a step. Such a tie is reported as a
+/// [`Pairing::clock_problem`] and nothing is labelled.
 pub fn pair_with_arrivals(
     steps: &[StepTime],
     frames: &[FrameTime],
@@ -127,9 +133,10 @@ pub fn pair_with_arrivals(
         };
     };
     let densest = estimate_offset(steps, frames, tolerance_ns, max_offset_ns) as f64;
-    // Steps are periodic, so offsets a whole period apart explain the data almost as
-    // well: fit each and keep the one that labels the most frames. A tie cannot be
-    // decided from the stamps (e.g. the first frame lost): nothing is labelled then.
+    // Steps are nearly periodic, so offsets a whole period apart explain the data
+    // almost as well: fit each and keep the one that labels the most frames. A tie
+    // (e.g. the first frame lost) that the stamps' residuals do not decide either is
+    // not guessed: nothing is labelled then.
     let period = step_period_ns(steps);
     let mut fits: Vec<(ClockMap, Pairing)> = (-10i32..=10)
         .filter(|&j| j == 0 || period > 0.0)
@@ -145,9 +152,32 @@ pub fn pair_with_arrivals(
     fits.sort_by_key(|(_, p)| std::cmp::Reverse(p.matched.len()));
     fits.dedup_by(|a, b| (a.0.offset_ns - b.0.offset_ns).abs() < tolerance_ns as f64);
     let best = fits.first().map_or(0, |f| f.1.matched.len());
-    let tied: Vec<usize> = (0..fits.len())
+    let mut tied: Vec<usize> = (0..fits.len())
         .filter(|&k| best > 0 && fits[k].1.matched.len() == best)
         .collect();
+    // Offsets a step apart that label as many frames can still differ in how closely
+    // the stamps follow the triggers: the controller's steps are not exactly periodic
+    // (a step's LED update takes longer the further down the chain its LEDs are), and
+    // only the true offset reproduces those irregularities in the stamps. That decides
+    // from the stamps alone, when the difference is decisive.
+    if tied.len() > 1 {
+        tied.sort_by(|&a, &b| {
+            residual_rms_ns(steps, frames, &fits[a])
+                .total_cmp(&residual_rms_ns(steps, frames, &fits[b]))
+        });
+        let first = residual_rms_ns(steps, frames, &fits[tied[0]]);
+        let second = residual_rms_ns(steps, frames, &fits[tied[1]]);
+        tracing::debug!(
+            "{} offsets a step apart label {best} frames; stamp residuals {:.1} µs rms for the closest, {:.1} µs for the next",
+            tied.len(),
+            first / 1e3,
+            second / 1e3
+        );
+        if second >= DECISIVE_RMS_RATIO * first + MIN_RMS_DIFFERENCE_NS {
+            fits.swap(0, tied[0]);
+            tied.truncate(1);
+        }
+    }
     // The median arrival lag of a candidate's frames after their steps.
     let lag = |k: usize| -> Option<i64> {
         let a = arrivals?;
@@ -169,30 +199,16 @@ pub fn pair_with_arrivals(
             .filter(|&(_, l)| l >= -(tolerance_ns as i64))
             .min_by_key(|&(_, l)| l)
     };
-    let mut tie = tied.len() > 1;
-    let tie_choice = if tie { soonest(best) } else { None };
+    let tie = tied.len() > 1;
     let nearly = soonest(best.saturating_sub(1));
-    let mut tie_note = None;
-    let mut chosen = 0;
-    if let Some((k, l)) = tie_choice {
-        tie = false;
-        tie_note = Some(format!(
-            "{} clock offsets a whole step apart fit equally well; took the one whose frames reached the host {:.1} ms after their step (assumes frames arrive within one step period)",
-            tied.len(),
-            l as f64 / 1e6
-        ));
-        chosen = k;
-    }
     // Whether the arrivals agree with the choice even among offsets one frame short of
     // it (a shifted offset always is: it loses one frame at an end).
     let arrivals_agree = match (arrivals, nearly) {
         (None, _) => true,
-        (Some(_), Some((k, _))) => k == chosen,
+        (Some(_), Some((k, _))) => k == 0,
         (Some(_), None) => false,
     };
-    fits.swap(0, chosen);
     let (map, mut out) = fits.swap_remove(0);
-    out.clock_note = tie_note;
     out.arrivals_agree = arrivals_agree;
     let drift_ppm = map.drift * 1e6;
     let usable = frames.len().min(steps.len());
@@ -205,7 +221,7 @@ pub fn pair_with_arrivals(
         ))
     } else if tie {
         Some(format!(
-            "{} frames fit clock offsets a whole step apart equally well (frames lost at the start or end of a periodic sequence, e.g. a camera that stopped): which LED each frame belongs to cannot be told from the stamps",
+            "{} frames fit clock offsets a whole step apart equally well (frames lost at the start or end of a periodic sequence, e.g. a camera that stopped): which LED each frame belongs to cannot be told from the stamps, and is not guessed",
             out.matched.len()
         ))
     } else if drift_ppm.abs() > MAX_DRIFT_PPM {
@@ -260,6 +276,18 @@ fn refine(
         }
     }
     (map, out)
+}
+
+/// How far a candidate's stamps are from its mapped triggers (rms over its pairs), ns.
+fn residual_rms_ns(steps: &[StepTime], frames: &[FrameTime], fit: &(ClockMap, Pairing)) -> f64 {
+    let (map, p) = fit;
+    let n = p.matched.len().max(1) as f64;
+    let sum: f64 = p
+        .matched
+        .iter()
+        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]).powi(2))
+        .sum();
+    (sum / n).sqrt()
 }
 
 /// The median interval between consecutive triggers, ns (0 for fewer than 2 steps).
@@ -554,9 +582,9 @@ mod tests {
     }
 
     /// With the first frame lost, a periodic sequence's frames fit their own steps and
-    /// the steps one earlier equally well: refused from the stamps alone; decided by
-    /// when the frames reached the host, which only the right offset makes both
-    /// causal and soonest.
+    /// the steps one earlier equally well: refused, and arrival times do not overrule
+    /// that, even when they look decisive (they would need a bound on how late a frame
+    /// may arrive, which a slow camera breaks without a sign).
     #[test]
     fn a_lost_first_frame_of_a_periodic_run_is_not_guessed_around() {
         let s = steps(30);
@@ -566,33 +594,85 @@ mod tests {
         assert!(p.matched.is_empty(), "{:?}", p.matched);
         let why = p.clock_problem.expect("a reason");
         assert!(why.contains("a whole step apart"), "{why}");
-        // Reports reach the host 1 ms after each trigger, frames 25 ms after theirs
-        // (frame k is step k + 1's).
+        // Frame k is step k + 1's. Prompt frames (25 ms after their trigger) would
+        // point at the right offset, late ones (1.5 periods) at the wrong one: the
+        // host cannot tell the two apart, so neither is followed.
         let steps_ns: Vec<i64> = s
             .iter()
             .map(|st| st.trigger_ns as i64 + 1_000_000)
             .collect();
-        let frames_ns: Vec<i64> = (0..f.len())
-            .map(|k| s[k + 1].trigger_ns as i64 + 25_000_000)
+        for late_ns in [25_000_000, 3 * PERIOD as i64 / 2] {
+            let frames_ns: Vec<i64> = (0..f.len())
+                .map(|k| s[k + 1].trigger_ns as i64 + late_ns)
+                .collect();
+            let arrivals = Arrivals {
+                steps_ns: &steps_ns,
+                frames_ns: &frames_ns,
+            };
+            let p = pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals));
+            assert!(p.matched.is_empty(), "{late_ns}: {:?}", p.matched);
+            assert!(p.clock_problem.unwrap().contains("not guessed"));
+        }
+    }
+
+    /// Steps as the controller runs them: each takes its period plus the time to
+    /// shift its LED update down the chain (`per_led_ns` per LED up to the furthest
+    /// one changed: 30 µs for WS2812), so triggers are not exactly periodic.
+    fn chain_steps(n: usize, per_led_ns: u64) -> Vec<StepTime> {
+        let mut t = 1_000_000_000u64;
+        (0..n)
+            .map(|i| {
+                // A nearest-first order jumps around the chain.
+                let chain_index = (i as u64 * 137 + 60) % 441;
+                t += PERIOD + chain_index * per_led_ns;
+                StepTime {
+                    step: i,
+                    trigger_ns: t,
+                }
+            })
+            .collect()
+    }
+
+    /// A camera that stops mid-run, or loses the first frame: offsets a step apart
+    /// label as many frames, but only the true one follows the steps' irregular
+    /// timing, and with stamps tighter than that irregularity the stamps decide.
+    /// With stamp jitter larger than the irregularity they cannot, and nothing is
+    /// labelled.
+    #[test]
+    fn irregular_steps_decide_between_offsets_a_step_apart_only_when_decisive() {
+        let s = chain_steps(60, 30_000);
+        // The camera stopped after frame 39.
+        let f: Vec<FrameTime> = frames_for(&s, 3_000_000_000, &[0, 40_000, -30_000])
+            .into_iter()
+            .take(40)
             .collect();
-        let arrivals = Arrivals {
-            steps_ns: &steps_ns,
-            frames_ns: &frames_ns,
-        };
-        let p = pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals));
+        let p = pair(&s, &f, TOL, u64::MAX);
         assert_eq!(p.clock_problem, None);
-        assert!(p
-            .clock_note
-            .as_deref()
-            .unwrap()
-            .contains("within one step period"));
-        assert_eq!(p.matched.len(), 29);
+        assert_eq!(p.matched.len(), 40);
+        assert!(
+            p.matched.iter().all(|&(si, fi)| si == fi),
+            "{:?}",
+            p.matched
+        );
+        // The first frame lost: frame k is step k + 1's.
+        let mut f = frames_for(&s, 3_000_000_000, &[0, 40_000, -30_000]);
+        f.remove(0);
+        let p = pair(&s, &f, TOL, u64::MAX);
+        assert_eq!(p.clock_problem, None);
         assert!(
             p.matched.iter().all(|&(si, fi)| si == fi + 1),
             "{:?}",
             p.matched
         );
         assert_eq!(p.missing_steps, vec![0]);
+        // A faster chain (1 µs per LED) under ±0.4 ms of stamp jitter: refused.
+        let s = chain_steps(60, 1_000);
+        let jitter: Vec<i64> = (0..60).map(|k| ((k * 7919) % 9 - 4) * 100_000).collect();
+        let mut f = frames_for(&s, 3_000_000_000, &jitter);
+        f.remove(0);
+        let p = pair(&s, &f, TOL, u64::MAX);
+        assert!(p.matched.is_empty(), "{:?}", p.matched);
+        assert!(p.clock_problem.unwrap().contains("a whole step apart"));
     }
 
     /// A camera slower than a step period: the stamps decide (no frame lost), and the
@@ -615,7 +695,6 @@ mod tests {
         let p = pair_with_arrivals(&s, &f, TOL, u64::MAX, Some(arrivals));
         assert_eq!(p.matched.len(), 30);
         assert!(p.matched.iter().all(|&(si, fi)| si == fi));
-        assert_eq!(p.clock_note, None);
         assert!(!p.arrivals_agree);
         // Frames arriving soon after their trigger agree.
         let prompt: Vec<i64> = steps_ns.iter().map(|t| t + 3_000_000).collect();

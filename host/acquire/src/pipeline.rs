@@ -298,12 +298,25 @@ pub fn acquire(
     let (mut shots, report) = capture_leds(103, &leds, &mut stream)?;
     // Frames that did not arrive (or could not be labelled) are taken again, once.
     let mut retake = None;
+    let mut retake_problem = None;
     if !report.failed && !report.missing.is_empty() {
         let again = report.missing.clone();
         tracing::warn!("re-acquiring {} missing frame(s)", again.len());
-        let (more, r) = capture_leds(104, &again, &mut stream)?;
-        shots.extend(more);
-        retake = Some(r);
+        // A retake that goes wrong loses nothing of the first capture.
+        match capture_leds(104, &again, &mut stream) {
+            Ok((more, r)) => {
+                let frames_seen = r.labelled + r.extra_frames + r.ambiguous_frames;
+                if frames_seen == 0 {
+                    retake_problem = Some(format!(
+                        "the camera delivered no frame while {} LED(s) were lit again: has it stopped?",
+                        again.len()
+                    ));
+                }
+                shots.extend(more);
+                retake = Some(r);
+            }
+            Err(e) => retake_problem = Some(format!("the retake failed: {e:#}")),
+        }
     }
     let tiles = streaming.as_ref().map(|s| s.layout().tiles.len());
     let mut ds = dataset(
@@ -371,10 +384,21 @@ pub fn acquire(
             &plan.out.join("reconstruction"),
         )?;
     }
-    let failure = report.failed.then(|| report.outcome.clone());
     let still_missing = match &retake {
         Some(r) => r.missing.clone(),
         None => report.missing.clone(),
+    };
+    // An incomplete dataset is written, but the run fails: a script must notice.
+    let failure = if report.failed {
+        Some(report.outcome.clone())
+    } else if !still_missing.is_empty() {
+        Some(format!(
+            "{} LED(s) still have no frame after a retake{}",
+            still_missing.len(),
+            retake_problem.map_or(String::new(), |p| format!(" ({p})"))
+        ))
+    } else {
+        None
     };
     let summary = AcquireSummary {
         nominal,
@@ -399,7 +423,7 @@ pub fn acquire(
     )?;
     if let Some(why) = failure {
         bail!(
-            "{why}; the {} frames acquired before are labelled and written to {} (acquisition.json lists the missing LEDs)",
+            "{why}; the {} frames acquired are labelled and written to {} (acquisition.json lists the missing LEDs)",
             summary.frames_in_dataset,
             plan.out.display()
         );

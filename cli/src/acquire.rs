@@ -80,8 +80,8 @@ pub struct AcquireArgs {
     /// EPRY passes after the last frame.
     #[arg(long, default_value_t = 5)]
     pub passes: usize,
-    /// Tile side of the reconstruction, camera pixels (default: the whole field if
-    /// square and ≤ 512 px, else 256-px tiles).
+    /// Tile side of the reconstruction, camera pixels (default: from the physics, the
+    /// largest over which one illumination curvature holds; see `fpm reconstruct`).
     #[arg(long)]
     pub tile: Option<usize>,
 }

@@ -12,6 +12,49 @@
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 
+use crate::optics::{LedGeometry, System};
+
+/// How far, in phase at a tile's edge, any LED's spherical wave may depart from the one
+/// curvature the tile is reconstructed with (the axial LED's, see
+/// [`crate::reconstruct::Epry::apply_illumination_curvature`]), rad.
+pub const CURVATURE_TOLERANCE_RAD: f64 = 0.25;
+
+/// Automatic tiles are never larger than this (memory and parallel tiles), pixels.
+pub const MAX_AUTO_TILE: usize = 512;
+
+/// Nor smaller than this (the overlap and free border need room), pixels.
+pub const MIN_AUTO_TILE: usize = 64;
+
+/// The tile side, camera pixels, chosen from the physics: an LED at angle θ lights the
+/// sample with a spherical wave whose curvature is cos³θ/h along the radius (cosθ/h
+/// across it), while a tile is reconstructed with one curvature, 1/h. At a distance a
+/// from the tile's centre the steepest LED's wave departs from it by
+/// π·a²·(1 − cos³θ)/(λ·h); the tile is as large as keeps that within
+/// [`CURVATURE_TOLERANCE_RAD`], in multiples of 32 pixels between [`MIN_AUTO_TILE`]
+/// and [`MAX_AUTO_TILE`]. The same rule places where the bright-field edge moves
+/// across a tile: the common curvature is the local change of every LED's angle, so
+/// only the anisotropic remainder is left unmodelled.
+pub fn auto_tile_side(system: &System, geometry: &LedGeometry) -> usize {
+    let h = geometry.height_mm * 1e3;
+    let worst = geometry
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (x, y) = geometry.led_position_mm(led);
+            let cos = h / (x * 1e3).hypot(y * 1e3).hypot(h);
+            1.0 - cos.powi(3)
+        })
+        .fold(0.0, f64::max);
+    let side_um = if worst > 0.0 && h > 0.0 {
+        2.0 * (CURVATURE_TOLERANCE_RAD * system.wavelength_um * h / (std::f64::consts::PI * worst))
+            .sqrt()
+    } else {
+        f64::INFINITY
+    };
+    let side = (side_um / system.sample_pixel_um()).min(MAX_AUTO_TILE as f64);
+    ((side as usize) / 32 * 32).clamp(MIN_AUTO_TILE, MAX_AUTO_TILE)
+}
+
 /// One tile of a camera frame, camera pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Tile {
@@ -203,6 +246,37 @@ mod tests {
         }
         assert_eq!(plan(256, 256, 256, 64).len(), 1);
         assert_eq!(plan(600, 400, 256, 64).len(), 3 * 2);
+    }
+
+    /// The paper's array at 92 mm (corner LEDs at 21°) allows 270 µm, 448 camera
+    /// pixels of 0.6 µm; the same array twice as far allows wider tiles, and a single
+    /// LED on the axis any (capped).
+    #[test]
+    fn the_tile_side_follows_the_steepest_leds_curvature() {
+        let system = System::paper();
+        let near = LedGeometry::paper();
+        assert_eq!(auto_tile_side(&system, &near), 448);
+        let far = LedGeometry {
+            height_mm: 184.0,
+            ..near
+        };
+        assert!(auto_tile_side(&system, &far) > 448);
+        let coarse = System {
+            pixel_size_um: 9.6,
+            ..system
+        };
+        assert_eq!(
+            auto_tile_side(&coarse, &near),
+            96,
+            "the same µm in 2.4 µm pixels"
+        );
+        let one = LedGeometry {
+            rows: 1,
+            cols: 1,
+            center: crate::optics::LedIndex::new(0, 0),
+            ..near
+        };
+        assert_eq!(auto_tile_side(&system, &one), MAX_AUTO_TILE);
     }
 
     #[test]

@@ -4,7 +4,7 @@ use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
 use super::schedule::passes_over;
-use super::{amplitude, remove_illumination_curvature, Epry, Settings};
+use super::{amplitude, Epry, Settings};
 use crate::optics::{LedGeometry, System};
 use crate::Image;
 
@@ -25,51 +25,28 @@ pub struct Outcome {
     pub errors: Vec<f64>,
     /// Index into the shots of the frame nearest the axis (the initial guess).
     pub initial: usize,
-    /// Distance from the initial LED to the field centre, µm.
-    pub illumination_radius_um: f64,
-    wavelength_um: f64,
-    hr_pixel_um: f64,
 }
 
 impl Outcome {
-    /// Wrap up a run: `led` lit the initial frame, the field's centre is `centre_um`.
-    pub(crate) fn new(
-        epry: Epry,
-        errors: Vec<f64>,
-        initial: usize,
-        system: &System,
-        geometry: &LedGeometry,
-        led: LedIndex,
-        centre_um: (f64, f64),
-    ) -> Self {
-        let (lx, ly) = geometry.led_position_mm(led);
-        let illumination_radius_um = ((lx * 1e3 - centre_um.0).powi(2)
-            + (ly * 1e3 - centre_um.1).powi(2)
-            + (geometry.height_mm * 1e3).powi(2))
-        .sqrt();
-        let hr_pixel_um = system.sample_pixel_um() / epry.settings().upsample as f64;
-        Self {
-            epry,
-            errors,
-            initial,
-            illumination_radius_um,
-            wavelength_um: system.wavelength_um,
-            hr_pixel_um,
-        }
-    }
-
-    /// The sample's HR transmission: the object with the illumination's curvature
-    /// divided out ([`remove_illumination_curvature`]).
+    /// The sample's HR transmission ([`Epry::sample`]: the illumination's curvature
+    /// divided out).
     pub fn sample(&mut self) -> ndarray::Array2<Complex32> {
-        let mut field = self.epry.object();
-        remove_illumination_curvature(
-            &mut field,
-            self.hr_pixel_um,
-            self.wavelength_um,
-            self.illumination_radius_um,
-        );
-        field
+        self.epry.sample()
     }
+}
+
+/// Distance from `led` to the sample-plane point `centre_um`, µm: the radius of its
+/// spherical wave there.
+pub(crate) fn illumination_radius_um(
+    geometry: &LedGeometry,
+    led: LedIndex,
+    centre_um: (f64, f64),
+) -> f64 {
+    let (lx, ly) = geometry.led_position_mm(led);
+    ((lx * 1e3 - centre_um.0).powi(2)
+        + (ly * 1e3 - centre_um.1).powi(2)
+        + (geometry.height_mm * 1e3).powi(2))
+    .sqrt()
 }
 
 /// Where a square field sits in the camera frame and how its intensities are scaled.
@@ -142,6 +119,10 @@ pub fn run_amplitudes(
     let initial = *order.first()?;
     let mut epry = Epry::new(system, &amplitudes[initial].mapv(|a| a * a), settings);
     epry.set_free_border(field.free_border);
+    epry.apply_illumination_curvature(
+        system.wavelength_um,
+        illumination_radius_um(geometry, leds[initial], field.centre_um),
+    );
     let (cx, cy) = field.centre_um;
     let frames: Vec<(&Image, (f64, f64))> = order
         .iter()
@@ -152,13 +133,9 @@ pub fn run_amplitudes(
         .collect();
     // The pupil is learned from the second pass on, once the object has a first shape.
     let errors = passes_over(&mut epry, system, &frames, passes, 1, &mut progress);
-    Some(Outcome::new(
+    Some(Outcome {
         epry,
         errors,
         initial,
-        system,
-        geometry,
-        leds[initial],
-        field.centre_um,
-    ))
+    })
 }

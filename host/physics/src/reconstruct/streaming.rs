@@ -8,7 +8,7 @@
 use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
-use super::offline::{Field, Outcome, Shot};
+use super::offline::{illumination_radius_um, Field, Outcome, Shot};
 use super::schedule::passes_over;
 use super::{amplitude, Epry, Settings};
 use crate::frame::{Measured, Region};
@@ -140,6 +140,10 @@ impl Streaming {
             self.settings,
         );
         epry.set_free_border(self.field.free_border);
+        epry.apply_illumination_curvature(
+            self.system.wavelength_um,
+            illumination_radius_um(&self.geometry, self.waiting[seed].0, self.field.centre_um),
+        );
         self.epry = Some(epry);
         // Earlier (dark-field) frames first, as they arrived, then the seed and the rest.
         for (led, image) in std::mem::take(&mut self.waiting) {
@@ -204,14 +208,10 @@ impl Streaming {
             .collect();
         // Every frame has already updated the object once as it arrived.
         let errors = passes_over(&mut epry, &self.system, &frames, passes, 0, progress);
-        Some(Outcome::new(
+        Some(Outcome {
             epry,
             errors,
             initial,
-            &self.system,
-            &self.geometry,
-            leds[initial],
-            self.field.centre_um,
-        ))
+        })
     }
 }

@@ -17,7 +17,7 @@ use super::streaming::Streaming;
 use super::Settings;
 use crate::frame::{LitFrame, Region};
 use crate::optics::{LedGeometry, System};
-use crate::tiles::{plan, Mosaic, Tile};
+use crate::tiles::{auto_tile_side, plan, Mosaic, Tile};
 use crate::Image;
 
 /// How a `width × height` frame is cut.
@@ -39,14 +39,21 @@ pub struct TileLayout {
 }
 
 impl TileLayout {
-    /// `tile` = None picks the whole field when it is square and at most 512 pixels,
-    /// else 256-pixel tiles; the overlap is a quarter tile, the free border a quarter
-    /// of the overlap.
-    pub fn new(width: usize, height: usize, tile: Option<usize>) -> Self {
+    /// `tile` = None picks the side from the physics ([`auto_tile_side`]): the whole
+    /// field when it is square and no larger; the overlap is a quarter tile, the free
+    /// border a quarter of the overlap.
+    pub fn new(
+        width: usize,
+        height: usize,
+        tile: Option<usize>,
+        system: &System,
+        geometry: &LedGeometry,
+    ) -> Self {
+        let auto = auto_tile_side(system, geometry);
         let size = match tile {
             Some(t) => t.max(16),
-            None if width == height && width <= 512 => width,
-            None => 256,
+            None if width == height && width <= auto => width,
+            None => auto,
         };
         let size = size.min(width).min(height);
         let overlap = size / 4;
@@ -206,7 +213,7 @@ pub fn reconstruct(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<TiledOutcome, TiledError> {
     let (height, width) = check_sizes(frames)?;
-    let layout = TileLayout::new(width, height, tile);
+    let layout = TileLayout::new(width, height, tile, system, geometry);
     let (_, level) = clear_level(system, geometry, frames)?;
     let starts = (0..layout.tiles.len()).map(|_| None).collect();
     solve(
@@ -323,7 +330,7 @@ impl TiledStreaming {
         height: usize,
         tile: Option<usize>,
     ) -> Self {
-        let layout = TileLayout::new(width, height, tile);
+        let layout = TileLayout::new(width, height, tile, &system, &geometry);
         let pixel_um = system.sample_pixel_um();
         let tiles = (0..layout.tiles.len())
             .map(|k| {

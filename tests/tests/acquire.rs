@@ -15,6 +15,19 @@ fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
     fpm_tests::acquire_command(&emu.port(), id, 15, out)
 }
 
+/// The array exactly where the controller says, 92 mm below the sample: for tests
+/// about labels, not geometry.
+const ON_AXIS_AT_92_MM: [&str; 8] = [
+    "--dx-mm",
+    "0",
+    "--dy-mm",
+    "0",
+    "--theta-deg",
+    "0",
+    "--height-mm",
+    "92",
+];
+
 fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildProcess {
     let mut command = Command::new(fpm_bin());
     command
@@ -152,17 +165,7 @@ fn a_camera_killed_mid_sequence_is_reported_and_nothing_is_mislabelled() {
     let id = format!("acqkill-{}", std::process::id());
     let dir = TempDir::new("acquire-kill");
     let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
-    let placed = [
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-        "--height-mm",
-        "92",
-    ];
-    let mut cam = camera(&id, &dir.0.join("truth"), &placed);
+    let mut cam = camera(&id, &dir.0.join("truth"), &ON_AXIS_AT_92_MM);
     let out = dir.0.join("data");
     let acquire = acquire_command(&emu, &id, &out)
         .stdout(Stdio::piped())
@@ -195,7 +198,7 @@ fn a_camera_killed_mid_sequence_is_reported_and_nothing_is_mislabelled() {
 
     // The crashed camera left its shared memory behind; a new camera on the same
     // services and a new acquisition work regardless.
-    let _cam = camera(&id, &dir.0.join("truth2"), &placed);
+    let _cam = camera(&id, &dir.0.join("truth2"), &ON_AXIS_AT_92_MM);
     let out2 = dir.0.join("data2");
     let run = acquire_command(&emu, &id, &out2).output().unwrap();
     let text = String::from_utf8_lossy(&run.stdout);
@@ -216,23 +219,11 @@ fn a_dropped_frame_is_retaken_and_late_frames_keep_their_labels() {
     let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
     // The camera's frame 7 is lost, and each frame arrives 30 ms after its exposure
     // (longer than a step), so frames trail the sequence.
+    let faults = ["--drop-frame", "7", "--late-ms", "30"];
     let _cam = camera(
         &id,
         &dir.0.join("truth"),
-        &[
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-            "--height-mm",
-            "92",
-            "--drop-frame",
-            "7",
-            "--late-ms",
-            "30",
-        ],
+        &[&ON_AXIS_AT_92_MM[..], &faults].concat(),
     );
     let out = dir.0.join("data");
     let run = acquire_command(&emu, &id, &out).output().unwrap();
@@ -311,20 +302,7 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     let _cam = camera(
         &id,
         &dir.0.join("truth"),
-        &[
-            "--size",
-            "512",
-            "--height",
-            "384",
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-            "--height-mm",
-            "92",
-        ],
+        &[&ON_AXIS_AT_92_MM[..], &["--size", "512", "--height", "384"]].concat(),
     );
     let out = dir.0.join("data");
     let run = acquire_command(&emu, &id, &out)

@@ -152,7 +152,7 @@ pub fn pair_with_arrivals(
     fits.sort_by_key(|(_, p)| std::cmp::Reverse(p.matched.len()));
     fits.dedup_by(|a, b| (a.0.offset_ns - b.0.offset_ns).abs() < tolerance_ns as f64);
     let best = fits.first().map_or(0, |f| f.1.matched.len());
-    let mut tied: Vec<usize> = (0..fits.len())
+    let tied: Vec<usize> = (0..fits.len())
         .filter(|&k| best > 0 && fits[k].1.matched.len() == best)
         .collect();
     // Offsets a step apart that label as many frames can still differ in how closely
@@ -160,13 +160,14 @@ pub fn pair_with_arrivals(
     // (a step's LED update takes longer the further down the chain its LEDs are), and
     // only the true offset reproduces those irregularities in the stamps. That decides
     // from the stamps alone, when the difference is decisive.
-    if tied.len() > 1 {
-        tied.sort_by(|&a, &b| {
-            residual_rms_ns(steps, frames, &fits[a])
-                .total_cmp(&residual_rms_ns(steps, frames, &fits[b]))
-        });
-        let first = residual_rms_ns(steps, frames, &fits[tied[0]]);
-        let second = residual_rms_ns(steps, frames, &fits[tied[1]]);
+    let mut tie = tied.len() > 1;
+    if tie {
+        let mut by_rms: Vec<(f64, usize)> = tied
+            .iter()
+            .map(|&k| (residual_rms_ns(steps, frames, &fits[k]), k))
+            .collect();
+        by_rms.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let ((first, closest), (second, _)) = (by_rms[0], by_rms[1]);
         tracing::debug!(
             "{} offsets a step apart label {best} frames; stamp residuals {:.1} µs rms for the closest, {:.1} µs for the next",
             tied.len(),
@@ -174,8 +175,8 @@ pub fn pair_with_arrivals(
             second / 1e3
         );
         if second >= DECISIVE_RMS_RATIO * first + MIN_RMS_DIFFERENCE_NS {
-            fits.swap(0, tied[0]);
-            tied.truncate(1);
+            fits.swap(0, closest);
+            tie = false;
         }
     }
     // The median arrival lag of a candidate's frames after their steps.
@@ -199,7 +200,6 @@ pub fn pair_with_arrivals(
             .filter(|&(_, l)| l >= -(tolerance_ns as i64))
             .min_by_key(|&(_, l)| l)
     };
-    let tie = tied.len() > 1;
     let nearly = soonest(best.saturating_sub(1));
     // Whether the arrivals agree with the choice even among offsets one frame short of
     // it (a shifted offset always is: it loses one frame at an end).

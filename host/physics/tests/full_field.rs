@@ -3,7 +3,7 @@
 //! reconstructed with the defaults, it comes back without a phase bowl, and no worse
 //! than the tilings one would try by hand.
 
-use fpm_physics::frame::{Counts, LitFrame, Measured};
+use fpm_physics::frame::LitFrame;
 use fpm_physics::metrics::{central, complex_nrmse, resample};
 use fpm_physics::reconstruct::{tiled, Settings};
 use fpm_physics::simulate::{acquire, Camera, ObjectField};
@@ -79,11 +79,7 @@ fn a_field_wider_than_the_curvature_allows_comes_back_flat_with_the_default_tile
         .iter()
         .map(|f| LitFrame {
             led: f.led,
-            measured: Measured {
-                counts: Counts::U16(f.counts.view()),
-                dark_level: camera.dark_level_dn as f32,
-                exposure_ms: f.exposure_ms as f32,
-            },
+            measured: f.measured(&camera),
         })
         .collect();
     let settings = Settings {

@@ -219,6 +219,8 @@ pub fn capture(
         .collect();
     let timing = timing(exposure_us);
     let period_ns = (timing.settle_us as u64 + exposure_us as u64) * 1000;
+    // A frame's window, a tolerance early to two late (label::pair), spans one nominal
+    // period: shorter than any step, which adds the trigger delay and the LED update.
     let tolerance = (period_ns / 3).max(1_000_000);
     let drain = FrameDrain::start(camera)?;
     dev.upload_sequence(sequence_id, &steps, timing)?;

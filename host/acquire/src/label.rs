@@ -75,6 +75,18 @@ const DECISIVE_RMS_RATIO: f64 = 4.0;
 /// See [`DECISIVE_RMS_RATIO`]: below this, both are within any camera's stamp jitter.
 const MIN_RMS_DIFFERENCE_NS: f64 = 100_000.0;
 
+/// A frame may come this many tolerances late after its trigger but only one early:
+/// a camera's latency is one-sided (it waits for its next tick or line, or its first
+/// frame after arming is slow), never ahead of the trigger. The window, `tolerance_ns`
+/// early to twice it late, must stay shorter than any step interval.
+const LATE_TOLERANCES: f64 = 2.0;
+
+/// Whether a stamp `residual_ns` from a mapped trigger is within the window.
+fn within(residual_ns: f64, tolerance_ns: u64) -> bool {
+    let tol = tolerance_ns as f64;
+    (-tol..=LATE_TOLERANCES * tol).contains(&residual_ns)
+}
+
 /// Drift beyond this is no clock of a working camera: the data are inconsistent.
 const MAX_DRIFT_PPM: f64 = 1000.0;
 
@@ -84,8 +96,9 @@ const MAX_DRIFT_PPM: f64 = 1000.0;
 /// cluster there, wrong pairs spread out by multiples of the step period), then offset
 /// and drift are fitted by least squares over the pairs that agree, outliers
 /// rejected, and the pairing redone with the fitted mapping. A frame belongs to a step
-/// when its stamp is within `tolerance_ns` of the mapped trigger time and no other
-/// step or frame is that close. Keep `tolerance_ns` below half the step period.
+/// when its stamp is at most `tolerance_ns` before the mapped trigger time or twice
+/// that after it ([`LATE_TOLERANCES`]), and no other step or frame is that close. Keep
+/// `tolerance_ns` at most a third of the shortest step interval.
 /// `max_offset_ns` bounds the offset searched (`u64::MAX`: any).
 ///
 /// When the clocks cannot be reconciled (fewer than half the frames fit one mapping,
@@ -100,8 +113,9 @@ pub fn pair(
     pair_with_arrivals(steps, frames, tolerance_ns, max_offset_ns, None)
 }
 
-/// When each step's report and each frame reached the host, on one host clock (ns),
-/// for [`pair_with_arrivals`].
+/// When each step's report and each frame reached the host, for
+/// [`pair_with_arrivals`]: ns on one host clock, counted from an instant taken before
+/// the sequence was started (so before the first trigger).
 #[derive(Debug, Clone, Copy)]
 pub struct Arrivals<'a> {
     /// Per step, in the order of `steps`.
@@ -110,14 +124,16 @@ pub struct Arrivals<'a> {
     pub frames_ns: &'a [i64],
 }
 
-/// [`pair`], and with the host's arrival times a check for labels given while frames
-/// still arrive ([`Pairing::arrivals_agree`]).
+/// [`pair`], and with the host's arrival times two more things: clock offsets under
+/// which most frames would have reached the host before their LED was lit are ruled
+/// out (causality, whatever the camera's latency), and a check for labels given while
+/// frames still arrive ([`Pairing::arrivals_agree`]).
 ///
-/// Arrival times never decide between clock offsets a whole step apart that fit the
-/// stamps equally well (a frame lost at either end of a periodic run, a camera that
-/// stopped): they could only by assuming how late a frame may reach the host, and a
-/// camera slower than a step (a large frame over GigE, a loaded host) breaks that
-/// assumption silently, shifting every label by a step. Such a tie is reported as a
+/// Arrival times never decide between clock offsets a whole step apart otherwise (a
+/// frame lost at the start of a periodic run, when only an *earlier* pairing is
+/// possible as well): that would take a bound on how late a frame may reach the host,
+/// and a camera slower than a step (a large frame over GigE, a loaded host) breaks it
+/// silently, shifting every label by a step. Such a tie is reported as a
 /// [`Pairing::clock_problem`] and nothing is labelled.
 pub fn pair_with_arrivals(
     steps: &[StepTime],
@@ -149,6 +165,24 @@ pub fn pair_with_arrivals(
             refine(steps, frames, start, tolerance_ns)
         })
         .collect();
+    // A frame cannot reach the host before its LED was lit: an offset that says most
+    // frames did is impossible, however well it fits the stamps (frames one step
+    // later than true, when they arrive within a step).
+    if let Some(a) = arrivals {
+        let candidates = fits.len();
+        fits.retain(|(_, p)| !arrives_before_lit(steps, first, a, p));
+        tracing::debug!(
+            "{} of {candidates} clock offsets ruled out: most of their frames would have arrived before their LED was lit",
+            candidates - fits.len()
+        );
+        if fits.is_empty() {
+            return refused(
+                steps.len(),
+                frames.len(),
+                "under every clock offset most frames would have reached this host before their LED was lit: the controller's step reports or this host's clock are wrong".to_owned(),
+            );
+        }
+    }
     fits.sort_by_key(|(_, p)| std::cmp::Reverse(p.matched.len()));
     fits.dedup_by(|a, b| (a.0.offset_ns - b.0.offset_ns).abs() < tolerance_ns as f64);
     let best = fits.first().map_or(0, |f| f.1.matched.len());
@@ -242,13 +276,41 @@ pub fn pair_with_arrivals(
     out.clock_drift_ppm = drift_ppm;
     out.residual_spread_ns = if spread.is_finite() { spread as u64 } else { 0 };
     if let Some(p) = problem {
-        out.matched.clear();
-        out.missing_steps = (0..steps.len()).collect();
-        out.extra_frames = (0..frames.len()).collect();
-        out.ambiguous_frames.clear();
-        out.clock_problem = Some(p);
+        return Pairing {
+            clock_offset_ns: out.clock_offset_ns,
+            clock_drift_ppm: out.clock_drift_ppm,
+            residual_spread_ns: out.residual_spread_ns,
+            arrivals_agree: out.arrivals_agree,
+            ..refused(steps.len(), frames.len(), p)
+        };
     }
     out
+}
+
+/// Nothing labelled, for `why`.
+fn refused(steps: usize, frames: usize, why: String) -> Pairing {
+    Pairing {
+        missing_steps: (0..steps).collect(),
+        extra_frames: (0..frames).collect(),
+        clock_problem: Some(why),
+        ..Pairing::default()
+    }
+}
+
+/// Whether most of a candidate's frames would have reached the host before the
+/// earliest instant their LED can have been lit: the step's trigger counted from the
+/// first trigger (which came after the arrivals' zero), on a controller clock up to
+/// [`MAX_DRIFT_PPM`] fast. Most, not any: a stray frame does not rule out the rest.
+fn arrives_before_lit(steps: &[StepTime], first: u64, a: Arrivals<'_>, p: &Pairing) -> bool {
+    let early = p
+        .matched
+        .iter()
+        .filter(|&&(si, fi)| {
+            let earliest = (steps[si].trigger_ns - first) as f64 * (1.0 - MAX_DRIFT_PPM * 1e-6);
+            a.frames_ns.get(fi).is_some_and(|&t| (t as f64) < earliest)
+        })
+        .count();
+    early * 2 > p.matched.len()
 }
 
 /// From a first guess of the mapping, alternately pair and fit offset and drift until
@@ -310,7 +372,7 @@ fn match_with(
     map: &ClockMap,
     tolerance_ns: u64,
 ) -> Pairing {
-    let near = |s: &StepTime, f: &FrameTime| map.residual_ns(s, f).abs() <= tolerance_ns as f64;
+    let near = |s: &StepTime, f: &FrameTime| within(map.residual_ns(s, f), tolerance_ns);
     let mut out = Pairing::default();
     let mut step_taken = vec![false; steps.len()];
     for (fi, f) in frames.iter().enumerate() {
@@ -388,8 +450,8 @@ fn fit(
 }
 
 /// The step `frame` belongs to when the clock offset (camera minus controller) is known:
-/// the index into `steps` (sorted by trigger time) of the one step whose trigger is
-/// within `tolerance_ns` of the frame's corrected time; None when none or several are.
+/// the index into `steps` (sorted by trigger time) of the one step in whose window
+/// (see [`pair`]) the frame's corrected time falls; None when none or several are.
 pub fn step_for(
     steps: &[StepTime],
     frame: &FrameTime,
@@ -397,7 +459,7 @@ pub fn step_for(
     tolerance_ns: u64,
 ) -> Option<usize> {
     let t = frame.timestamp_ns as i128 - offset_ns as i128;
-    let lo = t - tolerance_ns as i128;
+    let lo = t - (LATE_TOLERANCES * tolerance_ns as f64) as i128;
     let first = steps.partition_point(|s| (s.trigger_ns as i128) < lo);
     let near: Vec<usize> = (first..steps.len())
         .take_while(|&i| (steps[i].trigger_ns as i128) <= t + tolerance_ns as i128)
@@ -596,14 +658,16 @@ mod tests {
         assert!(why.contains("a whole step apart"), "{why}");
         // Frame k is step k + 1's. Prompt frames (25 ms after their trigger) would
         // point at the right offset, late ones (1.5 periods) at the wrong one: the
-        // host cannot tell the two apart, so neither is followed.
+        // host cannot tell the two apart, so neither is followed (pairing each frame
+        // with the step before its own is never ruled out by when it arrived).
+        let since_start = |t: u64| (t - s[0].trigger_ns) as i64 + 5_000_000;
         let steps_ns: Vec<i64> = s
             .iter()
-            .map(|st| st.trigger_ns as i64 + 1_000_000)
+            .map(|st| since_start(st.trigger_ns) + 1_000_000)
             .collect();
         for late_ns in [25_000_000, 3 * PERIOD as i64 / 2] {
             let frames_ns: Vec<i64> = (0..f.len())
-                .map(|k| s[k + 1].trigger_ns as i64 + late_ns)
+                .map(|k| since_start(s[k + 1].trigger_ns) + late_ns)
                 .collect();
             let arrivals = Arrivals {
                 steps_ns: &steps_ns,
@@ -673,6 +737,89 @@ mod tests {
         let p = pair(&s, &f, TOL, u64::MAX);
         assert!(p.matched.is_empty(), "{:?}", p.matched);
         assert!(p.clock_problem.unwrap().contains("a whole step apart"));
+    }
+
+    /// A camera that starts an exposure only on its own 12 ms tick (a software
+    /// trigger), so its stamps are too coarse for the steps' irregular timing, and
+    /// that stopped before the last step: offsets a step apart label 59 frames each. Frames reaching the host within a step rule out the later one (its frames
+    /// would have arrived before their LEDs were lit); frames slower than a step do
+    /// not, and nothing is guessed. A first frame answered late, but less than two
+    /// thirds of a step, is still its step's: then the count decides.
+    #[test]
+    fn frames_cannot_arrive_before_their_led_was_lit() {
+        let s = chain_steps(60, 10_000);
+        let tolerance = PERIOD / 3;
+        let tick = 12_000_000;
+        let mut f: Vec<FrameTime> = s
+            .iter()
+            .enumerate()
+            .map(|(k, st)| FrameTime {
+                frame_number: k as u64,
+                timestamp_ns: (st.trigger_ns + 7_000_000_000).div_ceil(tick) * tick,
+            })
+            .collect();
+        let on_time = f.clone();
+        f.pop();
+        let p = pair(&s, &f, tolerance, u64::MAX);
+        assert!(
+            p.matched.is_empty(),
+            "the stamps alone decide: {:?}",
+            p.matched
+        );
+        // Arrivals from an instant 5 ms before the first trigger.
+        let since_start = |t: u64| (t - s[0].trigger_ns) as i64 + 5_000_000;
+        let steps_ns: Vec<i64> = s
+            .iter()
+            .map(|st| since_start(st.trigger_ns) + 1_000_000)
+            .collect();
+        for (late_ns, decided) in [(15_000_000, true), (3 * PERIOD as i64 / 2, false)] {
+            let frames_ns: Vec<i64> = s
+                .iter()
+                .enumerate()
+                .map(|(k, st)| since_start(st.trigger_ns) + late_ns + (k as i64 % 7) * 1_000_000)
+                .collect();
+            let arrivals = Arrivals {
+                steps_ns: &steps_ns,
+                frames_ns: &frames_ns,
+            };
+            let p = pair_with_arrivals(&s, &f, tolerance, u64::MAX, Some(arrivals));
+            if decided {
+                assert_eq!(p.clock_problem, None);
+                assert_eq!(p.matched.len(), 59);
+                assert!(
+                    p.matched.iter().all(|&(si, fi)| si == fi),
+                    "{:?}",
+                    p.matched
+                );
+                assert_eq!(p.missing_steps, vec![59]);
+            } else {
+                assert!(p.matched.is_empty(), "{late_ns}: {:?}", p.matched);
+                assert!(p.clock_problem.unwrap().contains("a whole step apart"));
+            }
+        }
+        // Arrivals before any trigger could have fired: nothing fits.
+        let frames_ns = vec![0i64; f.len()];
+        let arrivals = Arrivals {
+            steps_ns: &steps_ns,
+            frames_ns: &frames_ns,
+        };
+        let p = pair_with_arrivals(&s, &f, tolerance, u64::MAX, Some(arrivals));
+        assert!(p.matched.is_empty());
+        assert!(p
+            .clock_problem
+            .unwrap()
+            .contains("before their LED was lit"));
+        // The first frame a tick late (more than the tolerance): labelled, and so all.
+        let mut f = on_time;
+        f[0].timestamp_ns += tick;
+        let p = pair(&s, &f, tolerance, u64::MAX);
+        assert_eq!(p.clock_problem, None);
+        assert_eq!(p.matched.len(), 60);
+        assert!(
+            p.matched.iter().all(|&(si, fi)| si == fi),
+            "{:?}",
+            p.matched
+        );
     }
 
     /// A camera slower than a step period: the stamps decide (no frame lost), and the

@@ -9,4 +9,5 @@ pub mod calibration;
 pub mod dataset;
 pub mod plot;
 pub mod reconstruction;
+pub mod scale_bar;
 pub mod truth;

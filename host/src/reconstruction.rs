@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use fpm_physics::reconstruct::tiled::{self, TiledOutcome};
 use fpm_physics::reconstruct::Settings;
 use fpm_physics::tiles::Tile;
-use fpm_physics::{LedGeometry, LedIndex};
+use fpm_physics::{LedGeometry, LedIndex, System};
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::Serialize;
@@ -47,6 +47,9 @@ pub struct Report {
     pub geometry_source: String,
     /// HR pixels per camera pixel.
     pub upsample: usize,
+    /// The reconstruction's pixel in the sample plane, µm (the camera pixel over the
+    /// magnification, over `upsample`).
+    pub pixel_um: f64,
     /// Passes over all frames.
     pub passes: usize,
     /// Frames used (in focus).
@@ -84,6 +87,7 @@ impl Report {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         dataset: &Path,
+        system: &System,
         geometry: &LedGeometry,
         source: &str,
         settings: Settings,
@@ -118,6 +122,7 @@ impl Report {
             geometry: *geometry,
             geometry_source: source.into(),
             upsample: settings.upsample.max(1),
+            pixel_um: system.sample_pixel_um() / settings.upsample.max(1) as f64,
             passes,
             frames,
             frame_size: [layout.width, layout.height],
@@ -185,6 +190,7 @@ pub fn reconstruct(
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     let report = Report::new(
         &ds.dir,
+        &ds.manifest.system(),
         geometry,
         source,
         settings,
@@ -213,23 +219,22 @@ pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
         v.sort_by(|x, y| x.total_cmp(y));
         v[((v.len() - 1) as f64 * q) as usize]
     };
-    let png = |name: &str, a: &Array2<f32>, lo: f32, hi: f32| {
-        image_io::write_png_preview(&out.join(name), a, lo, hi)
+    // The object's previews carry a scale bar; the pupil's are in the Fourier plane.
+    let png = |name: &str, a: &Array2<f32>, lo: f32, hi: f32, pixel_um: Option<f64>| {
+        image_io::write_png_preview(&out.join(name), a, lo, hi, pixel_um)
     };
-    png("amplitude.png", &amp, pct(&amp, 0.005), pct(&amp, 0.995))?;
+    let pi = std::f32::consts::PI;
+    let object_pixel = Some(r.report.pixel_um);
     png(
-        "phase.png",
-        &phase,
-        -std::f32::consts::PI,
-        std::f32::consts::PI,
+        "amplitude.png",
+        &amp,
+        pct(&amp, 0.005),
+        pct(&amp, 0.995),
+        object_pixel,
     )?;
-    png("pupil_amplitude.png", &pamp, 0.0, pct(&pamp, 1.0))?;
-    png(
-        "pupil_phase.png",
-        &pphase,
-        -std::f32::consts::PI,
-        std::f32::consts::PI,
-    )?;
+    png("phase.png", &phase, -pi, pi, object_pixel)?;
+    png("pupil_amplitude.png", &pamp, 0.0, pct(&pamp, 1.0), None)?;
+    png("pupil_phase.png", &pphase, -pi, pi, None)?;
     std::fs::write(
         out.join("report.json"),
         serde_json::to_string_pretty(&r.report)?,

@@ -90,6 +90,26 @@ fn the_usaf_target_gains_resolution_beyond_what_the_camera_samples() {
     // 6.5 µm pixels at 4×, reconstructed at 4×: 0.406 µm. The camera samples up to
     // 1/(2·1.625 µm) = 0.31 cycles/µm; the band 0.33–0.55 holds groups 8.5–9.2.
     let pixel = 6.5 / 4.0 / 4.0;
+    assert!((report["pixel_um"].as_f64().unwrap() - pixel).abs() < 1e-9);
+    // The preview's scale bar: the longest white run in its bottom quarter, as long
+    // as the bar's length says.
+    let image_io::Pixels::U8(preview) = image_io::read(&out.0.join("amplitude.png")).unwrap()
+    else {
+        panic!("amplitude.png is not 8-bit grey");
+    };
+    let longest_run = (384..512)
+        .map(|r| {
+            let mut run = (0, 0);
+            for &v in preview.row(r) {
+                run.0 = if v == 255 { run.0 + 1 } else { 0 };
+                run.1 = run.1.max(run.0);
+            }
+            run.1
+        })
+        .max()
+        .unwrap();
+    let bar_um = fpm_host::scale_bar::bar_length_um(512.0 * pixel).unwrap();
+    assert_eq!(longest_run, (bar_um / pixel).round() as usize);
     // Groups 8–9 (bars) against the interior of the flat square of group 7.
     let bars = band_energy(
         amp.slice(s![165..310, 188..348]).to_owned(),

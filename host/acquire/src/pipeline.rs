@@ -371,6 +371,7 @@ pub fn acquire(
         };
         let report = Report::new(
             &ds.dir,
+            &ds.manifest.system(),
             &geometry,
             source,
             settings,

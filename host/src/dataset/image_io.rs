@@ -208,19 +208,24 @@ pub fn write_png_rgb(
     w.write_image_data(rgb).map_err(write_failed(path))
 }
 
-/// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white).
+/// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white), with a scale bar
+/// when the image's pixel size in the sample plane (`pixel_um`) is given.
 pub fn write_png_preview(
     path: &Path,
     img: &Array2<f32>,
     lo: f32,
     hi: f32,
+    pixel_um: Option<f64>,
 ) -> Result<(), ImageError> {
     let (h, w) = img.dim();
     let span = (hi - lo).max(f32::EPSILON);
-    let data: Vec<u8> = img
+    let mut data: Vec<u8> = img
         .iter()
         .map(|&v| (((v - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
         .collect();
+    if let Some(pixel_um) = pixel_um {
+        crate::scale_bar::draw(&mut data, w, h, pixel_um);
+    }
     let mut enc = png::Encoder::new(create(path)?, w as u32, h as u32);
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);

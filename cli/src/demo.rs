@@ -218,11 +218,12 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
     let ds = Dataset::load(&out)?;
     let nominal = ds.manifest.geometry();
     let settings = Settings::default();
-    let score = |geometry: &LedGeometry| -> Result<Option<f64>> {
-        let r = reconstruct(&ds, geometry, "demo", settings, 10, None, &|_, _| {})?;
-        Ok(score_reconstruction(&ds, &r.object, settings.upsample).map(|s| s.complex_nrmse))
-    };
-    let (n, k) = (score(&nominal)?, score(&g)?);
+    let run =
+        |geometry: &LedGeometry| reconstruct(&ds, geometry, "demo", settings, 10, None, &|_, _| {});
+    let (with_nominal, with_calibrated) = (run(&nominal)?, run(&g)?);
+    let score =
+        |object| score_reconstruction(&ds, object, settings.upsample).map(|s| s.complex_nrmse);
+    let (n, k) = (score(&with_nominal.object), score(&with_calibrated.object));
     let streamed = fpm_host::reconstruction::read_object(&out.join("reconstruction"))
         .ok()
         .and_then(|o| score_reconstruction(&ds, &o, settings.upsample))
@@ -232,6 +233,23 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
             "quality         complex NRMSE vs the hidden sample: nominal geometry {n:.3}, calibrated {k:.3}{}",
             streamed.map(|s| format!(", streamed while acquiring {s:.3}")).unwrap_or_default()
         );
+    }
+    // The picture is an extra: a failure to draw it is a warning.
+    let picture = out.join("comparison.png");
+    match fpm_host::truth::write_comparison(
+        &ds,
+        &[
+            ("NOMINAL", &with_nominal.object),
+            ("CALIBRATED", &with_calibrated.object),
+        ],
+        settings.upsample,
+        &picture,
+    ) {
+        Ok(()) => println!(
+            "picture         {} (truth | nominal geometry | calibrated; amplitude above phase)",
+            picture.display()
+        ),
+        Err(e) => tracing::warn!("no comparison picture: {e:#}"),
     }
     println!(
         "\nwrote the dataset, calibration/, calibration.json, reconstruction/ and acquisition.json to {} ({:.0} s)",

@@ -7,6 +7,7 @@
 
 pub mod calibration;
 pub mod dataset;
+pub mod glyphs;
 pub mod plot;
 pub mod reconstruction;
 pub mod scale_bar;

@@ -1,26 +1,7 @@
 //! A scale bar for image previews: a bar of a round length in µm with its label, drawn
-//! into the bottom-left corner on a dark plate so it reads on any image. The label uses
-//! a built-in 5×7 pixel font (digits, "µm"), so no font file is needed.
+//! into the bottom-left corner on a dark plate so it reads on any image.
 
-/// 5×7 glyphs, one byte per row, the low five bits from left (bit 4) to right (bit 0).
-fn glyph(c: char) -> [u8; 7] {
-    match c {
-        '0' => [0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E],
-        '1' => [0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E],
-        '2' => [0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F],
-        '3' => [0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E],
-        '4' => [0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02],
-        '5' => [0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E],
-        '6' => [0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E],
-        '7' => [0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08],
-        '8' => [0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E],
-        '9' => [0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C],
-        '.' => [0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x0C],
-        'µ' => [0x00, 0x00, 0x11, 0x11, 0x13, 0x1D, 0x10],
-        'm' => [0x00, 0x00, 0x1A, 0x15, 0x15, 0x15, 0x15],
-        _ => [0; 7],
-    }
-}
+use crate::glyphs;
 
 /// The bar's length, µm: the largest 1, 2 or 5 × 10ᵏ that is at most a fifth of
 /// `field_um` (None for a field that is not a positive length).
@@ -57,8 +38,8 @@ pub fn draw(pixels: &mut [u8], width: usize, height: usize, pixel_um: f64) {
     let text = label(length_um);
     // Glyph scale: about 1/60 of the shorter side per glyph height.
     let s = (width.min(height) / 120).max(1);
-    let (glyph_w, glyph_h) = (6 * s, 7 * s);
-    let text_w = text.chars().count() * glyph_w;
+    let glyph_h = glyphs::HEIGHT * s;
+    let text_w = glyphs::text_width(&text, s);
     let margin = 2 * s;
     let plate_w = bar.max(text_w) + 2 * margin;
     let plate_h = glyph_h + 3 * margin + 2 * s;
@@ -66,37 +47,12 @@ pub fn draw(pixels: &mut [u8], width: usize, height: usize, pixel_um: f64) {
         return;
     }
     let (x0, y0) = (margin, height - margin - plate_h);
-    let mut set = |x: usize, y: usize, v: u8| {
-        if x < width && y < height {
-            pixels[y * width + x] = v;
-        }
-    };
-    for y in y0..y0 + plate_h {
-        for x in x0..x0 + plate_w {
-            set(x, y, 0);
-        }
-    }
+    glyphs::fill(pixels, width, height, (x0, y0), (plate_w, plate_h), 0);
     // The label, then the bar under it.
     let (tx, ty) = (x0 + margin, y0 + margin);
-    for (k, c) in text.chars().enumerate() {
-        for (row, bits) in glyph(c).iter().enumerate() {
-            for col in 0..5 {
-                if bits >> (4 - col) & 1 == 1 {
-                    for dy in 0..s {
-                        for dx in 0..s {
-                            set(tx + k * glyph_w + col * s + dx, ty + row * s + dy, 255);
-                        }
-                    }
-                }
-            }
-        }
-    }
+    glyphs::draw_text(pixels, width, height, (tx, ty), &text, s, 255);
     let by = ty + glyph_h + margin;
-    for y in by..by + 2 * s {
-        for x in tx..tx + bar {
-            set(x, y, 255);
-        }
-    }
+    glyphs::fill(pixels, width, height, (tx, by), (bar, 2 * s), 255);
 }
 
 #[cfg(test)]

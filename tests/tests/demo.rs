@@ -48,11 +48,16 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
     let nominal = number_after(&text, "nominal geometry");
     let calibrated = number_after(&text, "calibrated");
     assert!(calibrated < 0.5 * nominal, "{text}");
+    assert!(
+        text.contains(&format!("{}", out.join("comparison.png").display())),
+        "{text}"
+    );
     for f in [
         "dataset.toml",
         "acquisition.json",
         "reconstruction/amplitude.tif",
         "reconstruction/report.json",
+        "comparison.png",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }

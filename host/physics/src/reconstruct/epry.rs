@@ -75,15 +75,16 @@ pub struct Epry {
     /// Bin step of the frequency grid, cycles/µm.
     df: f64,
     fft: Fft2,
+    /// ψ = P·O(k − s) on the active bins, in the order of `active`.
     psi: Vec<Complex32>,
+    /// The exit wave's spectrum on the whole LR grid, then its update.
     phi: Vec<Complex32>,
     /// Pupil bins: (LR index, signed kx, signed ky).
     pupil_bins: Vec<(u32, i64, i64)>,
     /// Per frame: the pupil bins inside the sub-bin shifted disc, each with the HR
     /// object bin it reads (LR index, HR index).
     active: Vec<(usize, usize)>,
-    /// LR rows and columns that the pupil disc (with its sub-bin reach) touches.
-    disc_rows: Vec<usize>,
+    /// LR columns that the pupil disc (with its sub-bin reach) touches, ascending.
     disc_cols: Vec<usize>,
     /// Where the measured amplitude is imposed: columns c0..c1, rows r0..r1.
     constrained: [usize; 4],
@@ -149,13 +150,10 @@ impl Epry {
             pupil,
             df,
             fft,
-            psi: vec![Complex32::default(); n * n],
+            psi: Vec::new(),
             phi: vec![Complex32::default(); n * n],
             pupil_bins,
             active: Vec::new(),
-            disc_rows: (0..n)
-                .filter(|&r| (0..n).any(|c| reachable[r * n + c]))
-                .collect(),
             disc_cols: (0..n)
                 .filter(|&c| (0..n).any(|r| reachable[r * n + c]))
                 .collect(),
@@ -235,21 +233,23 @@ impl Epry {
                 }),
         );
         // ψ = P · O(k − s) on the pupil, zero elsewhere.
-        self.psi.fill(Complex32::default());
+        self.psi.clear();
+        self.phi.fill(Complex32::default());
         let mut omax = 0.0f32;
         let mut pmax = 0.0f32;
         for &(i, o) in &self.active {
             let (p, ob) = (self.pupil[i], self.object[o]);
-            self.psi[i] = p * ob;
+            self.psi.push(p * ob);
+            self.phi[i] = p * ob;
             omax = omax.max(ob.norm_sqr());
             pmax = pmax.max(p.norm_sqr());
         }
-        self.phi.copy_from_slice(&self.psi);
-        // ψ lives on the pupil disc's rows only, and only the disc's columns of the
-        // forward transform are used: both FFTs skip the rest (unnormalised inverse;
-        // the amplitude constraint below is scale-free apart from the error).
+        // ψ lives on the pupil disc's columns only, and only those columns of the
+        // forward transform are used: both FFTs skip the other columns' transforms
+        // (unnormalised inverse; the amplitude constraint below is scale-free apart
+        // from the error).
         self.fft
-            .inverse_unnormalised_sparse_rows(&mut self.phi, &self.disc_rows);
+            .inverse_unnormalised_sparse_cols(&mut self.phi, &self.disc_cols);
         let unnormalise = (self.n * self.n) as f32;
         // Amplitude constraint inside the constrained window (outside it the exit wave
         // floats); the HR/LR size ratio scales amplitudes by U².
@@ -259,18 +259,16 @@ impl Epry {
         let n = self.n;
         for r in r0..r1 {
             let row = &mut self.phi[r * n + c0..r * n + c1];
-            let measured_row = amplitude.row(r);
-            for (p, &m) in row.iter_mut().zip(measured_row.iter().skip(c0)) {
-                let measured = m * gain;
-                let a = p.norm() / unnormalise;
-                err += ((a - measured) as f64).powi(2);
-                norm += (measured as f64).powi(2);
-                *p = if a > 1e-12 {
-                    *p * (measured / (a * unnormalise))
-                } else {
-                    Complex32::new(measured, 0.0)
-                };
-            }
+            let measured = amplitude.row(r);
+            let (e, m) = match measured.as_slice() {
+                Some(m) => impose_amplitude(row, &m[c0..c1], gain, unnormalise),
+                None => {
+                    let m: Vec<f32> = measured.iter().skip(c0).take(c1 - c0).copied().collect();
+                    impose_amplitude(row, &m, gain, unnormalise)
+                }
+            };
+            err += e;
+            norm += m;
         }
         // The free border keeps the model's exit wave, brought to scale.
         if self.constrained != [0, n, 0, n] {
@@ -289,8 +287,8 @@ impl Epry {
             self.step_scale * self.settings.alpha / pmax.max(1e-12),
             self.step_scale * self.settings.beta / omax.max(1e-12),
         );
-        for &(i, o) in &self.active {
-            let d = self.phi[i] - self.psi[i];
+        for (&(i, o), &psi) in self.active.iter().zip(&self.psi) {
+            let d = self.phi[i] - psi;
             let o_old = self.object[o];
             self.object[o] += self.pupil[i].conj() * d * a_step;
             if update_pupil {
@@ -382,6 +380,45 @@ pub fn remove_illumination_curvature(
         );
         *v *= Complex32::from_polar(1.0, (-k * (x * x + y * y)) as f32);
     }
+}
+
+/// Replace the modulus of each exit-wave value (unnormalised by `unnormalise`) with the
+/// measured amplitude times `gain`, keeping its phase (a value with no modulus becomes
+/// the measured amplitude itself). Returns Σ(|ψ| − measured)² and Σ measured². Eight
+/// independent lanes keep the sums from chaining every pixel to the last, so the loop
+/// vectorises; this is the only per-pixel work of an update besides the FFTs.
+fn impose_amplitude(
+    row: &mut [Complex32],
+    measured: &[f32],
+    gain: f32,
+    unnormalise: f32,
+) -> (f64, f64) {
+    const LANES: usize = 8;
+    let (mut err, mut norm) = ([0.0f32; LANES], [0.0f32; LANES]);
+    let inv = 1.0 / unnormalise;
+    let one = |p: &mut Complex32, m: f32, err: &mut f32, norm: &mut f32| {
+        let target = m * gain;
+        let a = p.norm_sqr().sqrt() * inv;
+        *err += (a - target) * (a - target);
+        *norm += target * target;
+        *p = if a > 1e-12 {
+            *p * (target / (a * unnormalise))
+        } else {
+            Complex32::new(target, 0.0)
+        };
+    };
+    let mut rows = row.chunks_exact_mut(LANES);
+    let mut values = measured.chunks_exact(LANES);
+    for (ps, ms) in (&mut rows).zip(&mut values) {
+        for l in 0..LANES {
+            one(&mut ps[l], ms[l], &mut err[l], &mut norm[l]);
+        }
+    }
+    for (p, &m) in rows.into_remainder().iter_mut().zip(values.remainder()) {
+        one(p, m, &mut err[0], &mut norm[0]);
+    }
+    let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();
+    (sum(err), sum(norm))
 }
 
 /// √I, with negative (noise) intensities taken as zero.

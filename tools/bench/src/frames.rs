@@ -23,12 +23,23 @@ struct SizeResult {
     iceoryx2_us: Percentiles,
     unix_socket_us: Percentiles,
     socket_over_iceoryx2_p50: f64,
+    /// p50 minus the 16 × 16 frame's p50 (same run): what the frame's size costs.
+    iceoryx2_size_cost_p50_us: f64,
     shared_memory_reserved_mb: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    /// A 16 × 16 frame through the same path: the wake-up and bookkeeping that no
+    /// frame size can avoid.
+    tiny_frame_iceoryx2_us: Percentiles,
+    sizes: Vec<SizeResult>,
 }
 
 /// Run the benchmark for 2048² and 5472 × 3648 frames.
 pub fn run(rounds: usize, json: bool) -> Result<()> {
     let mut results = vec![];
+    let tiny = iceoryx2_handoff(16, 16, rounds.max(5))?;
     for (w, h) in [(2048u32, 2048u32), (5472, 3648)] {
         let n = rounds.max(5);
         let ice = iceoryx2_handoff(w, h, n)?;
@@ -41,25 +52,35 @@ pub fn run(rounds: usize, json: bool) -> Result<()> {
             megabytes: bytes / 1e6,
             rounds: n,
             socket_over_iceoryx2_p50: sock.p50_us / ice.p50_us,
+            iceoryx2_size_cost_p50_us: ice.p50_us - tiny.p50_us,
             iceoryx2_us: ice,
             unix_socket_us: sock,
             shared_memory_reserved_mb: bytes * SAMPLES_PER_PUBLISHER as f64 / 1e6,
         });
     }
     if json {
-        println!("{}", serde_json::to_string_pretty(&results)?);
+        let report = Report {
+            tiny_frame_iceoryx2_us: tiny,
+            sizes: results,
+        };
+        println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
     println!("frame hand-off, camera thread → host thread (same machine, one run):");
-    println!("  frame            size    iceoryx2 p50 / p99 µs    Unix socket p50 / p99 µs   socket/iceoryx2   shm reserved");
+    println!("  frame            size    iceoryx2 p50 / p99 µs   above 16×16   Unix socket p50 / p99 µs   socket/iceoryx2   shm reserved");
+    println!(
+        "  {:>4}×{:<4}  {:>7.1} kB   {:>9.1} / {:<9.1}",
+        16, 16, 0.5, tiny.p50_us, tiny.p99_us
+    );
     for r in &results {
         println!(
-            "  {:>4}×{:<4}  {:>7.1} MB   {:>9.1} / {:<9.1}   {:>10.0} / {:<10.0}   {:>10.0}×   {:>7.0} MB",
+            "  {:>4}×{:<4}  {:>7.1} MB   {:>9.1} / {:<9.1}   {:>+9.1}   {:>10.0} / {:<10.0}   {:>10.0}×   {:>7.0} MB",
             r.width,
             r.height,
             r.megabytes,
             r.iceoryx2_us.p50_us,
             r.iceoryx2_us.p99_us,
+            r.iceoryx2_size_cost_p50_us,
             r.unix_socket_us.p50_us,
             r.unix_socket_us.p99_us,
             r.socket_over_iceoryx2_p50,
@@ -67,6 +88,9 @@ pub fn run(rounds: usize, json: bool) -> Result<()> {
         );
     }
     println!("  iceoryx2: from just before send (pixels already in shared memory) to the host holding the frame;");
+    println!(
+        "  above 16×16: p50 minus a 16×16 frame's p50 through the same path (what the size costs);"
+    );
     println!("  socket: from the first byte written to the last byte read into a ready buffer.");
     Ok(())
 }

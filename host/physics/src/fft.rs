@@ -2,6 +2,7 @@
 
 use std::sync::Arc;
 
+use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
 
@@ -15,6 +16,8 @@ pub struct Fft2 {
     col_inv: Arc<dyn Fft<f32>>,
     scratch: Vec<Complex32>,
     transposed: Vec<Complex32>,
+    /// Spread the pruned transforms over rayon's pool (see [`Self::set_parallel`]).
+    parallel: bool,
 }
 
 impl Fft2 {
@@ -39,7 +42,15 @@ impl Fft2 {
             col_inv,
             scratch: vec![Complex32::default(); scratch_len],
             transposed: vec![Complex32::default(); width * height],
+            parallel: false,
         }
+    }
+
+    /// Run the pruned transforms' row batches and column blocks on rayon's pool. It
+    /// pays only on large grids: at 256² one batch of rows is ~0.1 ms, and handing
+    /// it out costs more than the second core gains (`fpm bench epry` prints both).
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.parallel = parallel;
     }
 
     /// Grid width.
@@ -77,7 +88,8 @@ impl Fft2 {
         assert_eq!(data.len(), w * h, "array does not match the planned size");
         let plan = self.col_inv.clone();
         self.columns(data, cols, &*plan);
-        self.row_inv.process_with_scratch(data, &mut self.scratch);
+        let plan = self.row_inv.clone();
+        self.rows(data, &*plan);
     }
 
     /// Forward transform where only the columns `cols` of the result are wanted: rows
@@ -86,31 +98,74 @@ impl Fft2 {
     pub fn forward_wanted_cols(&mut self, data: &mut [Complex32], cols: &[usize]) {
         let (w, h) = (self.width, self.height);
         assert_eq!(data.len(), w * h, "array does not match the planned size");
-        self.row_fwd.process_with_scratch(data, &mut self.scratch);
+        let plan = self.row_fwd.clone();
+        self.rows(data, &*plan);
         let plan = self.col_fwd.clone();
         self.columns(data, cols, &*plan);
+    }
+
+    /// Every row of `data` transformed with `plan`: one batch, or a few per thread.
+    fn rows(&mut self, data: &mut [Complex32], plan: &dyn Fft<f32>) {
+        if !self.parallel {
+            plan.process_with_scratch(data, &mut self.scratch);
+            return;
+        }
+        let w = self.width;
+        let chunk_rows = self
+            .height
+            .div_ceil(2 * rayon::current_num_threads().max(1))
+            .max(1);
+        let scratch_len = self.scratch.len();
+        data.par_chunks_mut(chunk_rows * w).for_each_init(
+            || vec![Complex32::default(); scratch_len],
+            |scratch, rows| plan.process_with_scratch(rows, scratch),
+        );
     }
 
     /// Transform the columns `cols` (ascending) of `data` with `plan`: runs of adjacent
     /// columns are copied out a block at a time (each row contributes one cache line),
     /// transformed in one batch, and copied back.
     fn columns(&mut self, data: &mut [Complex32], cols: &[usize], plan: &dyn Fft<f32>) {
-        const BLOCK: usize = 8;
         let (w, h) = (self.width, self.height);
-        let mut k = 0;
-        while k < cols.len() {
-            let first = cols[k];
-            let mut len = 1;
-            while len < BLOCK && k + len < cols.len() && cols[k + len] == first + len {
-                len += 1;
+        let runs = column_runs(cols);
+        if self.parallel {
+            // Blocks are copied out and transformed in parallel (reading `data`
+            // shared), then written back by rows in parallel.
+            let scratch_len = self.scratch.len();
+            let mut jobs: Vec<(usize, &mut [Complex32])> = Vec::with_capacity(runs.len());
+            let mut rest = &mut self.transposed[..cols.len() * h];
+            for &(first, len) in &runs {
+                let (block, tail) = rest.split_at_mut(len * h);
+                jobs.push((first, block));
+                rest = tail;
             }
+            let source: &[Complex32] = data;
+            jobs.par_iter_mut().for_each_init(
+                || vec![Complex32::default(); scratch_len],
+                |scratch, (first, block)| {
+                    gather_columns(source, w, *first, block, h);
+                    plan.process_with_scratch(block, scratch);
+                },
+            );
+            drop(jobs);
+            let blocks = &self.transposed[..cols.len() * h];
+            data.par_chunks_mut(w)
+                .enumerate()
+                .with_min_len(16)
+                .for_each(|(r, row)| {
+                    let mut offset = 0;
+                    for &(first, len) in &runs {
+                        for j in 0..len {
+                            row[first + j] = blocks[offset + j * h + r];
+                        }
+                        offset += len * h;
+                    }
+                });
+            return;
+        }
+        for (first, len) in runs {
             let block = &mut self.transposed[..len * h];
-            for r in 0..h {
-                let row = &data[r * w + first..r * w + first + len];
-                for (j, &v) in row.iter().enumerate() {
-                    block[j * h + r] = v;
-                }
-            }
+            gather_columns(data, w, first, block, h);
             plan.process_with_scratch(block, &mut self.scratch);
             for r in 0..h {
                 let row = &mut data[r * w + first..r * w + first + len];
@@ -118,7 +173,6 @@ impl Fft2 {
                     *v = block[j * h + r];
                 }
             }
-            k += len;
         }
     }
 
@@ -129,6 +183,32 @@ impl Fft2 {
         transpose(data, &mut self.transposed, w, h);
         cols.process_with_scratch(&mut self.transposed, &mut self.scratch);
         transpose(&self.transposed, data, h, w);
+    }
+}
+
+/// Runs of adjacent indices in ascending `cols`, at most eight long: (first, length).
+/// Eight complex f32 are one 64-byte cache line of a row.
+fn column_runs(cols: &[usize]) -> Vec<(usize, usize)> {
+    const BLOCK: usize = 8;
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for &c in cols {
+        match runs.last_mut() {
+            Some((first, len)) if *len < BLOCK && *first + *len == c => *len += 1,
+            _ => runs.push((c, 1)),
+        }
+    }
+    runs
+}
+
+/// Columns `first..first + len` of the row-major `w`-wide `data` into `block`, one
+/// column after another (`block[j·h + r] = data[r·w + first + j]`).
+fn gather_columns(data: &[Complex32], w: usize, first: usize, block: &mut [Complex32], h: usize) {
+    let len = block.len() / h;
+    for r in 0..h {
+        let row = &data[r * w + first..r * w + first + len];
+        for (j, &v) in row.iter().enumerate() {
+            block[j * h + r] = v;
+        }
     }
 }
 
@@ -170,8 +250,15 @@ mod pruned_tests {
 
     #[test]
     fn pruned_transforms_match_the_full_ones_where_it_matters() {
+        for parallel in [false, true] {
+            pruned_transforms_match(parallel);
+        }
+    }
+
+    fn pruned_transforms_match(parallel: bool) {
         let (w, h) = (48, 40);
         let mut fft = Fft2::new(w, h);
+        fft.set_parallel(parallel);
         // Sparse columns: zero everywhere but columns 0–9 (a run longer than one
         // block), 30 and 47.
         let cols: Vec<usize> = (0..10).chain([30, 47]).collect();

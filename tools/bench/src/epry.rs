@@ -22,7 +22,54 @@ struct EpryBench {
     update_over_floor: f64,
     update_over_ffts: f64,
     pass_441_ms: f64,
+    /// One pass over 441 frames on 1 and 2 threads (each update spread over both on 2).
+    passes: Vec<PassTiming>,
     streaming: StreamingBench,
+}
+
+#[derive(Serialize)]
+struct PassTiming {
+    size: usize,
+    threads: usize,
+    ms: f64,
+}
+
+/// One pass over the paper's 441 LEDs on a `size`² field at `upsample`, on a pool of
+/// `threads` (on more than one, each update is spread over the pool), after a few
+/// updates to warm up.
+fn pass_ms(size: usize, upsample: usize, threads: usize) -> Result<f64> {
+    use fpm_physics::reconstruct::{Epry, Settings};
+    use fpm_physics::{Image, LedGeometry, System};
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("building a thread pool")?;
+    Ok(pool.install(|| {
+        let system = System::paper();
+        let geometry = LedGeometry::paper();
+        let frame = Image::from_shape_fn((size, size), |(r, c)| {
+            1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
+        });
+        let mut epry = Epry::new(
+            &system,
+            &frame,
+            Settings {
+                upsample,
+                ..Settings::default()
+            },
+        );
+        epry.set_parallel(threads > 1);
+        let leds = geometry.leds();
+        let freq = |led| geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
+        for &led in leds.iter().take(20) {
+            epry.update_amplitude(&frame, freq(led), true);
+        }
+        let t = Instant::now();
+        for &led in &leds {
+            epry.update_amplitude(&frame, freq(led), true);
+        }
+        t.elapsed().as_secs_f64() * 1e3
+    }))
 }
 
 #[derive(Serialize)]
@@ -214,6 +261,16 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         epry.update_amplitude(&frame, freq(led), true);
     }
     let pass = t.elapsed().as_secs_f64() * 1e3;
+    let mut passes = vec![];
+    for grid in [size, 2 * size] {
+        for threads in [1, 2] {
+            passes.push(PassTiming {
+                size: grid,
+                threads,
+                ms: pass_ms(grid, upsample, threads)?,
+            });
+        }
+    }
     let streaming = streaming_latency(size, upsample, 5)?;
     let f = Percentiles::of(&mut ffts);
     let u = Percentiles::of(&mut updates);
@@ -227,6 +284,7 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         two_ffts_us: f,
         update_us: u,
         pass_441_ms: pass,
+        passes,
         streaming,
     };
     if json {
@@ -248,6 +306,17 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
             u.p50_us, u.p99_us, report.update_over_floor, report.update_over_ffts
         );
         println!("  one pass over 441 frames {:.0} ms", pass);
+        for pair in report.passes.chunks(2) {
+            if let [one, two] = pair {
+                println!(
+                    "  one pass, {0}² frames: {1:.0} ms on 1 thread, {2:.0} ms on 2 ({3:.2}×)",
+                    one.size,
+                    one.ms,
+                    two.ms,
+                    one.ms / two.ms
+                );
+            }
+        }
         let st = &report.streaming;
         println!(
             "streaming {} simulated frames: push p50 {:.0} µs p99 {:.0} µs (one update each, as they arrive);",

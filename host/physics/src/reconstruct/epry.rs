@@ -28,6 +28,7 @@
 //! * The object is normalised so that a clear sample under on-axis light has |o| = 1
 //!   when frames are given as intensity per ms relative to that level.
 
+use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
 use crate::fft::{bin_frequency, Fft2};
@@ -93,7 +94,12 @@ pub struct Epry {
     cutoff: f64,
     /// (λ, R) of the illumination curvature the object was seeded with, µm.
     curvature: Option<(f64, f64)>,
+    /// Whether one update is spread over rayon's pool ([`Self::set_parallel`]).
+    parallel: bool,
 }
+
+/// Fields from this many LR pixels up spread each update over the cores.
+const PARALLEL_FROM: usize = 384 * 384;
 
 impl Epry {
     /// Start from an in-focus frame near the axis (`intensity`, normalised) for a
@@ -139,7 +145,7 @@ impl Epry {
                 object[hy * nh + hx] = lr[ky * n + kx] * scale;
             }
         }
-        Self {
+        let mut epry = Self {
             n,
             upsample: u,
             settings: Settings {
@@ -161,7 +167,10 @@ impl Epry {
             step_scale: 1.0,
             cutoff,
             curvature: None,
-        }
+            parallel: false,
+        };
+        epry.set_parallel(n * n >= PARALLEL_FROM);
+        epry
     }
 
     /// Impose the measured amplitude only `free` = [left, right, top, bottom] pixels
@@ -176,6 +185,15 @@ impl Epry {
         let r0 = free[2].min(n / 2);
         let r1 = n - free[3].min(n / 2);
         self.constrained = [c0, c1.max(c0), r0, r1.max(r0)];
+    }
+
+    /// Spread each update over rayon's pool: the pruned transforms' rows and columns
+    /// and the amplitude constraint's rows. On by default from 384² LR pixels, where it
+    /// pays; below that the hand-out costs more than a second core gains. Tiles still
+    /// run in parallel with each other either way.
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.parallel = parallel;
+        self.fft.set_parallel(parallel);
     }
 
     /// Scale both step sizes (1 = as in the settings).
@@ -234,7 +252,13 @@ impl Epry {
         );
         // ψ = P · O(k − s) on the pupil, zero elsewhere.
         self.psi.clear();
-        self.phi.fill(Complex32::default());
+        if self.parallel {
+            self.phi
+                .par_chunks_mut(self.n * 8)
+                .for_each(|rows| rows.fill(Complex32::default()));
+        } else {
+            self.phi.fill(Complex32::default());
+        }
         let mut omax = 0.0f32;
         let mut pmax = 0.0f32;
         for &(i, o) in &self.active {
@@ -254,22 +278,35 @@ impl Epry {
         // Amplitude constraint inside the constrained window (outside it the exit wave
         // floats); the HR/LR size ratio scales amplitudes by U².
         let gain = (self.upsample * self.upsample) as f32;
-        let (mut err, mut norm) = (0.0f64, 0.0f64);
         let [c0, c1, r0, r1] = self.constrained;
         let n = self.n;
-        for r in r0..r1 {
-            let row = &mut self.phi[r * n + c0..r * n + c1];
-            let measured = amplitude.row(r);
-            let (e, m) = match measured.as_slice() {
+        let impose_row = |k: usize, row: &mut [Complex32]| {
+            let measured = amplitude.row(r0 + k);
+            let row = &mut row[c0..c1];
+            match measured.as_slice() {
                 Some(m) => impose_amplitude(row, &m[c0..c1], gain, unnormalise),
                 None => {
                     let m: Vec<f32> = measured.iter().skip(c0).take(c1 - c0).copied().collect();
                     impose_amplitude(row, &m, gain, unnormalise)
                 }
-            };
-            err += e;
-            norm += m;
-        }
+            }
+        };
+        let add = |a: (f64, f64), b: (f64, f64)| (a.0 + b.0, a.1 + b.1);
+        let window = &mut self.phi[r0 * n..r1 * n];
+        let (err, norm) = if self.parallel {
+            window
+                .par_chunks_mut(n)
+                .enumerate()
+                .with_min_len(8)
+                .map(|(k, row)| impose_row(k, row))
+                .reduce(|| (0.0, 0.0), add)
+        } else {
+            window
+                .chunks_mut(n)
+                .enumerate()
+                .map(|(k, row)| impose_row(k, row))
+                .fold((0.0, 0.0), add)
+        };
         // The free border keeps the model's exit wave, brought to scale.
         if self.constrained != [0, n, 0, n] {
             let norm = 1.0 / unnormalise;
@@ -463,5 +500,44 @@ trait ToF64 {
 impl ToF64 for Complex32 {
     fn to_f64(self) -> rustfft::num_complex::Complex64 {
         rustfft::num_complex::Complex64::new(self.re as f64, self.im as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::LedGeometry;
+
+    /// Spreading an update over the pool changes only the order of the error's sums:
+    /// the object and the pupil come out the same.
+    #[test]
+    fn a_parallel_update_equals_the_serial_one() {
+        let system = System::paper();
+        let geometry = LedGeometry::paper();
+        let n = 64;
+        let frame = Image::from_shape_fn((n, n), |(r, c)| {
+            1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
+        });
+        let settings = Settings {
+            upsample: 2,
+            ..Settings::default()
+        };
+        let run = |parallel: bool| {
+            let mut epry = Epry::new(&system, &frame, settings);
+            epry.set_parallel(parallel);
+            epry.set_free_border([3, 0, 5, 0]);
+            for led in geometry.leds().into_iter().step_by(7) {
+                let f = geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
+                epry.update_amplitude(&frame, f, true);
+            }
+            (epry.object(), epry.pupil_centered())
+        };
+        let (serial, parallel) = (run(false), run(true));
+        let close = |a: &ndarray::Array2<Complex32>, b: &ndarray::Array2<Complex32>| {
+            let scale = a.iter().map(|v| v.norm()).fold(0.0f32, f32::max);
+            a.iter().zip(b).all(|(x, y)| (x - y).norm() <= 1e-4 * scale)
+        };
+        assert!(close(&serial.0, &parallel.0), "objects differ");
+        assert!(close(&serial.1, &parallel.1), "pupils differ");
     }
 }

@@ -46,9 +46,8 @@ impl Fft2 {
         }
     }
 
-    /// Run the pruned transforms' row batches and column blocks on rayon's pool. It
-    /// pays only on large grids: at 256² one batch of rows is ~0.1 ms, and handing
-    /// it out costs more than the second core gains (`fpm bench epry` prints both).
+    /// Run the pruned transforms' row batches and column blocks on rayon's pool
+    /// (`Epry` decides when; `fpm bench epry` prints passes on 1 and 2 threads).
     pub fn set_parallel(&mut self, parallel: bool) {
         self.parallel = parallel;
     }

@@ -34,17 +34,19 @@ struct PassTiming {
     ms: f64,
 }
 
-/// One pass over the paper's 441 LEDs on a `size`² field at `upsample`, on a pool of
-/// `threads` (on more than one, each update is spread over the pool), after a few
-/// updates to warm up.
-fn pass_ms(size: usize, upsample: usize, threads: usize) -> Result<f64> {
-    use fpm_physics::reconstruct::{Epry, Settings};
-    use fpm_physics::{Image, LedGeometry, System};
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("building a thread pool")?;
-    Ok(pool.install(|| {
+/// EPRY seeded from a synthetic `size`² frame, with the paper's 441 LEDs' wave vectors
+/// at the field centre: what the update timings run on.
+struct Updates {
+    frame: fpm_physics::Image,
+    epry: fpm_physics::reconstruct::Epry,
+    frequencies: Vec<(f64, f64)>,
+}
+
+impl Updates {
+    /// Each update on the calling thread, or spread over rayon's pool (`parallel`).
+    fn new(size: usize, upsample: usize, parallel: bool) -> Self {
+        use fpm_physics::reconstruct::{Epry, Settings};
+        use fpm_physics::{Image, LedGeometry, System};
         let system = System::paper();
         let geometry = LedGeometry::paper();
         let frame = Image::from_shape_fn((size, size), |(r, c)| {
@@ -58,17 +60,47 @@ fn pass_ms(size: usize, upsample: usize, threads: usize) -> Result<f64> {
                 ..Settings::default()
             },
         );
-        epry.set_parallel(threads > 1);
-        let leds = geometry.leds();
-        let freq = |led| geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
-        for &led in leds.iter().take(20) {
-            epry.update_amplitude(&frame, freq(led), true);
+        epry.set_parallel(parallel);
+        let frequencies = geometry
+            .leds()
+            .into_iter()
+            .map(|led| geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um))
+            .collect();
+        Self {
+            frame,
+            epry,
+            frequencies,
         }
+    }
+
+    /// One update with LED `k` (modulo the LED count).
+    fn update(&mut self, k: usize) {
+        let f = self.frequencies[k % self.frequencies.len()];
+        self.epry.update_amplitude(&self.frame, f, true);
+    }
+
+    /// One pass over all LEDs, ms.
+    fn pass_ms(&mut self) -> f64 {
         let t = Instant::now();
-        for &led in &leds {
-            epry.update_amplitude(&frame, freq(led), true);
+        for k in 0..self.frequencies.len() {
+            self.update(k);
         }
         t.elapsed().as_secs_f64() * 1e3
+    }
+}
+
+/// One pass over the paper's 441 LEDs on a `size`² field at `upsample`, on a pool of
+/// `threads` (on more than one, each update is spread over the pool), after a few
+/// updates to warm up.
+fn pass_ms(size: usize, upsample: usize, threads: usize) -> Result<f64> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("building a thread pool")?;
+    Ok(pool.install(|| {
+        let mut updates = Updates::new(size, upsample, threads > 1);
+        (0..20).for_each(|k| updates.update(k));
+        updates.pass_ms()
     }))
 }
 
@@ -215,52 +247,37 @@ impl FloorFft {
 
 pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     use fpm_physics::fft::Fft2;
-    use fpm_physics::reconstruct::{Epry, Settings};
-    use fpm_physics::{Image, LedGeometry, System};
     use rustfft::num_complex::Complex32;
-    let system = System::paper();
-    let geometry = LedGeometry::paper();
-    let frame = Image::from_shape_fn((size, size), |(r, c)| {
-        1.0 + 0.3 * ((r * 7 + c * 3) % 17) as f32 / 17.0
-    });
-    let mut epry = Epry::new(
-        &system,
-        &frame,
-        Settings {
-            upsample,
-            ..Settings::default()
-        },
-    );
-    let leds = geometry.leds();
-    let freq = |led| geometry.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
+    // One thread, as the report says, whatever the field size's default.
+    let mut updates = Updates::new(size, upsample, false);
     // Baseline: the forward and inverse LR FFT an update cannot do without.
     let mut fft = Fft2::new(size, size);
     let mut floor = FloorFft::new(size);
-    let mut buf: Vec<Complex32> = frame.iter().map(|&v| Complex32::new(v, 0.0)).collect();
+    let mut buf: Vec<Complex32> = updates
+        .frame
+        .iter()
+        .map(|&v| Complex32::new(v, 0.0))
+        .collect();
     let rounds = 200;
-    let (mut ffts, mut updates) = (Vec::with_capacity(rounds), Vec::with_capacity(rounds));
+    let (mut ffts, mut update_us) = (Vec::with_capacity(rounds), Vec::with_capacity(rounds));
     let mut floors = Vec::with_capacity(rounds);
+    let unnormalised = 1.0 / (size * size) as f32;
     for k in 0..rounds {
         // Interleave all three so machine noise hits them alike.
         let t = Instant::now();
         floor.pair(&mut buf);
         floors.push(t.elapsed().as_secs_f64() * 1e6);
         // Keep the values bounded: the floor pair is unnormalised.
-        let norm = 1.0 / (size * size) as f32;
-        buf.iter_mut().for_each(|v| *v *= norm);
+        buf.iter_mut().for_each(|v| *v *= unnormalised);
         let t = Instant::now();
         fft.forward(&mut buf);
         fft.inverse(&mut buf);
         ffts.push(t.elapsed().as_secs_f64() * 1e6);
         let t = Instant::now();
-        epry.update_amplitude(&frame, freq(leds[k % leds.len()]), true);
-        updates.push(t.elapsed().as_secs_f64() * 1e6);
+        updates.update(k);
+        update_us.push(t.elapsed().as_secs_f64() * 1e6);
     }
-    let t = Instant::now();
-    for &led in &leds {
-        epry.update_amplitude(&frame, freq(led), true);
-    }
-    let pass = t.elapsed().as_secs_f64() * 1e3;
+    let pass = updates.pass_ms();
     let mut passes = vec![];
     for grid in [size, 2 * size] {
         for threads in [1, 2] {
@@ -273,7 +290,7 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     }
     let streaming = streaming_latency(size, upsample, 5)?;
     let f = Percentiles::of(&mut ffts);
-    let u = Percentiles::of(&mut updates);
+    let u = Percentiles::of(&mut update_us);
     let fl = Percentiles::of(&mut floors);
     let report = EpryBench {
         size,

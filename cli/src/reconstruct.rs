@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
+use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::Settings;
 
 use fpm_host::calibration::Placement;
@@ -46,6 +47,36 @@ pub struct ReconstructArgs {
     /// edge (64–512 px); a square frame no larger is one tile.
     #[arg(long)]
     tile: Option<usize>,
+    /// What is taken off the frames: the dataset's dark level only, or also each
+    /// dark-field frame's own background, measured in its darkest blocks (the stray
+    /// light and offset drift that long dark-field exposures pick up).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::PerFrame)]
+    background: BackgroundArg,
+    /// With `--background per-frame`: dark-field pixels within this many standard
+    /// deviations of the background's noise are read as no light (0: only the level
+    /// is taken off).
+    #[arg(long, default_value_t = 3.0)]
+    floor_sigma: f32,
+}
+
+/// `--background`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq)]
+pub enum BackgroundArg {
+    /// The dataset's dark level only.
+    DarkLevel,
+    /// Also each dark-field frame's own background.
+    PerFrame,
+}
+
+impl ReconstructArgs {
+    fn background(&self) -> Correction {
+        match self.background {
+            BackgroundArg::DarkLevel => Correction::DarkLevel,
+            BackgroundArg::PerFrame => Correction::PerFrame {
+                floor_sigma: self.floor_sigma,
+            },
+        }
+    }
 }
 
 /// Run `fpm reconstruct`.
@@ -63,6 +94,7 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         update_pupil: !a.fixed_pupil,
         alpha: a.alpha,
         beta: a.beta,
+        background: a.background(),
     };
     let bar = indicatif::ProgressBar::new(1).with_style(
         indicatif::ProgressStyle::with_template(

@@ -54,6 +54,11 @@ pub struct SceneArgs {
     /// Random seed (noise and random geometry).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Stray light on every pixel of every frame, as a fraction of a clear sample's
+    /// brightness under the on-axis LED (e.g. 0.001): the background that long
+    /// dark-field exposures pick up on a real rig.
+    #[arg(long, default_value_t = 0.0)]
+    stray_light: f64,
 }
 
 /// Camera noise.
@@ -92,6 +97,11 @@ pub struct AcquisitionArgs {
     /// Simulation pixels per camera pixel (the ground truth's resolution).
     #[arg(long, default_value_t = 2)]
     upsample: usize,
+    /// Record dark-field frames dim, as a camera set up for the bright field does: their
+    /// brightest pixel at this many counts above the offset (e.g. 200) instead of 80 %
+    /// of full scale.
+    #[arg(long)]
+    dark_field_peak_dn: Option<f64>,
 }
 
 /// The paper's microscope: λ 0.47 µm, NA 0.1, 4×, 2.4 µm pixels; 21×21 LEDs at 2.5 mm.
@@ -129,9 +139,13 @@ impl SceneArgs {
     }
 
     fn camera(&self) -> Camera {
-        match self.noise {
+        let camera = match self.noise {
             Noise::Realistic => Camera::realistic(),
             Noise::None => Camera::noiseless(),
+        };
+        Camera {
+            stray_light: self.stray_light.max(0.0),
+            ..camera
         }
     }
 }
@@ -229,14 +243,17 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     bar.enable_steady_tick(std::time::Duration::from_millis(120));
     let start = Instant::now();
     // Auto-exposure as a camera would: the brightest pixel at 80 % of full scale, from
-    // 2 ms (bright field) up to 1 s (dark field).
+    // 2 ms (bright field) up to 1 s (dark field); or dim dark-field frames.
     let frames = acquire(
         &system,
         &truth,
         &object,
         &shots,
         &camera,
-        |img| camera.auto_exposure(img),
+        |img| match a.dark_field_peak_dn {
+            Some(peak) => camera.dim_dark_field_exposure(img, peak),
+            None => camera.auto_exposure(img),
+        },
         s.seed,
     );
     bar.finish_and_clear();

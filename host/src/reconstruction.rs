@@ -5,6 +5,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use fpm_physics::background::{Correction, FrameBackground};
 use fpm_physics::reconstruct::tiled::{self, TiledOutcome};
 use fpm_physics::reconstruct::Settings;
 use fpm_physics::tiles::Tile;
@@ -76,6 +77,8 @@ pub struct Report {
     pub threads: usize,
     /// How the disc position is handled.
     pub disc_placement: &'static str,
+    /// What was taken off the frames before they were imposed.
+    pub background: BackgroundReport,
     /// Against the simulation's ground truth, when the dataset has one (docs/dataset.md §6).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub versus_truth: Option<fpm_physics::metrics::Scores>,
@@ -135,7 +138,63 @@ impl Report {
             total_ms,
             threads: rayon::current_num_threads().min(layout.tiles.len()),
             disc_placement: DISC_PLACEMENT,
+            background: BackgroundReport::new(settings.background, &outcome.backgrounds),
             versus_truth: None,
+        }
+    }
+}
+
+/// `background` in `report.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct BackgroundReport {
+    /// "dark level" (the dataset's only) or "per frame" (each dark-field frame's own
+    /// background too).
+    pub correction: &'static str,
+    /// With "per frame": dark-field pixels within this many standard deviations of the
+    /// background's noise were read as no light.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor_sigma: Option<f32>,
+    /// Per frame that is dark-field over the whole field: its LED and the background
+    /// measured in its darkest blocks, counts above the dataset's dark level, and
+    /// whether it was taken off (only a flat one is: mostly white noise, not the
+    /// sample's dim light).
+    pub dark_field_frames: Vec<FrameBackgroundReport>,
+}
+
+/// One dark-field frame's background.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameBackgroundReport {
+    /// The LED.
+    pub led: LedIndex,
+    /// Level measured, counts.
+    pub level_counts: f32,
+    /// White pixel noise of the background, counts.
+    pub noise_counts: f32,
+    /// The share of the darkest blocks' variance that is white noise.
+    pub white_share: f32,
+    /// Whether the level was taken off.
+    pub taken_off: bool,
+}
+
+impl BackgroundReport {
+    fn new(correction: Correction, backgrounds: &[(LedIndex, FrameBackground)]) -> Self {
+        let (correction, floor_sigma) = match correction {
+            Correction::DarkLevel => ("dark level", None),
+            Correction::PerFrame { floor_sigma } => ("per frame", Some(floor_sigma)),
+        };
+        Self {
+            correction,
+            floor_sigma,
+            dark_field_frames: backgrounds
+                .iter()
+                .map(|&(led, b)| FrameBackgroundReport {
+                    led,
+                    level_counts: b.level,
+                    noise_counts: b.noise,
+                    white_share: b.white_share,
+                    taken_off: b.is_flat(),
+                })
+                .collect(),
         }
     }
 }

@@ -61,6 +61,7 @@ impl<'a> ShotView<'a> {
                 counts: Counts::U16(self.pixels),
                 dark_level,
                 exposure_ms: self.header.exposure_us.max(1) as f32 / 1e3,
+                floor: 0.0,
             },
         }
     }

@@ -138,6 +138,9 @@ pub struct Measured<'a> {
     /// Exposure, ms; intensities are per ms so that frames of different exposures
     /// compare.
     pub exposure_ms: f32,
+    /// Counts above the dark level up to which a pixel is read as no light (0: only
+    /// values below the dark level are; see [`crate::background`]).
+    pub floor: f32,
 }
 
 impl Measured<'_> {
@@ -152,12 +155,22 @@ impl Measured<'_> {
         self.counts.region_f32(region, self.dark_level)
     }
 
-    /// Intensity per ms over `region`, noise below the dark level taken as zero: what
-    /// the reconstruction's measurement is.
+    /// Counts above the dark level as the light they stand for: noise below the dark
+    /// level, or within the floor above it, is no light.
+    fn light(&self, v: f32) -> f32 {
+        if v > self.floor {
+            v
+        } else {
+            0.0
+        }
+    }
+
+    /// Intensity per ms over `region`, noise below the dark level (or within the
+    /// floor) taken as zero: what the reconstruction's measurement is.
     pub fn intensity(&self, region: Region) -> Image {
         let per_ms = 1.0 / self.exposure_ms.max(f32::MIN_POSITIVE);
         self.counts
-            .region_map(region, self.dark_level, |v| v.max(0.0) * per_ms)
+            .region_map(region, self.dark_level, |v| self.light(v) * per_ms)
     }
 
     /// √(intensity / `clear_level`) over `region`: the amplitude EPRY imposes, with a
@@ -165,7 +178,7 @@ impl Measured<'_> {
     pub fn amplitude(&self, region: Region, clear_level: f32) -> Image {
         let scale = 1.0 / (self.exposure_ms.max(f32::MIN_POSITIVE) * clear_level);
         self.counts
-            .region_map(region, self.dark_level, |v| (v.max(0.0) * scale).sqrt())
+            .region_map(region, self.dark_level, |v| (self.light(v) * scale).sqrt())
     }
 
     /// Mean intensity per ms over the whole frame.
@@ -175,15 +188,15 @@ impl Measured<'_> {
         let sum: f64 = match self.counts {
             Counts::U8(a) => a
                 .iter()
-                .map(|&v| (f32::from(v) - self.dark_level).max(0.0) as f64)
+                .map(|&v| self.light(f32::from(v) - self.dark_level) as f64)
                 .sum(),
             Counts::U16(a) => a
                 .iter()
-                .map(|&v| (f32::from(v) - self.dark_level).max(0.0) as f64)
+                .map(|&v| self.light(f32::from(v) - self.dark_level) as f64)
                 .sum(),
             Counts::F32(a) => a
                 .iter()
-                .map(|&v| (v - self.dark_level).max(0.0) as f64)
+                .map(|&v| self.light(v - self.dark_level) as f64)
                 .sum(),
         };
         (sum / (h * w).max(1) as f64) as f32 * per_ms
@@ -211,6 +224,7 @@ mod tests {
             counts: raw.view(),
             dark_level: 100.0,
             exposure_ms: 2.0,
+            floor: 0.0,
         };
         let region = Region {
             y0: 0,

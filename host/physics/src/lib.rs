@@ -12,10 +12,11 @@
 //! * [`calibrate`]: pdcFPM — feature finding, defocus-shift measurement with a
 //!   model-based bias correction, and the LED-array fit;
 //! * [`frame`]: measured frames — counts, dark level, exposure — and the one
-//!   conversion to intensity;
+//!   conversion to intensity; [`background`]: a dark-field frame's own background;
 //! * [`reconstruct`]: EPRY, offline, streaming and tiled; [`tiles`]: tile geometry and
 //!   blending.
 
+pub mod background;
 pub mod bayer;
 pub mod calibrate;
 pub mod fft;

@@ -171,6 +171,24 @@ impl LedGeometry {
         (fx * fx + fy * fy).sqrt() < system.cutoff()
     }
 
+    /// Whether `led` is dark-field at every point of the rectangle of half-sides
+    /// `half_um` (x, y) centred on the optical axis, µm. The illumination's sine grows
+    /// with the distance from the point straight above which the LED sits, so it is
+    /// smallest at the rectangle's point nearest that one.
+    pub fn is_dark_field_everywhere(
+        &self,
+        led: LedIndex,
+        half_um: (f64, f64),
+        system: &System,
+    ) -> bool {
+        let (lx, ly) = self.led_position_mm(led);
+        let nearest = (
+            (lx * 1e3).clamp(-half_um.0, half_um.0),
+            (ly * 1e3).clamp(-half_um.1, half_um.1),
+        );
+        !self.is_bright_field(led, nearest.0, nearest.1, system)
+    }
+
     /// Indices into `leds` ordered nearest-first: by |f_i| at sample point `at_um`,
     /// ties kept in the given order. This is EPRY's order (it also copes with a wrongly
     /// chosen centre LED) and the acquisition's, so frames arrive in the order they
@@ -216,6 +234,26 @@ pub fn defocus_transfer(fx: f64, fy: f64, z_um: f64, wavelength_um: f64) -> (f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dark_field_everywhere_looks_at_the_point_of_the_field_nearest_the_led() {
+        let system = System::paper();
+        let g = LedGeometry::paper();
+        // The first LED off the axis along x that is dark-field at the axis.
+        let col = (g.center.col..g.cols as u8)
+            .find(|&c| !g.is_bright_field(LedIndex::new(g.center.row, c), 0.0, 0.0, &system))
+            .expect("a dark-field LED");
+        let led = LedIndex::new(g.center.row, col);
+        let (lx, _) = g.led_position_mm(led);
+        // A field reaching halfway to the point under the LED, or all the way to it.
+        let half = |x_um: f64| (x_um, x_um);
+        assert!(g.is_dark_field_everywhere(led, half(1.0), &system));
+        assert!(!g.is_dark_field_everywhere(led, half(lx.abs() * 1e3), &system));
+        assert_eq!(
+            g.is_dark_field_everywhere(led, half(lx.abs() * 500.0), &system),
+            !g.is_bright_field(led, lx * 500.0, 0.0, &system)
+        );
+    }
 
     fn geometry() -> LedGeometry {
         LedGeometry::paper()

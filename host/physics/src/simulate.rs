@@ -293,6 +293,11 @@ pub struct Camera {
     pub bit_depth: u32,
     /// Whether to add noise at all.
     pub noisy: bool,
+    /// Light that reaches the sensor whatever the LED (room light, the glow of the
+    /// board, reflections in the tube), as an intensity added to every pixel (1.0 = a
+    /// clear sample under the on-axis LED). It adds up over long dark-field exposures
+    /// into the few-count background that real dark-field frames sit on.
+    pub stray_light: f64,
 }
 
 impl Camera {
@@ -305,6 +310,7 @@ impl Camera {
             dark_level_dn: 100.0,
             bit_depth: 12,
             noisy: true,
+            stray_light: 0.0,
         }
     }
 
@@ -328,6 +334,20 @@ impl Camera {
         self.exposure_for(peak, 0.8, 2.0, 1000.0)
     }
 
+    /// Auto-exposure with dim dark-field frames, as a camera set up for the bright
+    /// field records them: frames whose brightest pixel is below half the clear level
+    /// (dark field) get the exposure that brings that pixel to `dark_field_peak_dn`
+    /// counts above the offset (at least 1 ms); bright-field frames as
+    /// [`Self::auto_exposure`].
+    pub fn dim_dark_field_exposure(&self, intensity: &Image, dark_field_peak_dn: f64) -> f64 {
+        let peak = intensity.iter().copied().fold(0.0f32, f32::max) as f64;
+        if peak >= 0.5 {
+            return self.auto_exposure(intensity);
+        }
+        let fill = dark_field_peak_dn / (self.max_dn() - self.dark_level_dn);
+        self.exposure_for(peak, fill, 1.0, 1000.0)
+    }
+
     /// The dark-subtracted level at which pixels saturate.
     pub fn saturation(&self) -> f32 {
         (self.max_dn() - self.dark_level_dn) as f32
@@ -347,7 +367,8 @@ impl Camera {
         let read = Normal::new(0.0, self.read_noise_e.max(1e-12)).expect("finite read noise");
         let max = self.max_dn();
         intensity.mapv(|i| {
-            let mean_e = (i as f64).max(0.0) * self.electrons_per_ms * exposure_ms;
+            let mean_e =
+                ((i as f64).max(0.0) + self.stray_light) * self.electrons_per_ms * exposure_ms;
             let e = if self.noisy {
                 let shot = if mean_e > 0.0 {
                     Poisson::new(mean_e)
@@ -388,6 +409,7 @@ impl SimFrame {
             counts: Counts::U16(self.counts.view()),
             dark_level: camera.dark_level_dn as f32,
             exposure_ms: self.exposure_ms as f32,
+            floor: 0.0,
         }
     }
 }

@@ -333,6 +333,7 @@ impl Dataset {
             counts: self.frames[k].raw.view(),
             dark_level: self.manifest.camera.dark_level as f32,
             exposure_ms: self.frames[k].entry.exposure_ms as f32,
+            floor: 0.0,
         }
     }
 

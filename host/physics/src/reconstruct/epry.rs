@@ -31,6 +31,7 @@
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use crate::background::Correction;
 use crate::fft::{bin_frequency, Fft2};
 use crate::optics::System;
 use crate::Image;
@@ -51,6 +52,9 @@ pub struct Settings {
     /// Learn the pupil (from the second pass on, bright-field frames only); false:
     /// keep the ideal pupil.
     pub update_pupil: bool,
+    /// What is taken off each frame before it is imposed (tiled runs, offline and
+    /// streamed: they see whole frames).
+    pub background: Correction,
 }
 
 impl Default for Settings {
@@ -60,6 +64,7 @@ impl Default for Settings {
             alpha: 0.5,
             beta: 0.5,
             update_pupil: true,
+            background: Correction::PerFrame { floor_sigma: 3.0 },
         }
     }
 }

@@ -15,6 +15,7 @@ use rustfft::num_complex::Complex32;
 use super::offline::{run_amplitudes, Field, Outcome};
 use super::streaming::Streaming;
 use super::Settings;
+use crate::background::{correct, FrameBackground};
 use crate::frame::{LitFrame, Region};
 use crate::optics::{LedGeometry, System};
 use crate::tiles::{auto_tile_side, plan, Mosaic, Tile};
@@ -125,6 +126,10 @@ pub struct TiledOutcome {
     pub tiles: Vec<TileResult>,
     /// The clear level the frames were normalised by (intensity per ms).
     pub clear_level: f32,
+    /// The background measured in each frame that is dark-field over the whole field,
+    /// by LED (taken off where [`FrameBackground::is_flat`]; empty when the settings take
+    /// off the dark level only).
+    pub backgrounds: Vec<(LedIndex, FrameBackground)>,
 }
 
 /// Why a tiled reconstruction could not run.
@@ -235,6 +240,15 @@ fn solve(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<TiledOutcome, TiledError> {
     let pixel_um = system.sample_pixel_um();
+    let (frames, backgrounds): (Vec<LitFrame<'_>>, Vec<_>) = frames
+        .iter()
+        .map(|f| correct(*f, system, geometry, settings.background))
+        .unzip();
+    let backgrounds = frames
+        .iter()
+        .zip(backgrounds)
+        .filter_map(|(f, b)| Some((f.led, b?)))
+        .collect();
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let total = layout.tiles.len() * passes * frames.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
@@ -304,6 +318,7 @@ fn solve(
         tiles,
         layout,
         clear_level,
+        backgrounds,
     })
 }
 
@@ -377,6 +392,12 @@ impl TiledStreaming {
                 }
             }
         }
+        let (frame, _) = correct(
+            *frame,
+            &self.system,
+            &self.geometry,
+            self.settings.background,
+        );
         for (t, tile) in self.tiles.iter_mut().zip(&self.layout.tiles) {
             t.push_measured(frame.led, &frame.measured, Region::from(*tile));
         }

@@ -1,0 +1,314 @@
+//! The background a dark-field frame sits on, measured in the frame itself.
+//!
+//! A dataset states one dark level for the camera, taken with no light. A dark-field
+//! frame is exposed tens to hundreds of times longer than a bright-field one, and picks
+//! up light that no LED sends through the sample (room light, the board's glow,
+//! reflections in the tube) plus any offset drift: real 8-bit dark-field frames sit a
+//! few counts above the stated level (6 counts in four corner frames of the repo's USAF
+//! set, 3–4 counts in a 1440×1080 set from another lab), against signals of 10–30
+//! counts. EPRY takes that background as scattered light, and spreads it over the
+//! object as ripples and dots. Here it is measured per frame: the sample leaves some
+//! part of the field empty, or at least dimmer, and the darkest blocks of the frame show
+//! the level of that part and its noise.
+
+use crate::frame::{Counts, LitFrame, Measured};
+use crate::optics::{LedGeometry, System};
+
+/// What is taken off the frames before they are imposed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Correction {
+    /// The dataset's dark level only.
+    DarkLevel,
+    /// Each dark-field frame's own background too ([`estimate`]), and its noise within
+    /// `floor_sigma` standard deviations read as no light ([`subtract`]).
+    PerFrame {
+        /// Floor, in standard deviations of the background's noise.
+        floor_sigma: f32,
+    },
+}
+
+/// `frame` as the reconstruction should take it under `correction`: a frame whose LED
+/// is dark-field over the whole frame (centred on the optical axis) gets its own
+/// background taken off if it is flat ([`FrameBackground::is_flat`]; the estimate is
+/// returned either way, for the report). Other frames are left as they
+/// are: a clear sample leaves no dark part in a bright-field frame, and in a frame that
+/// turns bright-field across the field the darkest blocks still hold the edge's light
+/// (up to 110 counts of real signal in a simulated one).
+pub fn correct<'a>(
+    frame: LitFrame<'a>,
+    system: &System,
+    geometry: &LedGeometry,
+    correction: Correction,
+) -> (LitFrame<'a>, Option<FrameBackground>) {
+    let Correction::PerFrame { floor_sigma } = correction else {
+        return (frame, None);
+    };
+    let (h, w) = frame.measured.dim();
+    let half_um = (
+        w as f64 * system.sample_pixel_um() / 2.0,
+        h as f64 * system.sample_pixel_um() / 2.0,
+    );
+    if !geometry.is_dark_field_everywhere(frame.led, half_um, system) {
+        return (frame, None);
+    }
+    match estimate(&frame.measured) {
+        Some(b) if b.is_flat() => (
+            LitFrame {
+                measured: subtract(frame.measured, b, floor_sigma),
+                ..frame
+            },
+            Some(b),
+        ),
+        other => (frame, other),
+    }
+}
+
+/// A frame's background above the dataset's dark level, counts.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct FrameBackground {
+    /// Mean of the background blocks (the darkest, and those within their noise),
+    /// counts above the dark level.
+    pub level: f32,
+    /// The white part of the pixel standard deviation within them, counts: the noise a
+    /// pixel with no signal shows.
+    pub noise: f32,
+    /// The share of that variance which is white (pixel to pixel independent, from
+    /// neighbour differences): 1 for a flat background's noise, near 0 for light from
+    /// the sample, which the optics blur over several pixels.
+    pub white_share: f32,
+}
+
+impl FrameBackground {
+    /// Whether the darkest blocks hold a flat background (at least half their variance
+    /// white) rather than the sample's own dim light, which must not be taken off.
+    pub fn is_flat(&self) -> bool {
+        self.white_share >= MIN_WHITE_SHARE
+    }
+}
+
+/// Blocks along the frame's shorter side.
+const BLOCKS_ALONG_SHORT_SIDE: usize = 16;
+/// The share of blocks, darkest first, that sets the background: several blocks (not
+/// the single darkest, which a dead corner or a vignetted edge could make too dark), few
+/// enough to stay in the empty part of a sparse sample.
+const DARKEST_SHARE: f64 = 0.1;
+/// Below this white share the darkest blocks are taken as the sample's light.
+const MIN_WHITE_SHARE: f32 = 0.5;
+
+/// Measure the background of `frame` from its darkest blocks. `None` for a frame too
+/// small to have blocks (under 32 px on a side).
+pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
+    let (h, w) = frame.dim();
+    let side = h.min(w) / BLOCKS_ALONG_SHORT_SIDE;
+    if side < 2 {
+        return None;
+    }
+    let (rows, cols) = (h / side, w / side);
+    let mut blocks: Vec<BlockStats> = Vec::with_capacity(rows * cols);
+    for br in 0..rows {
+        for bc in 0..cols {
+            blocks.push(block_stats(
+                &frame.counts,
+                br * side,
+                bc * side,
+                side,
+                frame.dark_level,
+            ));
+        }
+    }
+    blocks.sort_by(|a, b| a.mean.total_cmp(&b.mean));
+    let take = ((blocks.len() as f64 * DARKEST_SHARE).ceil() as usize).clamp(1, blocks.len());
+    let mean_of = |set: &[BlockStats], f: fn(&BlockStats) -> f64| {
+        set.iter().map(f).sum::<f64>() / set.len() as f64
+    };
+    // The darkest blocks alone read low (the lowest of noisy means): every block within
+    // two block-mean standard deviations of them belongs to the same background.
+    let darkest = &blocks[..take];
+    let spread = (mean_of(darkest, |b| b.variance) / (side * side) as f64).sqrt();
+    let within = mean_of(darkest, |b| b.mean) + 2.0 * spread;
+    let background = &blocks[..blocks.partition_point(|b| b.mean <= within).max(take)];
+    let (level, variance, white) = (
+        mean_of(background, |b| b.mean),
+        mean_of(background, |b| b.variance),
+        mean_of(background, |b| b.white_variance),
+    );
+    Some(FrameBackground {
+        level: level as f32,
+        noise: white.sqrt() as f32,
+        white_share: if variance > 0.0 {
+            (white / variance).min(1.0) as f32
+        } else {
+            1.0
+        },
+    })
+}
+
+/// One block's statistics of counts − dark.
+struct BlockStats {
+    mean: f64,
+    variance: f64,
+    /// Half the mean square difference of horizontal neighbours: the variance of white
+    /// noise, blind to structure that varies slowly from pixel to pixel.
+    white_variance: f64,
+}
+
+/// [`BlockStats`] of the `side`² block at (`y0`, `x0`).
+fn block_stats(counts: &Counts<'_>, y0: usize, x0: usize, side: usize, dark: f32) -> BlockStats {
+    let (mut sum, mut sum2, mut diff2) = (0.0f64, 0.0f64, 0.0f64);
+    let mut row = Vec::with_capacity(side);
+    for r in y0..y0 + side {
+        row.clear();
+        match counts {
+            Counts::U8(a) => row.extend(a.row(r).iter().skip(x0).take(side).map(|&v| f32::from(v))),
+            Counts::U16(a) => {
+                row.extend(a.row(r).iter().skip(x0).take(side).map(|&v| f32::from(v)))
+            }
+            Counts::F32(a) => row.extend(a.row(r).iter().skip(x0).take(side).copied()),
+        }
+        for (k, &v) in row.iter().enumerate() {
+            let v = (v - dark) as f64;
+            sum += v;
+            sum2 += v * v;
+            if k > 0 {
+                let d = (row[k] - row[k - 1]) as f64;
+                diff2 += d * d;
+            }
+        }
+    }
+    let n = (side * side) as f64;
+    let mean = sum / n;
+    BlockStats {
+        mean,
+        variance: (sum2 / n - mean * mean).max(0.0),
+        white_variance: diff2 / (2.0 * (side * (side - 1)) as f64),
+    }
+}
+
+/// `frame` with its background taken off: the dark level raised by the measured level,
+/// and everything within `floor_sigma` × the background's noise of it read as zero
+/// (0: only the level is taken off; negative levels are never added back).
+pub fn subtract<'a>(
+    frame: Measured<'a>,
+    background: FrameBackground,
+    floor_sigma: f32,
+) -> Measured<'a> {
+    Measured {
+        dark_level: frame.dark_level + background.level.max(0.0),
+        floor: (floor_sigma.max(0.0) * background.noise).max(frame.floor),
+        ..frame
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::{Pixels, Region};
+    use ndarray::Array2;
+    use rand::{Rng, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+
+    /// A 128² dark-field frame: noise of σ = 1.5 counts about `dark + background`,
+    /// with bright scattering edges over `signal_share` of the field.
+    fn frame(dark: f32, background: f32, signal_share: f64) -> Pixels {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let noise = Normal::new(0.0f32, 1.5).unwrap();
+        let edge_cols = (128.0 * signal_share) as usize;
+        Pixels::F32(Array2::from_shape_fn((128, 128), |(r, c)| {
+            let signal = if c < edge_cols && (r / 8) % 2 == 0 {
+                rng.gen_range(10.0..40.0)
+            } else {
+                0.0
+            };
+            dark + background + signal + noise.sample(&mut rng)
+        }))
+    }
+
+    #[test]
+    fn the_darkest_blocks_give_a_flat_background_and_its_noise() {
+        for share in [0.0, 0.5, 0.8] {
+            let pixels = frame(100.0, 6.0, share);
+            let m = Measured {
+                counts: pixels.view(),
+                dark_level: 100.0,
+                exposure_ms: 1.0,
+                floor: 0.0,
+            };
+            let b = estimate(&m).unwrap();
+            assert!(b.is_flat(), "{b:?}");
+            assert!(
+                (b.level - 6.0).abs() < 0.3,
+                "signal over {share} of the field: level {}",
+                b.level
+            );
+            assert!(
+                (b.noise - 1.5).abs() < 0.2,
+                "signal over {share} of the field: noise {}",
+                b.noise
+            );
+        }
+    }
+
+    #[test]
+    fn subtracting_takes_the_level_off_and_floors_the_noise() {
+        let pixels = frame(100.0, 6.0, 0.5);
+        let m = Measured {
+            counts: pixels.view(),
+            dark_level: 100.0,
+            exposure_ms: 1.0,
+            floor: 0.0,
+        };
+        let b = estimate(&m).unwrap();
+        let whole = Region::whole(m.dim());
+        let empty_half = |i: &crate::Image| {
+            let s = i.slice(ndarray::s![.., 64..]);
+            s.sum() / s.len() as f32
+        };
+        let before = empty_half(&m.intensity(whole));
+        let plain = empty_half(&subtract(m, b, 0.0).intensity(whole));
+        let floored = empty_half(&subtract(m, b, 2.0).intensity(whole));
+        assert!(before > 5.5, "the background reads as light: {before}");
+        assert!(plain < 1.0, "level taken off, noise clipped at 0: {plain}");
+        assert!(
+            floored < 0.2 * plain,
+            "noise within 2σ read as zero: {floored} against {plain}"
+        );
+        // The scattering edges keep their signal.
+        let edges = subtract(m, b, 2.0).intensity(whole);
+        let lit = edges.slice(ndarray::s![0..8, 0..64]);
+        let mean = lit.sum() / lit.len() as f32;
+        assert!(
+            (mean - 25.0).abs() < 2.0,
+            "signal 10–40 counts kept: {mean}"
+        );
+    }
+
+    #[test]
+    fn the_samples_own_smooth_light_is_not_taken_for_background() {
+        // Dim light that varies over many pixels everywhere (a dense sample just outside
+        // the bright field), with little noise: the darkest blocks are not flat.
+        let pixels = Pixels::F32(Array2::from_shape_fn((128, 128), |(r, c)| {
+            let (x, y) = (c as f32 / 9.0, r as f32 / 7.0);
+            100.0 + 12.0 + 8.0 * x.sin() * y.cos() + 0.3 * ((r * 31 + c * 17) % 7) as f32 / 7.0
+        }));
+        let m = Measured {
+            counts: pixels.view(),
+            dark_level: 100.0,
+            exposure_ms: 1.0,
+            floor: 0.0,
+        };
+        let b = estimate(&m).unwrap();
+        assert!(!b.is_flat(), "{b:?}");
+    }
+
+    #[test]
+    fn a_frame_too_small_for_blocks_has_no_estimate() {
+        let pixels = Pixels::U8(Array2::zeros((24, 24)));
+        let m = Measured {
+            counts: pixels.view(),
+            dark_level: 0.0,
+            exposure_ms: 1.0,
+            floor: 0.0,
+        };
+        assert_eq!(estimate(&m), None);
+    }
+}

@@ -50,6 +50,13 @@ use serde::{Deserialize, Serialize};
 /// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`).
 pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_1;
 
+/// USB vendor id the controller enumerates with (pid.codes, the open-hardware vendor id).
+/// Hosts find boards by it (`fpm device list`); the udev rule in `udev/` matches it.
+pub const USB_VID: u16 = 0x1209;
+/// USB product id: pid.codes' test PID, fine for development; register a PID before
+/// shipping boards.
+pub const USB_PID: u16 = 0x0001;
+
 /// Protocol 1.1: what a device must speak for the stored geometry and gamma endpoints.
 pub const PROTOCOL_1_1: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };
 

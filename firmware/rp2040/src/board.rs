@@ -27,8 +27,5 @@ pub const fn board(lanes: u8) -> BoardConfig {
     board
 }
 
-/// USB identity. 0x1209/0x0001 is pid.codes' test PID: fine for development, register a
-/// PID before shipping boards.
-pub const USB_VID: u16 = 0x1209;
-/// USB product id.
-pub const USB_PID: u16 = 0x0001;
+/// USB identity: part of the wire contract, since hosts find boards by it.
+pub use fpm_protocol::{USB_PID, USB_VID};

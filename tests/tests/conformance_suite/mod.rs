@@ -520,6 +520,57 @@ fn the_cli_speaks_json_and_reports_errors() {
     );
 }
 
+/// `fpm device list` finds the board on a port it is told to look at besides USB ones
+/// (an emulator has no USB identity), with its serial number and protocol, and
+/// `fpm device info` needs no `--port` when exactly one board answers.
+#[test]
+fn boards_are_listed_and_found_without_a_port() {
+    let (_dir, emu) = emulator("list", &[]);
+    let fpm = |extra: &str, args: &[&str]| {
+        std::process::Command::new(fpm_tests::fpm_bin())
+            .env_remove("FPM_PORT")
+            .env("FPM_EXTRA_PORTS", extra)
+            .arg("device")
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let both = format!("{}:/nonexistent/tty", emu.port());
+    let out = fpm(&both, &["list", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let list = list.as_array().unwrap();
+    assert_eq!(list.len(), 2, "{list:?}");
+    assert_eq!(list[0]["port"], emu.port());
+    assert_eq!(list[0]["info"]["protocol"]["major"], PROTOCOL_VERSION.major);
+    assert!(list[1]["info"].is_null());
+    assert!(list[1]["error"]
+        .as_str()
+        .unwrap()
+        .contains("cannot open serial port /nonexistent/tty"));
+
+    let out = fpm(&both, &["--json", "info"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(info["serial"], list[0]["info"]["serial"]);
+
+    let out = fpm("/nonexistent/tty", &["info"]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("no LED controller found (USB 1209:0001") && stderr.contains("--port"),
+        "{stderr}"
+    );
+}
+
 #[test]
 /// What is lit is logged as the chain shows it (for the firmware: decoded from the
 /// WS2812 data pin, GP16), and a stopped controller removes its link.

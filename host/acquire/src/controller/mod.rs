@@ -4,6 +4,7 @@
 //! blocking method per endpoint, each with a timeout. Sequence progress arrives on a
 //! [`SequenceEvents`] subscription.
 
+pub mod discover;
 mod error;
 pub mod scan;
 mod transport;

@@ -9,14 +9,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use fpm_acquire::board_geometry;
 use fpm_acquire::controller::scan::{scan_steps, Order, Selection};
-use fpm_acquire::controller::{Controller, SequenceEvent};
+use fpm_acquire::controller::{discover, Controller, SequenceEvent};
 
 /// Talk to an LED controller.
 #[derive(Args, Debug)]
 pub struct DeviceArgs {
     /// Serial port of the controller (e.g. /dev/ttyACM0, or an emulator's --link path).
+    /// Omitted: the one board connected (see `fpm device list`).
     #[arg(long, env = "FPM_PORT")]
-    port: String,
+    port: Option<String>,
     /// Print machine-readable JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -29,6 +30,10 @@ pub struct DeviceArgs {
 
 #[derive(Subcommand, Debug)]
 enum DeviceCommand {
+    /// Boards connected: USB serial ports with the controller's vendor and product id
+    /// (1209:0001), plus the ports listed in FPM_EXTRA_PORTS (an emulator's link, an
+    /// RS-232 adapter; separated by ':'), each with its serial number and protocol.
+    List,
     /// Identity: firmware, protocol, board geometry, limits.
     Info,
     /// State: what is lit, current, budget, sequence, link counters.
@@ -260,9 +265,16 @@ fn parse_led(s: &str) -> Result<LedIndex, String> {
 /// Run one `fpm device` command.
 pub fn run(args: DeviceArgs) -> Result<()> {
     let timeout = Duration::from_millis(args.timeout_ms);
-    let dev = Controller::open(&args.port, timeout)?;
+    let port = match (&args.command, args.port) {
+        (DeviceCommand::List, _) => return list(timeout, args.json),
+        (_, Some(port)) => port,
+        (_, None) => discover::the_only_board(timeout).map_err(anyhow::Error::msg)?,
+    };
+    let dev = Controller::open(&port, timeout)?;
     let json = args.json;
     match args.command {
+        // Answered above, without opening a port.
+        DeviceCommand::List => {}
         DeviceCommand::Info => emit(dev.info(), json, print_info),
         DeviceCommand::Status => emit(&dev.status()?, json, print_status),
         DeviceCommand::Ping { count } => ping(&dev, count, json)?,
@@ -587,4 +599,48 @@ fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> 
             }
         }
     }
+}
+
+/// `fpm device list`.
+fn list(timeout: Duration, json: bool) -> Result<()> {
+    let found = discover::probe(discover::candidates(), timeout);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&found)?);
+        return Ok(());
+    }
+    if found.is_empty() {
+        println!(
+            "no LED controller found (USB {:04x}:{:04x}; ports named in {} are asked too)",
+            USB_VID,
+            USB_PID,
+            discover::EXTRA_PORTS_ENV
+        );
+    }
+    for f in &found {
+        let usb = f
+            .candidate
+            .usb
+            .as_ref()
+            .map(|u| format!(" [USB {}]", u.vid_pid))
+            .unwrap_or_default();
+        match (&f.info, &f.error) {
+            (Some(i), _) => println!(
+                "{}{usb}: {} (serial {:016x}), firmware {}.{}.{}, protocol {}.{}",
+                f.candidate.port,
+                i.board.as_str(),
+                i.serial,
+                i.firmware.major,
+                i.firmware.minor,
+                i.firmware.patch,
+                i.protocol.major,
+                i.protocol.minor
+            ),
+            (None, e) => println!(
+                "{}{usb}: no answer ({})",
+                f.candidate.port,
+                e.as_deref().unwrap_or("?")
+            ),
+        }
+    }
+    Ok(())
 }

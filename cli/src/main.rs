@@ -10,6 +10,7 @@ mod color;
 mod demo;
 mod device;
 mod reconstruct;
+mod shell;
 mod simulate;
 
 use std::process::ExitCode;
@@ -55,6 +56,11 @@ enum Command {
     /// Measure performance.
     #[command(subcommand)]
     Bench(fpm_bench::BenchCommand),
+    /// Print a shell completion script (e.g. `fpm completions bash >
+    /// ~/.local/share/bash-completion/completions/fpm`).
+    Completions(shell::CompletionsArgs),
+    /// Write man pages (fpm.1 and one per subcommand) into a directory.
+    Man(shell::ManArgs),
 }
 
 fn main() -> ExitCode {
@@ -115,6 +121,8 @@ fn main() -> ExitCode {
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
         Command::Bench(cmd) => fpm_bench::run(cmd),
+        Command::Completions(args) => shell::completions(args),
+        Command::Man(args) => shell::man(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use fpm_acquire::controller::discover;
 use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
 use fpm_acquire::{Controller, FocusStage, ManualStage};
 use fpm_frames::ServiceNames;
@@ -25,9 +26,13 @@ pub enum StageKind {
 /// Acquire an FPM dataset: every LED of the array, one frame each, labelled.
 #[derive(Args, Debug, Clone)]
 pub struct AcquireArgs {
-    /// The LED controller's serial port (a board, or `fpm emulator --link`).
+    /// The LED controller's serial port (a board, or `fpm emulator --link`). Omitted:
+    /// the one board connected (see `fpm device list`).
+    #[arg(long, env = "FPM_PORT")]
+    pub port: Option<String>,
+    /// Print the summary (acquisition.json) as JSON instead of text.
     #[arg(long)]
-    pub port: String,
+    pub json: bool,
     /// The camera whose frames to take (`fpm/camera/<NAME>/frames` on iceoryx2).
     #[arg(long, default_value = "0")]
     pub frames: String,
@@ -89,14 +94,23 @@ pub struct AcquireArgs {
 /// Run `fpm acquire`.
 pub fn run(a: AcquireArgs) -> Result<()> {
     let summary = acquire(&a)?;
-    print_summary(&summary, &a.out);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        print_summary(&summary, &a.out);
+    }
     Ok(())
 }
 
 /// The acquisition, returning its summary (used by `fpm demo` too).
 pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
-    let dev = Controller::open(&a.port, Duration::from_secs(2))
-        .with_context(|| format!("connecting to the LED controller on {}", a.port))?;
+    let timeout = Duration::from_secs(2);
+    let port = match &a.port {
+        Some(port) => port.clone(),
+        None => discover::the_only_board(timeout).map_err(anyhow::Error::msg)?,
+    };
+    let dev = Controller::open(&port, timeout)
+        .with_context(|| format!("connecting to the LED controller on {port}"))?;
     // Shared memory of crashed runs (ours or a camera's) is removed before we start.
     match fpm_frames::cleanup_stale() {
         Ok(0) => {}

@@ -46,11 +46,27 @@ pub struct DemoArgs {
     /// LED controller, instead of the host-compiled controller logic.
     #[arg(long)]
     firmware: Option<PathBuf>,
+    /// Print one JSON object at the end (the controller, the hidden and recovered
+    /// arrays, the acquisition summary, the quality, the output paths) instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `println!` unless the demo prints JSON.
+macro_rules! say {
+    ($json:expr, $($arg:tt)*) => {
+        if !$json {
+            println!($($arg)*);
+        }
+    };
 }
 
 /// Run the demo.
 pub fn run(a: DemoArgs) -> Result<()> {
-    println!("fpm demo: a virtual FPM microscope, no hardware needed\n");
+    say!(
+        a.json,
+        "fpm demo: a virtual FPM microscope, no hardware needed\n"
+    );
     let exposure = a.exposure_us.to_string();
     let lanes = a.lanes.to_string();
     let rig = format!("demo-{}", std::process::id());
@@ -68,7 +84,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let dev = Controller::open(&port, Duration::from_secs(2))?;
     let info = dev.info().clone();
     let g = info.geometry;
-    println!(
+    say!(a.json,
         "LED controller  {} ({}, separate process) on {port}\n                firmware {}, protocol {}, {}x{} LEDs at {:.1} mm pitch, {} lane(s)",
         info.board,
         if a.firmware.is_some() {
@@ -96,31 +112,47 @@ pub fn run(a: DemoArgs) -> Result<()> {
         Rgb::WHITE,
     )?;
     dev.clear()?;
-    println!(
+    say!(a.json,
         "patterns        objective NA {na}: bright-field {} LEDs ({} mA), dark-field {} LEDs, DPC half {} LEDs",
         bf.leds_on, bf.current_ma, df.leds_on, dpc.leds_on
     );
 
     let rtt = fpm_bench::Percentiles::of(&mut dev.ping_round_trips(50, 500)?);
-    println!(
+    say!(
+        a.json,
         "link            request round-trip p50 {:.0} µs, p99 {:.0} µs (500 pings)",
-        rtt.p50_us, rtt.p99_us
+        rtt.p50_us,
+        rtt.p99_us
     );
     let link = dev.status()?.link;
-    println!(
+    say!(
+        a.json,
         "                {} frames, {} dropped, {} unknown keys, {} decode errors",
-        link.frames_ok, link.frames_dropped, link.unknown_keys, link.decode_errors
+        link.frames_ok,
+        link.frames_dropped,
+        link.unknown_keys,
+        link.decode_errors
     );
     drop(dev);
-    virtual_microscope(&a, &emulator)?;
+    let microscope = virtual_microscope(&a, &emulator)?;
     drop(emulator);
+    if a.json {
+        let mut all = serde_json::json!({
+            "controller": info,
+            "link_round_trip_us": {"p50": rtt.p50_us, "p99": rtt.p99_us},
+        });
+        if let (Some(all), serde_json::Value::Object(rest)) = (all.as_object_mut(), microscope) {
+            all.extend(rest);
+        }
+        println!("{}", serde_json::to_string_pretty(&all)?);
+    }
     Ok(())
 }
 
 /// The full virtual microscope: the virtual camera as a second process on the rig the
 /// emulator publishes, `fpm acquire --calibrate --reconstruct` against both, and the
 /// result compared with the hidden truth.
-fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
+fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_json::Value> {
     let id = format!("demo-{}", std::process::id());
     let out = a
         .out
@@ -155,12 +187,13 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
         "virtual camera",
         Ready::FileExists(&out.join("truth.json"), Duration::from_secs(30)),
     )?;
-    println!(
+    say!(a.json,
         "virtual camera  {}² frames, wave-optics model, realistic noise (separate process, iceoryx2 shared memory)",
         a.size
     );
     let args = AcquireArgs {
-        port: emulator.link.to_string_lossy().into_owned(),
+        port: Some(emulator.link.to_string_lossy().into_owned()),
+        json: false,
         frames: id.clone(),
         out: out.clone(),
         calibrate: true,
@@ -187,31 +220,42 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
     let truth =
         fpm_host::truth::Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;
     let g = summary.geometry;
-    println!("\nLED array       hidden truth                 recovered by pdcFPM");
-    println!(
+    say!(
+        a.json,
+        "\nLED array       hidden truth                 recovered by pdcFPM"
+    );
+    say!(
+        a.json,
         "  Δx            {:>8.3} mm                 {:>8.3} mm",
-        truth.dx_mm, g.dx_mm
+        truth.dx_mm,
+        g.dx_mm
     );
-    println!(
+    say!(
+        a.json,
         "  Δy            {:>8.3} mm                 {:>8.3} mm",
-        truth.dy_mm, g.dy_mm
+        truth.dy_mm,
+        g.dy_mm
     );
-    println!(
+    say!(
+        a.json,
         "  θ             {:>8.3}°                   {:>8.3}°",
-        truth.theta_deg, g.theta_deg
+        truth.theta_deg,
+        g.theta_deg
     );
-    println!(
+    say!(
+        a.json,
         "  h             {:>8.2} mm                 {:>8.2} mm",
-        truth.height_mm, g.height_mm
+        truth.height_mm,
+        g.height_mm
     );
     let c = &summary.capture;
     let cal_frames: usize = summary.calibration.iter().map(|r| r.labelled).sum();
-    println!(
+    say!(a.json,
         "\nacquisition     {} calibration frames, then {}/{} LEDs labelled in {:.1} s ({:.1} frames/s); missing {}, extra {}, ambiguous {}",
         cal_frames, c.labelled, c.requested, c.seconds, c.frames_per_s, c.missing.len(), c.extra_frames, c.ambiguous_frames
     );
     if let (Some(ms), Some(us)) = (summary.last_frame_to_final_ms, summary.update_us_mean) {
-        println!("streaming EPRY  {us:.0} µs per frame as it arrived; last frame → final image {ms:.0} ms");
+        say!(a.json, "streaming EPRY  {us:.0} µs per frame as it arrived; last frame → final image {ms:.0} ms");
     }
 
     // Quality against the hidden sample: nominal vs calibrated geometry, same passes.
@@ -229,14 +273,14 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
         .and_then(|o| score_reconstruction(&ds, &o, settings.upsample))
         .map(|s| s.complex_nrmse);
     if let (Some(n), Some(k)) = (n, k) {
-        println!(
+        say!(a.json,
             "quality         complex NRMSE vs the hidden sample: nominal geometry {n:.3}, calibrated {k:.3}{}",
             streamed.map(|s| format!(", streamed while acquiring {s:.3}")).unwrap_or_default()
         );
     }
     // The picture is an extra: a failure to draw it is a warning.
     let picture = out.join("comparison.png");
-    match fpm_host::truth::write_comparison(
+    let drawn = fpm_host::truth::write_comparison(
         &ds,
         &[
             ("NOMINAL", &with_nominal.object),
@@ -244,22 +288,32 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<()> {
         ],
         settings.upsample,
         &picture,
-    ) {
-        Ok(()) => println!(
+    );
+    match &drawn {
+        Ok(()) => say!(
+            a.json,
             "picture         {} (truth | nominal geometry | calibrated; amplitude above phase)",
             picture.display()
         ),
         Err(e) => tracing::warn!("no comparison picture: {e:#}"),
     }
-    println!(
+    say!(a.json,
         "\nwrote the dataset, calibration/, calibration.json, reconstruction/ and acquisition.json to {} ({:.0} s)",
         out.display(),
         acquired.as_secs_f64()
     );
-    println!(
+    say!(
+        a.json,
         "re-run offline: fpm reconstruct {} --out /tmp/rec --calibration {}/calibration.json",
         out.display(),
         out.display()
     );
-    Ok(())
+    Ok(serde_json::json!({
+        "out": out,
+        "hidden_array": truth,
+        "recovered_array": g,
+        "acquisition": summary,
+        "complex_nrmse": {"nominal": n, "calibrated": k, "streamed": streamed},
+        "picture": drawn.is_ok().then_some(picture),
+    }))
 }

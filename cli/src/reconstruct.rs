@@ -57,6 +57,9 @@ pub struct ReconstructArgs {
     /// is taken off).
     #[arg(long, default_value_t = 3.0)]
     floor_sigma: f32,
+    /// Print the report (report.json) as JSON instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 /// `--background`.
@@ -118,6 +121,10 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample);
     write_outputs(&r, &a.out)?;
     let rep = &r.report;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(rep)?);
+        return Ok(());
+    }
     println!(
         "{} frames ({}x{}, {} tile(s) of {} px), {} passes, {}x upsampling in {:.2} s ({:.0} ms per pass); amplitude error per pass: first {:.4}, last {:.4}",
         rep.frames,

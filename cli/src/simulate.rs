@@ -59,6 +59,10 @@ pub struct SceneArgs {
     /// dark-field exposures pick up on a real rig.
     #[arg(long, default_value_t = 0.0)]
     stray_light: f64,
+    /// Print what was written (frames, size, time, the hidden truth) as JSON instead of
+    /// text.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Camera noise.
@@ -181,6 +185,19 @@ fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
+/// `--json`: what was written.
+fn print_written(s: &SceneArgs, frames: usize, seconds: f64, truth: &Truth) -> Result<()> {
+    let written = serde_json::json!({
+        "out": s.out,
+        "frames": frames,
+        "size": [s.size, s.size],
+        "seconds": seconds,
+        "truth": truth,
+    });
+    println!("{}", serde_json::to_string_pretty(&written)?);
+    Ok(())
+}
+
 /// Run `fpm simulate …`.
 pub fn run(cmd: SimulateCommand) -> Result<()> {
     match cmd {
@@ -201,20 +218,21 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
     let start = Instant::now();
     let frames = scene.acquire();
     write_frames(&s.out, &scene.system, &scene.camera, &frames)?;
-    write_json(
-        &s.out.join("truth.json"),
-        &Truth {
-            dx_mm: truth.dx_mm,
-            dy_mm: truth.dy_mm,
-            theta_deg: truth.theta_deg,
-            height_mm: truth.height_mm,
-            defocus_um: Some(a.defocus_um),
-            feature_um: Some(a.feature_um),
-            feature_at_um: Some([a.feature_x_um, a.feature_y_um]),
-            object_pixel_um: None,
-            seed: Some(s.seed),
-        },
-    )?;
+    let truth_file = Truth {
+        dx_mm: truth.dx_mm,
+        dy_mm: truth.dy_mm,
+        theta_deg: truth.theta_deg,
+        height_mm: truth.height_mm,
+        defocus_um: Some(a.defocus_um),
+        feature_um: Some(a.feature_um),
+        feature_at_um: Some([a.feature_x_um, a.feature_y_um]),
+        object_pixel_um: None,
+        seed: Some(s.seed),
+    };
+    write_json(&s.out.join("truth.json"), &truth_file)?;
+    if s.json {
+        return print_written(s, frames.len(), start.elapsed().as_secs_f64(), &truth_file);
+    }
     println!(
         "wrote {} frames ({}x{}) to {} in {:.2} s; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm (truth.json)",
         frames.len(),
@@ -259,20 +277,21 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     bar.finish_and_clear();
     write_frames(&s.out, &system, &camera, &frames)?;
     fpm_host::truth::write_truth_images(&s.out, &object)?;
-    write_json(
-        &s.out.join("truth.json"),
-        &Truth {
-            dx_mm: truth.dx_mm,
-            dy_mm: truth.dy_mm,
-            theta_deg: truth.theta_deg,
-            height_mm: truth.height_mm,
-            defocus_um: None,
-            feature_um: None,
-            feature_at_um: None,
-            object_pixel_um: Some(object.pitch_um()),
-            seed: Some(s.seed),
-        },
-    )?;
+    let truth_file = Truth {
+        dx_mm: truth.dx_mm,
+        dy_mm: truth.dy_mm,
+        theta_deg: truth.theta_deg,
+        height_mm: truth.height_mm,
+        defocus_um: None,
+        feature_um: None,
+        feature_at_um: None,
+        object_pixel_um: Some(object.pitch_um()),
+        seed: Some(s.seed),
+    };
+    write_json(&s.out.join("truth.json"), &truth_file)?;
+    if s.json {
+        return print_written(s, frames.len(), start.elapsed().as_secs_f64(), &truth_file);
+    }
     println!(
         "wrote {} frames ({}x{}) to {} in {:.2} s, with truth_amplitude.tif and truth_phase.tif ({:.3} µm pixels)",
         frames.len(),

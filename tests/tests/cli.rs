@@ -59,3 +59,41 @@ fn man_pages_are_written_for_every_subcommand() {
         "options are documented"
     );
 }
+
+/// `--json` prints what the command wrote, as a script would read it.
+#[test]
+fn simulate_and_reconstruct_speak_json() {
+    let dir = TempDir::new("json");
+    let data = dir.0.join("data");
+    let out = dir.0.join("rec");
+    let written: serde_json::Value = serde_json::from_str(&fpm(&[
+        "simulate",
+        "acquisition",
+        "--size",
+        "64",
+        "--out",
+        &data.to_string_lossy(),
+        "--json",
+    ]))
+    .expect("simulate --json prints JSON");
+    assert_eq!(written["frames"], 441);
+    assert_eq!(written["size"], serde_json::json!([64, 64]));
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("truth.json")).unwrap()).unwrap();
+    assert_eq!(written["truth"], truth);
+
+    let printed: serde_json::Value = serde_json::from_str(&fpm(&[
+        "reconstruct",
+        &data.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--passes",
+        "2",
+        "--json",
+    ]))
+    .expect("reconstruct --json prints JSON");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(printed, report);
+    assert!(printed["versus_truth"]["complex_nrmse"].is_number());
+}

@@ -104,15 +104,38 @@ pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
         return None;
     }
     let (rows, cols) = (h / side, w / side);
+    // Per pixel column, sums over the rows of one band of blocks (an elementwise loop
+    // over each row, which vectorises); reduced into the band's blocks at its end.
     let mut blocks: Vec<BlockStats> = Vec::with_capacity(rows * cols);
-    for br in 0..rows {
+    let mut row = vec![0.0f32; w];
+    let (mut sum, mut sum2, mut diff2) = (vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]);
+    let n = (side * side) as f64;
+    let pairs = (side * (side - 1)) as f64;
+    for band in 0..rows {
+        sum.fill(0.0);
+        sum2.fill(0.0);
+        diff2.fill(0.0);
+        for r in band * side..(band + 1) * side {
+            read_row(&frame.counts, r, frame.dark_level, &mut row);
+            for ((s, s2), &x) in sum.iter_mut().zip(sum2.iter_mut()).zip(&row) {
+                *s += x;
+                *s2 += x * x;
+            }
+            for (d2, pair) in diff2.iter_mut().zip(row.windows(2)) {
+                let d = pair[1] - pair[0];
+                *d2 += d * d;
+            }
+        }
         for bc in 0..cols {
-            blocks.push(block_stats(
-                &frame.counts,
-                br * side,
-                bc * side,
-                side,
-                frame.dark_level,
+            let columns = bc * side..(bc + 1) * side;
+            let total = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>();
+            // The block's own neighbour pairs: not the one across its right edge.
+            blocks.push(BlockStats::new(
+                total(&sum[columns.clone()]),
+                total(&sum2[columns.clone()]),
+                total(&diff2[columns.start..columns.end - 1]),
+                n,
+                pairs,
             ));
         }
     }
@@ -152,35 +175,30 @@ struct BlockStats {
     white_variance: f64,
 }
 
-/// [`BlockStats`] of the `side`² block at (`y0`, `x0`).
-fn block_stats(counts: &Counts<'_>, y0: usize, x0: usize, side: usize, dark: f32) -> BlockStats {
-    let (mut sum, mut sum2, mut diff2) = (0.0f64, 0.0f64, 0.0f64);
-    let mut row = Vec::with_capacity(side);
-    for r in y0..y0 + side {
-        row.clear();
-        match counts {
-            Counts::U8(a) => row.extend(a.row(r).iter().skip(x0).take(side).map(|&v| f32::from(v))),
-            Counts::U16(a) => {
-                row.extend(a.row(r).iter().skip(x0).take(side).map(|&v| f32::from(v)))
-            }
-            Counts::F32(a) => row.extend(a.row(r).iter().skip(x0).take(side).copied()),
-        }
-        for (k, &v) in row.iter().enumerate() {
-            let v = (v - dark) as f64;
-            sum += v;
-            sum2 += v * v;
-            if k > 0 {
-                let d = (row[k] - row[k - 1]) as f64;
-                diff2 += d * d;
-            }
+impl BlockStats {
+    /// From the sums over `n` pixels and `pairs` neighbour pairs.
+    fn new(sum: f64, sum2: f64, diff2: f64, n: f64, pairs: f64) -> Self {
+        let mean = sum / n;
+        Self {
+            mean,
+            variance: (sum2 / n - mean * mean).max(0.0),
+            white_variance: diff2 / (2.0 * pairs),
         }
     }
-    let n = (side * side) as f64;
-    let mean = sum / n;
-    BlockStats {
-        mean,
-        variance: (sum2 / n - mean * mean).max(0.0),
-        white_variance: diff2 / (2.0 * (side * (side - 1)) as f64),
+}
+
+/// Row `r` of `counts` minus `dark`, as floats, into `out`.
+fn read_row(counts: &Counts<'_>, r: usize, dark: f32, out: &mut [f32]) {
+    fn convert<T: Copy>(row: ndarray::ArrayView1<'_, T>, out: &mut [f32], f: impl Fn(T) -> f32) {
+        match row.as_slice() {
+            Some(row) => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
+            None => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
+        }
+    }
+    match counts {
+        Counts::U8(a) => convert(a.row(r), out, |v| f32::from(v) - dark),
+        Counts::U16(a) => convert(a.row(r), out, |v| f32::from(v) - dark),
+        Counts::F32(a) => convert(a.row(r), out, |v| v - dark),
     }
 }
 

@@ -5,7 +5,7 @@
 //! up light that no LED sends through the sample (room light, the board's glow,
 //! reflections in the tube) plus any offset drift: real 8-bit dark-field frames sit a
 //! few counts above the stated level (6 counts in four corner frames of the repo's USAF
-//! set, 3–4 counts in a 1440×1080 set from another lab), against signals of 10–30
+//! set, 3–7 counts in a 1440×1080 set from another lab), against signals of 10–30
 //! counts. EPRY takes that background as scattered light, and spreads it over the
 //! object as ripples and dots. Here it is measured per frame: the sample leaves some
 //! part of the field empty, or at least dimmer, and the darkest blocks of the frame show

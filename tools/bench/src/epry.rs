@@ -22,6 +22,11 @@ struct EpryBench {
     update_over_floor: f64,
     update_over_ffts: f64,
     pass_441_ms: f64,
+    /// Measuring one dark-field frame's own background (`fpm_physics::background`),
+    /// once per frame as it arrives, on a 16-bit frame of the same size.
+    background_estimate_us: Percentiles,
+    /// Its p50 over the update's.
+    background_over_update: f64,
     /// One pass over 441 frames on 1 and 2 threads (each update spread over both on 2).
     passes: Vec<PassTiming>,
     streaming: StreamingBench,
@@ -262,6 +267,18 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     let (mut ffts, mut update_us) = (Vec::with_capacity(rounds), Vec::with_capacity(rounds));
     let mut floors = Vec::with_capacity(rounds);
     let unnormalised = 1.0 / (size * size) as f32;
+    // A 16-bit dark-field frame: noise about an offset, for the background estimate.
+    let counts =
+        fpm_physics::frame::Pixels::U16(ndarray::Array2::from_shape_fn((size, size), |(r, c)| {
+            (100 + (r * 7919 + c * 104_729) % 13) as u16
+        }));
+    let dark_field = fpm_physics::frame::Measured {
+        counts: counts.view(),
+        dark_level: 100.0,
+        exposure_ms: 1.0,
+        floor: 0.0,
+    };
+    let mut background_us = Vec::with_capacity(rounds);
     for k in 0..rounds {
         // Interleave all three so machine noise hits them alike.
         let t = Instant::now();
@@ -276,6 +293,9 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         let t = Instant::now();
         updates.update(k);
         update_us.push(t.elapsed().as_secs_f64() * 1e6);
+        let t = Instant::now();
+        std::hint::black_box(fpm_physics::background::estimate(&dark_field));
+        background_us.push(t.elapsed().as_secs_f64() * 1e6);
     }
     let pass = updates.pass_ms();
     let mut passes = vec![];
@@ -292,6 +312,7 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     let f = Percentiles::of(&mut ffts);
     let u = Percentiles::of(&mut update_us);
     let fl = Percentiles::of(&mut floors);
+    let bg = Percentiles::of(&mut background_us);
     let report = EpryBench {
         size,
         upsample,
@@ -301,6 +322,8 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         two_ffts_us: f,
         update_us: u,
         pass_441_ms: pass,
+        background_over_update: bg.p50_us / u.p50_us,
+        background_estimate_us: bg,
         passes,
         streaming,
     };
@@ -321,6 +344,10 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         println!(
             "  one frame update        p50 {:>8.1} µs   p99 {:>8.1} µs   ({:.2}× the floor pair, {:.2}× Fft2's)",
             u.p50_us, u.p99_us, report.update_over_floor, report.update_over_ffts
+        );
+        println!(
+            "  a dark-field background p50 {:>8.1} µs   p99 {:>8.1} µs   ({:.2}× one update; once per frame)",
+            bg.p50_us, bg.p99_us, report.background_over_update
         );
         println!("  one pass over 441 frames {:.0} ms", pass);
         for pair in report.passes.chunks(2) {

@@ -137,13 +137,9 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let microscope = virtual_microscope(&a, &emulator)?;
     drop(emulator);
     if a.json {
-        let mut all = serde_json::json!({
-            "controller": info,
-            "link_round_trip_us": {"p50": rtt.p50_us, "p99": rtt.p99_us},
-        });
-        if let (Some(all), serde_json::Value::Object(rest)) = (all.as_object_mut(), microscope) {
-            all.extend(rest);
-        }
+        let mut all = microscope;
+        all["controller"] = serde_json::json!(info);
+        all["link_round_trip_us"] = serde_json::json!({"p50": rtt.p50_us, "p99": rtt.p99_us});
         println!("{}", serde_json::to_string_pretty(&all)?);
     }
     Ok(())

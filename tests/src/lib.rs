@@ -176,6 +176,20 @@ pub fn firmware_uf2_with_lanes(lanes: u8) -> &'static Path {
         .unwrap_or_else(|| panic!("no firmware image for {lanes} lanes (1, 2 or 4)"))
 }
 
+/// Run `fpm args…`, which must succeed (its stderr in the panic otherwise); its stdout.
+pub fn fpm_stdout(args: &[&str]) -> String {
+    let out = Command::new(fpm_bin())
+        .args(args)
+        .output()
+        .expect("run fpm");
+    assert!(
+        out.status.success(),
+        "fpm {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 /// `fpm acquire` against controller `port` and camera `camera` (its frame service
 /// id), `step_ms` per LED, into `out`.
 pub fn acquire_command(port: &str, camera: &str, step_ms: u32, out: &Path) -> Command {

@@ -3,22 +3,12 @@
 
 use std::process::Command;
 
-use fpm_tests::{fpm_bin, TempDir};
-
-fn fpm(args: &[&str]) -> String {
-    let out = Command::new(fpm_bin()).args(args).output().unwrap();
-    assert!(
-        out.status.success(),
-        "fpm {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
+use fpm_tests::{fpm_bin, fpm_stdout, TempDir};
 
 #[test]
 fn completions_know_every_command_and_option() {
     for shell in ["bash", "zsh", "fish"] {
-        let script = fpm(&["completions", shell]);
+        let script = fpm_stdout(&["completions", shell]);
         for word in [
             "reconstruct",
             "calibrate",
@@ -39,7 +29,7 @@ fn completions_know_every_command_and_option() {
 #[test]
 fn man_pages_are_written_for_every_subcommand() {
     let dir = TempDir::new("man");
-    fpm(&["man", "--out", &dir.0.to_string_lossy()]);
+    fpm_stdout(&["man", "--out", &dir.0.to_string_lossy()]);
     for page in [
         "fpm.1",
         "fpm-reconstruct.1",
@@ -66,7 +56,7 @@ fn simulate_and_reconstruct_speak_json() {
     let dir = TempDir::new("json");
     let data = dir.0.join("data");
     let out = dir.0.join("rec");
-    let written: serde_json::Value = serde_json::from_str(&fpm(&[
+    let written: serde_json::Value = serde_json::from_str(&fpm_stdout(&[
         "simulate",
         "acquisition",
         "--size",
@@ -82,7 +72,7 @@ fn simulate_and_reconstruct_speak_json() {
         serde_json::from_str(&std::fs::read_to_string(data.join("truth.json")).unwrap()).unwrap();
     assert_eq!(written["truth"], truth);
 
-    let printed: serde_json::Value = serde_json::from_str(&fpm(&[
+    let printed: serde_json::Value = serde_json::from_str(&fpm_stdout(&[
         "reconstruct",
         &data.to_string_lossy(),
         "--out",

@@ -6,7 +6,7 @@ use std::process::Command;
 
 use fpm_host::dataset::image_io;
 use fpm_physics::fft::{bin_frequency, Fft2};
-use fpm_tests::{fpm_bin, TempDir};
+use fpm_tests::{fpm_bin, fpm_stdout, TempDir};
 use ndarray::{s, Array2};
 use rustfft::num_complex::Complex32;
 
@@ -130,16 +130,6 @@ fn the_usaf_target_gains_resolution_beyond_what_the_camera_samples() {
     );
 }
 
-fn fpm(args: &[&str]) -> String {
-    let out = Command::new(fpm_bin()).args(args).output().unwrap();
-    assert!(
-        out.status.success(),
-        "fpm {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
@@ -205,8 +195,8 @@ fn clear_glass_variation(raw: &Array2<f32>, amplitude: &Array2<f32>) -> f64 {
 fn dark_field_backgrounds_come_off_the_real_usaf_frames() {
     let (default, dark_level) = (TempDir::new("usaf-bg"), TempDir::new("usaf-dark"));
     let dir = usaf().to_string_lossy().into_owned();
-    fpm(&["reconstruct", &dir, "--out", &default.0.to_string_lossy()]);
-    fpm(&[
+    fpm_stdout(&["reconstruct", &dir, "--out", &default.0.to_string_lossy()]);
+    fpm_stdout(&[
         "reconstruct",
         &dir,
         "--out",
@@ -259,7 +249,7 @@ fn tiles_blend_into_the_whole_field() {
     let data = TempDir::new("tiles-data");
     let d = data.0.to_string_lossy().into_owned();
     // The array where the dataset says it is: this test is about tiles, not geometry.
-    fpm(&[
+    fpm_stdout(&[
         "simulate",
         "acquisition",
         "--out",
@@ -277,7 +267,7 @@ fn tiles_blend_into_the_whole_field() {
     ]);
     let (whole, tiled) = (TempDir::new("tiles-whole"), TempDir::new("tiles-tiled"));
     for (out, tile) in [(&whole, "256"), (&tiled, "128")] {
-        fpm(&[
+        fpm_stdout(&[
             "reconstruct",
             &d,
             "--out",
@@ -329,7 +319,7 @@ fn tiles_blend_into_the_whole_field() {
     let narrow = TempDir::new("tiles-narrow");
     fpm_host::dataset::Dataset::write(&narrow.0, &ds.manifest, &cropped).unwrap();
     let out = TempDir::new("tiles-narrow-out");
-    fpm(&[
+    fpm_stdout(&[
         "reconstruct",
         &narrow.0.to_string_lossy(),
         "--out",
@@ -450,7 +440,7 @@ fn a_colour_sensor_reconstructs_from_its_green_pixels_both_ways() {
 
     let mono = TempDir::new("bayer-mono");
     let m = mono.0.to_string_lossy().into_owned();
-    fpm(&[
+    fpm_stdout(&[
         "simulate",
         "acquisition",
         "--out",
@@ -486,7 +476,7 @@ fn a_colour_sensor_reconstructs_from_its_green_pixels_both_ways() {
     let score = |dir: &Path, upsample: &str| -> f64 {
         let out = TempDir::new("bayer-out");
         let o = out.0.to_string_lossy().into_owned();
-        fpm(&[
+        fpm_stdout(&[
             "reconstruct",
             &dir.to_string_lossy(),
             "--out",

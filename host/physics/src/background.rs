@@ -225,6 +225,16 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_distr::{Distribution, Normal};
 
+    /// `pixels` as a frame measured with a dark level of `dark`.
+    fn measured(pixels: &Pixels, dark: f32) -> Measured<'_> {
+        Measured {
+            counts: pixels.view(),
+            dark_level: dark,
+            exposure_ms: 1.0,
+            floor: 0.0,
+        }
+    }
+
     /// A 128² dark-field frame: noise of σ = 1.5 counts about `dark + background`,
     /// with bright scattering edges over `signal_share` of the field.
     fn frame(dark: f32, background: f32, signal_share: f64) -> Pixels {
@@ -245,12 +255,7 @@ mod tests {
     fn the_darkest_blocks_give_a_flat_background_and_its_noise() {
         for share in [0.0, 0.5, 0.8] {
             let pixels = frame(100.0, 6.0, share);
-            let m = Measured {
-                counts: pixels.view(),
-                dark_level: 100.0,
-                exposure_ms: 1.0,
-                floor: 0.0,
-            };
+            let m = measured(&pixels, 100.0);
             let b = estimate(&m).unwrap();
             assert!(b.is_flat(), "{b:?}");
             assert!(
@@ -269,12 +274,7 @@ mod tests {
     #[test]
     fn subtracting_takes_the_level_off_and_floors_the_noise() {
         let pixels = frame(100.0, 6.0, 0.5);
-        let m = Measured {
-            counts: pixels.view(),
-            dark_level: 100.0,
-            exposure_ms: 1.0,
-            floor: 0.0,
-        };
+        let m = measured(&pixels, 100.0);
         let b = estimate(&m).unwrap();
         let whole = Region::whole(m.dim());
         let empty_half = |i: &crate::Image| {
@@ -308,12 +308,7 @@ mod tests {
             let (x, y) = (c as f32 / 9.0, r as f32 / 7.0);
             100.0 + 12.0 + 8.0 * x.sin() * y.cos() + 0.3 * ((r * 31 + c * 17) % 7) as f32 / 7.0
         }));
-        let m = Measured {
-            counts: pixels.view(),
-            dark_level: 100.0,
-            exposure_ms: 1.0,
-            floor: 0.0,
-        };
+        let m = measured(&pixels, 100.0);
         let b = estimate(&m).unwrap();
         assert!(!b.is_flat(), "{b:?}");
     }
@@ -321,12 +316,7 @@ mod tests {
     #[test]
     fn a_frame_too_small_for_blocks_has_no_estimate() {
         let pixels = Pixels::U8(Array2::zeros((24, 24)));
-        let m = Measured {
-            counts: pixels.view(),
-            dark_level: 0.0,
-            exposure_ms: 1.0,
-            floor: 0.0,
-        };
+        let m = measured(&pixels, 0.0);
         assert_eq!(estimate(&m), None);
     }
 }

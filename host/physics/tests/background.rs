@@ -4,7 +4,7 @@
 //! result is as good as without stray light; the dataset's dark level alone is not.
 
 use fpm_physics::background::Correction;
-use fpm_physics::frame::{Counts, LitFrame, Measured};
+use fpm_physics::frame::LitFrame;
 use fpm_physics::metrics::{central, complex_nrmse, resample};
 use fpm_physics::reconstruct::{tiled, Settings};
 use fpm_physics::simulate::{acquire, Camera, ObjectField, SimFrame};
@@ -16,12 +16,7 @@ fn lit<'a>(frames: &'a [SimFrame], camera: &Camera) -> Vec<LitFrame<'a>> {
         .iter()
         .map(|f| LitFrame {
             led: f.led,
-            measured: Measured {
-                counts: Counts::U16(f.counts.view()),
-                dark_level: camera.dark_level_dn as f32,
-                exposure_ms: f.exposure_ms as f32,
-                floor: 0.0,
-            },
+            measured: f.measured(camera),
         })
         .collect()
 }

@@ -240,14 +240,14 @@ fn solve(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<TiledOutcome, TiledError> {
     let pixel_um = system.sample_pixel_um();
-    let (frames, backgrounds): (Vec<LitFrame<'_>>, Vec<_>) = frames
+    let mut backgrounds = vec![];
+    let frames: Vec<LitFrame<'_>> = frames
         .iter()
-        .map(|f| correct(*f, system, geometry, settings.background))
-        .unzip();
-    let backgrounds = frames
-        .iter()
-        .zip(backgrounds)
-        .filter_map(|(f, b)| Some((f.led, b?)))
+        .map(|f| {
+            let (frame, background) = correct(*f, system, geometry, settings.background);
+            backgrounds.extend(background.map(|b| (f.led, b)));
+            frame
+        })
         .collect();
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let total = layout.tiles.len() * passes * frames.len();

@@ -7,7 +7,7 @@ use clap::Args;
 use fpm_physics::calibrate::feature::Roi;
 use fpm_physics::calibrate::{LedStatus, Options};
 
-use fpm_host::calibration::{calibrate_dataset, write_residual_plot};
+use fpm_host::calibration::{calibrate_dataset, warnings, write_residual_plot};
 use fpm_host::dataset::Dataset;
 
 /// Calibrate the LED array (Δx, Δy, θ, h) from how a defocused feature moves.
@@ -24,7 +24,9 @@ pub struct CalibrateArgs {
     /// Look for the feature only in this rectangle: X,Y,W,H in pixels.
     #[arg(long, value_parser = parse_roi)]
     roi: Option<Roi>,
-    /// Write a residual plot (measured × vs fitted ○ shifts, residuals magnified in red).
+    /// Also write the residual chart here (measured × vs fitted ○ shifts at the sample,
+    /// residuals magnified; SVG for a `.svg` name, else PNG). The report
+    /// (`calibration.html` beside the JSON) and `plots/` beside it always have it.
     #[arg(long)]
     plot: Option<PathBuf>,
     /// Skip the model-based correction of the first-moment bias (for comparison).
@@ -99,19 +101,43 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         );
         println!("wrote {}", out.display());
     }
-    if let Some(plot) = a.plot {
-        let gain = write_residual_plot(c, &plot)?;
+    if let Some(plot) = &a.plot {
+        let gain = write_residual_plot(c, &ds.manifest.system(), plot)?;
         println!("wrote {} (residuals magnified {gain:.0}×)", plot.display());
     }
-    if c.leds
-        .iter()
-        .filter(|l| l.status == LedStatus::Used)
-        .count()
-        < 6
-    {
-        eprintln!(
-            "warning: only a few LEDs were usable; check the defocus, the exposure and the feature"
-        );
+    for w in warnings(c) {
+        eprintln!("warning: {w}");
+    }
+    // The report is an extra: failing to write it is a warning, not a failed run.
+    let page = out.with_extension("html");
+    let name = |p: &std::path::Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let mut outputs = vec![(name(&out), "the calibration, machine-readable".to_string())];
+    outputs.push(("plots/".into(), "the charts as PNG and SVG".into()));
+    if let Some(plot) = &a.plot {
+        let at = std::fs::canonicalize(plot).unwrap_or_else(|_| plot.clone());
+        outputs.push((
+            at.display().to_string(),
+            "the residual chart asked for with --plot".into(),
+        ));
+    }
+    let context = fpm_host::pages::calibration::Context {
+        file: &file,
+        system: &ds.manifest.system(),
+        bias_correction: options.bias_correction,
+        reproduce: &fpm_host::html::command_line(),
+        outputs,
+    };
+    match fpm_host::pages::calibration::write(&context, &page) {
+        Ok(()) if !a.json => println!(
+            "wrote {} (the report: open it in a browser)",
+            page.display()
+        ),
+        Ok(()) => {}
+        Err(e) => tracing::warn!("no HTML report: {e:#}"),
     }
     Ok(())
 }

@@ -293,6 +293,27 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
         ),
         Err(e) => tracing::warn!("no comparison picture: {e:#}"),
     }
+    let reports: Vec<PathBuf> = [
+        "acquisition.html",
+        "calibration.html",
+        "reconstruction/report.html",
+    ]
+    .iter()
+    .map(|p| out.join(p))
+    .filter(|p| p.is_file())
+    .collect();
+    for (k, page) in reports.iter().enumerate() {
+        say!(
+            a.json,
+            "{}{}",
+            if k == 0 {
+                "reports         "
+            } else {
+                "                "
+            },
+            page.display()
+        );
+    }
     say!(a.json,
         "\nwrote the dataset, calibration/, calibration.json, reconstruction/ and acquisition.json to {} ({:.0} s)",
         out.display(),
@@ -311,5 +332,6 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
         "acquisition": summary,
         "complex_nrmse": {"nominal": n, "calibrated": k, "streamed": streamed},
         "picture": drawn.is_ok().then_some(picture),
+        "reports": reports,
     }))
 }

@@ -120,6 +120,19 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     bar.finish_and_clear();
     r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample);
     write_outputs(&r, &a.out)?;
+    // The report is an extra: failing to write it is a warning, not a failed run.
+    let context = fpm_host::pages::reconstruction::Context {
+        system: &ds.manifest.system(),
+        nominal: &ds.manifest.geometry(),
+        reproduce: &fpm_host::html::command_line(),
+    };
+    let page = fpm_host::pages::reconstruction::write(&r, &a.out, &context);
+    if let Err(e) = &page {
+        tracing::warn!("no HTML report: {e:#}");
+    }
+    for w in fpm_host::pages::reconstruction::warnings(&r.report) {
+        eprintln!("warning: {w}");
+    }
     let rep = &r.report;
     if a.json {
         println!("{}", serde_json::to_string_pretty(rep)?);
@@ -146,8 +159,14 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         );
     }
     println!(
-        "wrote amplitude/phase/pupil TIFFs and PNG previews and report.json to {}",
+        "wrote amplitude/phase/pupil TIFFs, PNG previews, charts (plots/) and report.json to {}",
         a.out.display()
     );
+    if page.is_ok() {
+        println!(
+            "wrote {} (the report: open it in a browser)",
+            a.out.join("report.html").display()
+        );
+    }
     Ok(())
 }

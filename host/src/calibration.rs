@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::calibrate::{self, Calibration, LedStatus, Options};
-use fpm_physics::LedGeometry;
+use fpm_physics::{LedGeometry, System};
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
@@ -161,22 +161,36 @@ pub fn calibrate_dataset(ds: &Dataset, options: &Options) -> Result<CalibrationF
     })
 }
 
-/// Draw the residual plot into a PNG; returns the residual magnification.
-pub fn write_residual_plot(cal: &Calibration, path: &Path) -> Result<f64> {
-    let points: Vec<_> = cal
+/// Draw the residual chart to `path` (SVG for `.svg`, else PNG); returns how many
+/// times the residuals are magnified on it.
+pub fn write_residual_plot(cal: &Calibration, system: &System, path: &Path) -> Result<f64> {
+    let chart = crate::charts::calibration::Residuals { cal, system };
+    crate::charts::Figure::render(&chart)?.write_as(path)?;
+    Ok(chart.gain())
+}
+
+/// What a user must know before trusting `cal`.
+pub fn warnings(cal: &Calibration) -> Vec<String> {
+    let used = cal
         .leds
         .iter()
-        .filter_map(|l| {
-            let m = l.measured_um?;
-            let b = l.bias_um.unwrap_or([0.0, 0.0]);
-            Some(crate::plot::ShiftPoint {
-                measured: [m[0] - b[0], m[1] - b[1]],
-                fitted: l.fitted_um,
-                used: l.status == LedStatus::Used,
-            })
-        })
-        .collect();
-    let (canvas, gain) = crate::plot::residual_plot(&points, 800);
-    crate::dataset::image_io::write_png_rgb(path, canvas.width, canvas.height, &canvas.rgb)?;
-    Ok(gain)
+        .filter(|l| l.status == LedStatus::Used)
+        .count();
+    let outliers = cal
+        .leds
+        .iter()
+        .filter(|l| l.status == LedStatus::Outlier)
+        .count();
+    let mut out = vec![];
+    if used < 6 {
+        out.push(format!(
+            "only {used} LEDs were usable: check the defocus, the exposure and the feature"
+        ));
+    }
+    if outliers > 0 {
+        out.push(format!(
+            "{outliers} LED(s) were rejected as outliers: their shifts disagree with the rigid model (a misplaced LED, dust, or the feature cut by the pupil)"
+        ));
+    }
+    out
 }

@@ -6,9 +6,12 @@
 //! `fpm-physics`; acquisition from a live rig is `fpm-acquire`.
 
 pub mod calibration;
+pub mod charts;
+pub mod colour_bar;
 pub mod dataset;
 pub mod glyphs;
-pub mod plot;
+pub mod html;
+pub mod pages;
 pub mod reconstruction;
 pub mod scale_bar;
 pub mod truth;

@@ -291,7 +291,13 @@ pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
         pct(&amp, 0.995),
         object_pixel,
     )?;
-    png("phase.png", &phase, -pi, pi, object_pixel)?;
+    image_io::write_png_preview_with_bar(
+        &out.join("phase.png"),
+        &phase,
+        (-pi, pi),
+        object_pixel,
+        "RAD",
+    )?;
     png("pupil_amplitude.png", &pamp, 0.0, pct(&pamp, 1.0), None)?;
     png("pupil_phase.png", &pphase, -pi, pi, None)?;
     std::fs::write(

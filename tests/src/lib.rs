@@ -2,6 +2,8 @@
 //! start rig processes (through `fpm_rig::process`, as the demo does), stop or kill
 //! them.
 
+pub mod browser;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;

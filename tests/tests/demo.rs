@@ -4,7 +4,7 @@
 
 use std::process::Command;
 
-use fpm_tests::{fpm_bin, TempDir};
+use fpm_tests::{browser, fpm_bin, TempDir};
 
 fn number_after(text: &str, key: &str) -> f64 {
     let at = text
@@ -52,6 +52,32 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
         text.contains(&format!("{}", out.join("comparison.png").display())),
         "{text}"
     );
+    // The three reports are linked at the end and render in a real browser, with the
+    // acquisition's count and the calibration's numbers on them.
+    let shots = dir.0.join("screenshots");
+    std::fs::create_dir_all(&shots).unwrap();
+    for (page, images) in [
+        ("acquisition.html", 2),
+        ("calibration.html", 2),
+        ("reconstruction/report.html", 5),
+    ] {
+        let path = out.join(page);
+        assert!(
+            text.contains(&format!("{}", path.display())),
+            "{page} not linked:\n{text}"
+        );
+        let shot = shots.join(page.replace('/', "-") + ".png");
+        let r = browser::render(&path, &shot);
+        assert_eq!((r.images, r.broken_images), (images, 0), "{page}");
+        let (ink, rows, _) = browser::ink(&shot);
+        assert!(ink > 0.01 && rows > 0.3, "{page} rendered nearly blank");
+        let expected = match page {
+            "acquisition.html" => "id=\"labelled\">441 of 441 requested<".to_string(),
+            "calibration.html" => format!("id=\"dx_mm\">{:+.4} ±", cal["dx_mm"].as_f64().unwrap()),
+            _ => "id=\"complex_nrmse\">".to_string(),
+        };
+        assert!(r.dom.contains(&expected), "{page}: no {expected}");
+    }
     for f in [
         "dataset.toml",
         "acquisition.json",

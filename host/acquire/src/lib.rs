@@ -18,6 +18,7 @@ pub mod board_geometry;
 pub mod capture;
 pub mod controller;
 pub mod label;
+pub mod page;
 pub mod pipeline;
 pub mod stage;
 

@@ -26,6 +26,7 @@ use serde::Serialize;
 use crate::board_geometry;
 use crate::capture::{capture, CaptureReport, Shot, ShotView};
 use crate::controller::Controller;
+use crate::page;
 use crate::stage::{FocusStage, Slide, StagePosition};
 
 /// What to acquire and how.
@@ -239,11 +240,13 @@ pub fn acquire(
             shots,
         )?;
         ds.save()?;
-        let cal = calibrate_dataset(&ds, &Options::default())?;
+        let options = Options::default();
+        let cal = calibrate_dataset(&ds, &options)?;
         std::fs::write(
             plan.out.join("calibration.json"),
             serde_json::to_string_pretty(&cal)?,
         )?;
+        page::calibration(&cal, &system, &options, &plan.out);
         geometry = cal.geometry();
         geometry_source = "calibration.json";
         if plan.store_geometry {
@@ -369,7 +372,7 @@ pub fn acquire(
             "nominal" => "nominal (controller)",
             other => other,
         };
-        let report = Report::new(
+        let mut report = Report::new(
             &ds.dir,
             &ds.manifest.system(),
             &geometry,
@@ -380,10 +383,12 @@ pub fn acquire(
             &outcome,
             ms,
         );
-        write_outputs(
-            &Reconstruction::from_outcome(outcome, report),
-            &plan.out.join("reconstruction"),
-        )?;
+        // A simulated rig's truth beside the dataset scores the image (an extra).
+        report.versus_truth =
+            fpm_host::truth::score_reconstruction(&ds, &outcome.object, settings.upsample);
+        let reconstruction = Reconstruction::from_outcome(outcome, report);
+        write_outputs(&reconstruction, &plan.out.join("reconstruction"))?;
+        page::reconstruction(&reconstruction, &system, &nominal, &plan.out);
     }
     let still_missing = match &retake {
         Some(r) => r.missing.clone(),
@@ -422,6 +427,7 @@ pub fn acquire(
         plan.out.join("acquisition.json"),
         serde_json::to_string_pretty(&summary)?,
     )?;
+    page::acquisition(&summary, &system, failure.as_deref(), &plan.out);
     if let Some(why) = failure {
         bail!(
             "{why}; the {} frames acquired are labelled and written to {} (acquisition.json lists the missing LEDs)",

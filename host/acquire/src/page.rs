@@ -1,0 +1,238 @@
+//! The acquisition's HTML reports: `acquisition.html` beside `acquisition.json`, and
+//! the calibration's and reconstruction's pages beside theirs. Reports are extras: a
+//! failure to write one is logged, never fails the acquisition.
+
+use std::path::Path;
+
+use fpm_host::calibration::CalibrationFile;
+use fpm_host::charts::acquisition::Coverage;
+use fpm_host::html::{command_line, Page, Row};
+use fpm_host::pages::{self, embed_chart};
+use fpm_host::reconstruction::Reconstruction;
+use fpm_physics::calibrate::Options;
+use fpm_physics::{LedGeometry, System};
+
+use crate::pipeline::AcquireSummary;
+
+/// `out/calibration.html` for the calibration the acquisition ran.
+pub fn calibration(cal: &CalibrationFile, system: &System, options: &Options, out: &Path) {
+    let context = pages::calibration::Context {
+        file: cal,
+        system,
+        bias_correction: options.bias_correction,
+        reproduce: &format!(
+            "fpm calibrate {} --out {}",
+            fpm_host::html::shell_quote(&out.join("calibration").to_string_lossy()),
+            fpm_host::html::shell_quote(&out.join("calibration.json").to_string_lossy())
+        ),
+        outputs: vec![
+            (
+                "calibration.json".into(),
+                "the calibration, machine-readable".into(),
+            ),
+            (
+                "calibration/".into(),
+                "the calibration frames (a dataset)".into(),
+            ),
+        ],
+    };
+    if let Err(e) = pages::calibration::write(&context, &out.join("calibration.html")) {
+        tracing::warn!("no calibration report: {e:#}");
+    }
+}
+
+/// `out/reconstruction/report.html` for the streamed reconstruction.
+pub fn reconstruction(r: &Reconstruction, system: &System, nominal: &LedGeometry, out: &Path) {
+    let offline = format!(
+        "{}\n# the same frames offline:\nfpm reconstruct {} --calibration {} --out rec",
+        command_line(),
+        fpm_host::html::shell_quote(&out.to_string_lossy()),
+        fpm_host::html::shell_quote(&out.join("calibration.json").to_string_lossy())
+    );
+    let context = pages::reconstruction::Context {
+        system,
+        nominal,
+        reproduce: &offline,
+    };
+    if let Err(e) = pages::reconstruction::write(r, &out.join("reconstruction"), &context) {
+        tracing::warn!("no reconstruction report: {e:#}");
+    }
+}
+
+/// What a user must know about the acquisition `s` (`failure`: why the run failed).
+pub fn warnings(s: &AcquireSummary, failure: Option<&str>) -> Vec<String> {
+    let mut out: Vec<String> = failure.map(str::to_string).into_iter().collect();
+    if !s.still_missing.is_empty() {
+        out.push(format!(
+            "{} LED(s) have no frame in the dataset: {:?}",
+            s.still_missing.len(),
+            s.still_missing
+                .iter()
+                .map(|l| (l.row, l.col))
+                .collect::<Vec<_>>()
+        ));
+    }
+    if s.geometry_source == "nominal" {
+        out.push(
+            "the LED positions are nominal (no calibration given, none stored on the board): run with --calibrate"
+                .into(),
+        );
+    }
+    let relabelled = s.capture.relabelled + s.retake.as_ref().map_or(0, |r| r.relabelled);
+    if relabelled > 0 {
+        out.push(format!(
+            "{relabelled} frame(s) changed label after streaming: the final image was rebuilt from the dataset"
+        ));
+    }
+    if let Some(p) = &s.capture.clock_problem {
+        out.push(format!("camera clock: {p}"));
+    }
+    out
+}
+
+/// `out/acquisition.html`.
+pub fn acquisition(s: &AcquireSummary, system: &System, failure: Option<&str>, out: &Path) {
+    if let Err(e) = write_acquisition(s, system, failure, out) {
+        tracing::warn!("no acquisition report: {e:#}");
+    }
+}
+
+fn write_acquisition(
+    s: &AcquireSummary,
+    system: &System,
+    failure: Option<&str>,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let c = &s.capture;
+    let mut page = Page::new("fpm acquire: a labelled FPM dataset");
+    page.paragraph(&format!("Output directory {}.", out.display()));
+    page.heading("Result");
+    let mut rows = vec![
+        Row::with_id(
+            "labelled",
+            "frames labelled with their LED",
+            format!("{} of {} requested", c.labelled, c.requested),
+        ),
+        Row::new(
+            "speed",
+            format!("{:.1} s, {:.1} frames/s", c.seconds, c.frames_per_s),
+        ),
+        Row::with_id(
+            "missing",
+            "missing / extra / ambiguous",
+            format!(
+                "{} / {} / {}",
+                c.missing.len(),
+                c.extra_frames,
+                c.ambiguous_frames
+            ),
+        ),
+        Row::new(
+            "camera clock",
+            format!(
+                "offset {} ns, drift {:+.2} ppm, stamp spread {:.3} ms",
+                c.clock_offset_ns, c.clock_drift_ppm, c.stamp_spread_ms
+            ),
+        ),
+        Row::new("frames in the dataset", s.frames_in_dataset.to_string()),
+    ];
+    if let Some(r) = &s.retake {
+        rows.push(Row::new(
+            "retake",
+            format!(
+                "{} of {} missing frame(s) taken again",
+                r.labelled, r.requested
+            ),
+        ));
+    }
+    let g = &s.geometry;
+    rows.push(Row::with_id(
+        "geometry",
+        "LED array used",
+        format!(
+            "{}: Δx {:+.4} mm, Δy {:+.4} mm, θ {:+.4}°, h {:.3} mm",
+            s.geometry_source, g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
+        ),
+    ));
+    if let (Some(ms), Some(us)) = (s.last_frame_to_final_ms, s.update_us_mean) {
+        rows.push(Row::new(
+            "streaming reconstruction",
+            format!(
+                "{us:.0} µs per frame as it arrived, {} tile(s); last frame → final image {ms:.0} ms ({})",
+                s.tiles.unwrap_or(1),
+                s.reconstruction.unwrap_or("—")
+            ),
+        ));
+    }
+    page.table(&rows);
+    page.heading("Warnings");
+    page.warnings(&warnings(s, failure));
+
+    let preview = out.join("reconstruction").join("amplitude.png");
+    if let Ok(png) = std::fs::read(&preview) {
+        page.heading("Reconstruction");
+        page.figure(
+            &png,
+            "reconstructed amplitude",
+            "Reconstructed amplitude (streamed while acquiring); the full report is reconstruction/report.html.",
+            &["reconstruction/report.html"],
+        );
+    }
+    page.heading("Charts");
+    let plots = out.join("plots");
+    embed_chart(
+        &mut page,
+        &Coverage {
+            geometry: &s.geometry,
+            missing: &s.still_missing,
+            system,
+        },
+        (&plots, "plots"),
+        "acquisition_coverage",
+        "Every LED of the array at its position: filled where its frame is in the dataset.",
+    );
+    if !s.calibration.is_empty() {
+        page.heading("Calibration captures");
+        let rows: Vec<Vec<String>> = s
+            .calibration
+            .iter()
+            .map(|r| {
+                vec![
+                    format!("{}/{}", r.labelled, r.requested),
+                    r.missing.len().to_string(),
+                    format!("{:.2}", r.seconds),
+                    r.outcome.clone(),
+                ]
+            })
+            .collect();
+        page.grid(&["labelled", "missing", "seconds", "sequence"], &rows);
+    }
+    if let Some(settings) = &s.camera_settings {
+        page.heading("Camera settings (as its driver reported them)");
+        page.command(&serde_json::to_string_pretty(settings)?);
+    }
+    page.heading("Outputs");
+    let mut files = vec![
+        (
+            "dataset.toml".to_string(),
+            "the dataset (frames/ beside it)".to_string(),
+        ),
+        (
+            "acquisition.json".into(),
+            "everything on this page, machine-readable".into(),
+        ),
+    ];
+    for (path, what) in [
+        ("calibration.html", "the calibration's report"),
+        ("calibration.json", "the calibration"),
+        ("reconstruction/report.html", "the reconstruction's report"),
+    ] {
+        if out.join(path).exists() {
+            files.push((path.into(), what.into()));
+        }
+    }
+    page.files(&files);
+    page.heading("Reproduce");
+    page.command(&command_line());
+    page.write(&out.join("acquisition.html"))
+}

@@ -1,0 +1,171 @@
+//! `calibration.html`: the calibrated array with its uncertainties, the warnings, the
+//! residual and array charts, every LED's fate, and how to run it again.
+
+use std::path::Path;
+
+use anyhow::Result;
+use fpm_physics::calibrate::LedStatus;
+use fpm_physics::System;
+
+use super::{embed_chart, pm};
+use crate::calibration::{warnings, CalibrationFile};
+use crate::charts::calibration::{status_label, LedGrid, Residuals};
+use crate::html::{Page, Row};
+
+/// What the page is written from.
+pub struct Context<'a> {
+    /// The result.
+    pub file: &'a CalibrationFile,
+    /// The dataset's optics.
+    pub system: &'a System,
+    /// Whether the first-moment bias correction was applied.
+    pub bias_correction: bool,
+    /// The command that reproduces the run.
+    pub reproduce: &'a str,
+    /// The result files, relative to the page, with what each is.
+    pub outputs: Vec<(String, String)>,
+}
+
+/// Write the page to `path` (its charts into `plots/` beside it, as `calibration_*`).
+pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
+    let cal = &c.file.calibration;
+    let u = &cal.uncertainty;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut page = Page::new("fpm calibrate: LED array position (pdcFPM)");
+    page.paragraph(&format!("Dataset {}.", c.file.dataset));
+
+    page.heading("Result (1σ)");
+    page.table(&[
+        Row::with_id("dx_mm", "Δx", pm(cal.dx_mm, u.dx_mm, 4, "mm")),
+        Row::with_id("dy_mm", "Δy", pm(cal.dy_mm, u.dy_mm, 4, "mm")),
+        Row::with_id("theta_deg", "θ", pm(cal.theta_deg, u.theta_deg, 4, "°")),
+        Row::with_id(
+            "height_mm",
+            "h",
+            format!(
+                "{:.3} ± {:.3} mm (+{:.4} mm per µm of defocus error: h is as accurate as the defocus)",
+                cal.height_mm, u.height_mm, cal.height_per_defocus_um
+            ),
+        ),
+        Row::with_id(
+            "rms_residual_um",
+            "rms residual",
+            format!("{:.4} µm per component", cal.rms_residual_um),
+        ),
+        Row::new(
+            "feature",
+            format!(
+                "at ({:.1}, {:.1}) µm, pixel ({:.1}, {:.1}), {} px, {:?}",
+                cal.feature.x_um,
+                cal.feature.y_um,
+                cal.feature.pixel[0],
+                cal.feature.pixel[1],
+                cal.feature.area_px,
+                cal.feature.polarity
+            ),
+        ),
+        Row::new("time", format!("{:.1} ms (frames in memory)", c.file.time_ms)),
+    ]);
+    page.heading("Warnings");
+    page.warnings(&warnings(cal));
+
+    page.heading("Parameters");
+    let s = c.system;
+    let n = &c.file.nominal;
+    page.table(&[
+        Row::new("defocus", format!("{:+.1} µm", cal.defocus_um)),
+        Row::new("defocused frames", cal.leds.len().to_string()),
+        Row::new(
+            "optics",
+            format!(
+                "λ {:.3} µm, NA {:.3}, objective {:.1}×, camera pixel {:.2} µm ({:.3} µm at the sample)",
+                s.wavelength_um,
+                s.na,
+                s.magnification,
+                s.pixel_size_um,
+                s.sample_pixel_um()
+            ),
+        ),
+        Row::new(
+            "nominal array",
+            format!(
+                "{}×{} LEDs, pitch {:.3} mm, centre LED ({}, {}), h {:.2} mm",
+                n.rows, n.cols, n.pitch_mm, n.center.row, n.center.col, n.height_mm
+            ),
+        ),
+        Row::new(
+            "bias correction",
+            if c.bias_correction {
+                "model-based first-moment bias subtracted"
+            } else {
+                "off (--no-bias-correction)"
+            },
+        ),
+    ]);
+
+    page.heading("Charts");
+    let plots = (dir.join("plots"), "plots");
+    let plots = (plots.0.as_path(), plots.1);
+    embed_chart(
+        &mut page,
+        &Residuals { cal, system: s },
+        plots,
+        "calibration_residuals",
+        "How the feature moved under each LED (crosses, bias-corrected) against the fitted model (circles); residuals magnified.",
+    );
+    embed_chart(
+        &mut page,
+        &LedGrid {
+            cal,
+            nominal: n,
+            system: s,
+        },
+        plots,
+        "calibration_array",
+        "The fitted LED array against the nominal grid in the illumination plane; the calibration's LEDs marked by what became of them.",
+    );
+
+    page.heading("Every defocused frame");
+    let rows: Vec<Vec<String>> = cal
+        .leds
+        .iter()
+        .map(|l| {
+            let pair = |v: Option<[f64; 2]>| {
+                v.map(|[x, y]| format!("({x:+.2}, {y:+.2})"))
+                    .unwrap_or_else(|| "—".into())
+            };
+            vec![
+                format!("({}, {})", l.led.row, l.led.col),
+                status_label(l.status).to_string(),
+                format!("{:.3}", l.brightness),
+                pair(l.measured_um),
+                pair(Some(l.fitted_um)),
+                l.residual_um
+                    .map(|r| format!("{r:.3}"))
+                    .unwrap_or_else(|| "—".into()),
+            ]
+        })
+        .collect();
+    page.grid(
+        &[
+            "LED (row, col)",
+            "status",
+            "brightness vs reference",
+            "measured shift (µm)",
+            "fitted shift (µm)",
+            "residual (µm)",
+        ],
+        &rows,
+    );
+
+    page.heading("Outputs");
+    page.files(&c.outputs);
+    page.heading("Reproduce");
+    page.command(c.reproduce);
+    page.write(path)
+}
+
+/// How many LEDs ended with each status (for summaries).
+pub fn count(cal: &fpm_physics::calibrate::Calibration, status: LedStatus) -> usize {
+    cal.leds.iter().filter(|l| l.status == status).count()
+}

@@ -1,0 +1,244 @@
+//! `report.html` of a reconstruction: the images with scale bars, the convergence,
+//! the pupil, the LED positions used, the parameters, warnings and how to run it
+//! again.
+
+use std::path::Path;
+
+use anyhow::Result;
+use fpm_physics::{LedGeometry, System};
+
+use super::embed_chart;
+use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
+use crate::html::{Page, Row};
+use crate::reconstruction::{Reconstruction, Report};
+
+/// What the page is written from.
+pub struct Context<'a> {
+    /// The dataset's optics.
+    pub system: &'a System,
+    /// The dataset's nominal array.
+    pub nominal: &'a LedGeometry,
+    /// The command that reproduces the run.
+    pub reproduce: &'a str,
+}
+
+/// What a user must know before trusting the images of `report`.
+pub fn warnings(report: &Report) -> Vec<String> {
+    let mut out = vec![];
+    if report.geometry_source.starts_with("nominal") {
+        out.push(
+            "the LED positions are the nominal ones, not calibrated: an array off by a fraction of a millimetre blurs and distorts the image (fpm calibrate, or --calibration)"
+                .to_string(),
+        );
+    }
+    if let (Some(first), Some(last)) = (report.error_per_pass.first(), report.error_per_pass.last())
+    {
+        // A rise within 5 % is the noise of the last pass, not a divergence.
+        if *last > 1.05 * first {
+            out.push(format!(
+                "the frames' error rose over the passes ({first:.4} → {last:.4}): the geometry or the step sizes may be wrong"
+            ));
+        }
+    }
+    let refused = report
+        .background
+        .dark_field_frames
+        .iter()
+        .filter(|f| !f.taken_off)
+        .count();
+    if refused * 2 > report.background.dark_field_frames.len().max(1) {
+        out.push(format!(
+            "{refused} of {} dark-field frames had a background that was not flat (sample light or structured stray light): it was left on",
+            report.background.dark_field_frames.len()
+        ));
+    }
+    out
+}
+
+/// Write `dir/report.html` (charts into `dir/plots/`) for the reconstruction whose
+/// images `crate::reconstruction::write_outputs` wrote into `dir`.
+pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
+    let rep = &r.report;
+    let mut page = Page::new("fpm reconstruct: amplitude and phase (EPRY)");
+    page.paragraph(&format!("Dataset {}.", rep.dataset));
+
+    page.heading("Images");
+    let previews: Vec<(Vec<u8>, &str)> = [
+        (
+            "amplitude.png",
+            "Amplitude (0.5–99.5 % of its range), scale bar in µm",
+        ),
+        (
+            "phase.png",
+            "Phase, −π (black) to +π (white), scale bar in µm, colour bar in rad",
+        ),
+    ]
+    .into_iter()
+    .filter_map(|(file, caption)| match std::fs::read(dir.join(file)) {
+        Ok(bytes) => Some((bytes, caption)),
+        Err(e) => {
+            tracing::warn!("{file} not embedded in the report: {e}");
+            None
+        }
+    })
+    .collect();
+    let figures: Vec<(&[u8], &str, &str)> = previews
+        .iter()
+        .map(|(b, caption)| (&b[..], *caption, *caption))
+        .collect();
+    page.figures(&figures);
+
+    page.heading("Result");
+    let mut rows = vec![
+        Row::with_id(
+            "final_error",
+            "frames' relative amplitude error, last pass",
+            rep.error_per_pass
+                .last()
+                .map(|e| format!("{e:.4}"))
+                .unwrap_or_else(|| "—".into()),
+        ),
+        Row::new(
+            "image",
+            format!(
+                "{}×{} pixels of {:.4} µm ({}× the camera's sampling)",
+                r.object.dim().1,
+                r.object.dim().0,
+                rep.pixel_um,
+                rep.upsample
+            ),
+        ),
+        Row::with_id(
+            "total_ms",
+            "time",
+            format!(
+                "{:.0} ms, {:.0} ms per pass, {} thread(s)",
+                rep.total_ms, rep.ms_per_pass, rep.threads
+            ),
+        ),
+    ];
+    if let Some(s) = &rep.versus_truth {
+        rows.push(Row::with_id(
+            "complex_nrmse",
+            "against the simulation's truth: complex NRMSE",
+            format!("{:.4}", s.complex_nrmse),
+        ));
+        rows.push(Row::new(
+            "amplitude NRMSE / phase RMSE",
+            format!("{:.4} / {:.4} rad", s.amplitude_nrmse, s.phase_rmse_rad),
+        ));
+    }
+    page.table(&rows);
+    page.heading("Warnings");
+    page.warnings(&warnings(rep));
+
+    page.heading("Charts");
+    let plots = dir.join("plots");
+    let plots = (plots.as_path(), "plots");
+    embed_chart(
+        &mut page,
+        &ErrorPerPass { report: rep },
+        plots,
+        "error_per_pass",
+        "Convergence: the frames' relative amplitude error after each pass (each tile thin, the mean bold).",
+    );
+    embed_chart(
+        &mut page,
+        &Pupil {
+            pupil: &r.pupil,
+            system: c.system,
+        },
+        plots,
+        "pupil",
+        "The recovered pupil in NA units, with the objective's NA circle (green); phase white where the amplitude is under 5 %.",
+    );
+    embed_chart(
+        &mut page,
+        &LedPositions {
+            nominal: c.nominal,
+            used: &rep.geometry,
+            source: &rep.geometry_source,
+            system: c.system,
+        },
+        plots,
+        "led_positions",
+        "The LED positions the illumination wave vectors were computed from, against the nominal grid.",
+    );
+
+    page.heading("Parameters");
+    let g = &rep.geometry;
+    let s = c.system;
+    page.table(&[
+        Row::new(
+            "LED array",
+            format!(
+                "{}: Δx {:+.4} mm, Δy {:+.4} mm, θ {:+.4}°, h {:.3} mm",
+                rep.geometry_source, g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
+            ),
+        ),
+        Row::new(
+            "optics",
+            format!(
+                "λ {:.3} µm, NA {:.3}, objective {:.1}×, camera pixel {:.2} µm",
+                s.wavelength_um, s.na, s.magnification, s.pixel_size_um
+            ),
+        ),
+        Row::new(
+            "frames",
+            format!(
+                "{} in focus, {}×{} pixels",
+                rep.frames, rep.frame_size[0], rep.frame_size[1]
+            ),
+        ),
+        Row::new("passes", rep.passes.to_string()),
+        Row::new(
+            "tiles",
+            format!(
+                "{} of {} px, overlap {} px, free border {} px",
+                rep.tiles.len(),
+                rep.tile_size,
+                rep.tile_overlap,
+                rep.tile_free_border
+            ),
+        ),
+        Row::new(
+            "background",
+            match rep.background.floor_sigma {
+                Some(f) => format!(
+                    "{}, floor {f}σ; {} of {} dark-field frames' backgrounds taken off",
+                    rep.background.correction,
+                    rep.background
+                        .dark_field_frames
+                        .iter()
+                        .filter(|f| f.taken_off)
+                        .count(),
+                    rep.background.dark_field_frames.len()
+                ),
+                None => rep.background.correction.to_string(),
+            },
+        ),
+        Row::new("disc placement", rep.disc_placement),
+    ]);
+
+    page.heading("Outputs");
+    page.files(&[
+        ("amplitude.tif".into(), "amplitude, float32 TIFF".into()),
+        ("phase.tif".into(), "phase in radians, float32 TIFF".into()),
+        (
+            "pupil_amplitude.tif".into(),
+            "recovered pupil amplitude, float32 TIFF".into(),
+        ),
+        (
+            "pupil_phase.tif".into(),
+            "recovered pupil phase, float32 TIFF".into(),
+        ),
+        (
+            "report.json".into(),
+            "everything on this page, machine-readable".into(),
+        ),
+        ("plots/".into(), "the charts as PNG and SVG".into()),
+    ]);
+    page.heading("Reproduce");
+    page.command(c.reproduce);
+    page.write(&dir.join("report.html"))
+}

@@ -1,0 +1,122 @@
+//! The HTML reports of `fpm calibrate` and `fpm reconstruct` in a real browser
+//! (Debian's headless Chromium): each page renders (not blank, every image decodes),
+//! carries the run's numbers as its JSON states them, and stands alone (no script,
+//! nothing fetched). The acquisition's report is checked the same way in `demo.rs`.
+
+use std::path::Path;
+
+use fpm_tests::browser::{self, Rendered};
+use fpm_tests::{data_dir, fpm_stdout, TempDir};
+
+fn json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Render `page` and check what every report must be; returns what Chromium made of it.
+fn rendered_report(page: &Path, images: usize, shots: &Path) -> Rendered {
+    assert!(page.is_file(), "{} was not written", page.display());
+    let html = std::fs::read_to_string(page).unwrap();
+    assert!(
+        !html.contains("<script"),
+        "{}: the report has a script",
+        page.display()
+    );
+    assert!(
+        !html.contains("http://") && !html.contains("https://"),
+        "{}: the report refers to the network",
+        page.display()
+    );
+    let name = page.file_name().unwrap().to_string_lossy();
+    let r = browser::render(page, &shots.join(format!("{name}.png")));
+    assert_eq!(r.images, images, "{}: images on the page", page.display());
+    assert_eq!(
+        r.broken_images,
+        0,
+        "{}: images that did not decode",
+        page.display()
+    );
+    let (ink, rows, size) = browser::ink(&r.screenshot);
+    assert_eq!(size, (1100, 2400), "screenshot size");
+    assert!(
+        ink > 0.01 && rows > 0.3,
+        "{}: the page rendered nearly blank ({ink:.3} of the pixels, {rows:.2} of the rows inked)",
+        page.display()
+    );
+    assert!(r.dom.contains("No warnings.") || r.dom.contains("class=\"warn\""));
+    r
+}
+
+#[test]
+fn the_calibration_report_renders_with_its_numbers_and_charts() {
+    let dir = TempDir::new("report-calibration");
+    let data = dir.0.join("cal");
+    let data_s = data.to_string_lossy();
+    fpm_stdout(&["simulate", "calibration", "--out", &data_s, "--seed", "5"]);
+    let svg = dir.0.join("residuals.svg");
+    fpm_stdout(&["calibrate", &data_s, "--plot", &svg.to_string_lossy()]);
+    let r = rendered_report(&data.join("calibration.html"), 2, &dir.0);
+    let cal = json(&data.join("calibration.json"));
+    let u = &cal["uncertainty"];
+    let number = |v: &serde_json::Value| v.as_f64().expect("a number");
+    for (key, unit) in [("dx_mm", "mm"), ("dy_mm", "mm"), ("theta_deg", "°")] {
+        let cell = format!(
+            "id=\"{key}\">{:+.4} ± {:.4} {unit}<",
+            number(&cal[key]),
+            number(&u[key])
+        );
+        assert!(r.dom.contains(&cell), "{cell} not on the page");
+    }
+    let h = format!(
+        "id=\"height_mm\">{:.3} ± {:.3} mm",
+        number(&cal["height_mm"]),
+        number(&u["height_mm"])
+    );
+    assert!(r.dom.contains(&h), "{h} not on the page");
+    // Every defocused frame has its row; the command that made it is there to copy.
+    let leds = cal["leds"].as_array().unwrap();
+    assert!(leds.len() >= 20);
+    assert_eq!(r.dom.matches("<tr><td class=\"num\">(").count(), leds.len());
+    assert!(r.dom.contains("fpm calibrate"), "no command line");
+    // The charts as files too, and --plot as SVG with its axes in µm.
+    for f in ["calibration_residuals", "calibration_array"] {
+        for ext in ["png", "svg"] {
+            assert!(data.join("plots").join(format!("{f}.{ext}")).is_file());
+        }
+    }
+    let svg = std::fs::read_to_string(&svg).unwrap();
+    assert!(svg.contains("shift x at the sample (µm)") && svg.contains("Residuals drawn ×"));
+}
+
+#[test]
+fn the_reconstruction_report_of_real_data_renders_with_its_numbers() {
+    let dir = TempDir::new("report-reconstruction");
+    let out = dir.0.join("rec");
+    let usaf = data_dir().join("zuo-usaf-11x11");
+    fpm_stdout(&[
+        "reconstruct",
+        &usaf.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--passes",
+        "3",
+    ]);
+    // Two previews and three charts.
+    let r = rendered_report(&out.join("report.html"), 5, &dir.0);
+    let report = json(&out.join("report.json"));
+    let last = report["error_per_pass"].as_array().unwrap().last().unwrap();
+    let cell = format!("id=\"final_error\">{:.4}<", last.as_f64().unwrap());
+    assert!(r.dom.contains(&cell), "{cell} not on the page");
+    assert!(r.dom.contains("fpm reconstruct"), "no command line");
+    // The dataset's LED positions are used as stated: the page says they are not ours.
+    assert!(
+        r.dom.contains("not calibrated"),
+        "no warning about the geometry"
+    );
+    for f in ["error_per_pass", "pupil", "led_positions"] {
+        assert!(
+            out.join("plots").join(format!("{f}.svg")).is_file(),
+            "{f}.svg"
+        );
+    }
+}

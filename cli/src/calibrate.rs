@@ -29,6 +29,10 @@ pub struct CalibrateArgs {
     /// (`calibration.html` beside the JSON) and `plots/` beside it always have it.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// 1σ of the defocus as the stage set it, µm: h is proportional to the defocus, so
+    /// its uncertainty carries this (a focus knob read to its finest graduation: ~1 µm).
+    #[arg(long, default_value_t = fpm_physics::calibrate::DEFAULT_DEFOCUS_SIGMA_UM)]
+    defocus_sigma_um: f64,
     /// Skip the model-based correction of the first-moment bias (for comparison).
     #[arg(long)]
     no_bias_correction: bool,
@@ -65,6 +69,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     let options = Options {
         roi: a.roi,
         bias_correction: !a.no_bias_correction,
+        defocus_sigma_um: a.defocus_sigma_um.abs(),
         ..Options::default()
     };
     let file = calibrate_dataset(&ds, &options)?;
@@ -84,7 +89,10 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         println!("  Δx = {:+.4} ± {:.4} mm", c.dx_mm, u.dx_mm);
         println!("  Δy = {:+.4} ± {:.4} mm", c.dy_mm, u.dy_mm);
         println!("  θ  = {:+.4} ± {:.4} °", c.theta_deg, u.theta_deg);
-        println!("  h  = {:.3} ± {:.3} mm  (+{:.3} mm per µm of defocus error: h is as accurate as the defocus)", c.height_mm, u.height_mm, c.height_per_defocus_um);
+        println!(
+            "  h  = {:.3} ± {:.3} mm  (with the defocus known to ±{} µm; h moves {:.3} mm per µm of defocus error)",
+            c.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
+        );
         println!(
             "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
             c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um

@@ -19,6 +19,7 @@
 pub mod background;
 pub mod bayer;
 pub mod calibrate;
+pub mod coverage;
 pub mod fft;
 pub mod frame;
 pub mod image;

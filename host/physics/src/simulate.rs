@@ -557,6 +557,9 @@ pub struct CalibrationScene {
     pub half_grid: usize,
     /// Camera.
     pub camera: Camera,
+    /// Peak counts of the brightest frame (the defocused hole's focus), if set; else
+    /// a clear field at a third of full scale.
+    pub peak_dn: Option<f64>,
     /// Random seed.
     pub seed: u64,
 }
@@ -574,6 +577,7 @@ impl CalibrationScene {
             camera_px: 256,
             half_grid: 2,
             camera: Camera::realistic(),
+            peak_dn: None,
             seed,
         }
     }
@@ -616,7 +620,14 @@ impl CalibrationScene {
             self.feature_at_um,
             0.0,
         );
-        let exposure = self.camera.exposure_for(2.5, 0.85, 1.0, 1000.0);
+        // The defocused hole focuses light to about 2.5× the clear field.
+        let peak_intensity = 2.5;
+        let exposure = match self.peak_dn {
+            Some(peak) => {
+                peak / (peak_intensity * self.camera.electrons_per_ms * self.camera.gain_dn_per_e)
+            }
+            None => self.camera.exposure_for(peak_intensity, 0.85, 1.0, 1000.0),
+        };
         acquire(
             &self.system,
             &self.truth,

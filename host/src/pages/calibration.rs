@@ -43,8 +43,8 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
             "height_mm",
             "h",
             format!(
-                "{:.3} ± {:.3} mm (+{:.4} mm per µm of defocus error: h is as accurate as the defocus)",
-                cal.height_mm, u.height_mm, cal.height_per_defocus_um
+                "{:.3} ± {:.3} mm (with the defocus known to ±{} µm; h moves {:.4} mm per µm of defocus error)",
+                cal.height_mm, u.height_mm, cal.defocus_sigma_um, cal.height_per_defocus_um
             ),
         ),
         Row::with_id(
@@ -66,6 +66,31 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
         ),
         Row::new("time", format!("{:.1} ms (frames in memory)", c.file.time_ms)),
     ]);
+    if let Some(b) = &cal.uncertainty_sources {
+        page.paragraph("What the uncertainty is made of (1σ each, added in quadrature):");
+        let row = |name: &str, u: &fpm_physics::calibrate::Uncertainty| {
+            vec![
+                name.to_string(),
+                format!("{:.4}", u.dx_mm),
+                format!("{:.4}", u.dy_mm),
+                format!("{:.4}", u.theta_deg),
+                format!("{:.4}", u.height_mm),
+            ]
+        };
+        page.grid(
+            &["source", "Δx (mm)", "Δy (mm)", "θ (°)", "h (mm)"],
+            &[
+                row(
+                    "fit spread (residuals, jackknife, pixel noise)",
+                    &b.statistical,
+                ),
+                row("reference frame's pixel noise", &b.reference_frame),
+                row("model bias correction", &b.model_bias),
+                row("defocus", &b.defocus),
+                row("total", u),
+            ],
+        );
+    }
     page.heading("Warnings");
     page.warnings(&warnings(cal));
 

@@ -20,6 +20,9 @@ struct CalibrationCase {
 #[derive(Serialize)]
 struct CalibrationBench {
     cases: Vec<CalibrationCase>,
+    /// The hard cases for the uncertainty coverage, and their summary.
+    coverage_cases: Vec<fpm_physics::coverage::Outcome>,
+    coverage: Option<fpm_physics::coverage::Coverage>,
     max_error: [f64; 4],
     median_error: [f64; 4],
     paper_table1_max_error: [f64; 4],
@@ -27,7 +30,7 @@ struct CalibrationBench {
     calibrate_ms_max: f64,
 }
 
-pub(crate) fn run(random: usize, seed: u64, json: bool) -> Result<()> {
+pub(crate) fn run(random: usize, coverage: usize, seed: u64, json: bool) -> Result<()> {
     use fpm_physics::calibrate::{LedStatus, Options};
     use fpm_physics::simulate::CalibrationScene;
     use fpm_physics::study::calibrate_simulated;
@@ -121,6 +124,9 @@ pub(crate) fn run(random: usize, seed: u64, json: bool) -> Result<()> {
         v.sort_by(|a, b| a.total_cmp(b));
         v[v.len() / 2]
     };
+    // Coverage: the simulator's defocus is exact, so h's σ leaves the defocus out.
+    let hard = coverage_cases(coverage, seed, json);
+    let summary = (!hard.is_empty()).then(|| fpm_physics::coverage::coverage(&hard));
     let mut times: Vec<f64> = out.iter().map(|c| c.calibrate_ms).collect();
     let t = Percentiles::of(&mut times);
     let report = CalibrationBench {
@@ -130,6 +136,8 @@ pub(crate) fn run(random: usize, seed: u64, json: bool) -> Result<()> {
         calibrate_ms_median: t.p50_us,
         calibrate_ms_max: t.max_us,
         cases: out,
+        coverage_cases: hard,
+        coverage: summary,
     };
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -163,5 +171,54 @@ pub(crate) fn run(random: usize, seed: u64, json: bool) -> Result<()> {
         "  calibration time (one core, frames in memory): median {:.1} ms, max {:.1} ms",
         e.calibrate_ms_median, e.calibrate_ms_max
     );
+    if let Some(c) = &e.coverage {
+        print_coverage(c);
+    }
     Ok(())
+}
+
+/// `n` random hard cases, calibrated with the defocus taken as exact (as simulated).
+fn coverage_cases(n: usize, seed: u64, quiet: bool) -> Vec<fpm_physics::coverage::Outcome> {
+    use fpm_physics::calibrate::Options;
+    use fpm_physics::coverage::{hard_case, run_case};
+    use rand::SeedableRng;
+    let bar = if quiet || n == 0 {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(n as u64)
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0xC0FE);
+    let options = Options {
+        defocus_sigma_um: 0.0,
+        ..Options::default()
+    };
+    let out = (0..n)
+        .map(|k| {
+            let scene = hard_case(&mut rng, seed.wrapping_mul(7919) + k as u64);
+            let outcome = run_case(&scene, &options);
+            bar.inc(1);
+            outcome
+        })
+        .collect();
+    bar.finish_and_clear();
+    out
+}
+
+fn print_coverage(c: &fpm_physics::coverage::Coverage) {
+    println!(
+        "\nuncertainty coverage over {} random hard cases (peak 300–3000 counts, 15–60 µm features on and off axis, defocus ±100–300 µm; defocus taken as exact), {} refused with a reason:",
+        c.cases, c.refused
+    );
+    println!("  {:<28} {:>9} {:>9} {:>9} {:>9}", "", "Δx", "Δy", "θ", "h");
+    let row = |name: &str, v: [f64; 4], digits: usize| {
+        println!(
+            "  {:<28} {:>9.digits$} {:>9.digits$} {:>9.digits$} {:>9.digits$}",
+            name, v[0], v[1], v[2], v[3]
+        );
+    };
+    row("within 1σ (ideal 0.68)", c.within_1_sigma, 2);
+    row("within 3σ (ideal 0.997)", c.within_3_sigma, 3);
+    row("median |error| (µm, µm, °, mm)", c.median_abs_error, 4);
+    row("max |error|", c.max_abs_error, 4);
+    row("median σ reported", c.median_sigma, 4);
 }

@@ -23,11 +23,16 @@ pub enum BenchCommand {
     /// Request round-trip over the serial link: ping and a 441-LED pattern.
     Link(LinkArgs),
     /// pdcFPM calibration accuracy and speed on simulated data: the paper's Table 1, an
-    /// off-axis feature, and a random sweep of the paper's range.
+    /// off-axis feature, and a random sweep of the paper's range; then whether the
+    /// reported uncertainties cover the errors over random hard cases.
     Calibration {
         /// Random cases in the sweep.
         #[arg(long, default_value_t = 30)]
         random: usize,
+        /// Random hard cases for the uncertainty coverage (dim and bright exposures,
+        /// 15–60 µm features on and off axis, defocus ±100–300 µm); 0 skips it.
+        #[arg(long, default_value_t = 100)]
+        coverage: usize,
         /// Seed of the sweep.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -98,7 +103,12 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Link(a) => link::run(a),
         BenchCommand::LedSwitch { json } => led_switch::run(json),
-        BenchCommand::Calibration { random, seed, json } => calibration::run(random, seed, json),
+        BenchCommand::Calibration {
+            random,
+            coverage,
+            seed,
+            json,
+        } => calibration::run(random, coverage, seed, json),
         BenchCommand::Geometry { size, passes, json } => geometry::run(size, passes, json),
         BenchCommand::Frames { rounds, json } => frames::run(rounds, json),
         BenchCommand::Epry {

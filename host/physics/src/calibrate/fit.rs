@@ -96,7 +96,7 @@ pub fn closed_form(s: &Setup, obs: &[Observation], weights: &[f64]) -> Option<Pa
 }
 
 /// Jacobian rows (∂s_x, ∂s_y) with respect to (Δx, Δy, θ, h).
-fn jacobian(s: &Setup, p: &Params, grid: (f64, f64)) -> ([f64; 4], [f64; 4]) {
+pub(crate) fn jacobian(s: &Setup, p: &Params, grid: (f64, f64)) -> ([f64; 4], [f64; 4]) {
     let (sin, cos) = p.theta.sin_cos();
     let k = s.z_um / p.h;
     let m = predict(s, p, grid);

@@ -13,7 +13,9 @@
 pub mod feature;
 pub mod fit;
 pub mod model;
+pub mod noise;
 pub mod shift;
+pub mod uncertainty;
 pub mod window;
 
 use crate::optics::LedIndex;
@@ -50,7 +52,16 @@ pub struct Options {
     pub min_brightness: f64,
     /// Residuals beyond this many robust σ are outliers.
     pub reject_sigma: f64,
+    /// 1σ of the defocus as the stage set it, µm: h is proportional to it.
+    pub defocus_sigma_um: f64,
+    /// Share of the model-based bias correction taken as its uncertainty (the feature
+    /// may not be the sharp-edged amplitude object the model assumes).
+    pub model_fraction: f64,
 }
+
+/// The default defocus uncertainty, µm: a focus knob read to its finest graduation
+/// (motorised stages do better; say so with `--defocus-sigma-um`).
+pub const DEFAULT_DEFOCUS_SIGMA_UM: f64 = 1.0;
 
 impl Default for Options {
     fn default() -> Self {
@@ -59,6 +70,8 @@ impl Default for Options {
             bias_correction: true,
             min_brightness: 0.6,
             reject_sigma: 5.0,
+            defocus_sigma_um: DEFAULT_DEFOCUS_SIGMA_UM,
+            model_fraction: 0.05,
         }
     }
 }
@@ -142,8 +155,14 @@ pub struct Calibration {
     pub theta_deg: f64,
     /// h, mm.
     pub height_mm: f64,
-    /// Uncertainties (1 σ).
+    /// Uncertainties (1 σ), every source below in quadrature.
     pub uncertainty: Uncertainty,
+    /// What the uncertainties are made of.
+    #[serde(default)]
+    pub uncertainty_sources: Option<uncertainty::Budget>,
+    /// The defocus's 1σ the uncertainty of h assumes, µm.
+    #[serde(default)]
+    pub defocus_sigma_um: f64,
     /// Defocus the shifts were measured at, µm.
     pub defocus_um: f64,
     /// Only z/h is observable: h changes by this many mm per µm of defocus error.
@@ -296,6 +315,7 @@ pub fn calibrate(
                 ),
                 _ => (None, LedStatus::FeatureLost),
             };
+            let sigma_um = m.map_or((0.0, 0.0), |m| (m.sigma_px.0 * px, m.sigma_px.1 * px));
             if brightness < options.min_brightness {
                 status = LedStatus::NotBrightField;
             }
@@ -304,6 +324,7 @@ pub fn calibrate(
                 grid,
                 brightness,
                 shift_um,
+                sigma_um,
                 status,
             }
         })
@@ -397,6 +418,28 @@ pub fn calibrate(
     let start = result.map(|r| r.params).ok_or(CalibrationError::Fit)?;
     let fit = fit::refine(&setup, &obs, &weights, start).ok_or(CalibrationError::Fit)?;
     let p = fit.params;
+    let used: Vec<bool> = weights.iter().map(|&w| w > 0.0).collect();
+    let shift_sigma: Vec<(f64, f64)> = measured.iter().map(|m| m.sigma_um).collect();
+    let sources = uncertainty::propagate(&uncertainty::Inputs {
+        setup: &setup,
+        obs: &obs,
+        used: &used,
+        params: p,
+        fit_sigma: fit.sigma,
+        shift_sigma_um: &shift_sigma,
+        reference_sigma_um: (
+            reference_moment.sigma_px.0 * px,
+            reference_moment.sigma_px.1 * px,
+        ),
+        bias_um: &bias,
+        model_fraction: if options.bias_correction {
+            options.model_fraction
+        } else {
+            0.0
+        },
+        defocus_sigma_um: options.defocus_sigma_um,
+    })
+    .ok_or(CalibrationError::Fit)?;
 
     let leds = measured
         .iter()
@@ -421,12 +464,9 @@ pub fn calibrate(
         dy_mm: p.dy * 1e-3,
         theta_deg: p.theta.to_degrees(),
         height_mm: p.h * 1e-3,
-        uncertainty: Uncertainty {
-            dx_mm: fit.sigma[0] * 1e-3,
-            dy_mm: fit.sigma[1] * 1e-3,
-            theta_deg: fit.sigma[2].to_degrees(),
-            height_mm: fit.sigma[3] * 1e-3,
-        },
+        uncertainty: uncertainty::to_report(sources.total),
+        uncertainty_sources: Some(uncertainty::Budget::from(&sources)),
+        defocus_sigma_um: options.defocus_sigma_um,
         defocus_um: z,
         height_per_defocus_um: p.h * 1e-3 / z.abs(),
         rms_residual_um: fit.rms_um,
@@ -447,6 +487,8 @@ struct Measured {
     grid: (f64, f64),
     brightness: f64,
     shift_um: Option<(f64, f64)>,
+    /// 1σ of the shift from the frame's pixel noise, µm.
+    sigma_um: (f64, f64),
     status: LedStatus,
 }
 

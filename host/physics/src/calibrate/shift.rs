@@ -5,6 +5,7 @@
 //! mean direction of the light that reaches the camera; what remains of its bias comes
 //! from the pupil clipping the feature's spectrum, and [`super::model`] removes it.
 
+use super::noise;
 use super::window::{signed_moment, Polarity, Roi};
 use crate::image::{median, Image};
 
@@ -19,10 +20,20 @@ pub struct Moment {
     pub window: Roi,
     /// Whether the window had to be cut by the frame's edge.
     pub clipped: bool,
+    /// 1σ of `center_px` from the frame's pixel noise (the frame's own noise law,
+    /// propagated through the moment and its background), pixels.
+    pub sigma_px: (f64, f64),
 }
 
-/// Background: the median of a band around the window.
-fn ring_background(img: &Image, x0: usize, y0: usize, x1: usize, y1: usize, band: usize) -> f32 {
+/// Background: the median of a band around the window, and how many pixels it took.
+fn ring_background(
+    img: &Image,
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+    band: usize,
+) -> (f32, usize) {
     let (h, w) = img.dim();
     let (bx0, by0) = (x0.saturating_sub(band), y0.saturating_sub(band));
     let (bx1, by1) = ((x1 + band).min(w), (y1 + band).min(h));
@@ -30,7 +41,8 @@ fn ring_background(img: &Image, x0: usize, y0: usize, x1: usize, y1: usize, band
         .flat_map(|r| (bx0..bx1).map(move |c| (r, c)))
         .filter(|&(r, c)| r < y0 || r >= y1 || c < x0 || c >= x1)
         .map(|(r, c)| img[[r, c]]);
-    median(ring)
+    let ring: Vec<f32> = ring.collect();
+    (median(ring.iter().copied()), ring.len())
 }
 
 /// The first moment of `polarity`-signed, background-removed intensity in a square
@@ -64,22 +76,31 @@ pub fn first_moment(
             || cy - (half as i64) < 0
             || cx + half as i64 + 1 > w as i64
             || cy + half as i64 + 1 > h as i64;
-        let bg = ring_background(img, x0, y0, x1, y1, 6);
+        let (bg, ring) = ring_background(img, x0, y0, x1, y1, 6);
         let (c, sw) = signed_moment(img, sign, bg, (x0, x1), (y0, y1))?;
         center = c;
-        result = Some(Moment {
-            center_px: center,
-            signal: sw,
-            window: Roi {
-                x: x0,
-                y: y0,
-                w: x1 - x0,
-                h: y1 - y0,
+        result = Some((
+            Moment {
+                center_px: center,
+                signal: sw,
+                window: Roi {
+                    x: x0,
+                    y: y0,
+                    w: x1 - x0,
+                    h: y1 - y0,
+                },
+                clipped,
+                sigma_px: (0.0, 0.0),
             },
-            clipped,
-        });
+            ring,
+        ));
     }
-    result
+    // How sure the final moment is, from the frame's own noise.
+    result.map(|(mut m, ring)| {
+        let model = noise::measure(img, m.window);
+        m.sigma_px = noise::moment_sigma(img, &model, m.window, m.center_px, m.signal, ring);
+        m
+    })
 }
 
 #[cfg(test)]

@@ -64,6 +64,10 @@ pub struct AcquireArgs {
     /// Defocus for calibration, µm toward the LEDs.
     #[arg(long, default_value_t = 200.0)]
     pub defocus_um: f64,
+    /// 1σ of the defocus as the stage sets it, µm: h is proportional to the defocus, so
+    /// its uncertainty carries this (`--stage virtual` is exact: give 0).
+    #[arg(long, default_value_t = fpm_physics::calibrate::DEFAULT_DEFOCUS_SIGMA_UM)]
+    pub defocus_sigma_um: f64,
     /// LED colour: a name, `#rrggbb` or `r,g,b` (0–255).
     #[arg(long, default_value = "0,0,255", value_parser = crate::color::parse)]
     pub color: Rgb,
@@ -133,6 +137,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         reconstruct: a.reconstruct,
         step_ms: a.step_ms,
         defocus_um: a.defocus_um,
+        defocus_sigma_um: a.defocus_sigma_um,
         color: a.color,
         dark_level: a.dark_level,
         system: System {

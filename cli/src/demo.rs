@@ -199,6 +199,8 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
         rig: Some(id.clone()),
         step_ms: a.step_ms,
         defocus_um: 200.0,
+        // The virtual stage moves exactly.
+        defocus_sigma_um: 0.0,
         color: Rgb::new(0, 0, 255),
         dark_level: 100.0,
         wavelength_um: 0.47,

@@ -48,6 +48,8 @@ pub struct Plan {
     pub step_ms: f64,
     /// Defocus for calibration, µm toward the LEDs.
     pub defocus_um: f64,
+    /// 1σ of that defocus as the stage sets it, µm (h's uncertainty carries it).
+    pub defocus_sigma_um: f64,
     /// LED colour.
     pub color: Rgb,
     /// The camera's dark level, counts.
@@ -240,7 +242,10 @@ pub fn acquire(
             shots,
         )?;
         ds.save()?;
-        let options = Options::default();
+        let options = Options {
+            defocus_sigma_um: plan.defocus_sigma_um.abs(),
+            ..Options::default()
+        };
         let cal = calibrate_dataset(&ds, &options)?;
         std::fs::write(
             plan.out.join("calibration.json"),

@@ -266,10 +266,11 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
     let score =
         |object| score_reconstruction(&ds, object, settings.upsample).map(|s| s.complex_nrmse);
     let (n, k) = (score(&with_nominal.object), score(&with_calibrated.object));
-    let streamed = fpm_host::reconstruction::read_object(&out.join("reconstruction"))
+    // The acquisition scored its streamed image already (report.json, versus_truth).
+    let streamed = std::fs::read_to_string(out.join("reconstruction").join("report.json"))
         .ok()
-        .and_then(|o| score_reconstruction(&ds, &o, settings.upsample))
-        .map(|s| s.complex_nrmse);
+        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        .and_then(|report| report["versus_truth"]["complex_nrmse"].as_f64());
     if let (Some(n), Some(k)) = (n, k) {
         say!(a.json,
             "quality         complex NRMSE vs the hidden sample: nominal geometry {n:.3}, calibrated {k:.3}{}",

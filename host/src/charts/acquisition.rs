@@ -59,7 +59,7 @@ impl Chart for Coverage<'_> {
             )?
             .label(format!("missing ({})", self.missing.len()))
             .legend(|(x, y)| Cross::new((x + 10, y), 5, palette::VERMILION.stroke_width(3)));
-        let r = super::calibration::bright_field_radius_mm(self.system.na, self.geometry.height_mm);
+        let r = super::bright_field_radius_mm(self.system.na, self.geometry.height_mm);
         super::draw_bright_field_disc(
             &mut chart,
             r,

@@ -7,7 +7,7 @@ use fpm_physics::{LedGeometry, System};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{palette, Chart, FONT};
+use super::{bright_field_radius_mm, palette, Chart, FONT};
 
 /// What a status means, for legends and tables.
 pub fn status_label(status: LedStatus) -> &'static str {
@@ -302,12 +302,6 @@ impl Chart for LedGrid<'_> {
     }
 }
 
-/// Radius in the LED plane, mm, inside which an LED at height `height_mm` is
-/// bright-field for an objective of numerical aperture `na` (on axis).
-pub fn bright_field_radius_mm(na: f64, height_mm: f64) -> f64 {
-    height_mm * na.clamp(0.0, 0.999).asin().tan()
-}
-
 fn square((x, y): (f64, f64), half: f64) -> [(f64, f64); 2] {
     [(x - half, y - half), (x + half, y + half)]
 }
@@ -322,11 +316,5 @@ mod tests {
         assert_eq!(nice_gain(560.0), 500.0);
         assert_eq!(nice_gain(0.3), 1.0);
         assert_eq!(nice_gain(f64::INFINITY), 1.0);
-    }
-
-    #[test]
-    fn the_bright_field_disc_follows_na_and_height() {
-        let r = bright_field_radius_mm(0.1, 60.0);
-        assert!((r - 60.0 * 0.1 / (1.0f64 - 0.01).sqrt()).abs() < 1e-9);
     }
 }

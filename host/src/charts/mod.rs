@@ -206,6 +206,12 @@ pub fn plane<'a, DB: DrawingBackend + 'a>(
 /// The axes of the illumination plane.
 pub const LED_PLANE_AXES: (&str, &str) = ("x (mm, from the optical axis)", "y (mm)");
 
+/// Radius in the LED plane, mm, inside which an LED at height `height_mm` is
+/// bright-field for an objective of numerical aperture `na` (on axis).
+pub fn bright_field_radius_mm(na: f64, height_mm: f64) -> f64 {
+    height_mm * na.clamp(0.0, 0.999).asin().tan()
+}
+
 /// Draw the disc inside which LEDs are bright-field (`radius`, mm) with its legend.
 pub fn draw_bright_field_disc<'a, DB: DrawingBackend + 'a>(
     chart: &mut Plane<'a, DB>,
@@ -287,6 +293,12 @@ mod tests {
         let top_dark = buf[..200 * 3 * 18].iter().filter(|&&v| v < 128).count();
         assert!(top_dark > 20, "no text drawn in the caption: {top_dark}");
         assert!(f.svg.contains("<svg") && f.svg.contains("shift (µm)"));
+    }
+
+    #[test]
+    fn the_bright_field_disc_follows_na_and_height() {
+        let r = bright_field_radius_mm(0.1, 60.0);
+        assert!((r - 60.0 * 0.1 / (1.0f64 - 0.01).sqrt()).abs() < 1e-9);
     }
 
     #[test]

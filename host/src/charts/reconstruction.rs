@@ -288,8 +288,7 @@ impl Chart for LedPositions<'_> {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
                 (lo.min(v), hi.max(v))
             });
-        let bright =
-            super::calibration::bright_field_radius_mm(self.system.na, self.used.height_mm);
+        let bright = super::bright_field_radius_mm(self.system.na, self.used.height_mm);
         let mut chart = super::plane(
             area,
             Some("LED positions used for the wave vectors"),

@@ -4,7 +4,6 @@
 use std::path::Path;
 
 use anyhow::Result;
-use fpm_physics::calibrate::LedStatus;
 use fpm_physics::System;
 
 use super::{embed_chart, pm};
@@ -188,9 +187,4 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
     page.heading("Reproduce");
     page.command(c.reproduce);
     page.write(path)
-}
-
-/// How many LEDs ended with each status (for summaries).
-pub fn count(cal: &fpm_physics::calibrate::Calibration, status: LedStatus) -> usize {
-    cal.leds.iter().filter(|l| l.status == status).count()
 }

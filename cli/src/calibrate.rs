@@ -36,6 +36,9 @@ pub struct CalibrateArgs {
     /// Skip the model-based correction of the first-moment bias (for comparison).
     #[arg(long)]
     no_bias_correction: bool,
+    /// Take the board as flat: do not fit its tilt about x and y (for comparison).
+    #[arg(long)]
+    no_tilt: bool,
     /// Print the result as JSON on stdout as well.
     #[arg(long)]
     json: bool,
@@ -70,6 +73,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         roi: a.roi,
         bias_correction: !a.no_bias_correction,
         defocus_sigma_um: a.defocus_sigma_um.abs(),
+        fit_tilt: !a.no_tilt,
         ..Options::default()
     };
     let file = calibrate_dataset(&ds, &options)?;
@@ -93,6 +97,19 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
             "  h  = {:.3} ± {:.3} mm  (with the defocus known to ±{} µm; h moves {:.3} mm per µm of defocus error)",
             c.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
         );
+        if a.no_tilt {
+            println!("  tilt not fitted (--no-tilt): board taken as flat");
+        } else if c.tilt_observable {
+            println!(
+                "  tilt {:+.2} ± {:.2} ° about x, {:+.2} ± {:.2} ° about y",
+                c.tilt_x_deg, u.tilt_x_deg, c.tilt_y_deg, u.tilt_y_deg
+            );
+        } else {
+            println!(
+                "  tilt not observable (1σ {:.2}° / {:.2}°): board taken as flat",
+                u.tilt_x_deg, u.tilt_y_deg
+            );
+        }
         println!(
             "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
             c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um

@@ -42,6 +42,13 @@ pub struct SceneArgs {
     /// True LED-to-sample distance, mm.
     #[arg(long, default_value_t = 92.0)]
     height_mm: f64,
+    /// True tilt of the board about its x axis through the centre LED, degrees (LEDs
+    /// on the +y side farther from the sample).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    tilt_x_deg: f64,
+    /// True tilt about the board's y axis, degrees (LEDs on the +x side farther away).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    tilt_y_deg: f64,
     /// Draw Δx, Δy, θ, h at random from the paper's range instead (±2.5 mm, ±5°, 87–97 mm).
     #[arg(long)]
     random_geometry: bool,
@@ -122,7 +129,7 @@ fn nominal(height_mm: f64) -> LedGeometry {
 
 impl SceneArgs {
     fn truth(&self) -> LedGeometry {
-        if self.random_geometry {
+        let placed = if self.random_geometry {
             let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x5EED);
             LedGeometry {
                 dx_mm: rng.gen_range(-2.5..2.5),
@@ -139,7 +146,8 @@ impl SceneArgs {
                 height_mm: self.height_mm,
                 ..nominal(92.0)
             }
-        }
+        };
+        placed.tilted(self.tilt_x_deg, self.tilt_y_deg)
     }
 
     fn camera(&self) -> Camera {
@@ -223,6 +231,8 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
         dy_mm: truth.dy_mm,
         theta_deg: truth.theta_deg,
         height_mm: truth.height_mm,
+        tilt_x_deg: truth.tilt_x_deg,
+        tilt_y_deg: truth.tilt_y_deg,
         defocus_um: Some(a.defocus_um),
         feature_um: Some(a.feature_um),
         feature_at_um: Some([a.feature_x_um, a.feature_y_um]),
@@ -282,6 +292,8 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         dy_mm: truth.dy_mm,
         theta_deg: truth.theta_deg,
         height_mm: truth.height_mm,
+        tilt_x_deg: truth.tilt_x_deg,
+        tilt_y_deg: truth.tilt_y_deg,
         defocus_um: None,
         feature_um: None,
         feature_at_um: None,

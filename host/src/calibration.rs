@@ -35,6 +35,9 @@ impl CalibrationFile {
 /// The four numbers that place an LED array (docs/dataset.md, "calibration.json").
 pub const GEOMETRY_KEYS: [&str; 4] = ["dx_mm", "dy_mm", "theta_deg", "height_mm"];
 
+/// The board's tilt, optional (a flat board when absent).
+pub const TILT_KEYS: [&str; 2] = ["tilt_x_deg", "tilt_y_deg"];
+
 /// An LED array placement read from a `calibration.json`: either a full file written by
 /// `fpm calibrate`, or a hand-written one with only [`GEOMETRY_KEYS`] (an array measured
 /// by other means). The grid itself (rows, cols, pitch, centre LED) comes from the
@@ -49,6 +52,8 @@ pub struct Placement {
     pub theta_deg: f64,
     /// LED-to-sample distance, mm.
     pub height_mm: f64,
+    /// Board tilt about x and y, degrees (optional keys `tilt_x_deg`, `tilt_y_deg`).
+    pub tilt_deg: [f64; 2],
     /// The grid the file was computed for, if it says.
     pub nominal: Option<LedGeometry>,
 }
@@ -95,6 +100,15 @@ impl Placement {
         if height_mm <= 0.0 {
             bail!("height_mm = {height_mm}: the LED array must sit below the sample (> 0)");
         }
+        let mut tilt_deg = [0.0; 2];
+        for (slot, key) in tilt_deg.iter_mut().zip(TILT_KEYS) {
+            if let Some(v) = object.get(key) {
+                *slot = v
+                    .as_f64()
+                    .filter(|x| x.is_finite() && x.abs() < 45.0)
+                    .with_context(|| format!("{key} = {v}: not a tilt in degrees (|tilt| < 45)"))?;
+            }
+        }
         let nominal = match object.get("nominal") {
             None => None,
             Some(v) => Some(
@@ -107,6 +121,7 @@ impl Placement {
             dy_mm,
             theta_deg,
             height_mm,
+            tilt_deg,
             nominal,
         })
     }
@@ -129,6 +144,7 @@ impl Placement {
             None => *dataset_nominal,
         };
         grid.placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
+            .tilted(self.tilt_deg[0], self.tilt_deg[1])
     }
 }
 
@@ -185,6 +201,19 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
     if used < 6 {
         out.push(format!(
             "only {used} LEDs were usable: check the defocus, the exposure and the feature"
+        ));
+    }
+    if !cal.tilt_observable && cal.uncertainty.tilt_x_deg == 0.0 {
+        out.push("the board's tilt was not fitted: it was taken as flat".to_string());
+    } else if !cal.tilt_observable {
+        out.push(format!(
+            "the shifts cannot pin down the board's tilt (1σ {:.2}° / {:.2}°, more than {}°): the board was taken as flat, and Δx, Δy carry what such a tilt could do; more LEDs or a larger defocus would show it",
+            cal.uncertainty.tilt_x_deg, cal.uncertainty.tilt_y_deg, calibrate::TILT_OBSERVABLE_SIGMA_DEG
+        ));
+    } else if cal.tilt_x_deg.hypot(cal.tilt_y_deg) > 3.0 {
+        out.push(format!(
+            "the board is tilted by {:.1}° about x and {:.1}° about y: check that it is mounted parallel to the stage",
+            cal.tilt_x_deg, cal.tilt_y_deg
         ));
     }
     if outliers > 0 {

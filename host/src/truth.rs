@@ -24,6 +24,12 @@ pub struct Truth {
     pub theta_deg: f64,
     /// True LED-to-sample distance, mm.
     pub height_mm: f64,
+    /// True tilt of the board about its x axis, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub tilt_x_deg: f64,
+    /// True tilt about its y axis, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub tilt_y_deg: f64,
     /// Defocus of a calibration set, µm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub defocus_um: Option<f64>,
@@ -57,8 +63,14 @@ impl Truth {
 
     /// The true geometry: the nominal one moved as recorded.
     pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
-        nominal.placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
+        nominal
+            .placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
+            .tilted(self.tilt_x_deg, self.tilt_y_deg)
     }
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 /// Write the sample's ground truth on the camera field (`truth_amplitude.tif`,

@@ -161,6 +161,8 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 dy_mm: hidden.dy_mm,
                 theta_deg: hidden.theta_deg,
                 height_mm: hidden.height_mm,
+                tilt_x_deg: hidden.tilt_x_deg,
+                tilt_y_deg: hidden.tilt_y_deg,
                 defocus_um: None,
                 feature_um: None,
                 feature_at_um: None,

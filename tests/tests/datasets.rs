@@ -27,6 +27,7 @@ fn manifest(frames: usize) -> Manifest {
             center: LedIndex::new(10, 10),
             offset_mm: [0.1, -0.2],
             rotation_deg: 1.5,
+            tilt_deg: [0.0, 0.0],
         },
         camera: CameraSection {
             dark_level: 100.0,

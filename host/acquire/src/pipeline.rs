@@ -146,6 +146,8 @@ pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
         dx_mm: 0.0,
         dy_mm: 0.0,
         theta_deg: 0.0,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
     }
 }
 

@@ -77,6 +77,14 @@ pub struct LedGeometry {
     pub dy_mm: f64,
     /// Rotation θ about the optical axis, degrees (from +x toward +y).
     pub theta_deg: f64,
+    /// Tilt of the board about its x axis through the centre LED, degrees: LEDs on
+    /// the board's +y side sit farther from the sample by y·sin(tilt).
+    #[serde(default)]
+    pub tilt_x_deg: f64,
+    /// Tilt of the board about its y axis through the centre LED, degrees: LEDs on
+    /// the board's +x side sit farther from the sample by x·sin(tilt).
+    #[serde(default)]
+    pub tilt_y_deg: f64,
 }
 
 impl LedGeometry {
@@ -92,7 +100,24 @@ impl LedGeometry {
             dx_mm: 0.0,
             dy_mm: 0.0,
             theta_deg: 0.0,
+            tilt_x_deg: 0.0,
+            tilt_y_deg: 0.0,
         }
+    }
+
+    /// The same array tilted about its x and y axes (through the centre LED) by
+    /// the given angles, degrees.
+    pub const fn tilted(self, tilt_x_deg: f64, tilt_y_deg: f64) -> Self {
+        Self {
+            tilt_x_deg,
+            tilt_y_deg,
+            ..self
+        }
+    }
+
+    /// Whether the board is tilted at all.
+    pub fn is_tilted(&self) -> bool {
+        self.tilt_x_deg != 0.0 || self.tilt_y_deg != 0.0
     }
 
     /// The same array moved by (Δx, Δy) mm, turned by θ degrees, at height h mm.
@@ -135,19 +160,28 @@ impl LedGeometry {
 
     /// Position (x, y) of `led` in mm.
     pub fn led_position_mm(&self, led: LedIndex) -> (f64, f64) {
-        let (p, q) = self.grid_offset(led);
-        let (s, c) = self.theta_deg.to_radians().sin_cos();
-        (
-            self.pitch_mm * (p * c - q * s) + self.dx_mm,
-            self.pitch_mm * (p * s + q * c) + self.dy_mm,
-        )
+        let (x, y, _) = self.led_position_3d_mm(led);
+        (x, y)
+    }
+
+    /// Position (x, y) of `led` and its distance below the sample plane, mm. The board
+    /// is turned by θ in its own plane, then tilted about y and about x through the
+    /// centre LED, which sits at (Δx, Δy) and `height_mm` below the sample.
+    pub fn led_position_3d_mm(&self, led: LedIndex) -> (f64, f64, f64) {
+        let [x, y, depth] = board_offset(
+            self.pitch_mm,
+            self.theta_deg.to_radians(),
+            (self.tilt_x_deg.to_radians(), self.tilt_y_deg.to_radians()),
+            self.grid_offset(led),
+        );
+        (x + self.dx_mm, y + self.dy_mm, self.height_mm + depth)
     }
 
     /// Unit propagation direction (s_x, s_y, s_z) of light from `led` at sample point
     /// (x, y) µm.
     pub fn direction(&self, led: LedIndex, x_um: f64, y_um: f64) -> [f64; 3] {
-        let (lx, ly) = self.led_position_mm(led);
-        let v = [x_um - lx * 1e3, y_um - ly * 1e3, self.height_mm * 1e3];
+        let (lx, ly, lh) = self.led_position_3d_mm(led);
+        let v = [x_um - lx * 1e3, y_um - ly * 1e3, lh * 1e3];
         let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         [v[0] / r, v[1] / r, v[2] / r]
     }
@@ -212,12 +246,25 @@ impl LedGeometry {
     }
 
     /// The defocus shift (µm) of a feature at (x, y) under `led` for a sample moved by
-    /// `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (docs/dataset.md §3).
+    /// `z_um` toward the LEDs: z·(x − x_led, y − y_led)/h (docs/dataset.md §3), with h
+    /// the LED's own distance below the sample on a tilted board.
     pub fn defocus_shift_um(&self, led: LedIndex, x_um: f64, y_um: f64, z_um: f64) -> (f64, f64) {
-        let (lx, ly) = self.led_position_mm(led);
-        let h = self.height_mm * 1e3;
+        let (lx, ly, lh) = self.led_position_3d_mm(led);
+        let h = lh * 1e3;
         (z_um * (x_um - lx * 1e3) / h, z_um * (y_um - ly * 1e3) / h)
     }
+}
+
+/// Where grid offset (p, q) sits relative to the centre LED on a board of `pitch`
+/// turned by `theta` (radians) in its plane and tilted by `tilt` (about x, about y;
+/// radians) through the centre LED: (x, y, depth below the centre LED), in the pitch's
+/// units. The rotations apply in that order: θ, then about y, then about x.
+pub fn board_offset(pitch: f64, theta: f64, tilt: (f64, f64), (p, q): (f64, f64)) -> [f64; 3] {
+    let (s, c) = theta.sin_cos();
+    let (a, b) = (pitch * (p * c - q * s), pitch * (p * s + q * c));
+    let (sa, ca) = tilt.0.sin_cos();
+    let (sb, cb) = tilt.1.sin_cos();
+    [a * cb, b * ca - a * sb * sa, b * sa + a * sb * ca]
 }
 
 /// Angular-spectrum transfer function for propagation by `z_um` at frequency (fx, fy):

@@ -231,8 +231,8 @@ impl Renderer {
     ) -> Image {
         let n = object.n;
         let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
-        let (lx, ly) = geometry.led_position_mm(led);
-        let (lx, ly, h) = (lx * 1e3, ly * 1e3, geometry.height_mm * 1e3);
+        let (lx, ly, h) = geometry.led_position_3d_mm(led);
+        let (lx, ly, h) = (lx * 1e3, ly * 1e3, h * 1e3);
         let r0 = (lx * lx + ly * ly + h * h).sqrt();
         // Spherical wave from the LED, phase relative to the field centre (f64, then
         // reduced: k·R is ~10⁶ rad).

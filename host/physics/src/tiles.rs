@@ -40,8 +40,8 @@ pub fn auto_tile_side(system: &System, geometry: &LedGeometry) -> usize {
         .leds()
         .into_iter()
         .map(|led| {
-            let (x, y) = geometry.led_position_mm(led);
-            let cos = h / (x * 1e3).hypot(y * 1e3).hypot(h);
+            let (x, y, lh) = geometry.led_position_3d_mm(led);
+            let cos = lh / x.hypot(y).hypot(lh);
             1.0 - cos.powi(3)
         })
         .fold(0.0, f64::max);

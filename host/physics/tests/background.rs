@@ -33,6 +33,8 @@ fn stray_light_under_dim_dark_field_frames_is_found_and_taken_off() {
         dx_mm: 0.4,
         dy_mm: -0.3,
         theta_deg: 2.0,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
     };
     let w = 128;
     let object = ObjectField::test_sample(&system, w, 32, 2, 3);

@@ -20,6 +20,9 @@ fn epry_beats_the_centre_frame_by_far() {
         dx_mm: 0.3,
         dy_mm: -0.2,
         theta_deg: 1.0,
+
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
     };
     let w = 96;
     let object = ObjectField::test_sample(&system, w, 32, 2, 5);
@@ -183,6 +186,9 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
         dx_mm: 0.0,
         dy_mm: 0.0,
         theta_deg: 0.0,
+
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
     };
     let w = 160;
     let tile = Some(80);

@@ -50,6 +50,14 @@ pub struct LedSection {
     /// θ, degrees.
     #[serde(default)]
     pub rotation_deg: f64,
+    /// Board tilt about its x and y axes through the centre LED, degrees (an
+    /// extension of the format; written only when not zero).
+    #[serde(default, skip_serializing_if = "is_flat")]
+    pub tilt_deg: [f64; 2],
+}
+
+fn is_flat(tilt: &[f64; 2]) -> bool {
+    *tilt == [0.0, 0.0]
 }
 
 /// `[camera]` (all optional).
@@ -143,6 +151,7 @@ impl Manifest {
                 center: geometry.center,
                 offset_mm: [geometry.dx_mm, geometry.dy_mm],
                 rotation_deg: geometry.theta_deg,
+                tilt_deg: [geometry.tilt_x_deg, geometry.tilt_y_deg],
             },
             camera,
             frames,
@@ -172,6 +181,8 @@ impl Manifest {
             dx_mm: l.offset_mm[0],
             dy_mm: l.offset_mm[1],
             theta_deg: l.rotation_deg,
+            tilt_x_deg: l.tilt_deg[0],
+            tilt_y_deg: l.tilt_deg[1],
         }
     }
 }

@@ -47,6 +47,22 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
             ),
         ),
         Row::with_id(
+            "tilt_deg",
+            "tilt",
+            if cal.tilt_observable {
+                format!(
+                    "{} about x, {} about y",
+                    pm(cal.tilt_x_deg, u.tilt_x_deg, 2, "°"),
+                    pm(cal.tilt_y_deg, u.tilt_y_deg, 2, "°")
+                )
+            } else {
+                format!(
+                    "not observable (1σ {:.2}° / {:.2}°): the board was taken as flat",
+                    u.tilt_x_deg, u.tilt_y_deg
+                )
+            },
+        ),
+        Row::with_id(
             "rms_residual_um",
             "rms residual",
             format!("{:.4} µm per component", cal.rms_residual_um),
@@ -86,6 +102,10 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
                 row("reference frame's pixel noise", &b.reference_frame),
                 row("model bias correction", &b.model_bias),
                 row("defocus", &b.defocus),
+                row(
+                    "board tilt (fitted, or unseen)",
+                    &b.tilt.unwrap_or_default(),
+                ),
                 row("total", u),
             ],
         );

@@ -15,6 +15,7 @@ pub mod fit;
 pub mod model;
 pub mod noise;
 pub mod shift;
+pub mod tilt;
 pub mod uncertainty;
 pub mod window;
 
@@ -57,11 +58,17 @@ pub struct Options {
     /// Share of the model-based bias correction taken as its uncertainty (the feature
     /// may not be the sharp-edged amplitude object the model assumes).
     pub model_fraction: f64,
+    /// Fit the board's tilt where the shifts show it (else the board is flat).
+    pub fit_tilt: bool,
 }
 
 /// The default defocus uncertainty, µm: a focus knob read to its finest graduation
 /// (motorised stages do better; say so with `--defocus-sigma-um`).
 pub const DEFAULT_DEFOCUS_SIGMA_UM: f64 = 1.0;
+
+/// The tilt is fitted when the shifts determine it to this 1σ, degrees: a 1–2° tilt
+/// then stands out at 2–4σ.
+pub const TILT_OBSERVABLE_SIGMA_DEG: f64 = 0.5;
 
 impl Default for Options {
     fn default() -> Self {
@@ -72,6 +79,7 @@ impl Default for Options {
             reject_sigma: 5.0,
             defocus_sigma_um: DEFAULT_DEFOCUS_SIGMA_UM,
             model_fraction: 0.05,
+            fit_tilt: true,
         }
     }
 }
@@ -117,7 +125,7 @@ pub struct LedResult {
 }
 
 /// One standard deviation of each parameter.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 pub struct Uncertainty {
     /// Δx, mm.
     pub dx_mm: f64,
@@ -127,6 +135,12 @@ pub struct Uncertainty {
     pub theta_deg: f64,
     /// h, mm (from the shifts alone; the defocus error adds `height_per_defocus_um`).
     pub height_mm: f64,
+    /// Board tilt about x, degrees.
+    #[serde(default)]
+    pub tilt_x_deg: f64,
+    /// Board tilt about y, degrees.
+    #[serde(default)]
+    pub tilt_y_deg: f64,
 }
 
 /// Where the feature is.
@@ -155,6 +169,18 @@ pub struct Calibration {
     pub theta_deg: f64,
     /// h, mm.
     pub height_mm: f64,
+    /// Board tilt about its x axis through the centre LED, degrees (0 when the data
+    /// cannot see the tilt: the board is then taken as flat).
+    #[serde(default)]
+    pub tilt_x_deg: f64,
+    /// Board tilt about its y axis, degrees.
+    #[serde(default)]
+    pub tilt_y_deg: f64,
+    /// Whether the shifts pin the tilt down (its 1σ at most
+    /// [`TILT_OBSERVABLE_SIGMA_DEG`]); if not, the board is taken as flat and Δx, Δy
+    /// carry what an unseen tilt could do to them.
+    #[serde(default)]
+    pub tilt_observable: bool,
     /// Uncertainties (1 σ), every source below in quadrature.
     pub uncertainty: Uncertainty,
     /// What the uncertainties are made of.
@@ -183,6 +209,8 @@ impl Calibration {
             dy_mm: self.dy_mm,
             theta_deg: self.theta_deg,
             height_mm: self.height_mm,
+            tilt_x_deg: self.tilt_x_deg,
+            tilt_y_deg: self.tilt_y_deg,
             ..*nominal
         }
     }
@@ -403,23 +431,48 @@ pub fn calibrate(
         }
     }
     enough(&measured)?;
-    // Final fit on exactly the LEDs reported as used.
+    // 6. Final fit on exactly the LEDs reported as used, and the board's tilt from
+    // the second-order pattern it leaves in the shifts. A tilt the rigid fit cannot
+    // describe can make it reject good LEDs: once the tilt is seen, the outliers are
+    // decided again under the tilted model.
     let obs = corrected(&measured, &bias);
-    let weights: Vec<f64> = measured
+    let shift_sigma: Vec<(f64, f64)> = measured.iter().map(|m| m.sigma_um).collect();
+    let model_share = if options.bias_correction {
+        options.model_fraction
+    } else {
+        0.0
+    };
+    let tilt_sigma: Vec<(f64, f64)> = shift_sigma
         .iter()
-        .map(|m| {
-            if m.status == LedStatus::Used {
-                1.0
-            } else {
-                0.0
-            }
-        })
+        .zip(&bias)
+        .map(|(s, b)| (s.0.hypot(model_share * b.0), s.1.hypot(model_share * b.1)))
         .collect();
     let start = result.map(|r| r.params).ok_or(CalibrationError::Fit)?;
-    let fit = fit::refine(&setup, &obs, &weights, start).ok_or(CalibrationError::Fit)?;
+    let mut round = 0;
+    let (fit, used, tilted) = loop {
+        let used: Vec<bool> = measured
+            .iter()
+            .map(|m| m.status == LedStatus::Used)
+            .collect();
+        let weights: Vec<f64> = used.iter().map(|&u| f64::from(u8::from(u))).collect();
+        let fit = fit::refine(&setup, &obs, &weights, start).ok_or(CalibrationError::Fit)?;
+        let tilted = options
+            .fit_tilt
+            .then(|| tilt::fit(&setup, &obs, &tilt_sigma, &used, fit.params))
+            .flatten();
+        round += 1;
+        let changed = match tilted.as_ref().filter(|t| tilt_observable(t)) {
+            Some(t) if round < 2 => {
+                reclassify_outliers(&mut measured, &obs, &setup, &t.params, options.reject_sigma)
+            }
+            _ => false,
+        };
+        if !changed {
+            break (fit, used, tilted);
+        }
+        enough(&measured)?;
+    };
     let p = fit.params;
-    let used: Vec<bool> = weights.iter().map(|&w| w > 0.0).collect();
-    let shift_sigma: Vec<(f64, f64)> = measured.iter().map(|m| m.sigma_um).collect();
     let sources = uncertainty::propagate(&uncertainty::Inputs {
         setup: &setup,
         obs: &obs,
@@ -440,13 +493,52 @@ pub fn calibrate(
         defocus_sigma_um: options.defocus_sigma_um,
     })
     .ok_or(CalibrationError::Fit)?;
+    let tilt_sigma_rad = tilted.as_ref().map(|t| {
+        let s = t.sigma();
+        (s[4], s[5])
+    });
+    let observable = tilted.as_ref().is_some_and(tilt_observable);
+    let (final_params, tilt_rad) = match &tilted {
+        Some(t) if observable => (t.params.rigid, t.params.tilt),
+        _ => (p, (0.0, 0.0)),
+    };
+    let model = tilt::TiltedParams {
+        rigid: final_params,
+        tilt: tilt_rad,
+    };
+    // Freeing the tilt costs precision when it is fitted; an unseen one could bias the
+    // rigid fit by as much. Either way it is a source of its own.
+    let tilt_source = tilted.as_ref().map_or([0.0; 4], |t| t.freed_sigma());
+    let sources = sources.with_tilt(tilt_source);
+    let residuals: Vec<(f64, f64)> = obs
+        .iter()
+        .map(|o| {
+            let m = tilt::predict(&setup, &model, o.grid);
+            (o.shift_um.0 - m.0, o.shift_um.1 - m.1)
+        })
+        .collect();
+    let rms_um = {
+        let (ss, n) = residuals
+            .iter()
+            .zip(&used)
+            .filter(|(_, &u)| u)
+            .fold((0.0, 0usize), |(ss, n), (r, _)| {
+                (ss + r.0 * r.0 + r.1 * r.1, n + 1)
+            });
+        (ss / (2 * n.max(1)) as f64).sqrt()
+    };
+    let mut uncertainty = uncertainty::to_report(sources.total);
+    if let Some((a, b)) = tilt_sigma_rad {
+        uncertainty.tilt_x_deg = a.to_degrees();
+        uncertainty.tilt_y_deg = b.to_degrees();
+    }
 
     let leds = measured
         .iter()
         .zip(&bias)
-        .zip(&fit.residuals)
+        .zip(&residuals)
         .map(|((m, b), r)| {
-            let fitted = fit::predict(&setup, &p, m.grid);
+            let fitted = tilt::predict(&setup, &model, m.grid);
             LedResult {
                 led: m.led,
                 grid: [m.grid.0 as i64, m.grid.1 as i64],
@@ -459,17 +551,21 @@ pub fn calibrate(
             }
         })
         .collect();
+    let p = final_params;
     Ok(Calibration {
         dx_mm: p.dx * 1e-3,
         dy_mm: p.dy * 1e-3,
         theta_deg: p.theta.to_degrees(),
         height_mm: p.h * 1e-3,
-        uncertainty: uncertainty::to_report(sources.total),
+        tilt_x_deg: tilt_rad.0.to_degrees(),
+        tilt_y_deg: tilt_rad.1.to_degrees(),
+        tilt_observable: observable,
+        uncertainty,
         uncertainty_sources: Some(uncertainty::Budget::from(&sources)),
         defocus_sigma_um: options.defocus_sigma_um,
         defocus_um: z,
         height_per_defocus_um: p.h * 1e-3 / z.abs(),
-        rms_residual_um: fit.rms_um,
+        rms_residual_um: rms_um,
         feature: FeatureInfo {
             x_um: xc,
             y_um: yc,
@@ -529,6 +625,46 @@ fn to_geometry(nominal: &LedGeometry, p: &Params) -> LedGeometry {
         height_mm: p.h * 1e-3,
         ..*nominal
     }
+}
+
+/// Whether the shifts pin the tilt down (see [`TILT_OBSERVABLE_SIGMA_DEG`]).
+fn tilt_observable(t: &tilt::TiltFit) -> bool {
+    let s = t.sigma();
+    s[4].max(s[5]).to_degrees() <= TILT_OBSERVABLE_SIGMA_DEG
+}
+
+/// Decide the outliers again under the tilted model, with the robust fit's rule
+/// (beyond `reject` robust σ of the used LEDs' residuals). Whether any status changed.
+fn reclassify_outliers(
+    measured: &mut [Measured],
+    obs: &[Observation],
+    setup: &Setup,
+    params: &tilt::TiltedParams,
+    reject: f64,
+) -> bool {
+    let norm = |o: &Observation| {
+        let m = tilt::predict(setup, params, o.grid);
+        (o.shift_um.0 - m.0).hypot(o.shift_um.1 - m.1)
+    };
+    let used = measured
+        .iter()
+        .zip(obs)
+        .filter(|(m, _)| m.status == LedStatus::Used)
+        .map(|(_, o)| norm(o) as f32);
+    let scale = (1.4826 * crate::image::median(used) as f64).max(1e-3);
+    let mut changed = false;
+    for (m, o) in measured.iter_mut().zip(obs) {
+        if matches!(m.status, LedStatus::Used | LedStatus::Outlier) {
+            let status = if norm(o) > reject * scale {
+                LedStatus::Outlier
+            } else {
+                LedStatus::Used
+            };
+            changed |= status != m.status;
+            m.status = status;
+        }
+    }
+    changed
 }
 
 /// Mean intensity per ms of exposure.

@@ -54,8 +54,22 @@ pub struct Sources {
     pub model: Sigma,
     /// The defocus's uncertainty.
     pub defocus: Sigma,
+    /// The board's tilt: what fitting it costs, or what an unseen one could do.
+    pub tilt: Sigma,
     /// All of them in quadrature.
     pub total: Sigma,
+}
+
+impl Sources {
+    /// The same sources with the tilt's share added.
+    pub fn with_tilt(self, tilt: Sigma) -> Self {
+        let total = std::array::from_fn(|p| self.total[p].hypot(tilt[p]));
+        Self {
+            tilt,
+            total,
+            ..self
+        }
+    }
 }
 
 /// Propagate every source. `None` if the used frames cannot constrain the parameters.
@@ -116,6 +130,7 @@ pub fn propagate(i: &Inputs<'_>) -> Option<Sources> {
         reference,
         model,
         defocus,
+        tilt: [0.0; 4],
         total,
     })
 }
@@ -150,6 +165,8 @@ pub fn to_report(s: Sigma) -> super::Uncertainty {
         dy_mm: s[1] * 1e-3,
         theta_deg: s[2].to_degrees(),
         height_mm: s[3] * 1e-3,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
     }
 }
 
@@ -165,6 +182,10 @@ pub struct Budget {
     pub model_bias: super::Uncertainty,
     /// The defocus's uncertainty (h only).
     pub defocus: super::Uncertainty,
+    /// The board's tilt: the precision fitting it costs, or, when the shifts cannot
+    /// see it, what an unseen tilt of that size could do to the rigid fit.
+    #[serde(default)]
+    pub tilt: Option<super::Uncertainty>,
 }
 
 impl From<&Sources> for Budget {
@@ -174,6 +195,7 @@ impl From<&Sources> for Budget {
             reference_frame: to_report(s.reference),
             model_bias: to_report(s.model),
             defocus: to_report(s.defocus),
+            tilt: Some(to_report(s.tilt)),
         }
     }
 }

@@ -42,11 +42,9 @@ pub(crate) fn illumination_radius_um(
     led: LedIndex,
     centre_um: (f64, f64),
 ) -> f64 {
-    let (lx, ly) = geometry.led_position_mm(led);
-    ((lx * 1e3 - centre_um.0).powi(2)
-        + (ly * 1e3 - centre_um.1).powi(2)
-        + (geometry.height_mm * 1e3).powi(2))
-    .sqrt()
+    let (lx, ly, lh) = geometry.led_position_3d_mm(led);
+    ((lx * 1e3 - centre_um.0).powi(2) + (ly * 1e3 - centre_um.1).powi(2) + (lh * 1e3).powi(2))
+        .sqrt()
 }
 
 /// Where a square field sits in the camera frame and how its intensities are scaled.

@@ -337,11 +337,17 @@ fn a_full_scan_reports_every_step_in_order_with_device_timing() {
     if TARGET == Target::Firmware {
         // The trigger pulses as measured at the pin (GP14): one per step, active high,
         // as wide as asked, fired when the step's event says, after settling.
-        let pulses: Vec<(u64, u64)> = emu
-            .log_text()
+        // The emulator logs a pulse when its pin falls, which can be after the last
+        // reply: wait for the log to hold one per step (or time out and say so).
+        let marker = "trigger out at GP14: high at ";
+        let log = emu.log_when(
+            |log| log.matches(marker).count() >= got.len(),
+            Duration::from_secs(5),
+        );
+        let pulses: Vec<(u64, u64)> = log
             .lines()
             .filter_map(|l| {
-                let rest = l.split("trigger out at GP14: high at ").nth(1)?;
+                let rest = l.split(marker).nth(1)?;
                 let (at, width) = rest.split_once(" µs for ")?;
                 Some((
                     at.parse().ok()?,

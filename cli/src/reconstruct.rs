@@ -152,6 +152,17 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         rep.error_per_pass.first().copied().unwrap_or(f64::NAN),
         rep.error_per_pass.last().copied().unwrap_or(f64::NAN)
     );
+    if let Some(b) = &rep.height_from_boundary {
+        println!(
+            "h from the bright/dark-field edge: {:.2} ± {:.2} mm (± {:.2} mm with the NA's {:.0} %; the geometry's {:.2} mm, {:+.1}σ)",
+            b.estimate.height_mm,
+            b.estimate.sigma_mm,
+            b.sigma_with_na_mm,
+            b.na_relative_sigma * 100.0,
+            b.geometry_height_mm,
+            b.difference_sigma
+        );
+    }
     if let Some(s) = &rep.versus_truth {
         println!(
             "versus the simulation's truth: complex NRMSE {:.3}, amplitude NRMSE {:.3}, phase RMSE {:.3} rad",

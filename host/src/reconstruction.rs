@@ -6,6 +6,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::background::{Correction, FrameBackground};
+use fpm_physics::calibrate::boundary::{self, BoundaryHeight};
+use fpm_physics::frame::LitFrame;
 use fpm_physics::reconstruct::tiled::{self, TiledOutcome};
 use fpm_physics::reconstruct::Settings;
 use fpm_physics::tiles::Tile;
@@ -82,6 +84,69 @@ pub struct Report {
     /// Against the simulation's ground truth, when the dataset has one (docs/dataset.md §6).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub versus_truth: Option<fpm_physics::metrics::Scores>,
+    /// h read from the bright/dark-field boundary of the frames, which does not depend
+    /// on the stage's z, against the geometry's (when the frames bracket it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub height_from_boundary: Option<BoundaryCheck>,
+}
+
+/// h from the bright/dark-field boundary, beside the geometry's h.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct BoundaryCheck {
+    /// The estimate.
+    #[serde(flatten)]
+    pub estimate: BoundaryHeight,
+    /// The geometry's h, mm.
+    pub geometry_height_mm: f64,
+    /// The NA's relative 1σ assumed: h from the edge scales as √(1 − NA²)/NA.
+    pub na_relative_sigma: f64,
+    /// The estimate's 1σ with the NA's added, mm.
+    pub sigma_with_na_mm: f64,
+    /// (boundary − geometry) over `sigma_with_na_mm`.
+    pub difference_sigma: f64,
+}
+
+/// How well an objective's NA is known, relative: the label is nominal, and the NA
+/// the illumination meets may differ by a few per cent.
+pub const NA_RELATIVE_SIGMA: f64 = 0.02;
+
+impl BoundaryCheck {
+    /// Whether the two disagree: beyond 3σ of the boundary's estimate (the NA's
+    /// uncertainty included).
+    pub fn disagrees(&self) -> bool {
+        self.difference_sigma.abs() > 3.0
+    }
+}
+
+/// Blocks the boundary is read in, camera pixels.
+const BOUNDARY_BLOCK_PX: usize = 8;
+
+/// h from the bright/dark-field boundary of `frames` (in focus), with the lateral
+/// placement of `geometry`, searched from 0.75× to 1.33× its h, beside its h. `None`
+/// when the frames do not bracket it (too few LEDs near the edge, no centre frame).
+pub fn boundary_check(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+) -> Option<BoundaryCheck> {
+    let h = geometry.height_mm;
+    let estimate = boundary::from_frames(
+        system,
+        geometry,
+        frames,
+        geometry.center,
+        BOUNDARY_BLOCK_PX,
+        (0.75 * h, 1.33 * h),
+    )?;
+    let na_share = estimate.height_mm * NA_RELATIVE_SIGMA / (1.0 - system.na * system.na);
+    let sigma_with_na_mm = estimate.sigma_mm.hypot(na_share);
+    Some(BoundaryCheck {
+        estimate,
+        geometry_height_mm: h,
+        na_relative_sigma: NA_RELATIVE_SIGMA,
+        sigma_with_na_mm,
+        difference_sigma: (estimate.height_mm - h) / sigma_with_na_mm.max(1e-9),
+    })
 }
 
 impl Report {
@@ -140,6 +205,7 @@ impl Report {
             disc_placement: DISC_PLACEMENT,
             background: BackgroundReport::new(settings.background, &outcome.backgrounds),
             versus_truth: None,
+            height_from_boundary: None,
         }
     }
 }
@@ -247,7 +313,7 @@ pub fn reconstruct(
     )
     .with_context(|| format!("reconstructing {}", ds.dir.display()))?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let report = Report::new(
+    let mut report = Report::new(
         &ds.dir,
         &ds.manifest.system(),
         geometry,
@@ -258,6 +324,7 @@ pub fn reconstruct(
         &outcome,
         total_ms,
     );
+    report.height_from_boundary = boundary_check(&ds.manifest.system(), geometry, &frames);
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

@@ -306,6 +306,52 @@ fn tiles_blend_into_the_whole_field() {
     let amp = read_f32(&tiled.0.join("amplitude.tif"));
     assert_eq!(amp.dim(), (256 * 4, 256 * 4));
 
+    // h from the bright/dark-field edge agrees with the dataset's (the true one, 92 mm)
+    // to the NA's uncertainty. (This simulator applies the pupil on its padded grid's
+    // frequency bins, which moves the edge by up to half a bin, ~1.2 % of the NA here;
+    // host/physics/tests/calibration_boundary.rs takes a wide margin and gets 0.1 mm.)
+    let boundary = |r: &serde_json::Value, key: &str| {
+        r["height_from_boundary"][key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("height_from_boundary.{key} in {r}"))
+    };
+    let h = boundary(&rw, "height_mm");
+    eprintln!(
+        "h from the edge {h:.3} ± {:.3} mm (± {:.3} with the NA)",
+        boundary(&rw, "sigma_mm"),
+        boundary(&rw, "sigma_with_na_mm")
+    );
+    assert!((h - 92.0).abs() < 0.02 * 92.0, "{h}");
+    assert!(boundary(&rw, "difference_sigma").abs() < 3.0);
+    // …and catches a geometry whose h is 10 % off (a misreported defocus), the edge
+    // staying where it is.
+    let wrong = data.0.join("h-10-percent-off.json");
+    std::fs::write(
+        &wrong,
+        r#"{ "dx_mm": 0.0, "dy_mm": 0.0, "theta_deg": 0.0, "height_mm": 101.2 }"#,
+    )
+    .unwrap();
+    let off = TempDir::new("tiles-h-off");
+    let run = Command::new(fpm_bin())
+        .args(["reconstruct", &d, "--passes", "1", "--out"])
+        .arg(&off.0)
+        .arg("--calibration")
+        .arg(&wrong)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let r = report(&off.0);
+    assert!(
+        (boundary(&r, "height_mm") - 92.0).abs() < 0.02 * 92.0,
+        "{r}"
+    );
+    assert!(boundary(&r, "difference_sigma") < -3.0, "{r}");
+    assert!(
+        stderr.contains("bright/dark-field boundary puts the LEDs"),
+        "a warning says so: {stderr}"
+    );
+
     // A non-square frame: crop the frames to 256 × 120 and reconstruct as is.
     let ds = fpm_host::dataset::Dataset::load(&data.0).unwrap();
     let cropped: Vec<Array2<u16>> = ds

@@ -393,6 +393,8 @@ pub fn acquire(
         // A simulated rig's truth beside the dataset scores the image (an extra).
         report.versus_truth =
             fpm_host::truth::score_reconstruction(&ds, &outcome.object, settings.upsample);
+        report.height_from_boundary =
+            fpm_host::reconstruction::boundary_check(&system, &geometry, &frames);
         let reconstruction = Reconstruction::from_outcome(outcome, report);
         write_outputs(&reconstruction, &plan.out.join("reconstruction"))?;
         page::reconstruction(&reconstruction, &system, &nominal, &plan.out);

@@ -40,6 +40,12 @@ pub fn warnings(report: &Report) -> Vec<String> {
             ));
         }
     }
+    if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
+        out.push(format!(
+            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): check the defocus the calibration was told (h is proportional to it) and the NA",
+            b.estimate.height_mm, b.sigma_with_na_mm, b.na_relative_sigma * 100.0, b.geometry_height_mm, b.difference_sigma
+        ));
+    }
     let refused = report
         .background
         .dark_field_frames
@@ -175,6 +181,24 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                 "{}: Δx {:+.4} mm, Δy {:+.4} mm, θ {:+.4}°, h {:.3} mm",
                 rep.geometry_source, g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
             ),
+        ),
+        Row::with_id(
+            "height_from_boundary",
+            "h from the bright/dark-field edge",
+            match &rep.height_from_boundary {
+                Some(b) => format!(
+                    "{:.2} ± {:.2} mm from the edges, ± {:.2} mm with the NA's {:.0} % ({} frames decide it, {} partly bright; {:+.1}σ from the geometry's {:.2} mm)",
+                    b.estimate.height_mm,
+                    b.estimate.sigma_mm,
+                    b.sigma_with_na_mm,
+                    b.na_relative_sigma * 100.0,
+                    b.estimate.deciding_frames,
+                    b.estimate.partly_bright,
+                    b.difference_sigma,
+                    b.geometry_height_mm
+                ),
+                None => "not bracketed by these frames".to_string(),
+            },
         ),
         Row::new(
             "optics",

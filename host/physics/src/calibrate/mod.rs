@@ -10,6 +10,7 @@
 //!    near the bright/dark-field boundary under the fitted geometry.
 //! 5. Subtract the model-based bias of each measurement and fit again.
 
+pub mod boundary;
 pub mod feature;
 pub mod fit;
 pub mod model;

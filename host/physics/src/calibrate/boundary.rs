@@ -1,0 +1,290 @@
+//! h without trusting the stage: the bright-field/dark-field boundary.
+//!
+//! The defocus shifts fix only z/h, so h is as good as the stage's z. Which LEDs light
+//! the field directly does not depend on z at all: a point x of the sample sees LED i
+//! in bright field when its light arrives within the objective's NA,
+//! ρ/√(ρ² + h_i²) < NA with ρ = |x − LED i| laterally, i.e. when
+//! h_i > ρ·√(1 − NA²)/NA. The array's lateral placement (Δx, Δy, θ and the tilt) comes
+//! from the shifts without z, so for every block of every in-focus frame the h at
+//! which it turns bright is known, and whether it is lit is measured: h is where the
+//! two agree best. An LED whose edge crosses the field draws that edge inside the
+//! frame and pins h to a fraction of the field's width; the others bracket it between
+//! the last bright and the first dark LED. h is then as accurate as the NA: 1 % of
+//! NA is 1 % of h.
+//!
+//! A block is lit when its mean, per ms, is more than half the same block of the
+//! reference (a frame under an LED near the axis). Comparing block by block takes the
+//! sample's own light and dark out; the threshold at half keeps the dark-field light
+//! that the sample scatters next to the edge, and the bright-field light it loses
+//! there, from changing a block's state.
+
+use serde::{Deserialize, Serialize};
+
+use crate::frame::{LitFrame, Region};
+use crate::optics::{LedGeometry, LedIndex, System};
+use crate::Image;
+
+/// The blocks a frame is read in, and their centres in the sample plane.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Blocks {
+    /// Side, pixels.
+    pub side_px: usize,
+    /// Blocks across and down.
+    pub across: usize,
+    /// Blocks down.
+    pub down: usize,
+    /// Centre of each block (row-major), µm.
+    pub centres_um: Vec<(f64, f64)>,
+}
+
+impl Blocks {
+    /// Whole blocks of `side_px` over a `(height, width)` frame (a remainder at the
+    /// right and bottom is left out).
+    pub fn new(system: &System, (height, width): (usize, usize), side_px: usize) -> Self {
+        let side_px = side_px.max(1);
+        let (across, down) = (width / side_px, height / side_px);
+        let centre = |k: usize| (k * side_px) as f64 + (side_px as f64 - 1.0) / 2.0;
+        let centres_um = (0..down * across)
+            .map(|k| system.pixel_to_sample(centre(k % across), centre(k / across), width, height))
+            .collect();
+        Self {
+            side_px,
+            across,
+            down,
+            centres_um,
+        }
+    }
+
+    /// The mean of each block of `image`, row-major.
+    pub fn means(&self, image: &Image) -> Vec<f64> {
+        let s = self.side_px;
+        let n = (s * s) as f64;
+        (0..self.down * self.across)
+            .map(|k| {
+                let (r0, c0) = ((k / self.across) * s, (k % self.across) * s);
+                let block = image.slice(ndarray::s![r0..r0 + s, c0..c0 + s]);
+                block.iter().map(|&v| v as f64).sum::<f64>() / n
+            })
+            .collect()
+    }
+}
+
+/// Which blocks of a frame are lit: its block means (per ms) over the reference's,
+/// above [`LIT_RATIO`]. `None` where the reference block is too dark to compare
+/// (below a tenth of the reference's median block).
+pub fn lit_blocks(frame_means: &[f64], reference_means: &[f64]) -> Vec<Option<bool>> {
+    let floor = 0.1 * crate::image::median(reference_means.iter().map(|&v| v as f32)) as f64;
+    frame_means
+        .iter()
+        .zip(reference_means)
+        .map(|(&f, &r)| (r > floor && r > 0.0).then_some(f > LIT_RATIO * r))
+        .collect()
+}
+
+/// A block is lit above this share of the reference's same block.
+pub const LIT_RATIO: f64 = 0.5;
+
+/// One frame, read block by block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LitFrameBlocks {
+    /// The LED.
+    pub led: LedIndex,
+    /// Per block: lit, dark, or not readable.
+    pub lit: Vec<Option<bool>>,
+}
+
+/// h from the boundary.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BoundaryHeight {
+    /// h, mm.
+    pub height_mm: f64,
+    /// 1σ, mm: the best range's width, how far the edges the single frames draw
+    /// disagree, and the optics' blur of the edge (not the NA's error).
+    pub sigma_mm: f64,
+    /// The range of h that fits the blocks best, mm.
+    pub best_range_mm: [f64; 2],
+    /// Blocks whose state the best h gets wrong (of all readable ones).
+    pub mismatched_blocks: usize,
+    /// Frames with a block whose state changes within the search range: the ones
+    /// that decide h.
+    pub deciding_frames: usize,
+    /// Frames the edge crosses at the best h (partly bright).
+    pub partly_bright: usize,
+}
+
+/// The edge in a frame is blurred by the optics over about λ/NA; h is not known
+/// better than this many µm of the edge's position (times √(1 − NA²)/NA).
+fn edge_blur_um(system: &System) -> f64 {
+    system.wavelength_um / system.na
+}
+
+/// Estimate h (mm) within `search_mm` from `frames` read in `blocks`, with the lateral
+/// placement, rotation and tilt of `geometry` (its h is not used). `None` when no
+/// block changes state inside the search range, or the best range touches its edge
+/// (the frames bound h on one side only).
+pub fn estimate(
+    system: &System,
+    geometry: &LedGeometry,
+    blocks: &Blocks,
+    frames: &[LitFrameBlocks],
+    search_mm: (f64, f64),
+) -> Option<BoundaryHeight> {
+    let ratio = (1.0 - system.na * system.na).sqrt() / system.na;
+    // Per frame and block: (the h at which the block turns bright, whether it is lit).
+    let thresholds: Vec<Vec<(f64, bool)>> = frames
+        .iter()
+        .map(|f| {
+            let (lx, ly, lh) = geometry.led_position_3d_mm(f.led);
+            let depth = lh - geometry.height_mm;
+            blocks
+                .centres_um
+                .iter()
+                .zip(&f.lit)
+                .filter_map(|(&(x, y), lit)| {
+                    let rho_mm = (x - lx * 1e3).hypot(y - ly * 1e3) * 1e-3;
+                    lit.map(|l| (rho_mm * ratio - depth, l))
+                })
+                .collect()
+        })
+        .collect();
+    let (lo, hi) = search_mm;
+    let (best_lo, best_hi, mismatched) = best_range(thresholds.iter().flatten(), lo, hi)?;
+    if best_lo <= lo || best_hi >= hi {
+        return None;
+    }
+    let height_mm = 0.5 * (best_lo + best_hi);
+    // Each frame the edge crosses gives its own h: their spread shows how well the
+    // edges are read.
+    let single: Vec<f64> = thresholds
+        .iter()
+        .filter(|t| t.iter().any(|&(h, _)| h < height_mm) && t.iter().any(|&(h, _)| h > height_mm))
+        .filter_map(|t| {
+            let (a, b, _) = best_range(t.iter(), lo, hi)?;
+            (a > lo && b < hi).then_some(0.5 * (a + b))
+        })
+        .collect();
+    let blur_mm = edge_blur_um(system) * 1e-3 * ratio;
+    let spread_mm = if single.len() >= 3 {
+        let mean = single.iter().sum::<f64>() / single.len() as f64;
+        let var =
+            single.iter().map(|h| (h - mean).powi(2)).sum::<f64>() / (single.len() - 1) as f64;
+        (var / single.len() as f64).sqrt()
+    } else {
+        0.0
+    };
+    let sigma_mm = ((best_hi - best_lo) / 12f64.sqrt())
+        .hypot(spread_mm)
+        .hypot(blur_mm);
+    let deciding_frames = thresholds
+        .iter()
+        .filter(|t| t.iter().any(|&(h, _)| h > lo && h < hi))
+        .count();
+    Some(BoundaryHeight {
+        height_mm,
+        sigma_mm,
+        best_range_mm: [best_lo, best_hi],
+        mismatched_blocks: mismatched,
+        deciding_frames,
+        partly_bright: single.len(),
+    })
+}
+
+/// The range of h in (`lo`, `hi`) where the fewest blocks disagree with the rule
+/// "lit ⇔ h above the block's threshold", and that fewest. The hull of all ranges that
+/// tie.
+fn best_range<'a>(
+    blocks: impl Iterator<Item = &'a (f64, bool)> + Clone,
+    lo: f64,
+    hi: f64,
+) -> Option<(f64, f64, usize)> {
+    // At h = lo: lit blocks above lo disagree, dark blocks below lo disagree.
+    let mut wrong = blocks
+        .clone()
+        .filter(|&&(t, lit)| if lit { t >= lo } else { t < lo })
+        .count();
+    let mut events: Vec<(f64, bool)> = blocks
+        .filter(|(t, _)| *t > lo && *t < hi)
+        .copied()
+        .collect();
+    if events.is_empty() {
+        return None;
+    }
+    events.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Walk up in h: passing a lit block's threshold fixes it, a dark one's breaks it.
+    let mut ranges: Vec<(f64, f64, usize)> = Vec::with_capacity(events.len() + 1);
+    let mut start = lo;
+    for (t, lit) in events {
+        ranges.push((start, t, wrong));
+        wrong = if lit { wrong - 1 } else { wrong + 1 };
+        start = t;
+    }
+    ranges.push((start, hi, wrong));
+    let fewest = ranges.iter().map(|r| r.2).min()?;
+    let first = ranges.iter().find(|r| r.2 == fewest)?.0;
+    let last = ranges.iter().rev().find(|r| r.2 == fewest)?.1;
+    Some((first, last, fewest))
+}
+
+/// Read in-focus `frames` in blocks of `side_px` against the frame under
+/// `reference_led` and estimate h within `search_mm` (see [`estimate`]). `None` when
+/// the reference frame is missing or the blocks do not bracket h.
+pub fn from_frames(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+    reference_led: LedIndex,
+    side_px: usize,
+    search_mm: (f64, f64),
+) -> Option<BoundaryHeight> {
+    let reference = frames.iter().find(|f| f.led == reference_led)?;
+    let dim = reference.measured.dim();
+    let blocks = Blocks::new(system, dim, side_px);
+    let means = |f: &LitFrame<'_>| blocks.means(&f.measured.intensity(Region::whole(dim)));
+    let reference_means = means(reference);
+    let read: Vec<LitFrameBlocks> = frames
+        .iter()
+        .filter(|f| f.measured.dim() == dim)
+        .map(|f| LitFrameBlocks {
+            led: f.led,
+            lit: lit_blocks(&means(f), &reference_means),
+        })
+        .collect();
+    estimate(system, geometry, &blocks, &read, search_mm)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Blocks lit by the rule itself at a known h (the wave-optics test is in
+    /// `tests/calibration_boundary.rs`): the estimate brackets it; nothing changes in
+    /// a window far from it, so there is no estimate there.
+    #[test]
+    fn the_rule_inverts() {
+        let system = System::paper();
+        let truth = LedGeometry::paper().placed(0.7, -0.4, 3.0, 91.3);
+        let blocks = Blocks::new(&system, (256, 256), 8);
+        let frames: Vec<LitFrameBlocks> = truth
+            .leds()
+            .into_iter()
+            .map(|led| LitFrameBlocks {
+                led,
+                lit: blocks
+                    .centres_um
+                    .iter()
+                    .map(|&(x, y)| Some(truth.is_bright_field(led, x, y, &system)))
+                    .collect(),
+            })
+            .collect();
+        let guess = truth.placed(0.7, -0.4, 3.0, 80.0);
+        let b = estimate(&system, &guess, &blocks, &frames, (70.0, 110.0)).expect("bracketed");
+        assert!(
+            b.best_range_mm[0] <= 91.3 && b.best_range_mm[1] >= 91.3,
+            "{b:?}"
+        );
+        assert_eq!(b.mismatched_blocks, 0);
+        assert!((b.height_mm - 91.3).abs() < 2.0 * b.sigma_mm, "{b:?}");
+        assert!(b.deciding_frames > 10);
+        assert!(estimate(&system, &guess, &blocks, &frames, (60.0, 61.0)).is_none());
+    }
+}

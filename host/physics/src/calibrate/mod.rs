@@ -295,6 +295,7 @@ pub fn calibrate(
         half_window,
         3,
     )
+    .map(|m| m.with_pixel_noise(reference.image))
     .ok_or(FeatureError::NotFound {
         area: feature.area_px,
     })?;
@@ -323,7 +324,8 @@ pub fn calibrate(
             let brightness = frame_brightness(f) / ref_brightness.max(1e-300);
             let expect = nominal.defocus_shift_um(f.led, xc, yc, z);
             let start = (ref_center.0 + expect.0 / px, ref_center.1 + expect.1 / px);
-            let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4);
+            let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4)
+                .map(|m| m.with_pixel_noise(f.image));
             let saturated = |m: &shift::Moment| {
                 f.saturation.is_some_and(|sat| {
                     let w = m.window;

@@ -28,8 +28,9 @@ pub struct FeatureModel {
     pub half_window: usize,
     /// Feature centre on the model grid, (col, row).
     origin: (f64, f64),
-    /// Pupil × defocus transfer for the last defocus asked for.
-    transfer: Option<(f64, Vec<Complex32>)>,
+    /// Pupil × defocus transfer for the last defocus asked for, and the columns the
+    /// pupil passes (the transforms skip the rest).
+    transfer: Option<(f64, Vec<Complex32>, Vec<usize>)>,
     /// The focused reference's moment for the last reference frequency asked for.
     reference: Option<((f64, f64), (f64, f64))>,
 }
@@ -117,8 +118,11 @@ impl FeatureModel {
     pub fn image(&mut self, system: &System, f: (f64, f64), z_um: f64) -> Image {
         let n = self.n;
         let d = system.sample_pixel_um();
-        if self.transfer.as_ref().is_none_or(|(z, _)| *z != z_um) {
+        if self.transfer.as_ref().is_none_or(|(z, _, _)| *z != z_um) {
             let cutoff2 = system.cutoff().powi(2);
+            let pupil_cols: Vec<usize> = (0..n)
+                .filter(|&k| bin_frequency(k, n, d).abs() <= system.cutoff())
+                .collect();
             let t = (0..n * n)
                 .map(|i| {
                     let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
@@ -130,7 +134,7 @@ impl FeatureModel {
                     }
                 })
                 .collect();
-            self.transfer = Some((z_um, t));
+            self.transfer = Some((z_um, t, pupil_cols));
         }
         // The tilt exp(i2π f·x) separates into a row and a column factor.
         let tilt = |freq: f64, k: usize| {
@@ -150,14 +154,19 @@ impl FeatureModel {
                 *out = obj * row_tilt * col_tilt;
             }
         }
-        self.fft.forward(&mut self.buf);
-        if let Some((_, t)) = &self.transfer {
+        // Only the pupil's columns of the spectrum are needed, and only they are
+        // non-zero on the way back: the transforms skip the others (the transfer is zero
+        // there, clearing what the forward pass left in them).
+        if let Some((_, t, pupil_cols)) = &self.transfer {
+            self.fft.forward_wanted_cols(&mut self.buf, pupil_cols);
             for (v, h) in self.buf.iter_mut().zip(t) {
                 *v *= h;
             }
+            self.fft
+                .inverse_unnormalised_sparse_cols(&mut self.buf, pupil_cols);
         }
-        self.fft.inverse(&mut self.buf);
-        Image::from_shape_fn((n, n), |(r, c)| self.buf[r * n + c].norm_sqr())
+        let norm = 1.0 / ((n * n) as f32).powi(2);
+        Image::from_shape_fn((n, n), |(r, c)| self.buf[r * n + c].norm_sqr() * norm)
     }
 
     /// The first-moment shift (µm) the estimator reports for a defocused frame under

@@ -21,8 +21,28 @@ pub struct Moment {
     /// Whether the window had to be cut by the frame's edge.
     pub clipped: bool,
     /// 1σ of `center_px` from the frame's pixel noise (the frame's own noise law,
-    /// propagated through the moment and its background), pixels.
+    /// propagated through the moment and its background), pixels; zero until
+    /// [`Moment::with_pixel_noise`] measures it.
     pub sigma_px: (f64, f64),
+    /// Pixels the background's median was taken from.
+    pub background_pixels: usize,
+}
+
+impl Moment {
+    /// The same moment with its 1σ from `img`'s own pixel noise (a measured frame; a
+    /// model's noiseless image has none to measure).
+    pub fn with_pixel_noise(mut self, img: &Image) -> Self {
+        let model = noise::measure(img, self.window);
+        self.sigma_px = noise::moment_sigma(
+            img,
+            &model,
+            self.window,
+            self.center_px,
+            self.signal,
+            self.background_pixels,
+        );
+        self
+    }
 }
 
 /// Background: the median of a band around the window, and how many pixels it took.
@@ -37,12 +57,18 @@ fn ring_background(
     let (h, w) = img.dim();
     let (bx0, by0) = (x0.saturating_sub(band), y0.saturating_sub(band));
     let (bx1, by1) = ((x1 + band).min(w), (y1 + band).min(h));
-    let ring = (by0..by1)
-        .flat_map(|r| (bx0..bx1).map(move |c| (r, c)))
-        .filter(|&(r, c)| r < y0 || r >= y1 || c < x0 || c >= x1)
-        .map(|(r, c)| img[[r, c]]);
-    let ring: Vec<f32> = ring.collect();
-    (median(ring.iter().copied()), ring.len())
+    let mut ring: Vec<f32> = Vec::with_capacity(2 * band * (bx1 - bx0 + by1 - by0));
+    for r in by0..by1 {
+        let row = img.row(r);
+        if r < y0 || r >= y1 {
+            ring.extend(row.slice(ndarray::s![bx0..bx1]).iter());
+        } else {
+            ring.extend(row.slice(ndarray::s![bx0..x0]).iter());
+            ring.extend(row.slice(ndarray::s![x1..bx1]).iter());
+        }
+    }
+    let n = ring.len();
+    (median(ring), n)
 }
 
 /// The first moment of `polarity`-signed, background-removed intensity in a square
@@ -62,9 +88,15 @@ pub fn first_moment(
         -1.0
     };
     let mut center = start;
-    let mut result = None;
+    let mut result: Option<Moment> = None;
+    let mut last_window = None;
     for _ in 0..iterations.max(1) {
         let (cx, cy) = (center.0.round() as i64, center.1.round() as i64);
+        // The same window gives the same moment: converged.
+        if last_window == Some((cx, cy)) {
+            break;
+        }
+        last_window = Some((cx, cy));
         let x0 = (cx - half as i64).max(0) as usize;
         let y0 = (cy - half as i64).max(0) as usize;
         let x1 = ((cx + half as i64 + 1).max(0) as usize).min(w);
@@ -79,28 +111,21 @@ pub fn first_moment(
         let (bg, ring) = ring_background(img, x0, y0, x1, y1, 6);
         let (c, sw) = signed_moment(img, sign, bg, (x0, x1), (y0, y1))?;
         center = c;
-        result = Some((
-            Moment {
-                center_px: center,
-                signal: sw,
-                window: Roi {
-                    x: x0,
-                    y: y0,
-                    w: x1 - x0,
-                    h: y1 - y0,
-                },
-                clipped,
-                sigma_px: (0.0, 0.0),
+        result = Some(Moment {
+            center_px: center,
+            signal: sw,
+            window: Roi {
+                x: x0,
+                y: y0,
+                w: x1 - x0,
+                h: y1 - y0,
             },
-            ring,
-        ));
+            clipped,
+            sigma_px: (0.0, 0.0),
+            background_pixels: ring,
+        });
     }
-    // How sure the final moment is, from the frame's own noise.
-    result.map(|(mut m, ring)| {
-        let model = noise::measure(img, m.window);
-        m.sigma_px = noise::moment_sigma(img, &model, m.window, m.center_px, m.signal, ring);
-        m
-    })
+    result
 }
 
 #[cfg(test)]

@@ -37,12 +37,16 @@ pub fn signed_moment(
 ) -> Option<((f64, f64), f64)> {
     let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
     for r in y0..y1 {
-        for c in x0..x1 {
-            let v = (sign * (img[[r, c]] - background)) as f64;
-            sx += v * c as f64;
-            sy += v * r as f64;
-            sw += v;
+        // Per row in f32 (a row's few hundred terms), then accumulated in f64.
+        let (mut row_x, mut row_w) = (0.0f32, 0.0f32);
+        for (c, &p) in (x0..x1).zip(img.row(r).slice(ndarray::s![x0..x1]).iter()) {
+            let v = sign * (p - background);
+            row_x += v * (c - x0) as f32;
+            row_w += v;
         }
+        sx += row_x as f64 + row_w as f64 * x0 as f64;
+        sy += row_w as f64 * r as f64;
+        sw += row_w as f64;
     }
     (sw > 0.0).then(|| ((sx / sw, sy / sw), sw))
 }

@@ -288,11 +288,16 @@ pub fn calibrate(
     let half_feature = (feature.bbox.w.max(feature.bbox.h) as f64 / 2.0).ceil();
     let blur_px = z.abs() * system.na / (1.0 - system.na * system.na).sqrt() / px;
     let half_window = (half_feature + 1.2 * blur_px + 6.0).ceil() as usize;
+    // The focused reference needs only the feature and its edge's ringing (a few
+    // resolution elements): every pixel more adds noise to the moment that every shift
+    // subtracts, magnified h/|z| in Δx, Δy.
+    let resolution_px = system.wavelength_um / system.na / px;
+    let reference_half = (half_feature + 2.0 * resolution_px + 6.0).ceil() as usize;
     let reference_moment = shift::first_moment(
         reference.image,
         feature.polarity,
         feature.center_px,
-        half_window,
+        reference_half.min(half_window),
         3,
     )
     .map(|m| m.with_pixel_noise(reference.image))
@@ -377,7 +382,10 @@ pub fn calibrate(
             .filter_map(|m| m.shift_um)
             .map(|s| s.0.hypot(s.1) / px)
             .fold(0.0, f64::max);
-        model::FeatureModel::new(reference.image, &feature, half_window, max_shift_px + 4.0)
+        let mut m =
+            model::FeatureModel::new(reference.image, &feature, half_window, max_shift_px + 4.0);
+        m.reference_half_window = reference_half.min(half_window);
+        m
     });
     // The feature's spectrum is ~2/size wide; keep LEDs whose disc edge clears it.
     let feature_size_um = (feature.area_px as f64).sqrt() * px;

@@ -24,8 +24,10 @@ pub struct FeatureModel {
     polarity: Polarity,
     fft: Fft2,
     buf: Vec<Complex32>,
-    /// Moment window half-size used for the frames.
+    /// Moment window half-size used for the defocused frames.
     pub half_window: usize,
+    /// Moment window half-size used for the focused reference.
+    pub reference_half_window: usize,
     /// Feature centre on the model grid, (col, row).
     origin: (f64, f64),
     /// Pupil × defocus transfer for the last defocus asked for, and the columns the
@@ -108,6 +110,7 @@ impl FeatureModel {
             fft: Fft2::new(n, n),
             buf: vec![Complex32::default(); n * n],
             half_window,
+            reference_half_window: half_window,
             origin: ((n / 2) as f64, (n / 2) as f64),
             transfer: None,
             reference: None,
@@ -183,8 +186,14 @@ impl FeatureModel {
             Some((f, m)) if f == f_ref => m,
             _ => {
                 let reference = self.image(system, f_ref, 0.0);
-                let m = first_moment(&reference, self.polarity, self.origin, self.half_window, 3)?
-                    .center_px;
+                let m = first_moment(
+                    &reference,
+                    self.polarity,
+                    self.origin,
+                    self.reference_half_window,
+                    3,
+                )?
+                .center_px;
                 self.reference = Some((f_ref, m));
                 m
             }

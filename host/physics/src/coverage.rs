@@ -98,7 +98,9 @@ pub fn run_case(scene: &CalibrationScene, options: &Options) -> Outcome {
     }
 }
 
-fn errors(c: &Calibration, t: &LedGeometry) -> ([f64; 4], [f64; 4]) {
+/// Signed errors (found − truth; µm, µm, °, mm) of `c` against `t`, and the
+/// reported 1σ in the same units.
+pub fn errors(c: &Calibration, t: &LedGeometry) -> ([f64; 4], [f64; 4]) {
     let u = &c.uncertainty;
     (
         [

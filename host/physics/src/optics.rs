@@ -115,11 +115,6 @@ impl LedGeometry {
         }
     }
 
-    /// Whether the board is tilted at all.
-    pub fn is_tilted(&self) -> bool {
-        self.tilt_x_deg != 0.0 || self.tilt_y_deg != 0.0
-    }
-
     /// The same array moved by (Δx, Δy) mm, turned by θ degrees, at height h mm.
     pub const fn placed(self, dx_mm: f64, dy_mm: f64, theta_deg: f64, height_mm: f64) -> Self {
         Self {

@@ -3,11 +3,11 @@
 //! (full wave-optics simulator, every LED of the 21×21 array, the truth hidden) brings
 //! it back.
 
-use fpm_physics::calibrate::boundary;
-use fpm_physics::calibrate::{self, Options};
-use fpm_physics::frame::{LitFrame, Region};
-use fpm_physics::simulate::{acquire, CalibrationScene, ObjectField};
-use fpm_physics::{Image, LedGeometry, LedIndex};
+use fpm_physics::calibrate::{boundary, Options};
+use fpm_physics::frame::LitFrame;
+use fpm_physics::simulate::{acquire, CalibrationScene, ObjectField, SimFrame};
+use fpm_physics::study::calibrate_simulated;
+use fpm_physics::{LedGeometry, LedIndex};
 
 #[test]
 fn the_boundary_gives_h_when_the_defocus_is_misreported() {
@@ -22,26 +22,15 @@ fn the_boundary_gives_h_when_the_defocus_is_misreported() {
         // The calibration, told a defocus 10 % larger than the stage moved.
         let scene = CalibrationScene::paper(truth, 500 + k as u64);
         let frames = scene.acquire();
-        let images: Vec<Image> = frames
+        let told: Vec<SimFrame> = frames
             .iter()
-            .map(|f| {
-                let m = f.measured(&scene.camera);
-                m.dark_subtracted(Region::whole(m.dim()))
-            })
-            .collect();
-        let input: Vec<calibrate::Frame> = frames
-            .iter()
-            .zip(&images)
-            .map(|(f, image)| calibrate::Frame {
-                led: f.led,
+            .map(|f| SimFrame {
                 defocus_um: f.defocus_um * 1.1,
-                exposure_ms: f.exposure_ms,
-                image,
-                saturation: Some(scene.camera.saturation()),
+                ..f.clone()
             })
             .collect();
-        let cal = calibrate::calibrate(&scene.system, &nominal, &input, &Options::default())
-            .expect("calibrates");
+        let (cal, _) =
+            calibrate_simulated(&scene, &told, &nominal, &Options::default()).expect("calibrates");
         let shift_error = cal.height_mm - truth.height_mm;
         assert!(
             shift_error > 5.0,

@@ -3,23 +3,10 @@
 //! against the flat nominal array with the truth hidden.
 
 use fpm_physics::calibrate::{Calibration, Options};
+use fpm_physics::coverage::errors;
 use fpm_physics::simulate::CalibrationScene;
 use fpm_physics::study::calibrate_simulated;
 use fpm_physics::LedGeometry;
-
-/// Errors (Δx µm, Δy µm, θ °, h mm) and the reported 1σ, same units.
-fn errors(c: &Calibration, t: &LedGeometry) -> ([f64; 4], [f64; 4]) {
-    let u = &c.uncertainty;
-    (
-        [
-            (c.dx_mm - t.dx_mm) * 1e3,
-            (c.dy_mm - t.dy_mm) * 1e3,
-            c.theta_deg - t.theta_deg,
-            c.height_mm - t.height_mm,
-        ],
-        [u.dx_mm * 1e3, u.dy_mm * 1e3, u.theta_deg, u.height_mm],
-    )
-}
 
 fn calibrate(scene: &CalibrationScene, options: &Options) -> Calibration {
     let frames = scene.acquire();

@@ -496,11 +496,7 @@ pub fn calibrate(
             reference_moment.sigma_px.1 * px,
         ),
         bias_um: &bias,
-        model_fraction: if options.bias_correction {
-            options.model_fraction
-        } else {
-            0.0
-        },
+        model_fraction: model_share,
         defocus_sigma_um: options.defocus_sigma_um,
     })
     .ok_or(CalibrationError::Fit)?;

@@ -229,10 +229,21 @@ impl Renderer {
         led: LedIndex,
         defocus_um: f64,
     ) -> Image {
+        self.render_from(system, geometry.led_position_3d_mm(led), object, defocus_um)
+    }
+
+    /// [`Self::render`] for an LED at `led_mm` = (x, y, distance below the sample), mm:
+    /// a board whose LEDs are off their grid.
+    pub fn render_from(
+        &mut self,
+        system: &System,
+        led_mm: (f64, f64, f64),
+        object: &ObjectField,
+        defocus_um: f64,
+    ) -> Image {
         let n = object.n;
         let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
-        let (lx, ly, h) = geometry.led_position_3d_mm(led);
-        let (lx, ly, h) = (lx * 1e3, ly * 1e3, h * 1e3);
+        let (lx, ly, h) = (led_mm.0 * 1e3, led_mm.1 * 1e3, led_mm.2 * 1e3);
         let r0 = (lx * lx + ly * ly + h * h).sqrt();
         // Spherical wave from the LED, phase relative to the field centre (f64, then
         // reduced: k·R is ~10⁶ rad).
@@ -425,6 +436,28 @@ pub fn acquire(
     exposure: impl Fn(&Image) -> f64 + Sync,
     seed: u64,
 ) -> Vec<SimFrame> {
+    acquire_from(
+        system,
+        &|led| geometry.led_position_3d_mm(led),
+        object,
+        shots,
+        camera,
+        exposure,
+        seed,
+    )
+}
+
+/// [`acquire`] from a board that places each LED itself (x, y, distance below the
+/// sample, mm): LEDs off their grid, as real boards have them.
+pub fn acquire_from(
+    system: &System,
+    board: &(dyn Fn(LedIndex) -> (f64, f64, f64) + Sync),
+    object: &ObjectField,
+    shots: &[(LedIndex, f64)],
+    camera: &Camera,
+    exposure: impl Fn(&Image) -> f64 + Sync,
+    seed: u64,
+) -> Vec<SimFrame> {
     use rayon::prelude::*;
     shots
         .par_iter()
@@ -432,7 +465,7 @@ pub fn acquire(
         .map_init(
             || Renderer::new(object),
             |renderer, (k, &(led, defocus_um))| {
-                let intensity = renderer.render(system, geometry, object, led, defocus_um);
+                let intensity = renderer.render_from(system, board(led), object, defocus_um);
                 let exposure_ms = exposure(&intensity);
                 let mut rng = rand::rngs::StdRng::seed_from_u64(
                     seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),

@@ -31,6 +31,7 @@
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use super::refine::Refine;
 use crate::background::Correction;
 use crate::fft::{bin_frequency, Fft2};
 use crate::optics::System;
@@ -55,6 +56,9 @@ pub struct Settings {
     /// What is taken off each frame before it is imposed (tiled runs, offline and
     /// streamed: they see whole frames).
     pub background: Correction,
+    /// Refine each LED's illumination frequency inside the passes (None: the
+    /// geometry's frequencies are taken as exact).
+    pub refine_leds: Option<Refine>,
 }
 
 impl Default for Settings {
@@ -65,6 +69,7 @@ impl Default for Settings {
             beta: 0.5,
             update_pupil: true,
             background: Correction::PerFrame { floor_sigma: 3.0 },
+            refine_leds: None,
         }
     }
 }
@@ -236,51 +241,7 @@ impl Epry {
         f: (f64, f64),
         update_pupil: bool,
     ) -> f64 {
-        let nh = self.hr_size() as i64;
-        let (sx, sy) = self.bin_shift(f);
-        // Sub-bin remainder δ = f/df − s: the exit wave times exp(−i2π δ·x) (same
-        // intensity) has spectrum P(k + δ)·O(k − s), so the object is read on its grid
-        // and the pupil disc is shifted by −δ bins instead.
-        let (rx, ry) = (f.0 / self.df - sx as f64, f.1 / self.df - sy as f64);
-        let radius2 = (self.cutoff / self.df).powi(2);
-        // Each bin inside the shifted disc reads the object at O(k − s), wrapped onto
-        // the HR grid.
-        self.active.clear();
-        self.active.extend(
-            self.pupil_bins
-                .iter()
-                .filter(|&&(_, kx, ky)| {
-                    (kx as f64 + rx).powi(2) + (ky as f64 + ry).powi(2) <= radius2
-                })
-                .map(|&(i, kx, ky)| {
-                    let o = (ky - sy).rem_euclid(nh) * nh + (kx - sx).rem_euclid(nh);
-                    (i as usize, o as usize)
-                }),
-        );
-        // ψ = P · O(k − s) on the pupil, zero elsewhere.
-        self.psi.clear();
-        if self.parallel {
-            self.phi
-                .par_chunks_mut(self.n * 8)
-                .for_each(|rows| rows.fill(Complex32::default()));
-        } else {
-            self.phi.fill(Complex32::default());
-        }
-        let mut omax = 0.0f32;
-        let mut pmax = 0.0f32;
-        for &(i, o) in &self.active {
-            let (p, ob) = (self.pupil[i], self.object[o]);
-            self.psi.push(p * ob);
-            self.phi[i] = p * ob;
-            omax = omax.max(ob.norm_sqr());
-            pmax = pmax.max(p.norm_sqr());
-        }
-        // ψ lives on the pupil disc's columns only, and only those columns of the
-        // forward transform are used: both FFTs skip the other columns' transforms
-        // (unnormalised inverse; the amplitude constraint below is scale-free apart
-        // from the error).
-        self.fft
-            .inverse_unnormalised_sparse_cols(&mut self.phi, &self.disc_cols);
+        let (pmax, omax) = self.exit_wave(f);
         let unnormalise = (self.n * self.n) as f32;
         // Amplitude constraint inside the constrained window (outside it the exit wave
         // floats); the HR/LR size ratio scales amplitudes by U².
@@ -342,6 +303,77 @@ impl Epry {
         (err / norm.max(1e-300)).sqrt()
     }
 
+    /// The model's exit wave for a frame lit at `f`, left unnormalised in `phi` (ψ on
+    /// the active bins in `psi`). Returns max |P|² and max |O|² over the active bins.
+    fn exit_wave(&mut self, f: (f64, f64)) -> (f32, f32) {
+        let nh = self.hr_size() as i64;
+        let (sx, sy) = self.bin_shift(f);
+        // Sub-bin remainder δ = f/df − s: the exit wave times exp(−i2π δ·x) (same
+        // intensity) has spectrum P(k + δ)·O(k − s), so the object is read on its grid
+        // and the pupil disc is shifted by −δ bins instead.
+        let (rx, ry) = (f.0 / self.df - sx as f64, f.1 / self.df - sy as f64);
+        let radius2 = (self.cutoff / self.df).powi(2);
+        // Each bin inside the shifted disc reads the object at O(k − s), wrapped onto
+        // the HR grid.
+        self.active.clear();
+        self.active.extend(
+            self.pupil_bins
+                .iter()
+                .filter(|&&(_, kx, ky)| {
+                    (kx as f64 + rx).powi(2) + (ky as f64 + ry).powi(2) <= radius2
+                })
+                .map(|&(i, kx, ky)| {
+                    let o = (ky - sy).rem_euclid(nh) * nh + (kx - sx).rem_euclid(nh);
+                    (i as usize, o as usize)
+                }),
+        );
+        // ψ = P · O(k − s) on the pupil, zero elsewhere.
+        self.psi.clear();
+        if self.parallel {
+            self.phi
+                .par_chunks_mut(self.n * 8)
+                .for_each(|rows| rows.fill(Complex32::default()));
+        } else {
+            self.phi.fill(Complex32::default());
+        }
+        let mut omax = 0.0f32;
+        let mut pmax = 0.0f32;
+        for &(i, o) in &self.active {
+            let (p, ob) = (self.pupil[i], self.object[o]);
+            self.psi.push(p * ob);
+            self.phi[i] = p * ob;
+            omax = omax.max(ob.norm_sqr());
+            pmax = pmax.max(p.norm_sqr());
+        }
+        // ψ lives on the pupil disc's columns only, and only those columns of the
+        // forward transform are used: both FFTs skip the other columns' transforms
+        // (unnormalised inverse; the amplitude constraint below is scale-free apart
+        // from the error).
+        self.fft
+            .inverse_unnormalised_sparse_cols(&mut self.phi, &self.disc_cols);
+        (pmax, omax)
+    }
+
+    /// The frame's relative amplitude error, ‖|φ| − √I‖ / ‖√I‖ over the constrained
+    /// window, if it were lit at `f`: what [`Self::update_amplitude`] returns, without
+    /// the update (LED refinement compares candidate positions with it).
+    pub fn misfit(&mut self, amplitude: &Image, f: (f64, f64)) -> f64 {
+        self.exit_wave(f);
+        let unnormalise = (self.n * self.n) as f32;
+        let gain = (self.upsample * self.upsample) as f32;
+        let [c0, c1, r0, r1] = self.constrained;
+        let n = self.n;
+        let (mut err, mut norm) = (0.0f64, 0.0f64);
+        for r in r0..r1 {
+            let model = &self.phi[r * n + c0..r * n + c1];
+            let (e, m) =
+                amplitude_misfit(model, amplitude.row(r).iter().skip(c0), gain, unnormalise);
+            err += e;
+            norm += m;
+        }
+        (err / norm.max(1e-300)).sqrt()
+    }
+
     /// Multiply the current object by the illumination's curvature,
     /// exp(+iπ·|x − x_c|²/(λ·R)), x_c the field's centre pixel (see
     /// [`remove_illumination_curvature`], which undoes it). Seeding with it is what
@@ -398,6 +430,11 @@ impl Epry {
     /// Whether the pupil is being learned.
     pub fn settings(&self) -> Settings {
         self.settings
+    }
+
+    /// The frequency grid's bin step, cycles/µm.
+    pub fn bin_step(&self) -> f64 {
+        self.df
     }
 }
 
@@ -460,6 +497,27 @@ fn impose_amplitude(
     }
     for (p, &m) in rows.into_remainder().iter_mut().zip(values.remainder()) {
         one(p, m, &mut err[0], &mut norm[0]);
+    }
+    let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();
+    (sum(err), sum(norm))
+}
+
+/// Σ(|ψ|/unnormalise − measured·gain)² and Σ(measured·gain)² over one row, ψ left as
+/// it is (eight lanes, as in [`impose_amplitude`]).
+fn amplitude_misfit<'a>(
+    row: &[Complex32],
+    measured: impl Iterator<Item = &'a f32>,
+    gain: f32,
+    unnormalise: f32,
+) -> (f64, f64) {
+    const LANES: usize = 8;
+    let (mut err, mut norm) = ([0.0f32; LANES], [0.0f32; LANES]);
+    let inv = 1.0 / unnormalise;
+    for (k, (p, &m)) in row.iter().zip(measured).enumerate() {
+        let target = m * gain;
+        let a = p.norm_sqr().sqrt() * inv;
+        err[k % LANES] += (a - target) * (a - target);
+        norm[k % LANES] += target * target;
     }
     let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();
     (sum(err), sum(norm))

@@ -2,18 +2,21 @@
 //!
 //! * [`epry`]: the solver state and one frame's update;
 //! * [`schedule`]: the pass loop and the adaptive step size;
+//! * [`refine`]: each LED's illumination frequency refined inside the passes;
 //! * [`offline`]: one square field with every frame at hand;
 //! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
 //! * [`tiled`]: the full field of view in tiles, offline and streaming alike.
 
 pub mod epry;
 pub mod offline;
+pub mod refine;
 pub mod schedule;
 pub mod streaming;
 pub mod tiled;
 
 pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
 pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
+pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;
 pub use streaming::Streaming;
 pub use tiled::{TileLayout, TileResult, TiledError, TiledOutcome, TiledStreaming};

@@ -25,6 +25,9 @@ pub struct Outcome {
     pub errors: Vec<f64>,
     /// Index into the shots of the frame nearest the axis (the initial guess).
     pub initial: usize,
+    /// Each shot's illumination frequency at the end (cycles/µm, in the shots' order):
+    /// refined when the settings ask for it ([`super::refine`]), else the geometry's.
+    pub frequencies: Vec<(f64, f64)>,
 }
 
 impl Outcome {
@@ -32,6 +35,16 @@ impl Outcome {
     /// divided out).
     pub fn sample(&mut self) -> ndarray::Array2<Complex32> {
         self.epry.sample()
+    }
+
+    /// Put each frame's frequency (in the order the passes saw them, `order[j]` being
+    /// the shot of frame `j`) back in the shots' order.
+    pub(crate) fn unordered(order: &[usize], frequencies: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+        let mut out = vec![(0.0, 0.0); order.len()];
+        for (&k, f) in order.iter().zip(frequencies) {
+            out[k] = f;
+        }
+        out
     }
 }
 
@@ -130,10 +143,11 @@ pub fn run_amplitudes(
         })
         .collect();
     // The pupil is learned from the second pass on, once the object has a first shape.
-    let errors = passes_over(&mut epry, system, &frames, passes, 1, &mut progress);
+    let done = passes_over(&mut epry, system, &frames, passes, 1, &mut progress);
     Some(Outcome {
         epry,
-        errors,
+        errors: done.errors,
         initial,
+        frequencies: Outcome::unordered(&order, done.frequencies),
     })
 }

@@ -1,5 +1,6 @@
 //! The pass loop shared by offline and streaming EPRY, with the adaptive step size.
 
+use super::refine::Search;
 use super::Epry;
 use crate::optics::System;
 use crate::Image;
@@ -37,10 +38,20 @@ impl StepSchedule {
     }
 }
 
+/// What [`passes_over`] leaves besides the solver's state.
+pub(crate) struct Passes {
+    /// Mean error per pass.
+    pub errors: Vec<f64>,
+    /// Each frame's illumination frequency at the end, in the order given: refined
+    /// when the settings ask for it, else as given.
+    pub frequencies: Vec<(f64, f64)>,
+}
+
 /// `passes` passes over `frames` (amplitude, illumination frequency), in the order
 /// given, with the adaptive step size; the pupil (if the settings learn it) is learned
-/// from bright-field frames from pass `learn_from` on. `progress(done, total)` after
-/// every update. Returns the mean error per pass.
+/// from bright-field frames from pass `learn_from` on, and the frequencies refined if
+/// the settings ask for it ([`super::refine`]). `progress(done, total)` after every
+/// update.
 pub(crate) fn passes_over(
     epry: &mut Epry,
     system: &System,
@@ -48,21 +59,42 @@ pub(crate) fn passes_over(
     passes: usize,
     learn_from: usize,
     mut progress: impl FnMut(usize, usize),
-) -> Vec<f64> {
+) -> Passes {
     let mut errors = Vec::with_capacity(passes);
     let mut schedule = StepSchedule::default();
+    let mut search = epry
+        .settings()
+        .refine_leds
+        .map(|r| Search::new(r, epry.bin_step(), frames.iter().map(|f| f.1).collect()));
     for pass in 0..passes {
         let mut e = 0.0;
-        for (j, &(img, f)) in frames.iter().enumerate() {
+        for (j, &(img, given)) in frames.iter().enumerate() {
+            // Bright-field by the geometry's frequency: refinement moves a frame by a
+            // fraction of a bin, and which frames teach the pupil should not flicker.
             let learn = epry.settings().update_pupil
                 && pass >= learn_from
-                && f.0.hypot(f.1) < system.cutoff();
+                && given.0.hypot(given.1) < system.cutoff();
+            let f = match search.as_mut() {
+                Some(s) if s.active(pass) => s.step(epry, j, img),
+                Some(s) => s.frequency(j),
+                None => given,
+            };
             e += epry.update_amplitude(img, f, learn);
             progress(pass * frames.len() + j + 1, passes * frames.len());
+        }
+        if let Some(s) = search.as_mut().filter(|s| s.active(pass)) {
+            s.remove_common();
         }
         let e = e / frames.len().max(1) as f64;
         errors.push(e);
         epry.set_step_scale(schedule.after_pass(e));
     }
-    errors
+    let frequencies = match search {
+        Some(s) => s.frequencies(),
+        None => frames.iter().map(|f| f.1).collect(),
+    };
+    Passes {
+        errors,
+        frequencies,
+    }
 }

@@ -207,11 +207,12 @@ impl Streaming {
             .map(|&k| (&amplitudes[k], self.frequency(leds[k])))
             .collect();
         // Every frame has already updated the object once as it arrived.
-        let errors = passes_over(&mut epry, &self.system, &frames, passes, 0, progress);
+        let done = passes_over(&mut epry, &self.system, &frames, passes, 0, progress);
         Some(Outcome {
             epry,
-            errors,
+            errors: done.errors,
             initial,
+            frequencies: Outcome::unordered(&order, done.frequencies),
         })
     }
 }

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
 use super::offline::{run_amplitudes, Field, Outcome};
+use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
 use super::Settings;
 use crate::background::{correct, FrameBackground};
@@ -112,6 +113,9 @@ pub struct TileResult {
     pub errors: Vec<f64>,
     /// Time this tile took, ms.
     pub ms: f64,
+    /// Each frame's illumination frequency at the tile's centre at the end (cycles/µm,
+    /// frames' order): refined when the settings ask for it.
+    pub frequencies: Vec<(f64, f64)>,
 }
 
 /// A reconstruction of the full field.
@@ -130,6 +134,9 @@ pub struct TiledOutcome {
     /// by LED (taken off where [`FrameBackground::is_flat`]; empty when the settings take
     /// off the dark level only).
     pub backgrounds: Vec<(LedIndex, FrameBackground)>,
+    /// The LED positions refined inside the passes, over all tiles (when the settings
+    /// ask for it).
+    pub refined_leds: Option<RefinedLeds>,
 }
 
 /// Why a tiled reconstruction could not run.
@@ -291,6 +298,7 @@ fn solve(
                 initial_led: leds[outcome.initial],
                 errors: outcome.errors.clone(),
                 ms: began.elapsed().as_secs_f64() * 1e3,
+                frequencies: outcome.frequencies.clone(),
             };
             Ok((result, outcome))
         })
@@ -312,7 +320,18 @@ fn solve(
         }
         tiles.push(result);
     }
+    let refined_leds = settings.refine_leds.map(|_| {
+        let fields: Vec<FieldFrequencies> = tiles
+            .iter()
+            .map(|t| FieldFrequencies {
+                centre_um: t.centre_um,
+                frequencies: &t.frequencies,
+            })
+            .collect();
+        RefinedLeds::from_fields(geometry, &leds, &fields, system.wavelength_um)
+    });
     Ok(TiledOutcome {
+        refined_leds,
         object: mosaic.finish(),
         pupil: pupil.ok_or(TiledError::NoFrames)?,
         tiles,

@@ -6,13 +6,14 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use fpm_physics::simulate::{acquire, CalibrationScene, Camera, ObjectField, SimFrame};
+use fpm_physics::simulate::{acquire_from, CalibrationScene, Camera, ObjectField, SimFrame};
 use fpm_physics::{LedGeometry, System};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
-use fpm_host::truth::Truth;
+use fpm_host::truth::{TrueLed, Truth};
+use rand_distr::Distribution;
 
 /// Make a simulated dataset.
 #[derive(Subcommand, Debug)]
@@ -113,6 +114,11 @@ pub struct AcquisitionArgs {
     /// of full scale.
     #[arg(long)]
     dark_field_peak_dn: Option<f64>,
+    /// Put each LED off its grid place by this much (1σ per axis, mm, drawn from the
+    /// seed), as hand-soldered boards have them: the dataset states only the grid, and
+    /// truth.json lists where every LED really was.
+    #[arg(long, default_value_t = 0.0)]
+    led_jitter_mm: f64,
 }
 
 /// The paper's microscope: λ 0.47 µm, NA 0.1, 4×, 2.4 µm pixels; 21×21 LEDs at 2.5 mm.
@@ -238,6 +244,7 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
         feature_at_um: Some([a.feature_x_um, a.feature_y_um]),
         object_pixel_um: None,
         seed: Some(s.seed),
+        leds: None,
     };
     write_json(&s.out.join("truth.json"), &truth_file)?;
     if s.json {
@@ -258,6 +265,27 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
     Ok(())
 }
 
+/// Every LED of `truth`'s board, each moved laterally by N(0, σ = `jitter_mm`) per
+/// axis (its own stream of the seed).
+fn led_positions(truth: &LedGeometry, jitter_mm: f64, seed: u64) -> Result<Vec<TrueLed>> {
+    if !(jitter_mm.is_finite() && jitter_mm >= 0.0) {
+        anyhow::bail!("--led-jitter-mm {jitter_mm}: give a standard deviation in mm (≥ 0)");
+    }
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x1ED5);
+    let normal = rand_distr::Normal::new(0.0, jitter_mm)?;
+    Ok(truth
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (x, y, h) = truth.led_position_3d_mm(led);
+            TrueLed {
+                led,
+                position_mm: [x + normal.sample(&mut rng), y + normal.sample(&mut rng), h],
+            }
+        })
+        .collect())
+}
+
 fn acquisition(a: AcquisitionArgs) -> Result<()> {
     let s = &a.scene;
     let truth = s.truth();
@@ -272,9 +300,16 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
     let start = Instant::now();
     // Auto-exposure as a camera would: the brightest pixel at 80 % of full scale, from
     // 2 ms (bright field) up to 1 s (dark field); or dim dark-field frames.
-    let frames = acquire(
+    let positions = led_positions(&truth, a.led_jitter_mm, s.seed)?;
+    let frames = acquire_from(
         &system,
-        &truth,
+        &|led| {
+            positions
+                .iter()
+                .find(|p| p.led == led)
+                .map(|p| (p.position_mm[0], p.position_mm[1], p.position_mm[2]))
+                .unwrap_or_else(|| truth.led_position_3d_mm(led))
+        },
         &object,
         &shots,
         &camera,
@@ -299,6 +334,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         feature_at_um: None,
         object_pixel_um: Some(object.pitch_um()),
         seed: Some(s.seed),
+        leds: (a.led_jitter_mm > 0.0).then_some(positions),
     };
     write_json(&s.out.join("truth.json"), &truth_file)?;
     if s.json {

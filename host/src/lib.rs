@@ -13,5 +13,6 @@ pub mod glyphs;
 pub mod html;
 pub mod pages;
 pub mod reconstruction;
+pub mod refinement;
 pub mod scale_bar;
 pub mod truth;

@@ -17,6 +17,7 @@ use rustfft::num_complex::Complex32;
 use serde::Serialize;
 
 use crate::dataset::{image_io, Dataset};
+use crate::refinement::RefinedLedsReport;
 
 /// What a reconstruction produced.
 pub struct Reconstruction {
@@ -88,6 +89,10 @@ pub struct Report {
     /// on the stage's z, against the geometry's (when the frames bracket it).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub height_from_boundary: Option<BoundaryCheck>,
+    /// The LED positions refined inside the passes (`--refine-leds`), and the board
+    /// fitted to them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refined_leds: Option<RefinedLedsReport>,
 }
 
 /// h from the bright/dark-field boundary, beside the geometry's h.
@@ -206,6 +211,7 @@ impl Report {
             background: BackgroundReport::new(settings.background, &outcome.backgrounds),
             versus_truth: None,
             height_from_boundary: None,
+            refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
         }
     }
 }
@@ -371,6 +377,14 @@ pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
         out.join("report.json"),
         serde_json::to_string_pretty(&r.report)?,
     )?;
+    if let Some(board) = r
+        .report
+        .refined_leds
+        .as_ref()
+        .and_then(|x| x.board.as_ref())
+    {
+        crate::refinement::write_board(board, &r.report.geometry, out)?;
+    }
     Ok(())
 }
 

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::metrics::{score, synthetic_aperture, Scores};
-use fpm_physics::LedGeometry;
+use fpm_physics::{LedGeometry, LedIndex};
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
@@ -45,6 +45,20 @@ pub struct Truth {
     /// Seed of the simulation (other simulators may not record one).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// Where each LED really was, when the board had LEDs off their grid (`fpm simulate
+    /// acquisition --led-jitter-mm`): the geometry above places the grid, these the
+    /// LEDs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub leds: Option<Vec<TrueLed>>,
+}
+
+/// One LED's true place.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct TrueLed {
+    /// The LED.
+    pub led: LedIndex,
+    /// (x, y, distance below the sample), mm.
+    pub position_mm: [f64; 3],
 }
 
 impl Truth {
@@ -67,6 +81,73 @@ impl Truth {
             .placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
             .tilted(self.tilt_x_deg, self.tilt_y_deg)
     }
+
+    /// Where `led` really was (x, y, distance below the sample), mm: its own place when
+    /// the truth lists the LEDs, else the true geometry's.
+    pub fn led_position_mm(&self, nominal: &LedGeometry, led: LedIndex) -> (f64, f64, f64) {
+        self.leds
+            .as_ref()
+            .and_then(|all| all.iter().find(|l| l.led == led))
+            .map(|l| (l.position_mm[0], l.position_mm[1], l.position_mm[2]))
+            .unwrap_or_else(|| self.geometry(nominal).led_position_3d_mm(led))
+    }
+
+    /// `led`'s true illumination frequency at the sample point (x, y) µm, cycles/µm.
+    pub fn illumination_frequency(
+        &self,
+        nominal: &LedGeometry,
+        led: LedIndex,
+        at_um: (f64, f64),
+        wavelength_um: f64,
+    ) -> (f64, f64) {
+        let (x, y, h) = self.led_position_mm(nominal, led);
+        let v = [at_um.0 - x * 1e3, at_um.1 - y * 1e3, h * 1e3];
+        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        (v[0] / r / wavelength_um, v[1] / r / wavelength_um)
+    }
+}
+
+/// How far the LED positions of a reconstruction are from the truth: RMS over the
+/// LEDs, mm, of the geometry's places and of the refined ones.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LedPositionScore {
+    /// The geometry's places.
+    pub given_rms_mm: f64,
+    /// The refined places.
+    pub refined_rms_mm: f64,
+}
+
+/// Score refined LED positions against the truth beside dataset `ds`. An extra: `None`
+/// without a truth (a warning when it cannot be read).
+pub fn score_led_positions(
+    ds: &Dataset,
+    refined: &crate::refinement::RefinedLedsReport,
+) -> Option<LedPositionScore> {
+    let truth = match Truth::find(&ds.dir) {
+        Ok(t) => t?,
+        Err(e) => {
+            tracing::warn!("LED positions not scored against the truth: {e:#}");
+            return None;
+        }
+    };
+    let nominal = ds.manifest.geometry();
+    let n = refined.leds.len().max(1) as f64;
+    let rms = |place: &dyn Fn(&crate::refinement::RefinedLed) -> [f64; 2]| {
+        let s: f64 = refined
+            .leds
+            .iter()
+            .map(|l| {
+                let (x, y, _) = truth.led_position_mm(&nominal, l.led);
+                let p = place(l);
+                (p[0] - x).powi(2) + (p[1] - y).powi(2)
+            })
+            .sum();
+        (s / n).sqrt()
+    };
+    Some(LedPositionScore {
+        given_rms_mm: rms(&|l| l.given_mm),
+        refined_rms_mm: rms(&|l| l.refined_mm),
+    })
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -128,12 +209,14 @@ fn try_score(
         );
     }
     let system = ds.manifest.system();
-    let geometry = truth.geometry(&ds.manifest.geometry());
+    let nominal = ds.manifest.geometry();
     let discs: Vec<(f64, f64)> = ds
         .frames
         .iter()
         .filter(|f| f.entry.defocus_um == 0.0)
-        .map(|f| geometry.illumination_frequency(f.entry.led, 0.0, 0.0, system.wavelength_um))
+        .map(|f| {
+            truth.illumination_frequency(&nominal, f.entry.led, (0.0, 0.0), system.wavelength_um)
+        })
         .collect();
     let rec_pitch = system.sample_pixel_um() / upsample as f64;
     Ok(Some(score(

@@ -168,6 +168,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 feature_at_um: None,
                 object_pixel_um: Some(sample.pitch_um()),
                 seed: Some(a.seed),
+                leds: None,
             })?,
         )?;
     }

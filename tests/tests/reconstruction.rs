@@ -386,6 +386,114 @@ fn tiles_blend_into_the_whole_field() {
     );
 }
 
+/// `--refine-leds` through the command line: a simulated board whose LEDs are off their
+/// grid (σ 0.25 mm) and tilted 1°, the reconstruction told only the rigid placement.
+/// The refined run must be closer to the truth, its LEDs closer to where they were,
+/// and the board it fits must be a placement file the next run reads.
+#[test]
+fn refined_leds_come_closer_to_a_misbuilt_board() {
+    let data = TempDir::new("refine-data");
+    let d = data.0.to_string_lossy().into_owned();
+    fpm_stdout(&[
+        "simulate",
+        "acquisition",
+        "--out",
+        &d,
+        "--size",
+        "128",
+        "--seed",
+        "3",
+        "--dx-mm",
+        "0.3",
+        "--dy-mm",
+        "-0.2",
+        "--theta-deg",
+        "1",
+        "--tilt-x-deg",
+        "1",
+        "--led-jitter-mm",
+        "0.25",
+    ]);
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.0.join("truth.json")).unwrap()).unwrap();
+    assert_eq!(
+        truth["leds"].as_array().map(Vec::len),
+        Some(441),
+        "truth.json lists the LEDs"
+    );
+    let rigid = data.0.join("rigid.json");
+    std::fs::write(
+        &rigid,
+        r#"{ "dx_mm": 0.3, "dy_mm": -0.2, "theta_deg": 1.0, "height_mm": 92.0 }"#,
+    )
+    .unwrap();
+    let run = |out: &TempDir, extra: &[&str]| {
+        let mut args = vec![
+            "reconstruct",
+            &d,
+            "--out",
+            out.0.to_str().unwrap(),
+            "--calibration",
+            rigid.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = Command::new(fpm_bin()).args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{args:?}: {stderr}");
+        stderr
+    };
+    let (plain, refined) = (TempDir::new("refine-plain"), TempDir::new("refine-refined"));
+    run(&plain, &[]);
+    run(&refined, &["--refine-leds"]);
+    let (rp, rr) = (report(&plain.0), report(&refined.0));
+    assert!(rp.get("refined_leds").is_none(), "only when asked");
+    let nrmse = |r: &serde_json::Value| r["versus_truth"]["complex_nrmse"].as_f64().unwrap();
+    let leds = &rr["refined_leds"];
+    let score = |key: &str| leds["versus_truth"][key].as_f64().unwrap();
+    eprintln!(
+        "complex NRMSE {:.3} rigid, {:.3} refined; LEDs off by {:.3} mm as given, {:.3} refined; board {}",
+        nrmse(&rp),
+        nrmse(&rr),
+        score("given_rms_mm"),
+        score("refined_rms_mm"),
+        leds["board"]
+    );
+    assert!(
+        nrmse(&rr) < 0.8 * nrmse(&rp),
+        "{} vs {}",
+        nrmse(&rr),
+        nrmse(&rp)
+    );
+    assert_eq!(leds["leds"].as_array().map(Vec::len), Some(441));
+    assert!(score("refined_rms_mm") < 0.8 * score("given_rms_mm"));
+    // The fitted board is a placement file: the next run reads it.
+    let board = refined.0.join("refined-board.json");
+    let placement = fpm_host::calibration::Placement::read(&board).unwrap();
+    assert!((placement.tilt_deg[0] - leds["board"]["tilt_x_deg"].as_f64().unwrap()).abs() < 1e-9);
+    let again = TempDir::new("refine-again");
+    let mut args = vec![
+        "reconstruct",
+        &d,
+        "--out",
+        again.0.to_str().unwrap(),
+        "--passes",
+        "1",
+    ];
+    args.extend(["--calibration", board.to_str().unwrap()]);
+    fpm_stdout(&args);
+    assert_eq!(
+        report(&again.0)["geometry_source"],
+        board.display().to_string()
+    );
+    // In small tiles a bin is more than a millimetre of LED travel: a warning says so.
+    let tiles = TempDir::new("refine-tiles");
+    let stderr = run(&tiles, &["--refine-leds", "--tile", "64", "--passes", "3"]);
+    assert!(
+        stderr.contains("refined in tiles where one frequency bin is"),
+        "{stderr}"
+    );
+}
+
 /// A copy of the vendored USAF dataset in `dir`, to add files beside it.
 fn usaf_copy(dir: &Path) -> PathBuf {
     let to = dir.join("usaf");

@@ -110,6 +110,7 @@ fn refined_leds_recover_a_misbuilt_board() {
                 frequencies: &out.frequencies,
             }],
             wavelength,
+            out.epry.bin_step(),
         );
         (nrmse, refined)
     };
@@ -175,14 +176,15 @@ fn refined_leds_recover_a_misbuilt_board() {
         refined_rms < 0.75 * rigid_rms,
         "refined positions {refined_rms} mm vs rigid {rigid_rms} mm"
     );
-    // The board fitted back to the refined positions: its tilt within 3σ of the truth.
+    // The board fitted back to the refined positions: h and the tilts within 3σ.
     for (found, sigma, truth) in [
+        (board.geometry.height_mm, board.sigma[3], rigid.height_mm),
         (board.geometry.tilt_x_deg, board.sigma[4], 1.0),
         (board.geometry.tilt_y_deg, board.sigma[5], 0.0),
     ] {
         assert!(
             (found - truth).abs() <= 3.0 * sigma && sigma < 0.5,
-            "tilt {found} ± {sigma}° vs {truth}°"
+            "{found} ± {sigma} vs {truth} (h mm, tilts °)"
         );
     }
 }

@@ -40,6 +40,9 @@ pub fn warnings(report: &Report) -> Vec<String> {
             ));
         }
     }
+    if let Some(r) = &report.refined_leds {
+        out.extend(crate::refinement::warnings(r));
+    }
     if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
         out.push(format!(
             "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): check the defocus the calibration was told (h is proportional to it) and the NA",
@@ -198,6 +201,28 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     b.geometry_height_mm
                 ),
                 None => "not bracketed by these frames".to_string(),
+            },
+        ),
+        Row::with_id(
+            "refined_leds",
+            "LEDs refined",
+            match &rep.refined_leds {
+                Some(r) => {
+                    let board = r.board.map_or("no board could be fitted".to_string(), |b| {
+                        let u = b.uncertainty;
+                        format!(
+                            "board fitted to them: Δx {:.3} ± {:.3} mm, Δy {:.3} ± {:.3} mm, θ {:.3} ± {:.3}°, h {:.2} ± {:.2} mm, tilt {:.2} ± {:.2}° / {:.2} ± {:.2}°, LEDs off it by {:.3} mm RMS",
+                            b.dx_mm, u.dx_mm, b.dy_mm, u.dy_mm, b.theta_deg, u.theta_deg,
+                            b.height_mm, u.height_mm, b.tilt_x_deg, u.tilt_x_deg,
+                            b.tilt_y_deg, u.tilt_y_deg, b.residual_rms_mm
+                        )
+                    });
+                    format!(
+                        "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin); {board}",
+                        r.moved_rms_mm, r.bin_mm
+                    )
+                }
+                None => "no (--refine-leds)".to_string(),
             },
         ),
         Row::new(

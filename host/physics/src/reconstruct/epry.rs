@@ -227,7 +227,8 @@ impl Epry {
     }
 
     /// One EPRY update with a frame (normalised intensity) lit at frequency `f`.
-    /// Returns the frame's relative amplitude error before the update.
+    /// Returns the frame's relative amplitude error before the update (NaN when the
+    /// frame has no measured light in the window: a dark-field frame over clear glass).
     pub fn update(&mut self, intensity: &Image, f: (f64, f64), update_pupil: bool) -> f64 {
         let amplitude = amplitude(intensity);
         self.update_amplitude(&amplitude, f, update_pupil)
@@ -300,7 +301,7 @@ impl Epry {
                 self.pupil[i] += o_old.conj() * d * b_step;
             }
         }
-        (err / norm.max(1e-300)).sqrt()
+        relative_error(err, norm)
     }
 
     /// The model's exit wave for a frame lit at `f`, left unnormalised in `phi` (ψ on
@@ -364,14 +365,23 @@ impl Epry {
         let [c0, c1, r0, r1] = self.constrained;
         let n = self.n;
         let (mut err, mut norm) = (0.0f64, 0.0f64);
+        let mut scratch = Vec::new();
         for r in r0..r1 {
             let model = &self.phi[r * n + c0..r * n + c1];
-            let (e, m) =
-                amplitude_misfit(model, amplitude.row(r).iter().skip(c0), gain, unnormalise);
+            let row = amplitude.row(r);
+            let measured = match row.as_slice() {
+                Some(m) => &m[c0..c1],
+                None => {
+                    scratch.clear();
+                    scratch.extend(row.iter().skip(c0).take(c1 - c0));
+                    &scratch[..]
+                }
+            };
+            let (e, m) = amplitude_misfit(model, measured, gain, unnormalise);
             err += e;
             norm += m;
         }
-        (err / norm.max(1e-300)).sqrt()
+        relative_error(err, norm)
     }
 
     /// Multiply the current object by the illumination's curvature,
@@ -504,23 +514,43 @@ fn impose_amplitude(
 
 /// Σ(|ψ|/unnormalise − measured·gain)² and Σ(measured·gain)² over one row, ψ left as
 /// it is (eight lanes, as in [`impose_amplitude`]).
-fn amplitude_misfit<'a>(
+fn amplitude_misfit(
     row: &[Complex32],
-    measured: impl Iterator<Item = &'a f32>,
+    measured: &[f32],
     gain: f32,
     unnormalise: f32,
 ) -> (f64, f64) {
     const LANES: usize = 8;
     let (mut err, mut norm) = ([0.0f32; LANES], [0.0f32; LANES]);
     let inv = 1.0 / unnormalise;
-    for (k, (p, &m)) in row.iter().zip(measured).enumerate() {
+    let one = |p: &Complex32, m: f32, err: &mut f32, norm: &mut f32| {
         let target = m * gain;
         let a = p.norm_sqr().sqrt() * inv;
-        err[k % LANES] += (a - target) * (a - target);
-        norm[k % LANES] += target * target;
+        *err += (a - target) * (a - target);
+        *norm += target * target;
+    };
+    let mut rows = row.chunks_exact(LANES);
+    let mut values = measured.chunks_exact(LANES);
+    for (ps, ms) in (&mut rows).zip(&mut values) {
+        for l in 0..LANES {
+            one(&ps[l], ms[l], &mut err[l], &mut norm[l]);
+        }
+    }
+    for (p, &m) in rows.remainder().iter().zip(values.remainder()) {
+        one(p, m, &mut err[0], &mut norm[0]);
     }
     let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();
     (sum(err), sum(norm))
+}
+
+/// √(err / norm), or NaN without a norm: relative to nothing, an error means nothing
+/// (and 1e-300 in its place made pass errors of 1e146 from tiles over clear glass).
+fn relative_error(err: f64, norm: f64) -> f64 {
+    if norm > 0.0 {
+        (err / norm).sqrt()
+    } else {
+        f64::NAN
+    }
 }
 
 /// √I, with negative (noise) intensities taken as zero.

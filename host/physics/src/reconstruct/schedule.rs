@@ -67,7 +67,7 @@ pub(crate) fn passes_over(
         .refine_leds
         .map(|r| Search::new(r, epry.bin_step(), frames.iter().map(|f| f.1).collect()));
     for pass in 0..passes {
-        let mut e = 0.0;
+        let (mut e, mut counted) = (0.0, 0usize);
         for (j, &(img, given)) in frames.iter().enumerate() {
             // Bright-field by the geometry's frequency: refinement moves a frame by a
             // fraction of a bin, and which frames teach the pupil should not flicker.
@@ -79,13 +79,18 @@ pub(crate) fn passes_over(
                 Some(s) => s.frequency(j),
                 None => given,
             };
-            e += epry.update_amplitude(img, f, learn);
+            let error = epry.update_amplitude(img, f, learn);
+            // Frames with no light in this field have no relative error.
+            if error.is_finite() {
+                e += error;
+                counted += 1;
+            }
             progress(pass * frames.len() + j + 1, passes * frames.len());
         }
         if let Some(s) = search.as_mut().filter(|s| s.active(pass)) {
             s.remove_common();
         }
-        let e = e / frames.len().max(1) as f64;
+        let e = e / counted.max(1) as f64;
         errors.push(e);
         epry.set_step_scale(schedule.after_pass(e));
     }

@@ -328,7 +328,8 @@ fn solve(
                 frequencies: &t.frequencies,
             })
             .collect();
-        RefinedLeds::from_fields(geometry, &leds, &fields, system.wavelength_um)
+        let bin_step = 1.0 / (layout.size as f64 * pixel_um);
+        RefinedLeds::from_fields(geometry, &leds, &fields, system.wavelength_um, bin_step)
     });
     Ok(TiledOutcome {
         refined_leds,

@@ -36,12 +36,12 @@ impl CalibrationFile {
 pub const GEOMETRY_KEYS: [&str; 4] = ["dx_mm", "dy_mm", "theta_deg", "height_mm"];
 
 /// What a calibration should reach (1σ): beyond it, a warning says so rather than
-/// letting the number look confident.
-pub const TARGET_LATERAL_UM: f64 = 2.0;
+/// letting the number look confident ([`calibrate::ACCURACY_TARGET`]).
+pub const TARGET_LATERAL_UM: f64 = calibrate::ACCURACY_TARGET[0];
 /// θ, degrees.
-pub const TARGET_THETA_DEG: f64 = 0.02;
+pub const TARGET_THETA_DEG: f64 = calibrate::ACCURACY_TARGET[2];
 /// h from the shifts alone (the defocus's own error aside), mm.
-pub const TARGET_HEIGHT_MM: f64 = 0.1;
+pub const TARGET_HEIGHT_MM: f64 = calibrate::ACCURACY_TARGET[3];
 
 /// The board's tilt, optional (a flat board when absent).
 pub const TILT_KEYS: [&str; 2] = ["tilt_x_deg", "tilt_y_deg"];
@@ -206,31 +206,33 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
         .filter(|l| l.status == LedStatus::Outlier)
         .count();
     let mut out = vec![];
-    if used < 6 {
+    let u = &cal.uncertainty;
+    if used < calibrate::MIN_USED_LEDS {
         out.push(format!(
             "only {used} LEDs were usable: check the defocus, the exposure and the feature"
         ));
-    }
-    let u = &cal.uncertainty;
-    let lateral_um = u.dx_mm.max(u.dy_mm) * 1e3;
-    if lateral_um > TARGET_LATERAL_UM {
-        out.push(format!(
-            "Δx, Δy are uncertain by {lateral_um:.1} µm (1σ), more than the {TARGET_LATERAL_UM} µm a calibration should reach: a brighter exposure (without saturating), a larger feature or a larger defocus would help"
-        ));
-    }
-    if u.theta_deg > TARGET_THETA_DEG {
-        out.push(format!(
-            "θ is uncertain by {:.3}° (1σ), more than {TARGET_THETA_DEG}°: more LEDs or a larger defocus would help",
-            u.theta_deg
-        ));
-    }
-    // h's share from the shifts alone: the defocus's own σ is the user's to state.
-    let defocus_mm = cal.uncertainty_sources.map_or(0.0, |b| b.defocus.height_mm);
-    let shifts_mm = (u.height_mm.powi(2) - defocus_mm.powi(2)).max(0.0).sqrt();
-    if shifts_mm > TARGET_HEIGHT_MM {
-        out.push(format!(
-            "h is uncertain by {shifts_mm:.2} mm (1σ) from the shifts alone, more than {TARGET_HEIGHT_MM} mm: a larger defocus or more LEDs would help"
-        ));
+    } else {
+        // The same rule `fpm bench calibration` scores: which parameters are warned.
+        let [lateral, _, theta, height] = cal.accuracy_warned();
+        if lateral {
+            out.push(format!(
+                "Δx, Δy are uncertain by {:.1} µm (1σ), more than the {TARGET_LATERAL_UM} µm a calibration should reach: a brighter exposure (without saturating), a larger feature or a larger defocus would help",
+                u.dx_mm.max(u.dy_mm) * 1e3
+            ));
+        }
+        if theta {
+            out.push(format!(
+                "θ is uncertain by {:.3}° (1σ), more than {TARGET_THETA_DEG}°: more LEDs or a larger defocus would help",
+                u.theta_deg
+            ));
+        }
+        // h's share from the shifts alone: the defocus's own σ is the user's to state.
+        if height {
+            out.push(format!(
+                "h is uncertain by {:.2} mm (1σ) from the shifts alone, more than {TARGET_HEIGHT_MM} mm: a larger defocus or more LEDs would help",
+                cal.height_sigma_from_shifts_mm()
+            ));
+        }
     }
     if !cal.tilt_observable && cal.uncertainty.tilt_x_deg == 0.0 {
         out.push("the board's tilt was not fitted: it was taken as flat".to_string());

@@ -56,6 +56,8 @@ pub struct Outcome {
     pub sigma: Option<[f64; 4]>,
     /// What the σ is made of.
     pub sources: Option<crate::calibrate::uncertainty::Budget>,
+    /// Which parameters the calibration warned about (beyond its accuracy target).
+    pub warned: Option<[bool; 4]>,
     /// Why the calibration refused.
     pub refused: Option<String>,
     /// Calibration time, ms.
@@ -76,14 +78,22 @@ pub fn run_case(scene: &CalibrationScene, options: &Options) -> Outcome {
     let nominal = LedGeometry::paper();
     let frames = scene.acquire();
     let t = scene.truth;
-    let (error, sigma, sources, refused, ms) =
+    let (error, sigma, sources, warned, refused, ms) =
         match calibrate_simulated(scene, &frames, &nominal, options) {
             Ok((c, took)) => {
                 let (e, s) = errors(&c, &t);
                 let ms = took.as_secs_f64() * 1e3;
-                (Some(e), Some(s), c.uncertainty_sources, None, ms)
+                let warned = c.accuracy_warned();
+                (
+                    Some(e),
+                    Some(s),
+                    c.uncertainty_sources,
+                    Some(warned),
+                    None,
+                    ms,
+                )
             }
-            Err(e) => (None, None, None, Some(e.to_string()), 0.0),
+            Err(e) => (None, None, None, None, Some(e.to_string()), 0.0),
         };
     Outcome {
         feature_um: scene.feature_um,
@@ -93,6 +103,7 @@ pub fn run_case(scene: &CalibrationScene, options: &Options) -> Outcome {
         error,
         sigma,
         sources,
+        warned,
         refused,
         ms,
     }
@@ -132,6 +143,20 @@ pub struct Coverage {
     pub max_abs_error: [f64; 4],
     /// Median reported σ.
     pub median_sigma: [f64; 4],
+    /// Answered cases whose error is beyond the accuracy target
+    /// ([`crate::calibrate::ACCURACY_TARGET`]), per parameter…
+    pub beyond_target: [usize; 4],
+    /// …and of those, the ones the calibration did not warn about: confident numbers
+    /// that are wrong.
+    pub beyond_target_unwarned: [usize; 4],
+    /// Answered cases the calibration warned about, per parameter.
+    pub warned: [usize; 4],
+}
+
+/// Whether `o`'s error in parameter `p` is beyond the accuracy target.
+fn beyond(o: &Outcome, p: usize) -> bool {
+    o.error
+        .is_some_and(|e| e[p].abs() > crate::calibrate::ACCURACY_TARGET[p])
 }
 
 /// The coverage of `outcomes`.
@@ -165,5 +190,18 @@ pub fn coverage(outcomes: &[Outcome]) -> Coverage {
                 .fold(0.0, f64::max)
         }),
         median_sigma: std::array::from_fn(|p| median(column(&|o| o.sigma.map(|s| s[p])))),
+        beyond_target: std::array::from_fn(|p| answered.iter().filter(|o| beyond(o, p)).count()),
+        beyond_target_unwarned: std::array::from_fn(|p| {
+            answered
+                .iter()
+                .filter(|o| beyond(o, p) && !o.warned.is_some_and(|w| w[p]))
+                .count()
+        }),
+        warned: std::array::from_fn(|p| {
+            answered
+                .iter()
+                .filter(|o| o.warned.is_some_and(|w| w[p]))
+                .count()
+        }),
     }
 }

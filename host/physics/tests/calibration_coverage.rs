@@ -54,5 +54,28 @@ fn thirty_hard_cases_fall_within_three_sigma() {
             median > 0.15,
             "{name}: median |error|/σ {median:.3}: the σ is padded\n{table}"
         );
+        // No confident wrong number: an error beyond twice the accuracy target comes
+        // with a warning (its 1σ beyond the target), and errors beyond the target
+        // without one stay rare (a σ just inside the target leaves a fair chance of
+        // an error just outside it: 2.3σ gave 1.6× the target here).
+        let target = fpm_physics::calibrate::ACCURACY_TARGET[p];
+        for o in &outcomes {
+            if let (Some(e), Some(w)) = (o.error, o.warned) {
+                assert!(
+                    e[p].abs() <= 2.0 * target || w[p],
+                    "{name}: error {} beyond twice the target {target} without a warning\n{table}",
+                    e[p]
+                );
+            }
+        }
+        assert!(
+            c.beyond_target_unwarned[p] * 10 <= answered,
+            "{name}: {} of {answered} beyond the target without a warning\n{table}",
+            c.beyond_target_unwarned[p]
+        );
     }
+    eprintln!(
+        "warned {:?}; beyond the target {:?}, of which not warned {:?}",
+        c.warned, c.beyond_target, c.beyond_target_unwarned
+    );
 }

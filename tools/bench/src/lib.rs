@@ -36,6 +36,10 @@ pub enum BenchCommand {
         /// Seed of the sweep.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Calibrate each sweep case this many times and keep the median time (this
+        /// machine's noise is as large as the differences that matter).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -107,8 +111,9 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             random,
             coverage,
             seed,
+            repeat,
             json,
-        } => calibration::run(random, coverage, seed, json),
+        } => calibration::run(random, coverage, seed, repeat, json),
         BenchCommand::Geometry { size, passes, json } => geometry::run(size, passes, json),
         BenchCommand::Frames { rounds, json } => frames::run(rounds, json),
         BenchCommand::Epry {

@@ -202,7 +202,46 @@ pub struct Calibration {
     pub leds: Vec<LedResult>,
 }
 
+/// What a calibration should reach (1σ): Δx, Δy µm; θ °; h mm from the shifts alone
+/// (the defocus's own error aside). Beyond it, a warning says so rather than letting
+/// the number look confident.
+pub const ACCURACY_TARGET: [f64; 4] = [2.0, 2.0, 0.02, 0.1];
+
+/// Fewer usable LEDs than this, and no parameter is trusted.
+pub const MIN_USED_LEDS: usize = 6;
+
 impl Calibration {
+    /// Which of (Δx, Δy, θ, h) a user is warned about: its 1σ beyond
+    /// [`ACCURACY_TARGET`] (Δx and Δy together, by the larger), or too few usable
+    /// LEDs for any.
+    pub fn accuracy_warned(&self) -> [bool; 4] {
+        let used = self
+            .leds
+            .iter()
+            .filter(|l| l.status == LedStatus::Used)
+            .count();
+        if used < MIN_USED_LEDS {
+            return [true; 4];
+        }
+        let u = &self.uncertainty;
+        let lateral = u.dx_mm.max(u.dy_mm) * 1e3 > ACCURACY_TARGET[0];
+        [
+            lateral,
+            lateral,
+            u.theta_deg > ACCURACY_TARGET[2],
+            self.height_sigma_from_shifts_mm() > ACCURACY_TARGET[3],
+        ]
+    }
+
+    /// h's 1σ without the defocus's share (which is the user's to state).
+    pub fn height_sigma_from_shifts_mm(&self) -> f64 {
+        let u = &self.uncertainty;
+        let defocus_mm = self
+            .uncertainty_sources
+            .map_or(0.0, |b| b.defocus.height_mm);
+        (u.height_mm.powi(2) - defocus_mm.powi(2)).max(0.0).sqrt()
+    }
+
     /// The calibrated geometry, on the nominal grid.
     pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
         LedGeometry {

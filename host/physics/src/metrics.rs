@@ -158,5 +158,13 @@ pub fn score(
 /// Whether (fx, fy) lies in the synthetic aperture: inside some pupil disc of radius
 /// `cutoff` centred at −f_i for the illumination frequencies `discs`.
 pub fn synthetic_aperture(discs: &[(f64, f64)], cutoff: f64) -> impl Fn(f64, f64) -> bool + '_ {
-    move |fx, fy| discs.iter().any(|f| (fx + f.0).hypot(fy + f.1) <= cutoff)
+    // Squared distances: `hypot` made this half of a 1 MP reconstruction's run time
+    // (every bin of the scored field against 441 discs).
+    let r2 = cutoff * cutoff;
+    move |fx, fy| {
+        discs.iter().any(|f| {
+            let (dx, dy) = (fx + f.0, fy + f.1);
+            dx * dx + dy * dy <= r2
+        })
+    }
 }

@@ -100,10 +100,8 @@ impl Truth {
         at_um: (f64, f64),
         wavelength_um: f64,
     ) -> (f64, f64) {
-        let (x, y, h) = self.led_position_mm(nominal, led);
-        let v = [at_um.0 - x * 1e3, at_um.1 - y * 1e3, h * 1e3];
-        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        (v[0] / r / wavelength_um, v[1] / r / wavelength_um)
+        let s = fpm_physics::optics::direction_from(self.led_position_mm(nominal, led), at_um);
+        (s[0] / wavelength_um, s[1] / wavelength_um)
     }
 }
 

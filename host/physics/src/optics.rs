@@ -58,6 +58,19 @@ impl System {
     }
 }
 
+/// Unit propagation direction (s_x, s_y, s_z) of light from an LED at `led_mm` = (x, y,
+/// distance below the sample), mm, at sample point `at_um`: for LEDs placed one by one
+/// (a board with LEDs off its grid); [`LedGeometry::direction`] for a grid.
+pub fn direction_from(led_mm: (f64, f64, f64), at_um: (f64, f64)) -> [f64; 3] {
+    let v = [
+        at_um.0 - led_mm.0 * 1e3,
+        at_um.1 - led_mm.1 * 1e3,
+        led_mm.2 * 1e3,
+    ];
+    let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    [v[0] / r, v[1] / r, v[2] / r]
+}
+
 /// A regular LED grid below the sample (docs/dataset.md §1).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LedGeometry {
@@ -175,10 +188,7 @@ impl LedGeometry {
     /// Unit propagation direction (s_x, s_y, s_z) of light from `led` at sample point
     /// (x, y) µm.
     pub fn direction(&self, led: LedIndex, x_um: f64, y_um: f64) -> [f64; 3] {
-        let (lx, ly, lh) = self.led_position_3d_mm(led);
-        let v = [x_um - lx * 1e3, y_um - ly * 1e3, lh * 1e3];
-        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        [v[0] / r, v[1] / r, v[2] / r]
+        direction_from(self.led_position_3d_mm(led), (x_um, y_um))
     }
 
     /// Illumination spatial frequency f_i = (s_x, s_y)/λ at sample point (x, y),

@@ -7,6 +7,7 @@
 
 use fpm_physics::frame::Region;
 use fpm_physics::metrics::{central, complex_nrmse, resample};
+use fpm_physics::optics::direction_from;
 use fpm_physics::reconstruct::refine::FieldFrequencies;
 use fpm_physics::reconstruct::{run, Field, Refine, RefinedLeds, Settings, Shot};
 use fpm_physics::simulate::{acquire_from, Camera, ObjectField, SimFrame};
@@ -58,9 +59,8 @@ fn refined_leds_recover_a_misbuilt_board() {
     // The truth, band-limited to the true board's synthetic aperture.
     let wavelength = system.wavelength_um;
     let frequency = |p: (f64, f64, f64)| {
-        let v = [-p.0 * 1e3, -p.1 * 1e3, p.2 * 1e3];
-        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        (v[0] / r / wavelength, v[1] / r / wavelength)
+        let s = direction_from(p, (0.0, 0.0));
+        (s[0] / wavelength, s[1] / wavelength)
     };
     let discs: Vec<(f64, f64)> = truth.iter().map(|&p| frequency(p)).collect();
     let cutoff = system.cutoff();

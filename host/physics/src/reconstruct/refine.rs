@@ -19,7 +19,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use super::Epry;
-use crate::optics::{LedGeometry, LedIndex};
+use crate::optics::{direction_from, LedGeometry, LedIndex};
 use crate::Image;
 
 /// How LED positions are refined.
@@ -373,12 +373,11 @@ impl RefinedLeds {
             .filter(|(_, p): &(_, &(f64, f64))| p.0.is_finite() && p.1.is_finite())
             .map(|(&led, &(x, y))| {
                 let depth = geometry.led_position_3d_mm(led).2;
-                let v = [-x, -y, depth];
-                let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let s = direction_from((x, y, depth), (0.0, 0.0));
                 Sighting {
                     led,
                     at_um: (0.0, 0.0),
-                    frequency: (v[0] / r / wavelength_um, v[1] / r / wavelength_um),
+                    frequency: (s[0] / wavelength_um, s[1] / wavelength_um),
                 }
             })
             .collect();

@@ -186,12 +186,9 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
             );
         }
         if let Some(b) = &r.board {
-            let u = &b.uncertainty;
             println!(
-                "  board fitted to them: Δx {:.3} ± {:.3} mm, Δy {:.3} ± {:.3} mm, θ {:.3} ± {:.3}°, h {:.2} ± {:.2} mm, tilt {:.2} ± {:.2}° / {:.2} ± {:.2}°; LEDs off it by {:.3} mm RMS ({})",
-                b.dx_mm, u.dx_mm, b.dy_mm, u.dy_mm, b.theta_deg, u.theta_deg, b.height_mm,
-                u.height_mm, b.tilt_x_deg, u.tilt_x_deg, b.tilt_y_deg, u.tilt_y_deg,
-                b.residual_rms_mm,
+                "  board fitted to them: {} ({})",
+                b.summary(),
                 a.out.join(fpm_host::refinement::BOARD_FILE).display()
             );
         }

@@ -46,28 +46,32 @@ pub struct RefinedLed {
 /// The board fitted to the refined positions, with its 1σ.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct BoardReport {
-    /// Δx, mm.
-    pub dx_mm: f64,
-    /// Δy, mm.
-    pub dy_mm: f64,
-    /// θ, degrees.
-    pub theta_deg: f64,
-    /// h, mm.
-    pub height_mm: f64,
-    /// Tilt about x, degrees.
-    pub tilt_x_deg: f64,
-    /// Tilt about y, degrees.
-    pub tilt_y_deg: f64,
-    /// 1σ of the six, same names and units.
-    pub uncertainty: BoardSigma,
+    /// The fitted values.
+    #[serde(flatten)]
+    pub value: BoardParams,
+    /// 1σ of each, same names and units.
+    pub uncertainty: BoardParams,
     /// RMS distance of the refined positions from the fitted board's, mm: LEDs off
     /// their grid, or the refinement's own noise.
     pub residual_rms_mm: f64,
 }
 
-/// 1σ of the board's parameters.
+impl BoardReport {
+    /// One line for people: each number with its 1σ, then the residual.
+    pub fn summary(&self) -> String {
+        let (b, u) = (&self.value, &self.uncertainty);
+        format!(
+            "Δx {:.3} ± {:.3} mm, Δy {:.3} ± {:.3} mm, θ {:.3} ± {:.3}°, h {:.2} ± {:.2} mm, tilt {:.2} ± {:.2}° / {:.2} ± {:.2}°; LEDs off it by {:.3} mm RMS",
+            b.dx_mm, u.dx_mm, b.dy_mm, u.dy_mm, b.theta_deg, u.theta_deg, b.height_mm,
+            u.height_mm, b.tilt_x_deg, u.tilt_x_deg, b.tilt_y_deg, u.tilt_y_deg,
+            self.residual_rms_mm
+        )
+    }
+}
+
+/// A board's six numbers (or their 1σ).
 #[derive(Debug, Clone, Copy, Serialize)]
-pub struct BoardSigma {
+pub struct BoardParams {
     /// Δx, mm.
     pub dx_mm: f64,
     /// Δy, mm.
@@ -80,6 +84,21 @@ pub struct BoardSigma {
     pub tilt_x_deg: f64,
     /// Tilt about y, degrees.
     pub tilt_y_deg: f64,
+}
+
+impl BoardParams {
+    /// (Δx, Δy, θ, h, tilt x, tilt y), in the units above.
+    fn from_array(v: [f64; 6]) -> Self {
+        let [dx_mm, dy_mm, theta_deg, height_mm, tilt_x_deg, tilt_y_deg] = v;
+        Self {
+            dx_mm,
+            dy_mm,
+            theta_deg,
+            height_mm,
+            tilt_x_deg,
+            tilt_y_deg,
+        }
+    }
 }
 
 const NOTE: &str = "each LED placed where its refined illumination frequency points, at the height the geometry gives it (a direction cannot tell a lower LED from a nearer one); bright-field LEDs are pinned only by the pupil's edge and are less certain than dark-field ones";
@@ -101,22 +120,16 @@ impl RefinedLedsReport {
             .collect();
         let board = refined.board.map(|b| {
             let g = b.geometry;
-            let s = b.sigma;
             BoardReport {
-                dx_mm: g.dx_mm,
-                dy_mm: g.dy_mm,
-                theta_deg: g.theta_deg,
-                height_mm: g.height_mm,
-                tilt_x_deg: g.tilt_x_deg,
-                tilt_y_deg: g.tilt_y_deg,
-                uncertainty: BoardSigma {
-                    dx_mm: s[0],
-                    dy_mm: s[1],
-                    theta_deg: s[2],
-                    height_mm: s[3],
-                    tilt_x_deg: s[4],
-                    tilt_y_deg: s[5],
-                },
+                value: BoardParams::from_array([
+                    g.dx_mm,
+                    g.dy_mm,
+                    g.theta_deg,
+                    g.height_mm,
+                    g.tilt_x_deg,
+                    g.tilt_y_deg,
+                ]),
+                uncertainty: BoardParams::from_array(b.sigma),
                 residual_rms_mm: b.residual_rms_mm,
             }
         });

@@ -130,6 +130,34 @@ fn the_usaf_target_gains_resolution_beyond_what_the_camera_samples() {
     );
 }
 
+/// `fpm simulate acquisition --out DIR` with `extra` arguments.
+fn simulate_acquisition(dir: &TempDir, extra: &[&str]) {
+    let out = dir.0.to_string_lossy();
+    let mut args = vec!["simulate", "acquisition", "--out", &out];
+    args.extend_from_slice(extra);
+    fpm_stdout(&args);
+}
+
+/// A simulated acquisition with the array where the dataset says it is (for tests that
+/// are not about geometry): `size`² frames, `seed`.
+fn simulate_centred(dir: &TempDir, size: &str, seed: &str) {
+    simulate_acquisition(
+        dir,
+        &[
+            "--size",
+            size,
+            "--seed",
+            seed,
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--theta-deg",
+            "0",
+        ],
+    );
+}
+
 fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
@@ -248,23 +276,8 @@ fn dark_field_backgrounds_come_off_the_real_usaf_frames() {
 fn tiles_blend_into_the_whole_field() {
     let data = TempDir::new("tiles-data");
     let d = data.0.to_string_lossy().into_owned();
-    // The array where the dataset says it is: this test is about tiles, not geometry.
-    fpm_stdout(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &d,
-        "--size",
-        "256",
-        "--seed",
-        "4",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-    ]);
+    // This test is about tiles, not geometry.
+    simulate_centred(&data, "256", "4");
     let (whole, tiled) = (TempDir::new("tiles-whole"), TempDir::new("tiles-tiled"));
     for (out, tile) in [(&whole, "256"), (&tiled, "128")] {
         fpm_stdout(&[
@@ -394,26 +407,25 @@ fn tiles_blend_into_the_whole_field() {
 fn refined_leds_come_closer_to_a_misbuilt_board() {
     let data = TempDir::new("refine-data");
     let d = data.0.to_string_lossy().into_owned();
-    fpm_stdout(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &d,
-        "--size",
-        "128",
-        "--seed",
-        "3",
-        "--dx-mm",
-        "0.3",
-        "--dy-mm",
-        "-0.2",
-        "--theta-deg",
-        "1",
-        "--tilt-x-deg",
-        "1",
-        "--led-jitter-mm",
-        "0.25",
-    ]);
+    simulate_acquisition(
+        &data,
+        &[
+            "--size",
+            "128",
+            "--seed",
+            "3",
+            "--dx-mm",
+            "0.3",
+            "--dy-mm",
+            "-0.2",
+            "--theta-deg",
+            "1",
+            "--tilt-x-deg",
+            "1",
+            "--led-jitter-mm",
+            "0.25",
+        ],
+    );
     let truth: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(data.0.join("truth.json")).unwrap()).unwrap();
     assert_eq!(
@@ -593,23 +605,7 @@ fn a_colour_sensor_reconstructs_from_its_green_pixels_both_ways() {
     use fpm_physics::bayer::{BayerChannel, BayerPattern};
 
     let mono = TempDir::new("bayer-mono");
-    let m = mono.0.to_string_lossy().into_owned();
-    fpm_stdout(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &m,
-        "--size",
-        "128",
-        "--seed",
-        "6",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-    ]);
+    simulate_centred(&mono, "128", "6");
     let ds = Dataset::load(&mono.0).unwrap();
     let mosaics: Vec<Array2<u16>> = ds
         .frames

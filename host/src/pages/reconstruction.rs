@@ -209,13 +209,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
             match &rep.refined_leds {
                 Some(r) => {
                     let board = r.board.map_or("no board could be fitted".to_string(), |b| {
-                        let u = b.uncertainty;
-                        format!(
-                            "board fitted to them: Δx {:.3} ± {:.3} mm, Δy {:.3} ± {:.3} mm, θ {:.3} ± {:.3}°, h {:.2} ± {:.2} mm, tilt {:.2} ± {:.2}° / {:.2} ± {:.2}°, LEDs off it by {:.3} mm RMS",
-                            b.dx_mm, u.dx_mm, b.dy_mm, u.dy_mm, b.theta_deg, u.theta_deg,
-                            b.height_mm, u.height_mm, b.tilt_x_deg, u.tilt_x_deg,
-                            b.tilt_y_deg, u.tilt_y_deg, b.residual_rms_mm
-                        )
+                        format!("board fitted to them: {}", b.summary())
                     });
                     format!(
                         "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin); {board}",

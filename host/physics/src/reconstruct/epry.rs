@@ -250,15 +250,7 @@ impl Epry {
         let [c0, c1, r0, r1] = self.constrained;
         let n = self.n;
         let impose_row = |k: usize, row: &mut [Complex32]| {
-            let measured = amplitude.row(r0 + k);
-            let row = &mut row[c0..c1];
-            match measured.as_slice() {
-                Some(m) => impose_amplitude(row, &m[c0..c1], gain, unnormalise),
-                None => {
-                    let m: Vec<f32> = measured.iter().skip(c0).take(c1 - c0).copied().collect();
-                    impose_amplitude(row, &m, gain, unnormalise)
-                }
-            }
+            row_error::<true>(row, amplitude, r0 + k, (c0, c1), gain, unnormalise)
         };
         let add = |a: (f64, f64), b: (f64, f64)| (a.0 + b.0, a.1 + b.1);
         let window = &mut self.phi[r0 * n..r1 * n];
@@ -365,19 +357,9 @@ impl Epry {
         let [c0, c1, r0, r1] = self.constrained;
         let n = self.n;
         let (mut err, mut norm) = (0.0f64, 0.0f64);
-        let mut scratch = Vec::new();
         for r in r0..r1 {
-            let model = &self.phi[r * n + c0..r * n + c1];
-            let row = amplitude.row(r);
-            let measured = match row.as_slice() {
-                Some(m) => &m[c0..c1],
-                None => {
-                    scratch.clear();
-                    scratch.extend(row.iter().skip(c0).take(c1 - c0));
-                    &scratch[..]
-                }
-            };
-            let (e, m) = amplitude_misfit(model, measured, gain, unnormalise);
+            let row = &mut self.phi[r * n..(r + 1) * n];
+            let (e, m) = row_error::<false>(row, amplitude, r, (c0, c1), gain, unnormalise);
             err += e;
             norm += m;
         }
@@ -473,12 +455,35 @@ pub fn remove_illumination_curvature(
     }
 }
 
-/// Replace the modulus of each exit-wave value (unnormalised by `unnormalise`) with the
-/// measured amplitude times `gain`, keeping its phase (a value with no modulus becomes
-/// the measured amplitude itself). Returns Σ(|ψ| − measured)² and Σ measured². Eight
-/// independent lanes keep the sums from chaining every pixel to the last, so the loop
-/// vectorises; this is the only per-pixel work of an update besides the FFTs.
-fn impose_amplitude(
+/// [`amplitude_error`] over columns `c0..c1` of LR row `r` (`row` the whole row of the
+/// exit wave), against the same pixels of `amplitude`.
+fn row_error<const IMPOSE: bool>(
+    row: &mut [Complex32],
+    amplitude: &Image,
+    r: usize,
+    (c0, c1): (usize, usize),
+    gain: f32,
+    unnormalise: f32,
+) -> (f64, f64) {
+    let measured = amplitude.row(r);
+    let row = &mut row[c0..c1];
+    match measured.as_slice() {
+        Some(m) => amplitude_error::<IMPOSE>(row, &m[c0..c1], gain, unnormalise),
+        None => {
+            let m: Vec<f32> = measured.iter().skip(c0).take(c1 - c0).copied().collect();
+            amplitude_error::<IMPOSE>(row, &m, gain, unnormalise)
+        }
+    }
+}
+
+/// Σ(|ψ| − measured)² and Σ measured² over a row of the exit wave (unnormalised by
+/// `unnormalise`; measured amplitudes times `gain`). With `IMPOSE`, each value's
+/// modulus is then replaced by the measured amplitude, keeping its phase (a value with
+/// no modulus becomes the measured amplitude itself); without, the row is left as it
+/// is (LED refinement's misfit). Eight independent lanes keep the sums from chaining
+/// every pixel to the last, so the loop vectorises; this is the only per-pixel work of
+/// an update besides the FFTs.
+fn amplitude_error<const IMPOSE: bool>(
     row: &mut [Complex32],
     measured: &[f32],
     gain: f32,
@@ -492,11 +497,13 @@ fn impose_amplitude(
         let a = p.norm_sqr().sqrt() * inv;
         *err += (a - target) * (a - target);
         *norm += target * target;
-        *p = if a > 1e-12 {
-            *p * (target / (a * unnormalise))
-        } else {
-            Complex32::new(target, 0.0)
-        };
+        if IMPOSE {
+            *p = if a > 1e-12 {
+                *p * (target / (a * unnormalise))
+            } else {
+                Complex32::new(target, 0.0)
+            };
+        }
     };
     let mut rows = row.chunks_exact_mut(LANES);
     let mut values = measured.chunks_exact(LANES);
@@ -506,37 +513,6 @@ fn impose_amplitude(
         }
     }
     for (p, &m) in rows.into_remainder().iter_mut().zip(values.remainder()) {
-        one(p, m, &mut err[0], &mut norm[0]);
-    }
-    let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();
-    (sum(err), sum(norm))
-}
-
-/// Σ(|ψ|/unnormalise − measured·gain)² and Σ(measured·gain)² over one row, ψ left as
-/// it is (eight lanes, as in [`impose_amplitude`]).
-fn amplitude_misfit(
-    row: &[Complex32],
-    measured: &[f32],
-    gain: f32,
-    unnormalise: f32,
-) -> (f64, f64) {
-    const LANES: usize = 8;
-    let (mut err, mut norm) = ([0.0f32; LANES], [0.0f32; LANES]);
-    let inv = 1.0 / unnormalise;
-    let one = |p: &Complex32, m: f32, err: &mut f32, norm: &mut f32| {
-        let target = m * gain;
-        let a = p.norm_sqr().sqrt() * inv;
-        *err += (a - target) * (a - target);
-        *norm += target * target;
-    };
-    let mut rows = row.chunks_exact(LANES);
-    let mut values = measured.chunks_exact(LANES);
-    for (ps, ms) in (&mut rows).zip(&mut values) {
-        for l in 0..LANES {
-            one(&ps[l], ms[l], &mut err[l], &mut norm[l]);
-        }
-    }
-    for (p, &m) in rows.remainder().iter().zip(values.remainder()) {
         one(p, m, &mut err[0], &mut norm[0]);
     }
     let sum = |v: [f32; LANES]| v.iter().map(|&x| x as f64).sum::<f64>();

@@ -15,4 +15,5 @@ pub mod pages;
 pub mod reconstruction;
 pub mod refinement;
 pub mod scale_bar;
+pub mod simulation;
 pub mod truth;

@@ -1,0 +1,277 @@
+//! Simulated datasets from the full wave-optics model, written to disk with their
+//! truth (`truth.json`, and for acquisitions the true object's images): what `fpm
+//! simulate` and the Python package's `simulate_*` make. The physics is
+//! `fpm_physics::simulate`; this module only chooses the scene and writes the files.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use fpm_physics::simulate::{acquire_from, CalibrationScene, Camera, ObjectField, SimFrame};
+use fpm_physics::{LedGeometry, LedIndex, System};
+use rand::{Rng, SeedableRng};
+use rand_distr::Distribution;
+
+use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
+use crate::truth::{write_truth_images, TrueLed, Truth};
+
+/// Camera noise of a simulation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Noise {
+    /// Shot noise, read noise, offset, 12-bit quantisation.
+    Realistic,
+    /// Quantisation only.
+    None,
+}
+
+/// The hidden (true) LED array and the camera: what every simulated set shares.
+#[derive(Debug, Clone, Copy)]
+pub struct Scene {
+    /// Where the array really is (the dataset states only the nominal one).
+    pub truth: LedGeometry,
+    /// Camera noise.
+    pub noise: Noise,
+    /// Sensor side, pixels (square).
+    pub size: usize,
+    /// Seed of the noise (and of anything else drawn).
+    pub seed: u64,
+    /// Stray light on every pixel, as a fraction of a clear sample's brightness under
+    /// the on-axis LED.
+    pub stray_light: f64,
+}
+
+impl Scene {
+    /// The paper's array at 92 mm, moved by (`dx_mm`, `dy_mm`), turned by `theta_deg`,
+    /// at `height_mm`, tilted about x and y by `tilt_deg`.
+    pub fn placed(
+        dx_mm: f64,
+        dy_mm: f64,
+        theta_deg: f64,
+        height_mm: f64,
+        tilt_deg: [f64; 2],
+    ) -> LedGeometry {
+        LedGeometry {
+            dx_mm,
+            dy_mm,
+            theta_deg,
+            height_mm,
+            ..nominal()
+        }
+        .tilted(tilt_deg[0], tilt_deg[1])
+    }
+
+    /// An array drawn from the paper's range (±2.5 mm, ±5°, 87–97 mm) with `seed`.
+    pub fn random_placement(seed: u64) -> LedGeometry {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x5EED);
+        LedGeometry {
+            dx_mm: rng.gen_range(-2.5..2.5),
+            dy_mm: rng.gen_range(-2.5..2.5),
+            theta_deg: rng.gen_range(-5.0..5.0),
+            height_mm: rng.gen_range(87.0..97.0),
+            ..nominal()
+        }
+    }
+
+    /// The camera model.
+    pub fn camera(&self) -> Camera {
+        let camera = match self.noise {
+            Noise::Realistic => Camera::realistic(),
+            Noise::None => Camera::noiseless(),
+        };
+        Camera {
+            stray_light: self.stray_light.max(0.0),
+            ..camera
+        }
+    }
+
+    fn truth_file(&self) -> Truth {
+        let t = &self.truth;
+        Truth {
+            dx_mm: t.dx_mm,
+            dy_mm: t.dy_mm,
+            theta_deg: t.theta_deg,
+            height_mm: t.height_mm,
+            tilt_x_deg: t.tilt_x_deg,
+            tilt_y_deg: t.tilt_y_deg,
+            defocus_um: None,
+            feature_um: None,
+            feature_at_um: None,
+            object_pixel_um: None,
+            seed: Some(self.seed),
+            leds: None,
+        }
+    }
+}
+
+/// A pdcFPM calibration set: an in-focus reference and defocused frames of the LEDs
+/// around the centre, of a small square hole.
+#[derive(Debug, Clone, Copy)]
+pub struct CalibrationSet {
+    /// Defocus of the sample toward the LEDs, µm.
+    pub defocus_um: f64,
+    /// Side of the square hole, µm.
+    pub feature_um: f64,
+    /// Where the hole is, µm from the optical axis.
+    pub feature_at_um: (f64, f64),
+}
+
+impl Default for CalibrationSet {
+    fn default() -> Self {
+        Self {
+            defocus_um: 200.0,
+            feature_um: 50.0,
+            feature_at_um: (0.0, 0.0),
+        }
+    }
+}
+
+/// A full acquisition: every LED, in focus, of a complex test sample.
+#[derive(Debug, Clone, Copy)]
+pub struct AcquisitionSet {
+    /// Simulation pixels per camera pixel (the truth's resolution).
+    pub upsample: usize,
+    /// Dark-field frames recorded dim: their brightest pixel this many counts above the
+    /// offset, instead of auto-exposed to 80 % of full scale.
+    pub dark_field_peak_dn: Option<f64>,
+    /// Each LED off its grid place by this much (1σ per axis, mm).
+    pub led_jitter_mm: f64,
+}
+
+impl Default for AcquisitionSet {
+    fn default() -> Self {
+        Self {
+            upsample: 2,
+            dark_field_peak_dn: None,
+            led_jitter_mm: 0.0,
+        }
+    }
+}
+
+/// What was written.
+#[derive(Debug, Clone)]
+pub struct Written {
+    /// Frames in the dataset.
+    pub frames: usize,
+    /// The truth, as in `truth.json`.
+    pub truth: Truth,
+}
+
+/// The paper's array at its nominal place: what a simulated dataset states.
+fn nominal() -> LedGeometry {
+    LedGeometry {
+        height_mm: 92.0,
+        ..LedGeometry::paper()
+    }
+}
+
+/// Write `scene`'s calibration set into `out` (dataset.toml, frames/, truth.json).
+pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) -> Result<Written> {
+    let mut sim = CalibrationScene::paper(scene.truth, scene.seed);
+    sim.defocus_um = set.defocus_um;
+    sim.feature_um = set.feature_um;
+    sim.feature_at_um = set.feature_at_um;
+    sim.camera_px = scene.size;
+    sim.camera = scene.camera();
+    let frames = sim.acquire();
+    write_frames(out, &sim.system, &sim.camera, &frames)?;
+    let truth = Truth {
+        defocus_um: Some(set.defocus_um),
+        feature_um: Some(set.feature_um),
+        feature_at_um: Some([set.feature_at_um.0, set.feature_at_um.1]),
+        ..scene.truth_file()
+    };
+    write_json(&out.join("truth.json"), &truth)?;
+    Ok(Written {
+        frames: frames.len(),
+        truth,
+    })
+}
+
+/// Write `scene`'s full acquisition into `out` (dataset.toml, frames/, truth.json,
+/// truth_amplitude.tif, truth_phase.tif). Frames are auto-exposed as a camera would:
+/// the brightest pixel at 80 % of full scale, from 2 ms (bright field) up to 1 s.
+pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Result<Written> {
+    let system = System::paper();
+    let camera = scene.camera();
+    let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample.max(1), scene.seed);
+    let truth = scene.truth;
+    let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
+    let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;
+    let frames = acquire_from(
+        &system,
+        &|led| {
+            positions
+                .iter()
+                .find(|p| p.led == led)
+                .map(|p| (p.position_mm[0], p.position_mm[1], p.position_mm[2]))
+                .unwrap_or_else(|| truth.led_position_3d_mm(led))
+        },
+        &object,
+        &shots,
+        &camera,
+        |img| match set.dark_field_peak_dn {
+            Some(peak) => camera.dim_dark_field_exposure(img, peak),
+            None => camera.auto_exposure(img),
+        },
+        scene.seed,
+    );
+    write_frames(out, &system, &camera, &frames)?;
+    write_truth_images(out, &object)?;
+    let truth = Truth {
+        object_pixel_um: Some(object.pitch_um()),
+        leds: (set.led_jitter_mm > 0.0).then_some(positions),
+        ..scene.truth_file()
+    };
+    write_json(&out.join("truth.json"), &truth)?;
+    Ok(Written {
+        frames: frames.len(),
+        truth,
+    })
+}
+
+/// Every LED of `truth`'s board, each moved laterally by N(0, σ = `jitter_mm`) per
+/// axis (its own stream of the seed).
+fn led_positions(truth: &LedGeometry, jitter_mm: f64, seed: u64) -> Result<Vec<TrueLed>> {
+    if !(jitter_mm.is_finite() && jitter_mm >= 0.0) {
+        anyhow::bail!("LED jitter {jitter_mm} mm: give a standard deviation in mm (≥ 0)");
+    }
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x1ED5);
+    let normal = rand_distr::Normal::new(0.0, jitter_mm)?;
+    Ok(truth
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (x, y, h) = truth.led_position_3d_mm(led);
+            TrueLed {
+                led,
+                position_mm: [x + normal.sample(&mut rng), y + normal.sample(&mut rng), h],
+            }
+        })
+        .collect())
+}
+
+/// Write simulated frames as a dataset with the nominal (uncalibrated) array.
+fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame]) -> Result<()> {
+    let entries = frames
+        .iter()
+        .map(|f| FrameEntry {
+            file: String::new(),
+            led: f.led,
+            defocus_um: f.defocus_um,
+            exposure_ms: f.exposure_ms,
+        })
+        .collect();
+    let section = CameraSection {
+        dark_level: camera.dark_level_dn,
+        bit_depth: Some(camera.bit_depth),
+        ..CameraSection::default()
+    };
+    let manifest = Manifest::new(system, &nominal(), section, entries);
+    let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
+    Dataset::write(out, &manifest, &images)?;
+    Ok(())
+}
+
+fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(value)?)
+        .with_context(|| format!("writing {}", path.display()))
+}

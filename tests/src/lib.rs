@@ -8,6 +8,39 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 
+/// The Python of a virtual environment `target/<name>` with the pinned packages of
+/// `requirements` installed, made (or remade, when the requirements changed) on first
+/// use. Needs Python ≥ 3.9 with `venv`; the packages come from PyPI.
+pub fn python_venv(name: &str, requirements: &Path) -> PathBuf {
+    let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let venv = workspace.join("target").join(name);
+    let python = venv.join("bin/python");
+    let stamp = venv.join("requirements.txt");
+    let current = std::fs::read(&stamp).ok() == std::fs::read(requirements).ok();
+    if !python.exists() || !current {
+        let run = |cmd: &mut Command, what: &str| {
+            let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(
+                out.status.success(),
+                "{what}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        };
+        run(
+            Command::new("python3").args(["-m", "venv"]).arg(&venv),
+            "making a Python virtual environment (python3 -m venv)",
+        );
+        run(
+            Command::new(&python)
+                .args(["-m", "pip", "install", "--quiet", "-r"])
+                .arg(requirements),
+            &format!("installing {}", requirements.display()),
+        );
+        std::fs::copy(requirements, &stamp).expect("stamping the environment");
+    }
+    python
+}
+
 /// The `fpm` executable, built with the same profile as the running test.
 pub fn fpm_bin() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();

@@ -8,45 +8,21 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
-use fpm_tests::{child, Emulator, Ready, TempDir};
+use fpm_tests::{child, python_venv, Emulator, Ready, TempDir};
 
 fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
 }
 
 /// A Python with the contract's packages (iceoryx2, NumPy; pinned in
-/// tools/camera-python/requirements.txt), in a virtual environment under target/,
-/// made on first use.
+/// tools/camera-python/requirements.txt), in a virtual environment under target/.
 fn python() -> &'static Path {
     static PYTHON: OnceLock<PathBuf> = OnceLock::new();
     PYTHON.get_or_init(|| {
-        let venv = workspace().join("target/python-camera");
-        let python = venv.join("bin/python");
-        let requirements = workspace().join("tools/camera-python/requirements.txt");
-        let stamp = venv.join("requirements.txt");
-        let current = std::fs::read(&stamp).ok() == std::fs::read(&requirements).ok();
-        if !python.exists() || !current {
-            let run = |cmd: &mut Command, what: &str| {
-                let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
-                assert!(
-                    out.status.success(),
-                    "{what}: {}",
-                    String::from_utf8_lossy(&out.stderr)
-                );
-            };
-            run(
-                Command::new("python3").args(["-m", "venv"]).arg(&venv),
-                "making a Python virtual environment (python3 -m venv)",
-            );
-            run(
-                Command::new(&python)
-                    .args(["-m", "pip", "install", "--quiet", "-r"])
-                    .arg(&requirements),
-                "installing tools/camera-python/requirements.txt",
-            );
-            std::fs::copy(&requirements, &stamp).unwrap();
-        }
-        python
+        python_venv(
+            "python-camera",
+            &workspace().join("tools/camera-python/requirements.txt"),
+        )
     })
 }
 

@@ -381,6 +381,17 @@ impl Dataset {
         manifest: Manifest,
         images: Vec<Array2U16>,
     ) -> Result<Self, DatasetError> {
+        Self::from_pixels(dir, manifest, images.into_iter().map(Pixels::U16).collect())
+    }
+
+    /// A dataset made in memory from frames of any stored type (8- or 16-bit counts,
+    /// or floats), in sample-plane orientation, one per entry of `manifest.frames`,
+    /// checked as [`Self::load`] checks a dataset on disk. The frames are moved in.
+    pub fn from_pixels(
+        dir: &Path,
+        manifest: Manifest,
+        images: Vec<Pixels>,
+    ) -> Result<Self, DatasetError> {
         let path = dir.join("dataset.toml");
         if images.len() != manifest.frames.len() {
             return Err(DatasetError::Value {
@@ -395,26 +406,29 @@ impl Dataset {
             .frames
             .iter()
             .zip(images)
-            .map(|(entry, img)| Frame {
+            .map(|(entry, raw)| Frame {
                 entry: entry.clone(),
-                raw: Pixels::U16(img),
+                raw,
             })
             .collect();
-        if let Some((index, f)) = frames
-            .iter()
-            .enumerate()
-            .find(|(_, f)| f.raw.dim() != frames[0].raw.dim())
-        {
-            return Err(DatasetError::Frame {
-                path,
-                index,
-                file: f.entry.file.clone(),
-                reason: format!(
+        let bad = |index: usize, f: &Frame, reason: String| DatasetError::Frame {
+            path: path.clone(),
+            index,
+            file: f.entry.file.clone(),
+            reason,
+        };
+        for (index, f) in frames.iter().enumerate() {
+            if f.raw.dim() != frames[0].raw.dim() {
+                let reason = format!(
                     "size {:?} differs from frame 0 ({:?})",
                     f.raw.dim(),
                     frames[0].raw.dim()
-                ),
-            });
+                );
+                return Err(bad(index, f, reason));
+            }
+            if matches!(&f.raw, Pixels::F32(a) if a.iter().any(|v| !v.is_finite())) {
+                return Err(bad(index, f, "contains non-finite values".into()));
+            }
         }
         Ok(Self {
             dir: dir.to_path_buf(),

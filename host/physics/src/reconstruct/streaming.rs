@@ -176,6 +176,12 @@ impl Streaming {
         self.epry.as_mut().map(Epry::object)
     }
 
+    /// The sample as it stands, the illumination's curvature divided out (None before
+    /// the first bright-field frame): what a tiled snapshot blends.
+    pub fn snapshot_sample(&mut self) -> Option<ndarray::Array2<Complex32>> {
+        self.epry.as_mut().map(Epry::sample)
+    }
+
     /// Run `passes` more passes over `shots` (intensity per ms: every frame received,
     /// handed back), nearest-first, with the adaptive step size and the pupil learned
     /// from the bright-field frames, as [`super::run`] does offline.

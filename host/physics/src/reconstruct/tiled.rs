@@ -429,6 +429,22 @@ impl TiledStreaming {
         self.tiles.first().map_or(0, Streaming::received)
     }
 
+    /// The sample as it stands, blended over the tiles as the finish blends them (None
+    /// until every tile has been seeded).
+    pub fn snapshot(&mut self) -> Option<Array2<Complex32>> {
+        let mut mosaic = Mosaic::new(
+            self.layout.width,
+            self.layout.height,
+            self.settings.upsample.max(1),
+            self.layout.overlap,
+            self.layout.free,
+        );
+        for (t, tile) in self.tiles.iter_mut().zip(&self.layout.tiles) {
+            mosaic.add(tile, &t.snapshot_sample()?);
+        }
+        Some(mosaic.finish())
+    }
+
     /// Run `passes` more passes over `frames` (every frame received, handed back) in
     /// each tile, and blend: the same finish as an offline run.
     pub fn finish(

@@ -1,0 +1,42 @@
+"""fpm: Fourier ptychographic microscopy from Python.
+
+The same code as the ``fpm`` command (its Rust crates, compiled into this package):
+
+>>> import fpm
+>>> ds = fpm.Dataset.load("data/usaf-ledmatrix")          # or Dataset.from_arrays(...)
+>>> cal = fpm.calibrate(fpm.Dataset.load("calibration-set"))  # Δx, Δy, θ, h with 1σ
+>>> res = fpm.reconstruct(ds, geometry=cal, upsample=4, passes=10)
+>>> res.amplitude, res.phase, res.pupil, res.report
+
+Long calls release the GIL. Bad input raises ``DatasetError`` (a ``ValueError``)
+naming the file, key or frame; a calibration or reconstruction that cannot run raises
+``FpmError`` (a ``RuntimeError``).
+"""
+
+from ._fpm import (
+    Calibration,
+    Dataset,
+    DatasetError,
+    FpmError,
+    Result,
+    Streaming,
+    __version__,
+    calibrate,
+    reconstruct,
+    simulate_acquisition,
+    simulate_calibration,
+)
+
+__all__ = [
+    "Calibration",
+    "Dataset",
+    "DatasetError",
+    "FpmError",
+    "Result",
+    "Streaming",
+    "__version__",
+    "calibrate",
+    "reconstruct",
+    "simulate_acquisition",
+    "simulate_calibration",
+]

@@ -1,0 +1,13 @@
+from ._fpm import (
+    Calibration as Calibration,
+    Dataset as Dataset,
+    DatasetError as DatasetError,
+    FpmError as FpmError,
+    Result as Result,
+    Streaming as Streaming,
+    __version__ as __version__,
+    calibrate as calibrate,
+    reconstruct as reconstruct,
+    simulate_acquisition as simulate_acquisition,
+    simulate_calibration as simulate_calibration,
+)

@@ -1,0 +1,209 @@
+"""Type stubs of fpm's native module (python/src/*.rs)."""
+
+from os import PathLike
+from typing import Any, Callable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+Led = Tuple[int, int]
+Progress = Callable[[int, int], Any]
+Json = Any
+
+class FpmError(RuntimeError):
+    """A calibration or reconstruction failed; the message says what and where."""
+
+class DatasetError(ValueError):
+    """A dataset is wrong: the message names the file, key or frame."""
+
+class Dataset:
+    """An FPM dataset: frames, the LED lit for each, the optics and the LED array."""
+
+    @staticmethod
+    def load(path: Union[str, PathLike[str]]) -> Dataset:
+        """Load and check the dataset in `path` (a directory with dataset.toml)."""
+    @staticmethod
+    def from_arrays(
+        frames: Union[npt.ArrayLike, Sequence[npt.ArrayLike]],
+        leds: Sequence[Led],
+        system: dict[str, float],
+        geometry: dict[str, Any],
+        exposure_ms: Union[float, Sequence[float], None] = None,
+        defocus_um: Union[float, Sequence[float], None] = None,
+        dark_level: float = 0.0,
+        bit_depth: Optional[int] = None,
+        dir: Union[str, PathLike[str], None] = None,
+    ) -> Dataset:
+        """A dataset from frames in memory (uint8, uint16 or float; sample-plane
+        orientation), the (row, col) LED of each, and the optics and LED array as
+        dicts of the dataset's keys."""
+    def save(self, dir: Union[str, PathLike[str]]) -> None:
+        """Write frames/ (TIFF) and dataset.toml into `dir`."""
+    @property
+    def dir(self) -> str: ...
+    @property
+    def system(self) -> dict[str, float]:
+        """wavelength_um, na, magnification, pixel_size_um."""
+    @property
+    def geometry(self) -> dict[str, Any]:
+        """The LED array as the dataset states it: rows, cols, pitch_mm, height_mm,
+        center, dx_mm, dy_mm, theta_deg, tilt_x_deg, tilt_y_deg."""
+    @property
+    def leds(self) -> list[Led]: ...
+    @property
+    def exposure_ms(self) -> list[float]: ...
+    @property
+    def defocus_um(self) -> list[float]: ...
+    @property
+    def dark_level(self) -> float: ...
+    @property
+    def frames(self) -> list[np.ndarray]:
+        """Read-only NumPy views of the frames (no copy; uint8, uint16 or float32)."""
+    def frame(self, index: int) -> np.ndarray:
+        """Frame `index` (negative counts from the end), a read-only view."""
+    def __len__(self) -> int: ...
+
+class Calibration:
+    """A calibrated LED array, each value with its 1σ in `uncertainty`."""
+
+    @property
+    def dx_mm(self) -> float: ...
+    @property
+    def dy_mm(self) -> float: ...
+    @property
+    def theta_deg(self) -> float: ...
+    @property
+    def height_mm(self) -> float: ...
+    @property
+    def tilt_deg(self) -> Tuple[float, float]: ...
+    @property
+    def tilt_observable(self) -> bool: ...
+    @property
+    def uncertainty(self) -> dict[str, float]:
+        """1σ of dx_mm, dy_mm, theta_deg, height_mm, tilt_x_deg, tilt_y_deg."""
+    @property
+    def leds(self) -> list[dict[str, Json]]:
+        """Per LED: status, measured and fitted shifts, residual."""
+    @property
+    def warnings(self) -> list[str]:
+        """What to know before trusting the numbers (empty when all is well)."""
+    @property
+    def geometry(self) -> dict[str, Any]:
+        """The calibrated geometry (for reconstruct, Streaming, from_arrays)."""
+    @property
+    def report(self) -> dict[str, Json]:
+        """Everything, as in calibration.json."""
+    @property
+    def time_ms(self) -> float: ...
+    def save(self, path: Union[str, PathLike[str]]) -> None:
+        """Write calibration.json (readable by `fpm reconstruct --calibration`)."""
+
+class Result:
+    """A reconstruction: object, pupil and report."""
+
+    @property
+    def amplitude(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def phase(self) -> npt.NDArray[np.float32]:
+        """Radians."""
+    @property
+    def object(self) -> npt.NDArray[np.complex64]: ...
+    @property
+    def pupil(self) -> npt.NDArray[np.complex64]: ...
+    @property
+    def pixel_um(self) -> float:
+        """The reconstructed grid's pixel at the sample, µm."""
+    @property
+    def report(self) -> dict[str, Json]:
+        """As report.json (with `versus_truth` for simulated datasets)."""
+    def save(self, dir: Union[str, PathLike[str]]) -> None:
+        """Write TIFFs (float32), PNG previews and report.json into `dir`."""
+
+class Streaming:
+    """A reconstruction fed frame by frame while the acquisition runs."""
+
+    def __init__(
+        self,
+        system: dict[str, float],
+        geometry: dict[str, Any],
+        width: int,
+        height: int,
+        *,
+        tile: Optional[int] = None,
+        upsample: int = 4,
+        dark_level: float = 0.0,
+        fixed_pupil: bool = False,
+        background: str = "per-frame",
+        floor_sigma: float = 3.0,
+    ) -> None: ...
+    def push(self, led: Led, frame: npt.ArrayLike, exposure_ms: float = 1.0) -> None:
+        """A frame taken under `led`; the estimate is updated at once."""
+    @property
+    def received(self) -> int: ...
+    def snapshot(self) -> Optional[npt.NDArray[np.complex64]]:
+        """The sample as it stands (None until every tile has a bright-field frame)."""
+    def finish(self, passes: int = 10, progress: Optional[Progress] = None) -> Result:
+        """The remaining passes over every frame received, as `reconstruct` runs them."""
+
+def calibrate(
+    dataset: Dataset,
+    *,
+    roi: Optional[Tuple[int, int, int, int]] = None,
+    defocus_sigma_um: float = 1.0,
+    bias_correction: bool = True,
+    fit_tilt: bool = True,
+) -> Calibration:
+    """pdcFPM calibration of the LED array from a defocus dataset."""
+
+def reconstruct(
+    dataset: Dataset,
+    *,
+    geometry: Union[Calibration, dict[str, Any], str, PathLike[str], None] = None,
+    upsample: int = 4,
+    passes: int = 10,
+    tile: Optional[int] = None,
+    refine_leds: bool = False,
+    fixed_pupil: bool = False,
+    background: str = "per-frame",
+    floor_sigma: float = 3.0,
+    progress: Optional[Progress] = None,
+) -> Result:
+    """EPRY reconstruction of the dataset's in-focus frames (GIL released)."""
+
+def simulate_acquisition(
+    out: Union[str, PathLike[str]],
+    *,
+    size: int = 256,
+    seed: int = 1,
+    dx_mm: float = 1.0,
+    dy_mm: float = 1.0,
+    theta_deg: float = 5.0,
+    height_mm: float = 92.0,
+    tilt_deg: Tuple[float, float] = (0.0, 0.0),
+    noise: str = "realistic",
+    stray_light: float = 0.0,
+    upsample: int = 2,
+    dark_field_peak_dn: Optional[float] = None,
+    led_jitter_mm: float = 0.0,
+) -> Tuple[Dataset, dict[str, Json]]:
+    """A full simulated acquisition written into `out`: (dataset, truth)."""
+
+def simulate_calibration(
+    out: Union[str, PathLike[str]],
+    *,
+    size: int = 256,
+    seed: int = 1,
+    dx_mm: float = 1.0,
+    dy_mm: float = 1.0,
+    theta_deg: float = 5.0,
+    height_mm: float = 92.0,
+    tilt_deg: Tuple[float, float] = (0.0, 0.0),
+    noise: str = "realistic",
+    stray_light: float = 0.0,
+    defocus_um: float = 200.0,
+    feature_um: float = 50.0,
+    feature_at_um: Tuple[float, float] = (0.0, 0.0),
+) -> Tuple[Dataset, dict[str, Json]]:
+    """A simulated pdcFPM calibration set written into `out`: (dataset, truth)."""

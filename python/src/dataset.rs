@@ -1,0 +1,248 @@
+//! `fpm.Dataset`: a dataset (docs/dataset.md) loaded from disk or made from NumPy
+//! arrays. Its frames are read-only NumPy views of the frames in Rust memory.
+
+use std::path::PathBuf;
+
+use fpm_host::dataset::{CameraSection, FrameEntry, Manifest, Pixels};
+use fpm_physics::{LedGeometry, LedIndex, System};
+use numpy::{PyArray2, PyReadonlyArray2};
+use pyo3::exceptions::{PyIndexError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert::{dataset_error, from_py, to_py};
+
+/// An FPM dataset: frames, the LED lit for each, the optics and the LED array.
+#[pyclass(frozen, module = "fpm")]
+pub struct Dataset {
+    pub inner: fpm_host::dataset::Dataset,
+}
+
+/// `value` as one number per frame: a number for all, or a sequence of `n`.
+fn per_frame(value: &Bound<'_, PyAny>, n: usize, name: &str) -> PyResult<Vec<f64>> {
+    if let Ok(v) = value.extract::<f64>() {
+        return Ok(vec![v; n]);
+    }
+    let v: Vec<f64> = value
+        .extract()
+        .map_err(|_| PyValueError::new_err(format!("{name}: give a number or one per frame")))?;
+    if v.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "{name}: {} values for {n} frames",
+            v.len()
+        )));
+    }
+    Ok(v)
+}
+
+/// Frame `index` as stored pixels: uint8, uint16 and float32 as they are, any other
+/// real dtype as float32.
+pub(crate) fn pixels(frame: &Bound<'_, PyAny>, index: usize) -> PyResult<Pixels> {
+    if let Ok(a) = frame.extract::<PyReadonlyArray2<'_, u16>>() {
+        return Ok(Pixels::U16(a.as_array().to_owned()));
+    }
+    if let Ok(a) = frame.extract::<PyReadonlyArray2<'_, u8>>() {
+        return Ok(Pixels::U8(a.as_array().to_owned()));
+    }
+    let numpy = frame.py().import("numpy")?;
+    let floats = numpy
+        .call_method1("asarray", (frame, "float32"))
+        .map_err(|e| PyValueError::new_err(format!("frames[{index}]: not an image ({e})")))?;
+    let a = floats.extract::<PyReadonlyArray2<'_, f32>>().map_err(|_| {
+        let shape: Vec<usize> = floats
+            .getattr("shape")
+            .and_then(|s| s.extract())
+            .unwrap_or_default();
+        PyValueError::new_err(format!(
+            "frames[{index}]: shape {shape:?}: each frame must be a 2-D image"
+        ))
+    })?;
+    Ok(Pixels::F32(a.as_array().to_owned()))
+}
+
+#[pymethods]
+impl Dataset {
+    /// Load and check the dataset in `path` (a directory with dataset.toml).
+    ///
+    /// Raises DatasetError naming the file, key or frame that is wrong.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let inner = py
+            .detach(|| fpm_host::dataset::Dataset::load(&path))
+            .map_err(dataset_error)?;
+        Ok(Self { inner })
+    }
+
+    /// A dataset from arrays in memory: `frames` (a 3-D array or a sequence of 2-D
+    /// images in the sample-plane orientation; uint8, uint16 or float), `leds` (the
+    /// (row, col) lit for each), `system` and `geometry` as dicts of the dataset's
+    /// keys, each frame's exposure (ms) and defocus (µm), the camera's dark level.
+    #[staticmethod]
+    #[pyo3(signature = (frames, leds, system, geometry, exposure_ms = None, defocus_um = None, dark_level = 0.0, bit_depth = None, dir = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_arrays(
+        frames: &Bound<'_, PyAny>,
+        leds: Vec<(u8, u8)>,
+        system: &Bound<'_, PyAny>,
+        geometry: &Bound<'_, PyAny>,
+        exposure_ms: Option<&Bound<'_, PyAny>>,
+        defocus_um: Option<&Bound<'_, PyAny>>,
+        dark_level: f64,
+        bit_depth: Option<u32>,
+        dir: Option<PathBuf>,
+    ) -> PyResult<Self> {
+        let system: System = from_py(system, "system")?;
+        let geometry: LedGeometry = from_py(geometry, "geometry")?;
+        let images: Vec<Pixels> = frames
+            .try_iter()?
+            .enumerate()
+            .map(|(k, f)| pixels(&f?, k))
+            .collect::<PyResult<_>>()?;
+        let n = images.len();
+        if leds.len() != n {
+            return Err(PyValueError::new_err(format!(
+                "leds: {} LEDs for {n} frames",
+                leds.len()
+            )));
+        }
+        let exposure = match exposure_ms {
+            Some(v) => per_frame(v, n, "exposure_ms")?,
+            None => vec![1.0; n],
+        };
+        let defocus = match defocus_um {
+            Some(v) => per_frame(v, n, "defocus_um")?,
+            None => vec![0.0; n],
+        };
+        let entries = (0..n)
+            .map(|k| FrameEntry {
+                file: String::new(),
+                led: LedIndex::new(leds[k].0, leds[k].1),
+                defocus_um: defocus[k],
+                exposure_ms: exposure[k],
+            })
+            .collect();
+        let camera = CameraSection {
+            dark_level,
+            bit_depth,
+            ..CameraSection::default()
+        };
+        let manifest = Manifest::new(&system, &geometry, camera, entries);
+        let dir = dir.unwrap_or_else(|| PathBuf::from("."));
+        let inner = fpm_host::dataset::Dataset::from_pixels(&dir, manifest, images)
+            .map_err(dataset_error)?;
+        Ok(Self { inner })
+    }
+
+    /// Write the dataset into `dir` (frames as TIFF under frames/, dataset.toml).
+    fn save(&self, py: Python<'_>, dir: PathBuf) -> PyResult<()> {
+        let mut copy = self.inner.clone();
+        copy.dir = dir;
+        py.detach(|| copy.save()).map_err(dataset_error)
+    }
+
+    /// Where the dataset came from.
+    #[getter]
+    fn dir(&self) -> PathBuf {
+        self.inner.dir.clone()
+    }
+
+    /// The microscope: wavelength_um, na, magnification, pixel_size_um.
+    #[getter]
+    fn system<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &self.inner.manifest.system())
+    }
+
+    /// The LED array as the dataset states it (its nominal placement).
+    #[getter]
+    fn geometry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &self.inner.manifest.geometry())
+    }
+
+    /// The LED (row, col) lit for each frame.
+    #[getter]
+    fn leds(&self) -> Vec<(u8, u8)> {
+        self.inner
+            .frames
+            .iter()
+            .map(|f| (f.entry.led.row, f.entry.led.col))
+            .collect()
+    }
+
+    /// Each frame's exposure, ms.
+    #[getter]
+    fn exposure_ms(&self) -> Vec<f64> {
+        self.inner
+            .frames
+            .iter()
+            .map(|f| f.entry.exposure_ms)
+            .collect()
+    }
+
+    /// Each frame's defocus, µm (0: in focus).
+    #[getter]
+    fn defocus_um(&self) -> Vec<f64> {
+        self.inner
+            .frames
+            .iter()
+            .map(|f| f.entry.defocus_um)
+            .collect()
+    }
+
+    /// The camera's dark level, counts.
+    #[getter]
+    fn dark_level(&self) -> f64 {
+        self.inner.manifest.camera.dark_level
+    }
+
+    /// Every frame, as read-only NumPy views of the frames in memory (no copy).
+    #[getter]
+    fn frames<'py>(slf: &Bound<'py, Self>) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        (0..slf.get().inner.frames.len())
+            .map(|k| view(slf, k))
+            .collect()
+    }
+
+    /// Frame `index` (negative counts from the end), a read-only NumPy view.
+    fn frame<'py>(slf: &Bound<'py, Self>, index: isize) -> PyResult<Bound<'py, PyAny>> {
+        let n = slf.get().inner.frames.len();
+        let k = if index < 0 { index + n as isize } else { index };
+        if k < 0 || k as usize >= n {
+            return Err(PyIndexError::new_err(format!(
+                "frame {index}: the dataset has {n} frames"
+            )));
+        }
+        view(slf, k as usize)
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.frames.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let (h, w) = self.inner.frames.first().map_or((0, 0), |f| f.raw.dim());
+        format!(
+            "Dataset('{}', {} frames of {w}x{h})",
+            self.inner.dir.display(),
+            self.inner.frames.len()
+        )
+    }
+}
+
+/// Frame `k` of the dataset behind `slf` as a read-only array that keeps `slf` alive.
+fn view<'py>(slf: &Bound<'py, Dataset>, k: usize) -> PyResult<Bound<'py, PyAny>> {
+    let py = slf.py();
+    let owner = slf.clone().into_any();
+    // SAFETY: the dataset is frozen (never mutated or moved out of) and `owner` keeps
+    // it, and so the frame's buffer, alive as long as the array exists.
+    let array = unsafe {
+        match &slf.get().inner.frames[k].raw {
+            Pixels::U8(a) => PyArray2::borrow_from_array(a, owner).into_any(),
+            Pixels::U16(a) => PyArray2::borrow_from_array(a, owner).into_any(),
+            Pixels::F32(a) => PyArray2::borrow_from_array(a, owner).into_any(),
+        }
+    };
+    let flags = PyDict::new(py);
+    flags.set_item("write", false)?;
+    array.call_method("setflags", (), Some(&flags))?;
+    Ok(array)
+}

@@ -1,0 +1,195 @@
+//! `fpm.reconstruct`: EPRY phase retrieval of a dataset's in-focus frames, tiled and
+//! in parallel as `fpm reconstruct` does, with the GIL released while it runs.
+
+use std::path::PathBuf;
+
+use fpm_host::calibration::Placement;
+use fpm_host::reconstruction::{reconstruct as run, write_outputs};
+use fpm_physics::background::Correction;
+use fpm_physics::reconstruct::{Refine, Settings};
+use fpm_physics::LedGeometry;
+use numpy::{IntoPyArray, PyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::calibrate::Calibration;
+use crate::convert::{failed, from_py, to_py, Progress};
+use crate::dataset::Dataset;
+
+/// A reconstruction: the high-resolution object (amplitude, phase, complex), the
+/// recovered pupil, and the report (report.json as a dict).
+#[pyclass(frozen, module = "fpm", name = "Result")]
+pub struct Reconstruction {
+    pub(crate) inner: fpm_host::reconstruction::Reconstruction,
+}
+
+#[pymethods]
+impl Reconstruction {
+    /// |object|, float32, on the reconstructed grid.
+    #[getter]
+    fn amplitude<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        self.inner.object.mapv(|c| c.norm()).into_pyarray(py)
+    }
+    /// arg(object), radians, float32.
+    #[getter]
+    fn phase<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        self.inner.object.mapv(|c| c.arg()).into_pyarray(py)
+    }
+    /// The complex object, complex64.
+    #[getter]
+    fn object<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<numpy::Complex32>> {
+        self.inner.object.clone().into_pyarray(py)
+    }
+    /// The recovered pupil (the central tile's), complex64, in the Fourier plane.
+    #[getter]
+    fn pupil<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<numpy::Complex32>> {
+        self.inner.pupil.clone().into_pyarray(py)
+    }
+    /// The reconstructed grid's pixel at the sample, µm.
+    #[getter]
+    fn pixel_um(&self) -> f64 {
+        self.inner.report.pixel_um
+    }
+    /// Everything, as in report.json (timings, tiles, errors per pass, refined LEDs,
+    /// scores against a simulation's truth when the dataset has one).
+    #[getter]
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &self.inner.report)
+    }
+    /// Write amplitude/phase/pupil TIFFs (float32), PNG previews and report.json into
+    /// `dir`, as `fpm reconstruct` does.
+    fn save(&self, py: Python<'_>, dir: PathBuf) -> PyResult<()> {
+        py.detach(|| write_outputs(&self.inner, &dir))
+            .map_err(failed)
+    }
+
+    fn __repr__(&self) -> String {
+        let (h, w) = self.inner.object.dim();
+        let r = &self.inner.report;
+        format!(
+            "Result({w}x{h} at {:.3} µm, {} frames, {} passes, {} tile(s))",
+            r.pixel_um,
+            r.frames,
+            r.passes,
+            r.tiles.len()
+        )
+    }
+}
+
+/// The geometry a reconstruction uses and where it came from: the dataset's nominal
+/// one, a Calibration, a dict (a whole geometry, or a placement with dx_mm, dy_mm,
+/// theta_deg, height_mm), or the path of a calibration.json / refined-board.json.
+fn geometry_from(
+    given: Option<&Bound<'_, PyAny>>,
+    nominal: &LedGeometry,
+) -> PyResult<(LedGeometry, String)> {
+    let Some(given) = given.filter(|g| !g.is_none()) else {
+        return Ok((*nominal, "nominal (dataset.toml)".into()));
+    };
+    if let Ok(c) = given.cast::<Calibration>() {
+        return Ok((c.get().file.geometry(), "fpm.calibrate".into()));
+    }
+    if let Ok(d) = given.cast::<PyDict>() {
+        if d.contains("rows")? {
+            return Ok((from_py(given, "geometry")?, "a geometry dict".into()));
+        }
+        let text: String = given
+            .py()
+            .import("json")?
+            .call_method1("dumps", (given,))?
+            .extract()?;
+        let placement = Placement::parse(&text)
+            .map_err(|e| PyValueError::new_err(format!("geometry: {e:#}")))?;
+        return Ok((placement.geometry(nominal), "a placement dict".into()));
+    }
+    let path: PathBuf = given.extract().map_err(|_| {
+        PyValueError::new_err(
+            "geometry: give a Calibration, a dict, or the path of a calibration.json",
+        )
+    })?;
+    let placement = Placement::read(&path).map_err(failed)?;
+    Ok((placement.geometry(nominal), path.display().to_string()))
+}
+
+/// EPRY's settings from the keyword arguments that `reconstruct` and `Streaming` share.
+pub(crate) fn settings(
+    upsample: usize,
+    fixed_pupil: bool,
+    background: &str,
+    floor_sigma: f32,
+) -> PyResult<Settings> {
+    let background = match background {
+        "per-frame" => Correction::PerFrame { floor_sigma },
+        "dark-level" => Correction::DarkLevel,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "background = '{other}': give 'per-frame' or 'dark-level'"
+            )))
+        }
+    };
+    if upsample == 0 {
+        return Err(PyValueError::new_err("upsample must be at least 1"));
+    }
+    Ok(Settings {
+        upsample,
+        update_pupil: !fixed_pupil,
+        background,
+        ..Settings::default()
+    })
+}
+
+/// Reconstruct `dataset`'s in-focus frames with EPRY: the object and the pupil.
+///
+/// `geometry`: see `geometry_from`. `tile`: side in camera pixels (default from the
+/// physics). `background`: "per-frame" (each dark-field frame's own background taken
+/// off, pixels within `floor_sigma` of its noise read as no light) or "dark-level".
+/// `progress(done, total)` is called as frame updates complete (tqdm: pass
+/// `lambda d, t: bar.update(d - bar.n)`). Raises FpmError when it cannot run.
+#[pyfunction]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, progress = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn reconstruct(
+    py: Python<'_>,
+    dataset: &Bound<'_, Dataset>,
+    geometry: Option<&Bound<'_, PyAny>>,
+    upsample: usize,
+    passes: usize,
+    tile: Option<usize>,
+    refine_leds: bool,
+    fixed_pupil: bool,
+    background: &str,
+    floor_sigma: f32,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Reconstruction> {
+    let ds = &dataset.get().inner;
+    let (geometry, source) = geometry_from(geometry, &ds.manifest.geometry())?;
+    if passes == 0 {
+        return Err(PyValueError::new_err("passes must be at least 1"));
+    }
+    let settings = Settings {
+        refine_leds: refine_leds.then(Refine::default),
+        ..settings(upsample, fixed_pupil, background, floor_sigma)?
+    };
+    let progress = Progress::new(progress);
+    let result = py.detach(|| {
+        let mut r = run(
+            ds,
+            &geometry,
+            &source,
+            settings,
+            passes,
+            tile,
+            &|done, total| progress.report(done, total),
+        )?;
+        r.report.versus_truth = fpm_host::truth::score_reconstruction(ds, &r.object, upsample);
+        if let Some(refined) = r.report.refined_leds.as_mut() {
+            refined.versus_truth = fpm_host::truth::score_led_positions(ds, refined);
+        }
+        Ok::<_, anyhow::Error>(r)
+    });
+    progress.finish()?;
+    Ok(Reconstruction {
+        inner: result.map_err(failed)?,
+    })
+}

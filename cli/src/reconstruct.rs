@@ -8,8 +8,9 @@ use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
 
 use fpm_host::calibration::Placement;
+use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::dataset::Dataset;
-use fpm_host::reconstruction::{reconstruct, write_outputs};
+use fpm_host::reconstruction::{reconstruct, write_outputs_with};
 use fpm_host::truth::score_reconstruction;
 
 /// Reconstruct the high-resolution amplitude and phase (and the pupil) with EPRY.
@@ -64,6 +65,9 @@ pub struct ReconstructArgs {
     /// (usable as --calibration). Each pass takes 3–5× longer.
     #[arg(long)]
     refine_leds: bool,
+    /// Deflate-compress amplitude.tif and phase.tif (lossless; OME-TIFF either way).
+    #[arg(long)]
+    compress: bool,
     /// Print the report (report.json) as JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -130,7 +134,14 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     if let Some(refined) = r.report.refined_leds.as_mut() {
         refined.versus_truth = fpm_host::truth::score_led_positions(&ds, refined);
     }
-    write_outputs(&r, &a.out)?;
+    write_outputs_with(
+        &r,
+        &a.out,
+        TiffOptions {
+            compress: a.compress,
+            ..TiffOptions::default()
+        },
+    )?;
     // The report is an extra: failing to write it is a warning, not a failed run.
     let context = fpm_host::pages::reconstruction::Context {
         system: &ds.manifest.system(),
@@ -200,7 +211,7 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         );
     }
     println!(
-        "wrote amplitude/phase/pupil TIFFs, PNG previews, charts (plots/) and report.json to {}",
+        "wrote amplitude/phase OME-TIFFs (pixel size in µm), pupil TIFFs, PNG previews, charts (plots/) and report.json to {}",
         a.out.display()
     );
     if page.is_ok() {

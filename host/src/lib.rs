@@ -11,6 +11,7 @@ pub mod colour_bar;
 pub mod dataset;
 pub mod glyphs;
 pub mod html;
+pub mod ome;
 pub mod pages;
 pub mod reconstruction;
 pub mod refinement;

@@ -16,7 +16,8 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::Serialize;
 
-use crate::dataset::{image_io, Dataset};
+use crate::dataset::image_io::{self, TiffOptions};
+use crate::dataset::Dataset;
 use crate::refinement::RefinedLedsReport;
 
 /// What a reconstruction produced.
@@ -45,6 +46,8 @@ impl Reconstruction {
 pub struct Report {
     /// Dataset directory.
     pub dataset: String,
+    /// The microscope (wavelength, NA, magnification, camera pixel).
+    pub system: System,
     /// Geometry used for the wave vectors.
     pub geometry: LedGeometry,
     /// Where it came from: "nominal" or a calibration file.
@@ -192,6 +195,7 @@ impl Report {
         let layout = &outcome.layout;
         Self {
             dataset: dataset.display().to_string(),
+            system: *system,
             geometry: *geometry,
             geometry_source: source.into(),
             upsample: settings.upsample.max(1),
@@ -336,14 +340,43 @@ pub fn reconstruct(
 
 /// Write amplitude/phase TIFFs (float32), PNG previews and `report.json` into `out`.
 pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
+    write_outputs_with(r, out, TiffOptions::default())
+}
+
+/// [`write_outputs`], the object's TIFFs written as `tiff` says. The object's TIFFs
+/// are OME-TIFFs: their OME-XML gives the pixel size in µm, the channel and the
+/// microscope (docs/dataset.md §5).
+pub fn write_outputs_with(r: &Reconstruction, out: &Path, tiff: TiffOptions) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let amp = r.object.mapv(|c| c.norm());
     let phase = r.object.mapv(|c| c.arg());
     let pamp = r.pupil.mapv(|c| c.norm());
     let pphase = r.pupil.mapv(|c| c.arg());
+    let system = &r.report.system;
+    let ome = |name: &str, description: &str, a: &Array2<f32>| {
+        let xml = crate::ome::ome_xml(&crate::ome::OmeImage {
+            name,
+            description,
+            size: (a.ncols(), a.nrows()),
+            pixel_um: r.report.pixel_um,
+            wavelength_um: system.wavelength_um,
+            na: system.na,
+            magnification: system.magnification,
+        });
+        let path = out.join(format!("{name}.tif"));
+        image_io::write_tiff_f32_described(&path, a, &xml, r.report.pixel_um, tiff)
+    };
+    ome(
+        "amplitude",
+        "FPM reconstruction (EPRY): amplitude of the sample's complex transmission, relative to clear glass",
+        &amp,
+    )?;
+    ome(
+        "phase",
+        "FPM reconstruction (EPRY): phase of the sample's complex transmission, radians in [-pi, pi]",
+        &phase,
+    )?;
     let tif = |name: &str, a: &Array2<f32>| image_io::write_tiff_f32(&out.join(name), a);
-    tif("amplitude.tif", &amp)?;
-    tif("phase.tif", &phase)?;
     tif("pupil_amplitude.tif", &pamp)?;
     tif("pupil_phase.tif", &pphase)?;
     let pct = |a: &Array2<f32>, q: f64| {

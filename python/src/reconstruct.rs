@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use fpm_host::calibration::Placement;
-use fpm_host::reconstruction::{reconstruct as run, write_outputs};
+use fpm_host::dataset::image_io::TiffOptions;
+use fpm_host::reconstruction::{reconstruct as run, write_outputs_with};
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
 use fpm_physics::LedGeometry;
@@ -57,11 +58,22 @@ impl Reconstruction {
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         to_py(py, &self.inner.report)
     }
-    /// Write amplitude/phase/pupil TIFFs (float32), PNG previews and report.json into
-    /// `dir`, as `fpm reconstruct` does.
-    fn save(&self, py: Python<'_>, dir: PathBuf) -> PyResult<()> {
-        py.detach(|| write_outputs(&self.inner, &dir))
-            .map_err(failed)
+    /// Write amplitude/phase as OME-TIFF (float32, the pixel size in µm in their
+    /// OME-XML; deflate-compressed with `compress`), pupil TIFFs, PNG previews and
+    /// report.json into `dir`, as `fpm reconstruct` does.
+    #[pyo3(signature = (dir, *, compress = false))]
+    fn save(&self, py: Python<'_>, dir: PathBuf, compress: bool) -> PyResult<()> {
+        py.detach(|| {
+            write_outputs_with(
+                &self.inner,
+                &dir,
+                TiffOptions {
+                    compress,
+                    ..TiffOptions::default()
+                },
+            )
+        })
+        .map_err(failed)
     }
 
     fn __repr__(&self) -> String {

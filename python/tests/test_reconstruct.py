@@ -80,6 +80,28 @@ def test_outputs_carry_what_was_computed(usaf, tmp_path):
     assert (tmp_path / "report.json").is_file() and (tmp_path / "amplitude.png").is_file()
 
 
+@pytest.mark.parametrize("compress", [False, True])
+def test_images_are_ome_tiffs_with_their_pixel_size(usaf, tmp_path, compress):
+    res = fpm.reconstruct(usaf, passes=1)
+    res.save(tmp_path, compress=compress)
+    for name, values in (("amplitude", res.amplitude), ("phase", res.phase)):
+        with tifffile.TiffFile(tmp_path / f"{name}.tif") as tif:
+            assert tif.is_ome, name
+            ome = tifffile.xml2dict(tif.ome_metadata)["OME"]
+            pixels = ome["Image"]["Pixels"]
+            assert pixels["PhysicalSizeX"] == pytest.approx(res.pixel_um)
+            assert pixels["PhysicalSizeY"] == pytest.approx(res.pixel_um)
+            assert pixels["SizeX"] == values.shape[1] and pixels["Type"] == "float"
+            assert pixels["Channel"]["Name"] == name
+            assert pixels["Channel"]["ExcitationWavelength"] == pytest.approx(626)
+            assert ome["Instrument"]["Objective"]["LensNA"] == pytest.approx(0.1)
+            page = tif.pages[0]
+            assert (page.compression == 8) == compress  # deflate
+            numerator, denominator = page.tags["XResolution"].value
+            assert 1e4 * denominator / numerator == pytest.approx(res.pixel_um, rel=1e-6)
+            assert np.array_equal(tif.asarray(), values)
+
+
 def test_geometry_from_a_calibration_file(usaf, tmp_path):
     path = tmp_path / "placement.json"
     path.write_text('{"dx_mm": 0.5, "dy_mm": 0, "theta_deg": 0, "height_mm": 87.5}')

@@ -10,7 +10,9 @@ use fpm_physics::reconstruct::{Refine, Settings};
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::dataset::Dataset;
-use fpm_host::reconstruction::{reconstruct, write_outputs_with};
+use fpm_host::reconstruction::{
+    reconstruct, write_outputs_with, ImageFormat, OutputOptions, ZARR_NAME,
+};
 use fpm_host::truth::score_reconstruction;
 
 /// Reconstruct the high-resolution amplitude and phase (and the pupil) with EPRY.
@@ -65,12 +67,26 @@ pub struct ReconstructArgs {
     /// (usable as --calibration). Each pass takes 3–5× longer.
     #[arg(long)]
     refine_leds: bool,
+    /// How amplitude and phase are stored: OME-TIFFs (amplitude.tif, phase.tif), or
+    /// one OME-Zarr multiscale image (image.ome.zarr: both as channels, chunked, a
+    /// pyramid for large mosaics; napari opens it).
+    #[arg(long, value_enum, default_value_t = FormatArg::Tiff)]
+    format: FormatArg,
     /// Deflate-compress amplitude.tif and phase.tif (lossless; OME-TIFF either way).
     #[arg(long)]
     compress: bool,
     /// Print the report (report.json) as JSON instead of text.
     #[arg(long)]
     json: bool,
+}
+
+/// `--format`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq)]
+pub enum FormatArg {
+    /// amplitude.tif and phase.tif, float32 OME-TIFF.
+    Tiff,
+    /// image.ome.zarr (OME-Zarr 0.4).
+    OmeZarr,
 }
 
 /// `--background`.
@@ -134,14 +150,15 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     if let Some(refined) = r.report.refined_leds.as_mut() {
         refined.versus_truth = fpm_host::truth::score_led_positions(&ds, refined);
     }
-    write_outputs_with(
-        &r,
-        &a.out,
-        TiffOptions {
-            compress: a.compress,
-            ..TiffOptions::default()
-        },
-    )?;
+    let format = match a.format {
+        FormatArg::Tiff => ImageFormat::Tiff,
+        FormatArg::OmeZarr => ImageFormat::OmeZarr,
+    };
+    let tiff = TiffOptions {
+        compress: a.compress,
+        ..TiffOptions::default()
+    };
+    write_outputs_with(&r, &a.out, OutputOptions { format, tiff })?;
     // The report is an extra: failing to write it is a warning, not a failed run.
     let context = fpm_host::pages::reconstruction::Context {
         system: &ds.manifest.system(),
@@ -211,7 +228,11 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         );
     }
     println!(
-        "wrote amplitude/phase OME-TIFFs (pixel size in µm), pupil TIFFs, PNG previews, charts (plots/) and report.json to {}",
+        "wrote {}, pupil TIFFs, PNG previews, charts (plots/) and report.json to {}",
+        match format {
+            ImageFormat::Tiff => "amplitude/phase OME-TIFFs (pixel size in µm)".to_string(),
+            ImageFormat::OmeZarr => format!("{ZARR_NAME} (amplitude and phase, OME-Zarr pyramid)"),
+        },
         a.out.display()
     );
     if page.is_ok() {

@@ -12,6 +12,7 @@ pub mod dataset;
 pub mod glyphs;
 pub mod html;
 pub mod ome;
+pub mod ome_zarr;
 pub mod pages;
 pub mod reconstruction;
 pub mod refinement;

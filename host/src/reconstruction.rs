@@ -338,15 +338,38 @@ pub fn reconstruct(
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 
-/// Write amplitude/phase TIFFs (float32), PNG previews and `report.json` into `out`.
-pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
-    write_outputs_with(r, out, TiffOptions::default())
+/// The OME-Zarr group a run writes with [`ImageFormat::OmeZarr`].
+pub const ZARR_NAME: &str = "image.ome.zarr";
+
+/// How the object (amplitude and phase) is stored.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// `amplitude.tif` and `phase.tif`, OME-TIFF.
+    #[default]
+    Tiff,
+    /// [`ZARR_NAME`]: both as channels of one OME-Zarr multiscale image.
+    OmeZarr,
 }
 
-/// [`write_outputs`], the object's TIFFs written as `tiff` says. The object's TIFFs
-/// are OME-TIFFs: their OME-XML gives the pixel size in µm, the channel and the
-/// microscope (docs/dataset.md §5).
-pub fn write_outputs_with(r: &Reconstruction, out: &Path, tiff: TiffOptions) -> Result<()> {
+/// How the outputs are written.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct OutputOptions {
+    /// The object's format.
+    pub format: ImageFormat,
+    /// The TIFFs' options.
+    pub tiff: TiffOptions,
+}
+
+/// Write amplitude/phase TIFFs (float32), PNG previews and `report.json` into `out`.
+pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
+    write_outputs_with(r, out, OutputOptions::default())
+}
+
+/// [`write_outputs`], the object written as `options` say: OME-TIFFs (their OME-XML
+/// gives the pixel size in µm, the channel and the microscope) or an OME-Zarr
+/// pyramid (docs/dataset.md §5).
+pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions) -> Result<()> {
+    let tiff = options.tiff;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let amp = r.object.mapv(|c| c.norm());
     let phase = r.object.mapv(|c| c.arg());
@@ -366,16 +389,23 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, tiff: TiffOptions) -> 
         let path = out.join(format!("{name}.tif"));
         image_io::write_tiff_f32_described(&path, a, &xml, r.report.pixel_um, tiff)
     };
-    ome(
-        "amplitude",
-        "FPM reconstruction (EPRY): amplitude of the sample's complex transmission, relative to clear glass",
-        &amp,
-    )?;
-    ome(
-        "phase",
-        "FPM reconstruction (EPRY): phase of the sample's complex transmission, radians in [-pi, pi]",
-        &phase,
-    )?;
+    match options.format {
+        ImageFormat::Tiff => {
+            ome(
+                "amplitude",
+                "FPM reconstruction (EPRY): amplitude of the sample's complex transmission, relative to clear glass",
+                &amp,
+            )?;
+            ome(
+                "phase",
+                "FPM reconstruction (EPRY): phase of the sample's complex transmission, radians in [-pi, pi]",
+                &phase,
+            )?;
+        }
+        ImageFormat::OmeZarr => {
+            crate::ome_zarr::write(&out.join(ZARR_NAME), &r.object, r.report.pixel_um)?
+        }
+    }
     let tif = |name: &str, a: &Array2<f32>| image_io::write_tiff_f32(&out.join(name), a);
     tif("pupil_amplitude.tif", &pamp)?;
     tif("pupil_phase.tif", &pphase)?;

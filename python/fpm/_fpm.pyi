@@ -118,9 +118,12 @@ class Result:
     @property
     def report(self) -> dict[str, Json]:
         """As report.json (with `versus_truth` for simulated datasets)."""
-    def save(self, dir: Union[str, PathLike[str]], *, compress: bool = False) -> None:
-        """Write amplitude/phase OME-TIFFs (float32, pixel size in µm), pupil TIFFs,
-        PNG previews and report.json into `dir`."""
+    def save(
+        self, dir: Union[str, PathLike[str]], *, format: str = "tiff", compress: bool = False
+    ) -> None:
+        """Write amplitude/phase as OME-TIFFs (float32, pixel size in µm) or, with
+        format="ome-zarr", as one OME-Zarr pyramid (image.ome.zarr); pupil TIFFs, PNG
+        previews and report.json into `dir`."""
 
 class Streaming:
     """A reconstruction fed frame by frame while the acquisition runs."""

@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
-use fpm_host::reconstruction::{reconstruct as run, write_outputs_with};
+use fpm_host::reconstruction::{
+    reconstruct as run, write_outputs_with, ImageFormat, OutputOptions,
+};
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
 use fpm_physics::LedGeometry;
@@ -58,22 +60,27 @@ impl Reconstruction {
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         to_py(py, &self.inner.report)
     }
-    /// Write amplitude/phase as OME-TIFF (float32, the pixel size in µm in their
-    /// OME-XML; deflate-compressed with `compress`), pupil TIFFs, PNG previews and
+    /// Write amplitude/phase as OME-TIFF (`format="tiff"`: float32, the pixel size
+    /// in µm in their OME-XML; deflate-compressed with `compress`) or as one OME-Zarr
+    /// pyramid (`format="ome-zarr"`: image.ome.zarr), pupil TIFFs, PNG previews and
     /// report.json into `dir`, as `fpm reconstruct` does.
-    #[pyo3(signature = (dir, *, compress = false))]
-    fn save(&self, py: Python<'_>, dir: PathBuf, compress: bool) -> PyResult<()> {
-        py.detach(|| {
-            write_outputs_with(
-                &self.inner,
-                &dir,
-                TiffOptions {
-                    compress,
-                    ..TiffOptions::default()
-                },
-            )
-        })
-        .map_err(failed)
+    #[pyo3(signature = (dir, *, format = "tiff", compress = false))]
+    fn save(&self, py: Python<'_>, dir: PathBuf, format: &str, compress: bool) -> PyResult<()> {
+        let format = match format {
+            "tiff" => ImageFormat::Tiff,
+            "ome-zarr" => ImageFormat::OmeZarr,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "format = '{other}': give 'tiff' or 'ome-zarr'"
+                )))
+            }
+        };
+        let tiff = TiffOptions {
+            compress,
+            ..TiffOptions::default()
+        };
+        py.detach(|| write_outputs_with(&self.inner, &dir, OutputOptions { format, tiff }))
+            .map_err(failed)
     }
 
     fn __repr__(&self) -> String {

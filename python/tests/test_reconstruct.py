@@ -119,3 +119,43 @@ def test_bad_arguments_are_refused(usaf):
         fpm.reconstruct(usaf, geometry={"dx_mm": 1.0})
     with pytest.raises(fpm.FpmError, match="nowhere.json"):
         fpm.reconstruct(usaf, geometry="/nowhere.json")
+
+
+def test_ome_zarr_pyramid_opens_with_zarr(usaf, tmp_path):
+    import zarr
+
+    res = fpm.reconstruct(usaf, passes=1)
+    res.save(tmp_path, format="ome-zarr")
+    assert not (tmp_path / "amplitude.tif").exists()
+    group = zarr.open_group(tmp_path / "image.ome.zarr", mode="r")
+    multiscales = group.attrs["multiscales"][0]
+    assert multiscales["version"] == "0.4"
+    assert [a["name"] for a in multiscales["axes"]] == ["c", "y", "x"]
+    assert multiscales["axes"][2]["unit"] == "micrometer"
+    paths = [d["path"] for d in multiscales["datasets"]]
+    assert paths == ["0", "1"]  # 512² then 256² (one chunk)
+    for level, d in enumerate(multiscales["datasets"]):
+        scale = d["coordinateTransformations"][0]["scale"]
+        assert scale[1] == scale[2] == pytest.approx(res.pixel_um * 2**level)
+    full = group["0"]
+    assert full.shape == (2, 512, 512) and full.chunks == (1, 256, 256)
+    assert np.array_equal(full[0], res.amplitude)
+    assert np.array_equal(full[1], res.phase)
+    half = group["1"][:]
+    assert half.shape == (2, 256, 256)
+    assert np.allclose(half[0], res.amplitude.reshape(256, 2, 256, 2).mean(axis=(1, 3)), rtol=1e-5)
+    mean_field = res.object.reshape(256, 2, 256, 2).mean(axis=(1, 3))
+    assert np.allclose(np.exp(1j * half[1]), np.exp(1j * np.angle(mean_field)), atol=1e-4)
+    assert [c["label"] for c in group.attrs["omero"]["channels"]] == ["amplitude", "phase"]
+
+
+def test_ome_zarr_edge_chunks_hold_exactly_the_image(acquisition, placement, tmp_path):
+    import zarr
+
+    ds, _ = acquisition
+    res = fpm.reconstruct(ds, geometry=placement, passes=1, upsample=5)  # 320², not a chunk multiple
+    res.save(tmp_path, format="ome-zarr")
+    group = zarr.open_group(tmp_path / "image.ome.zarr", mode="r")
+    assert group["0"].shape == (2, 320, 320) and group["1"].shape == (2, 160, 160)
+    assert np.array_equal(group["0"][0], res.amplitude)
+    assert np.array_equal(group["0"][1], res.phase)

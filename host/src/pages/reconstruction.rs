@@ -264,9 +264,24 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     ]);
 
     page.heading("Outputs");
-    page.files(&[
-        ("amplitude.tif".into(), "amplitude, float32 TIFF".into()),
-        ("phase.tif".into(), "phase in radians, float32 TIFF".into()),
+    // The object is in whichever format the run wrote.
+    let object_files = [
+        (
+            "amplitude.tif",
+            "amplitude, float32 OME-TIFF (pixel size in µm)",
+        ),
+        ("phase.tif", "phase in radians, float32 OME-TIFF"),
+        (
+            crate::reconstruction::ZARR_NAME,
+            "amplitude and phase, OME-Zarr pyramid (napari)",
+        ),
+    ];
+    let mut files: Vec<(String, String)> = object_files
+        .iter()
+        .filter(|(name, _)| dir.join(name).exists())
+        .map(|(name, what)| (name.to_string(), what.to_string()))
+        .collect();
+    files.extend([
         (
             "pupil_amplitude.tif".into(),
             "recovered pupil amplitude, float32 TIFF".into(),
@@ -281,6 +296,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         ),
         ("plots/".into(), "the charts as PNG and SVG".into()),
     ]);
+    page.files(&files);
     page.heading("Reproduce");
     page.command(c.reproduce);
     page.write(&dir.join("report.html"))

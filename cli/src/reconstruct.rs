@@ -1,8 +1,8 @@
 //! `fpm reconstruct DIR --out OUT`: EPRY phase retrieval of a dataset.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use clap::Args;
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
@@ -15,14 +15,35 @@ use fpm_host::reconstruction::{
 };
 use fpm_host::truth::score_reconstruction;
 
+mod batch;
+
 /// Reconstruct the high-resolution amplitude and phase (and the pupil) with EPRY.
+///
+/// One dataset into `--out DIR`, or many (the fields of view of a slide) each into
+/// its own directory under `--out-root ROOT`, skipping those already done.
 #[derive(Args, Debug)]
 pub struct ReconstructArgs {
-    /// Dataset directory (with dataset.toml); its in-focus frames are used.
-    dir: PathBuf,
-    /// Output directory.
+    /// Dataset directories (with dataset.toml); their in-focus frames are used. One
+    /// with --out; any number, or quoted patterns such as 'slide/field_*', with
+    /// --out-root.
+    #[arg(required = true)]
+    dirs: Vec<PathBuf>,
+    /// Output directory (one dataset).
+    #[arg(
+        long,
+        required_unless_present = "out_root",
+        conflicts_with = "out_root"
+    )]
+    out: Option<PathBuf>,
+    /// Reconstruct each dataset into OUT_ROOT/<its directory's name>. Datasets whose
+    /// output is already there are skipped; a run is written to a hidden partial
+    /// directory and moved into place only when complete, so an interrupted batch
+    /// resumes where it stopped.
     #[arg(long)]
-    out: PathBuf,
+    out_root: Option<PathBuf>,
+    /// With --out-root: reconstruct the datasets already done again.
+    #[arg(long, requires = "out_root")]
+    redo: bool,
     /// LED array placement instead of the dataset's nominal one: the calibration.json of
     /// `fpm calibrate`, or a JSON file with just dx_mm, dy_mm, theta_deg and height_mm
     /// (an array measured by other means; the grid then comes from the dataset).
@@ -111,7 +132,23 @@ impl ReconstructArgs {
 
 /// Run `fpm reconstruct`.
 pub fn run(a: ReconstructArgs) -> Result<()> {
-    let ds = Dataset::load(&a.dir)?;
+    match (&a.out, &a.out_root) {
+        (Some(out), None) => match a.dirs.as_slice() {
+            [dir] => one(&a, dir, out, true),
+            dirs => bail!(
+                "--out takes one dataset, not {}: use --out-root ROOT to give each its own directory",
+                dirs.len()
+            ),
+        },
+        (None, Some(root)) => batch::run(&a, root),
+        _ => bail!("give --out DIR (one dataset) or --out-root ROOT (many)"),
+    }
+}
+
+/// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
+/// stay quiet but for warnings (a batch prints its own line per dataset).
+fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
+    let ds = Dataset::load(dir)?;
     let (geometry, source) = match &a.calibration {
         Some(path) => (
             Placement::read(path)?.geometry(&ds.manifest.geometry()),
@@ -128,9 +165,10 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         refine_leds: a.refine_leds.then(Refine::default),
     };
     let bar = indicatif::ProgressBar::new(1).with_style(
-        indicatif::ProgressStyle::with_template(
-            "reconstructing [{bar:40}] {pos}/{len} frame updates ({eta} left)",
-        )
+        indicatif::ProgressStyle::with_template(&format!(
+            "reconstructing {} [{{bar:40}}] {{pos}}/{{len}} frame updates ({{eta}} left)",
+            dir.display()
+        ))
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let mut r = reconstruct(
@@ -158,14 +196,14 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         compress: a.compress,
         ..TiffOptions::default()
     };
-    write_outputs_with(&r, &a.out, OutputOptions { format, tiff })?;
+    write_outputs_with(&r, out, OutputOptions { format, tiff })?;
     // The report is an extra: failing to write it is a warning, not a failed run.
     let context = fpm_host::pages::reconstruction::Context {
         system: &ds.manifest.system(),
         nominal: &ds.manifest.geometry(),
         reproduce: &fpm_host::html::command_line(),
     };
-    let page = fpm_host::pages::reconstruction::write(&r, &a.out, &context);
+    let page = fpm_host::pages::reconstruction::write(&r, out, &context);
     if let Err(e) = &page {
         tracing::warn!("no HTML report: {e:#}");
     }
@@ -173,6 +211,9 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
         eprintln!("warning: {w}");
     }
     let rep = &r.report;
+    if !print {
+        return Ok(());
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(rep)?);
         return Ok(());
@@ -217,7 +258,7 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
             println!(
                 "  board fitted to them: {} ({})",
                 b.summary(),
-                a.out.join(fpm_host::refinement::BOARD_FILE).display()
+                out.join(fpm_host::refinement::BOARD_FILE).display()
             );
         }
     }
@@ -233,12 +274,12 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
             ImageFormat::Tiff => "amplitude/phase OME-TIFFs (pixel size in µm)".to_string(),
             ImageFormat::OmeZarr => format!("{ZARR_NAME} (amplitude and phase, OME-Zarr pyramid)"),
         },
-        a.out.display()
+        out.display()
     );
     if page.is_ok() {
         println!(
             "wrote {} (the report: open it in a browser)",
-            a.out.join("report.html").display()
+            out.join("report.html").display()
         );
     }
     Ok(())

@@ -159,3 +159,20 @@ def test_ome_zarr_edge_chunks_hold_exactly_the_image(acquisition, placement, tmp
     assert group["0"].shape == (2, 320, 320) and group["1"].shape == (2, 160, 160)
     assert np.array_equal(group["0"][0], res.amplitude)
     assert np.array_equal(group["0"][1], res.phase)
+
+
+def test_napari_s_reader_sees_channels_levels_and_scale(usaf, tmp_path):
+    # ome-zarr-py's Reader is what the napari-ome-zarr plugin builds layers from.
+    from ome_zarr.io import parse_url
+    from ome_zarr.reader import Reader
+
+    res = fpm.reconstruct(usaf, passes=1)
+    res.save(tmp_path, format="ome-zarr")
+    nodes = list(Reader(parse_url(str(tmp_path / "image.ome.zarr")))())
+    image = nodes[0]
+    assert [level.shape for level in image.data] == [(2, 512, 512), (2, 256, 256)]
+    assert image.metadata["channel_names"] == ["amplitude", "phase"]
+    scales = [t[0]["scale"] for t in image.metadata["coordinateTransformations"]]
+    assert scales[0][1:] == pytest.approx([res.pixel_um] * 2)
+    assert scales[1][1:] == pytest.approx([2 * res.pixel_um] * 2)
+    assert np.array_equal(np.asarray(image.data[0][0]), res.amplitude)

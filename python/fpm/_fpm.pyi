@@ -1,6 +1,7 @@
 """Type stubs of fpm's native module (python/src/*.rs)."""
 
 from os import PathLike
+from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -42,7 +43,8 @@ class Dataset:
     def save(self, dir: Union[str, PathLike[str]]) -> None:
         """Write frames/ (TIFF) and dataset.toml into `dir`."""
     @property
-    def dir(self) -> str: ...
+    def dir(self) -> Path:
+        """Where the dataset came from (`<in memory>` for arrays given no dir)."""
     @property
     def system(self) -> dict[str, float]:
         """wavelength_um, na, magnification, pixel_size_um."""

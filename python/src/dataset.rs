@@ -12,6 +12,9 @@ use pyo3::types::PyDict;
 
 use crate::convert::{dataset_error, from_py, to_py};
 
+/// The `dir` of a dataset made from arrays without one.
+const IN_MEMORY: &str = "<in memory>";
+
 /// An FPM dataset: frames, the LED lit for each, the optics and the LED array.
 #[pyclass(frozen, module = "fpm")]
 pub struct Dataset {
@@ -127,7 +130,9 @@ impl Dataset {
             ..CameraSection::default()
         };
         let manifest = Manifest::new(&system, &geometry, camera, entries);
-        let dir = dir.unwrap_or_else(|| PathBuf::from("."));
+        // Without a directory the dataset has none: not the working directory, whose
+        // truth.json (if any) belongs to something else.
+        let dir = dir.unwrap_or_else(|| PathBuf::from(IN_MEMORY));
         let inner = fpm_host::dataset::Dataset::from_pixels(&dir, manifest, images)
             .map_err(dataset_error)?;
         Ok(Self { inner })

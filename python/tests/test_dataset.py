@@ -57,6 +57,19 @@ def test_arrays_in_save_and_load_back(usaf, tmp_path):
         assert np.array_equal(back.frame(k), frames[k])
 
 
+def test_arrays_never_borrow_a_truth_from_the_working_directory(acquisition, monkeypatch):
+    # A simulated set's truth sits in its directory; a dataset made from its arrays
+    # has no directory, so it must not be scored against that truth.
+    ds, _ = acquisition
+    monkeypatch.chdir(ds.dir)
+    copy = fpm.Dataset.from_arrays(
+        ds.frames, ds.leds, ds.system, ds.geometry, exposure_ms=ds.exposure_ms, dark_level=ds.dark_level
+    )
+    assert str(copy.dir) == "<in memory>"
+    assert fpm.reconstruct(ds, passes=1).report.get("versus_truth") is not None
+    assert fpm.reconstruct(copy, passes=1).report.get("versus_truth") is None
+
+
 def test_float_frames_stay_float(usaf):
     frames = [f.astype(np.float64) / 255.0 for f in usaf.frames[:3]]
     ds = fpm.Dataset.from_arrays(frames, usaf.leds[:3], usaf.system, usaf.geometry)

@@ -121,13 +121,7 @@ impl SceneArgs {
         let placed = if self.random_geometry {
             Scene::random_placement(self.seed)
         } else {
-            Scene::placed(
-                self.dx_mm,
-                self.dy_mm,
-                self.theta_deg,
-                self.height_mm,
-                [0.0, 0.0],
-            )
+            Scene::placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
         };
         Scene {
             truth: placed.tilted(self.tilt_x_deg, self.tilt_y_deg),

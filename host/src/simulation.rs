@@ -40,15 +40,9 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// The paper's array at 92 mm, moved by (`dx_mm`, `dy_mm`), turned by `theta_deg`,
-    /// at `height_mm`, tilted about x and y by `tilt_deg`.
-    pub fn placed(
-        dx_mm: f64,
-        dy_mm: f64,
-        theta_deg: f64,
-        height_mm: f64,
-        tilt_deg: [f64; 2],
-    ) -> LedGeometry {
+    /// The paper's array moved by (`dx_mm`, `dy_mm`), turned by `theta_deg`, at
+    /// `height_mm` (flat: `.tilted(…)` tilts it).
+    pub fn placed(dx_mm: f64, dy_mm: f64, theta_deg: f64, height_mm: f64) -> LedGeometry {
         LedGeometry {
             dx_mm,
             dy_mm,
@@ -56,7 +50,6 @@ impl Scene {
             height_mm,
             ..nominal()
         }
-        .tilted(tilt_deg[0], tilt_deg[1])
     }
 
     /// An array drawn from the paper's range (±2.5 mm, ±5°, 87–97 mm) with `seed`.

@@ -40,7 +40,7 @@ fn scene(
         )));
     }
     Ok(Scene {
-        truth: Scene::placed(dx, dy, theta, h, [tilt_deg.0, tilt_deg.1]),
+        truth: Scene::placed(dx, dy, theta, h).tilted(tilt_deg.0, tilt_deg.1),
         noise,
         size,
         seed,

@@ -6,7 +6,7 @@
 //! quantisation. The sample is larger than the field of view: a padded field is imaged
 //! and the sensor region cropped.
 
-use crate::frame::{Counts, Measured};
+use crate::frame::{Counts, LitFrame, Measured};
 use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
@@ -421,6 +421,14 @@ impl SimFrame {
             dark_level: camera.dark_level_dn as f32,
             exposure_ms: self.exposure_ms as f32,
             floor: 0.0,
+        }
+    }
+
+    /// The frame as measured by `camera`, with its LED: what a reconstruction takes.
+    pub fn lit(&self, camera: &Camera) -> LitFrame<'_> {
+        LitFrame {
+            led: self.led,
+            measured: self.measured(camera),
         }
     }
 }

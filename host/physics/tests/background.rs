@@ -12,13 +12,7 @@ use fpm_physics::{LedGeometry, LedIndex, System};
 use rustfft::num_complex::Complex32;
 
 fn lit<'a>(frames: &'a [SimFrame], camera: &Camera) -> Vec<LitFrame<'a>> {
-    frames
-        .iter()
-        .map(|f| LitFrame {
-            led: f.led,
-            measured: f.measured(camera),
-        })
-        .collect()
+    frames.iter().map(|f| f.lit(camera)).collect()
 }
 
 #[test]

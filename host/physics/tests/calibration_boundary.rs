@@ -54,13 +54,7 @@ fn the_boundary_gives_h_when_the_defocus_is_misreported() {
             |_| 20.0,
             77 + k as u64,
         );
-        let lit: Vec<LitFrame> = acquisition
-            .iter()
-            .map(|f| LitFrame {
-                led: f.led,
-                measured: f.measured(&scene.camera),
-            })
-            .collect();
+        let lit: Vec<LitFrame> = acquisition.iter().map(|f| f.lit(&scene.camera)).collect();
         let h = cal.height_mm;
         let b = boundary::from_frames(
             &scene.system,

@@ -75,13 +75,7 @@ fn a_field_wider_than_the_curvature_allows_comes_back_flat_with_the_default_tile
         |img| camera.auto_exposure(img),
         5,
     );
-    let lit: Vec<LitFrame> = frames
-        .iter()
-        .map(|f| LitFrame {
-            led: f.led,
-            measured: f.measured(&camera),
-        })
-        .collect();
+    let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
     let settings = Settings {
         upsample: 2,
         ..Settings::default()

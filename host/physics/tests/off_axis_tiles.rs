@@ -59,13 +59,7 @@ fn corner_tiles_of_an_off_axis_array_are_as_good_as_the_centre() {
         |img| camera.auto_exposure(img),
         4,
     );
-    let lit: Vec<LitFrame> = frames
-        .iter()
-        .map(|f| LitFrame {
-            led: f.led,
-            measured: f.measured(&camera),
-        })
-        .collect();
+    let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
     let settings = Settings {
         upsample: 2,
         ..Settings::default()

@@ -9,9 +9,9 @@ use fpm_physics::reconstruct::{Refine, Settings};
 
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
-use fpm_host::dataset::Dataset;
+use fpm_host::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 use fpm_host::reconstruction::{
-    reconstruct, write_outputs_with, ImageFormat, OutputOptions, ZARR_NAME,
+    reconstruct, reconstruct_on_disk, write_outputs_with, ImageFormat, OutputOptions, ZARR_NAME,
 };
 use fpm_host::truth::score_reconstruction;
 
@@ -96,6 +96,11 @@ pub struct ReconstructArgs {
     /// Deflate-compress amplitude.tif and phase.tif (lossless; OME-TIFF either way).
     #[arg(long)]
     compress: bool,
+    /// Frames (in-focus, as stored) up to this size are held in memory; a larger set
+    /// is read from disk band by band (each frame whole once, then one band of tile
+    /// rows of every frame at a time), with the same result. GB.
+    #[arg(long, default_value_t = 8.0)]
+    frame_memory_gb: f64,
     /// Print the report (report.json) as JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -148,13 +153,30 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
 /// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
 /// stay quiet but for warnings (a batch prints its own line per dataset).
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
-    let ds = Dataset::load(dir)?;
+    let on_disk = DatasetOnDisk::open(dir)?;
+    let bytes = on_disk.in_focus_bytes();
+    let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
+        Some(Dataset::load(dir)?)
+    } else {
+        eprintln!(
+            "{}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",
+            dir.display(),
+            bytes as f64 / 1e9,
+            a.frame_memory_gb
+        );
+        None
+    };
+    // The manifest and directory, whichever way the frames are read.
+    let ds: &dyn DatasetInfo = &on_disk;
     let (geometry, source) = match &a.calibration {
         Some(path) => (
-            Placement::read(path)?.geometry(&ds.manifest.geometry()),
+            Placement::read(path)?.geometry(&ds.manifest().geometry()),
             path.display().to_string(),
         ),
-        None => (ds.manifest.geometry(), "nominal (dataset.toml)".to_string()),
+        None => (
+            ds.manifest().geometry(),
+            "nominal (dataset.toml)".to_string(),
+        ),
     };
     let settings = Settings {
         upsample: a.upsample.max(1),
@@ -171,22 +193,24 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         ))
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let mut r = reconstruct(
-        &ds,
-        &geometry,
-        &source,
-        settings,
-        a.passes,
-        a.tile,
-        &|done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        },
-    )?;
+    let progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let mut r = match &in_memory {
+        Some(ds) => reconstruct(
+            ds, &geometry, &source, settings, a.passes, a.tile, &progress,
+        )?,
+        None => reconstruct_on_disk(
+            &on_disk, &geometry, &source, settings, a.passes, a.tile, &progress,
+        )?,
+    };
+    // The frames are not needed for the outputs.
+    drop(in_memory);
     bar.finish_and_clear();
-    r.report.versus_truth = score_reconstruction(&ds, &r.object, r.report.upsample);
+    r.report.versus_truth = score_reconstruction(ds, &r.object, r.report.upsample);
     if let Some(refined) = r.report.refined_leds.as_mut() {
-        refined.versus_truth = fpm_host::truth::score_led_positions(&ds, refined);
+        refined.versus_truth = fpm_host::truth::score_led_positions(ds, refined);
     }
     let format = match a.format {
         FormatArg::Tiff => ImageFormat::Tiff,
@@ -199,8 +223,8 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     write_outputs_with(&r, out, OutputOptions { format, tiff })?;
     // The report is an extra: failing to write it is a warning, not a failed run.
     let context = fpm_host::pages::reconstruction::Context {
-        system: &ds.manifest.system(),
-        nominal: &ds.manifest.geometry(),
+        system: &ds.manifest().system(),
+        nominal: &ds.manifest().geometry(),
         reproduce: &fpm_host::html::command_line(),
     };
     let page = fpm_host::pages::reconstruction::write(&r, out, &context);

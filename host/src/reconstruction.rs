@@ -6,18 +6,19 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::background::{Correction, FrameBackground};
-use fpm_physics::calibrate::boundary::{self, BoundaryHeight};
+use fpm_physics::calibrate::boundary::{self, BlockReader, BoundaryHeight};
 use fpm_physics::frame::LitFrame;
-use fpm_physics::reconstruct::tiled::{self, TiledOutcome};
+use fpm_physics::reconstruct::tiled::{self, Banded, TiledOutcome};
 use fpm_physics::reconstruct::Settings;
 use fpm_physics::tiles::Tile;
 use fpm_physics::{LedGeometry, LedIndex, System};
 use ndarray::Array2;
+use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use serde::Serialize;
 
 use crate::dataset::image_io::{self, TiffOptions};
-use crate::dataset::Dataset;
+use crate::dataset::{Dataset, DatasetOnDisk, Pixels};
 use crate::refinement::RefinedLedsReport;
 
 /// What a reconstruction produced.
@@ -144,17 +145,29 @@ pub fn boundary_check(
         frames,
         geometry.center,
         BOUNDARY_BLOCK_PX,
-        (0.75 * h, 1.33 * h),
+        boundary_search(h),
     )?;
-    let na_share = estimate.height_mm * NA_RELATIVE_SIGMA / (1.0 - system.na * system.na);
-    let sigma_with_na_mm = estimate.sigma_mm.hypot(na_share);
-    Some(BoundaryCheck {
-        estimate,
-        geometry_height_mm: h,
-        na_relative_sigma: NA_RELATIVE_SIGMA,
-        sigma_with_na_mm,
-        difference_sigma: (estimate.height_mm - h) / sigma_with_na_mm.max(1e-9),
-    })
+    Some(BoundaryCheck::new(system, h, estimate))
+}
+
+/// Where h is searched from the edges: 0.75× to 1.33× the geometry's `h`.
+fn boundary_search(h: f64) -> (f64, f64) {
+    (0.75 * h, 1.33 * h)
+}
+
+impl BoundaryCheck {
+    /// `estimate` beside the geometry's `h`, the NA's uncertainty added.
+    fn new(system: &System, h: f64, estimate: BoundaryHeight) -> Self {
+        let na_share = estimate.height_mm * NA_RELATIVE_SIGMA / (1.0 - system.na * system.na);
+        let sigma_with_na_mm = estimate.sigma_mm.hypot(na_share);
+        Self {
+            estimate,
+            geometry_height_mm: h,
+            na_relative_sigma: NA_RELATIVE_SIGMA,
+            sigma_with_na_mm,
+            difference_sigma: (estimate.height_mm - h) / sigma_with_na_mm.max(1e-9),
+        }
+    }
 }
 
 impl Report {
@@ -335,6 +348,101 @@ pub fn reconstruct(
         total_ms,
     );
     report.height_from_boundary = boundary_check(&ds.manifest.system(), geometry, &frames);
+    Ok(Reconstruction::from_outcome(outcome, report))
+}
+
+/// Frame `k` of `ds` as lit, from `pixels` (all or some of its rows).
+fn lit<'a>(ds: &DatasetOnDisk, k: usize, pixels: &'a Pixels) -> LitFrame<'a> {
+    LitFrame {
+        led: ds.manifest.frames[k].led,
+        measured: ds.measured(k, pixels),
+    }
+}
+
+/// [`reconstruct`] for a dataset left on disk: each frame is read whole once (its size
+/// and values checked, the clear level, dark-field backgrounds and the bright/dark-field
+/// edges measured), then each band of tile rows is read from every frame, solved and
+/// blended before the next. Memory holds one band of the frames, not all of them; the
+/// result equals [`reconstruct`]'s bit for bit.
+pub fn reconstruct_on_disk(
+    ds: &DatasetOnDisk,
+    geometry: &LedGeometry,
+    source: &str,
+    settings: Settings,
+    passes: usize,
+    tile: Option<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Reconstruction> {
+    let system = ds.manifest.system();
+    let indices = ds.in_focus();
+    if indices.is_empty() {
+        bail!(
+            "{}: no in-focus frames (defocus_um = 0) to reconstruct",
+            ds.dir.display()
+        );
+    }
+    let context = || format!("reconstructing {}", ds.dir.display());
+    let start = Instant::now();
+    let leds: Vec<LedIndex> = indices.iter().map(|&k| ds.manifest.frames[k].led).collect();
+    let mut run = Banded::new(system, *geometry, settings, passes, ds.dim(), tile, leds)
+        .with_context(context)?;
+    let mut edges = match indices
+        .iter()
+        .find(|&&k| ds.manifest.frames[k].led == geometry.center)
+    {
+        Some(&k) => {
+            let pixels = ds.frame(k)?;
+            Some(BlockReader::new(
+                &system,
+                &lit(ds, k, &pixels),
+                BOUNDARY_BLOCK_PX,
+            ))
+        }
+        None => None,
+    };
+    tracing::info!(
+        frames = indices.len(),
+        "{}: reading each frame once, then by bands of tile rows",
+        ds.dir.display()
+    );
+    for (i, &k) in indices.iter().enumerate() {
+        let pixels = ds.frame(k)?;
+        let frame = lit(ds, k, &pixels);
+        run.observe(i, &frame).with_context(context)?;
+        if let Some(e) = edges.as_mut() {
+            e.read(&frame);
+        }
+    }
+    for band in run.bands() {
+        let pixels: Vec<Pixels> = indices
+            .par_iter()
+            .map(|&k| ds.rows(k, band.rows.clone()))
+            .collect::<Result<_, _>>()?;
+        let frames: Vec<_> = indices
+            .iter()
+            .zip(&pixels)
+            .map(|(&k, p)| lit(ds, k, p))
+            .collect();
+        run.solve_band(&band, &frames, progress)
+            .with_context(context)?;
+    }
+    let outcome = run.finish().with_context(context)?;
+    let total_ms = start.elapsed().as_secs_f64() * 1e3;
+    let mut report = Report::new(
+        &ds.dir,
+        &system,
+        geometry,
+        source,
+        settings,
+        passes,
+        indices.len(),
+        &outcome,
+        total_ms,
+    );
+    let h = geometry.height_mm;
+    report.height_from_boundary = edges
+        .and_then(|e| e.estimate(&system, geometry, boundary_search(h)))
+        .map(|estimate| BoundaryCheck::new(&system, h, estimate));
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

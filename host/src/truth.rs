@@ -11,7 +11,7 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{image_io, Dataset};
+use crate::dataset::{image_io, DatasetInfo};
 
 /// `truth.json`: the hidden array and what was simulated.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -118,17 +118,17 @@ pub struct LedPositionScore {
 /// Score refined LED positions against the truth beside dataset `ds`. An extra: `None`
 /// without a truth (a warning when it cannot be read).
 pub fn score_led_positions(
-    ds: &Dataset,
+    ds: &(impl DatasetInfo + ?Sized),
     refined: &crate::refinement::RefinedLedsReport,
 ) -> Option<LedPositionScore> {
-    let truth = match Truth::find(&ds.dir) {
+    let truth = match Truth::find(ds.dir()) {
         Ok(t) => t?,
         Err(e) => {
             tracing::warn!("LED positions not scored against the truth: {e:#}");
             return None;
         }
     };
-    let nominal = ds.manifest.geometry();
+    let nominal = ds.manifest().geometry();
     let n = refined.leds.len().max(1) as f64;
     let rms = |place: &dyn Fn(&crate::refinement::RefinedLed) -> [f64; 2]| {
         let s: f64 = refined
@@ -171,7 +171,7 @@ pub fn write_truth_field(dir: &Path, gt: &Array2<Complex32>) -> Result<()> {
 /// object truth, and a truth that cannot be read or used gives a warning (naming the
 /// file and the reason), never a failed reconstruction.
 pub fn score_reconstruction(
-    ds: &Dataset,
+    ds: &(impl DatasetInfo + ?Sized),
     reconstruction: &Array2<Complex32>,
     upsample: usize,
 ) -> Option<Scores> {
@@ -185,19 +185,19 @@ pub fn score_reconstruction(
 }
 
 fn try_score(
-    ds: &Dataset,
+    ds: &(impl DatasetInfo + ?Sized),
     reconstruction: &Array2<Complex32>,
     upsample: usize,
 ) -> Result<Option<Scores>> {
-    let Some(truth) = Truth::find(&ds.dir)? else {
+    let Some(truth) = Truth::find(ds.dir())? else {
         return Ok(None);
     };
     let Some(pitch) = truth.object_pixel_um else {
         return Ok(None);
     };
     let object = image_io::read_complex(
-        &ds.dir.join("truth_amplitude.tif"),
-        &ds.dir.join("truth_phase.tif"),
+        &ds.dir().join("truth_amplitude.tif"),
+        &ds.dir().join("truth_phase.tif"),
     )?;
     let (rh, rw) = reconstruction.dim();
     let (th, tw) = object.dim();
@@ -206,15 +206,14 @@ fn try_score(
             "truth_amplitude.tif is {tw}x{th}, the reconstruction {rw}x{rh}: not the same field of view"
         );
     }
-    let system = ds.manifest.system();
-    let nominal = ds.manifest.geometry();
+    let system = ds.manifest().system();
+    let nominal = ds.manifest().geometry();
     let discs: Vec<(f64, f64)> = ds
+        .manifest()
         .frames
         .iter()
-        .filter(|f| f.entry.defocus_um == 0.0)
-        .map(|f| {
-            truth.illumination_frequency(&nominal, f.entry.led, (0.0, 0.0), system.wavelength_um)
-        })
+        .filter(|f| f.defocus_um == 0.0)
+        .map(|f| truth.illumination_frequency(&nominal, f.led, (0.0, 0.0), system.wavelength_um))
         .collect();
     let rec_pitch = system.sample_pixel_um() / upsample as f64;
     Ok(Some(score(
@@ -233,23 +232,23 @@ fn try_score(
 /// grey scales, with a scale bar on the truth.
 /// An extra: the caller only warns when it fails.
 pub fn write_comparison(
-    ds: &Dataset,
+    ds: &(impl DatasetInfo + ?Sized),
     panels: &[(&str, &Array2<Complex32>)],
     upsample: usize,
     path: &Path,
 ) -> Result<()> {
     use crate::glyphs;
     use fpm_physics::metrics::resample_to;
-    let truth = Truth::find(&ds.dir)?.context("no truth.json beside the dataset")?;
+    let truth = Truth::find(ds.dir())?.context("no truth.json beside the dataset")?;
     let pitch = truth
         .object_pixel_um
         .context("truth.json gives no object_pixel_um")?;
     let t = image_io::read_complex(
-        &ds.dir.join("truth_amplitude.tif"),
-        &ds.dir.join("truth_phase.tif"),
+        &ds.dir().join("truth_amplitude.tif"),
+        &ds.dir().join("truth_phase.tif"),
     )?;
     let (h, w) = t.dim();
-    let rec_pitch = ds.manifest.system().sample_pixel_um() / upsample.max(1) as f64;
+    let rec_pitch = ds.manifest().system().sample_pixel_um() / upsample.max(1) as f64;
     let mut fields = vec![("TRUTH", t.clone())];
     for (title, r) in panels {
         let (rh, rw) = r.dim();

@@ -125,6 +125,111 @@ fn read_tiff(file: File) -> Result<Pixels, String> {
     }
 }
 
+/// Some rows of an image, with the whole image's (rows, cols).
+pub type Rows = (Pixels, (usize, usize));
+
+/// Rows `rows` of a grey-scale TIFF stored in strips, decoding only the strips that
+/// hold them, with the whole image's (rows, cols). `None` when the file is not a TIFF
+/// in strips (a PNG, a tiled TIFF): read it whole then.
+pub fn read_rows(
+    path: &Path,
+    rows: std::ops::Range<usize>,
+) -> Result<Option<Rows>, ImageError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "tif" && ext != "tiff" {
+        return Ok(None);
+    }
+    read_tiff_rows(open(path)?, rows).map_err(format(path))
+}
+
+fn read_tiff_rows(
+    file: File,
+    rows: std::ops::Range<usize>,
+) -> Result<Option<Rows>, String> {
+    use tiff::decoder::{ChunkType, Decoder, DecodingResult};
+    let mut dec =
+        Decoder::new(BufReader::new(file)).map_err(|e| format!("not a readable TIFF: {e}"))?;
+    let (w, h) = dec.dimensions().map_err(|e| e.to_string())?;
+    let (w, h) = (w as usize, h as usize);
+    let color = dec.colortype().map_err(|e| e.to_string())?;
+    if !matches!(color, tiff::ColorType::Gray(_)) {
+        return Err(format!("expected a grey-scale TIFF, found {color:?}"));
+    }
+    if dec.get_chunk_type() != ChunkType::Strip {
+        return Ok(None);
+    }
+    if rows.start >= rows.end || rows.end > h {
+        return Err(format!(
+            "rows {}..{} are not within its {h} rows",
+            rows.start, rows.end
+        ));
+    }
+    let per_strip = dec
+        .find_tag_unsigned::<u64>(tiff::tags::Tag::RowsPerStrip)
+        .map_err(|e| e.to_string())?
+        .map_or(h, |r| r.min(h as u64) as usize)
+        .max(1);
+    let mut out: Option<DecodingResult> = None;
+    for strip in rows.start / per_strip..=(rows.end - 1) / per_strip {
+        let first = strip * per_strip;
+        let (lo, hi) = (
+            (rows.start.max(first) - first) * w,
+            (rows.end.min(first + per_strip) - first) * w,
+        );
+        let chunk = dec
+            .read_chunk(strip as u32)
+            .map_err(|e| format!("cannot decode strip {strip}: {e}"))?;
+        let short = || {
+            format!(
+                "strip {strip} holds fewer than the {} samples its rows need",
+                hi
+            )
+        };
+        out = Some(match (out, chunk) {
+            (None, DecodingResult::U8(v)) => {
+                DecodingResult::U8(v.get(lo..hi).ok_or_else(short)?.to_vec())
+            }
+            (None, DecodingResult::U16(v)) => {
+                DecodingResult::U16(v.get(lo..hi).ok_or_else(short)?.to_vec())
+            }
+            (None, DecodingResult::F32(v)) => {
+                DecodingResult::F32(v.get(lo..hi).ok_or_else(short)?.to_vec())
+            }
+            (Some(DecodingResult::U8(mut a)), DecodingResult::U8(v)) => {
+                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
+                DecodingResult::U8(a)
+            }
+            (Some(DecodingResult::U16(mut a)), DecodingResult::U16(v)) => {
+                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
+                DecodingResult::U16(a)
+            }
+            (Some(DecodingResult::F32(mut a)), DecodingResult::F32(v)) => {
+                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
+                DecodingResult::F32(a)
+            }
+            (_, other) => {
+                return Err(format!(
+                    "unsupported TIFF sample type ({})",
+                    sample_name(&other)
+                ))
+            }
+        });
+    }
+    let shape = (rows.len(), w);
+    let bad = |e: ndarray::ShapeError| e.to_string();
+    let pixels = match out {
+        Some(DecodingResult::U8(v)) => Pixels::U8(Array2::from_shape_vec(shape, v).map_err(bad)?),
+        Some(DecodingResult::U16(v)) => Pixels::U16(Array2::from_shape_vec(shape, v).map_err(bad)?),
+        Some(DecodingResult::F32(v)) => Pixels::F32(Array2::from_shape_vec(shape, v).map_err(bad)?),
+        _ => return Err("no strips".into()),
+    };
+    Ok(Some((pixels, (h, w))))
+}
+
 fn sample_name(d: &tiff::decoder::DecodingResult) -> &'static str {
     use tiff::decoder::DecodingResult::*;
     match d {

@@ -6,6 +6,7 @@
 //! sample-plane orientation of docs/dataset.md §1.
 
 pub mod image_io;
+pub mod on_disk;
 
 use std::path::{Path, PathBuf};
 
@@ -15,6 +16,34 @@ use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use serde::{Deserialize, Serialize};
 
 pub use image_io::{ImageError, Pixels};
+pub use on_disk::DatasetOnDisk;
+
+/// Where a dataset is and what its manifest says, whether its frames are in memory
+/// ([`Dataset`]) or read as needed ([`DatasetOnDisk`]).
+pub trait DatasetInfo {
+    /// Its directory.
+    fn dir(&self) -> &Path;
+    /// Its manifest, as the frames are in memory.
+    fn manifest(&self) -> &Manifest;
+}
+
+impl DatasetInfo for Dataset {
+    fn dir(&self) -> &Path {
+        &self.dir
+    }
+    fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+}
+
+impl DatasetInfo for DatasetOnDisk {
+    fn dir(&self) -> &Path {
+        &self.dir
+    }
+    fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+}
 
 /// `[system]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -256,84 +285,19 @@ pub struct Dataset {
 impl Dataset {
     /// Load and validate the dataset in `dir`.
     pub fn load(dir: &Path) -> Result<Self, DatasetError> {
-        let path = dir.join("dataset.toml");
-        let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::Manifest {
-            path: path.clone(),
-            reason: e.to_string(),
-        })?;
-        let manifest: Manifest = toml::from_str(&text).map_err(|e| DatasetError::Manifest {
-            path: path.clone(),
-            reason: e.to_string(),
-        })?;
-        validate(&path, &manifest)?;
-        let mut manifest = manifest;
-        let colour = manifest.camera.bayer.zip(manifest.camera.channel);
-        let mut frames: Vec<Frame> = Vec::with_capacity(manifest.frames.len());
-        for (index, entry) in manifest.frames.iter().enumerate() {
-            let bad = |reason: String| DatasetError::Frame {
-                path: path.clone(),
-                index,
-                file: entry.file.clone(),
-                reason,
-            };
-            let file = dir.join(&entry.file);
-            if !file.is_file() {
-                return Err(bad(format!("file {} does not exist", file.display())));
-            }
-            let mut pixels = image_io::read(&file).map_err(|e| bad(e.reason()))?;
-            // The mosaic refers to the sensor as stored: one channel out first, then
-            // the orientation.
-            if let Some((pattern, channel)) = colour {
-                let (h, w) = pixels.dim();
-                if !manifest.camera.demosaic && (h % 2 == 1 || w % 2 == 1) {
-                    return Err(bad(format!(
-                        "{w}x{h}: a Bayer mosaic taken by its channel's pixels needs even sizes"
-                    )));
-                }
-                let raw = pixels.to_f32();
-                pixels = Pixels::F32(if manifest.camera.demosaic {
-                    bayer::demosaic(raw.view(), pattern, channel)
-                } else {
-                    bayer::subsample(raw.view(), pattern, channel)
-                });
-            }
-            let raw = match pixels {
-                Pixels::U8(a) => Pixels::U8(orient(a, &manifest.camera)),
-                Pixels::U16(a) => Pixels::U16(orient(a, &manifest.camera)),
-                Pixels::F32(a) => Pixels::F32(orient(a, &manifest.camera)),
-            };
-            if let Some(first) = frames.first() {
-                if raw.dim() != first.raw.dim() {
-                    return Err(bad(format!(
-                        "size {}x{} differs from frame 0 ({}x{})",
-                        raw.dim().1,
-                        raw.dim().0,
-                        first.raw.dim().1,
-                        first.raw.dim().0
-                    )));
-                }
-            }
-            if matches!(&raw, Pixels::F32(a) if a.iter().any(|v| !v.is_finite())) {
-                return Err(bad("contains non-finite values".into()));
-            }
+        let (path, stored) = read_manifest(dir)?;
+        let mut frames: Vec<Frame> = Vec::with_capacity(stored.frames.len());
+        for (index, entry) in stored.frames.iter().enumerate() {
+            let expected = frames.first().map(|f: &Frame| f.raw.dim());
+            let raw = read_frame(dir, &path, &stored, index, expected)?;
             frames.push(Frame {
                 entry: entry.clone(),
                 raw,
             });
         }
-        if colour.is_some() {
-            // In memory the frames are the channel's image: a saved copy says so, and a
-            // channel taken by its own pixels has twice the sensor's pitch.
-            if !manifest.camera.demosaic {
-                manifest.system.pixel_size_um *= 2.0;
-            }
-            manifest.camera.bayer = None;
-            manifest.camera.channel = None;
-            manifest.camera.demosaic = false;
-        }
         Ok(Self {
             dir: dir.to_path_buf(),
-            manifest,
+            manifest: as_in_memory(stored),
             frames,
         })
     }
@@ -524,6 +488,112 @@ fn orient<T: Clone>(img: ndarray::Array2<T>, cam: &CameraSection) -> ndarray::Ar
         img.invert_axis(ndarray::Axis(0));
     }
     img.as_standard_layout().to_owned()
+}
+
+/// `dir/dataset.toml`, read and validated: its path and the manifest as stored.
+pub(crate) fn read_manifest(dir: &Path) -> Result<(PathBuf, Manifest), DatasetError> {
+    let path = dir.join("dataset.toml");
+    let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::Manifest {
+        path: path.clone(),
+        reason: e.to_string(),
+    })?;
+    let manifest: Manifest = toml::from_str(&text).map_err(|e| DatasetError::Manifest {
+        path: path.clone(),
+        reason: e.to_string(),
+    })?;
+    validate(&path, &manifest)?;
+    Ok((path, manifest))
+}
+
+/// An error about frame `index` of the manifest at `path`.
+pub(crate) fn frame_error(path: &Path, m: &Manifest, index: usize, reason: String) -> DatasetError {
+    DatasetError::Frame {
+        path: path.to_path_buf(),
+        index,
+        file: m
+            .frames
+            .get(index)
+            .map(|e| e.file.clone())
+            .unwrap_or_default(),
+        reason,
+    }
+}
+
+/// Frame `index` of the dataset in `dir` (manifest at `path`, as stored), whole, in the
+/// sample-plane orientation: a Bayer mosaic's channel taken out first, then the
+/// orientation. Checked: the file exists and reads, its size is `expected` (when
+/// given), its values are finite.
+pub(crate) fn read_frame(
+    dir: &Path,
+    path: &Path,
+    stored: &Manifest,
+    index: usize,
+    expected: Option<(usize, usize)>,
+) -> Result<Pixels, DatasetError> {
+    let bad = |reason: String| frame_error(path, stored, index, reason);
+    let entry = stored
+        .frames
+        .get(index)
+        .ok_or_else(|| bad("no such [[frame]] entry".into()))?;
+    let file = dir.join(&entry.file);
+    if !file.is_file() {
+        return Err(bad(format!("file {} does not exist", file.display())));
+    }
+    let camera = &stored.camera;
+    let mut pixels = image_io::read(&file).map_err(|e| bad(e.reason()))?;
+    if let Some((pattern, channel)) = camera.bayer.zip(camera.channel) {
+        let (h, w) = pixels.dim();
+        if !camera.demosaic && (h % 2 == 1 || w % 2 == 1) {
+            return Err(bad(format!(
+                "{w}x{h}: a Bayer mosaic taken by its channel's pixels needs even sizes"
+            )));
+        }
+        let raw = pixels.to_f32();
+        pixels = Pixels::F32(if camera.demosaic {
+            bayer::demosaic(raw.view(), pattern, channel)
+        } else {
+            bayer::subsample(raw.view(), pattern, channel)
+        });
+    }
+    let raw = match pixels {
+        Pixels::U8(a) => Pixels::U8(orient(a, camera)),
+        Pixels::U16(a) => Pixels::U16(orient(a, camera)),
+        Pixels::F32(a) => Pixels::F32(orient(a, camera)),
+    };
+    check_frame(&raw, expected).map_err(bad)?;
+    Ok(raw)
+}
+
+/// A frame's size against the first's, and its values finite.
+pub(crate) fn check_frame(raw: &Pixels, expected: Option<(usize, usize)>) -> Result<(), String> {
+    if let Some(first) = expected.filter(|&e| e != raw.dim()) {
+        return Err(format!(
+            "size {}x{} differs from frame 0 ({}x{})",
+            raw.dim().1,
+            raw.dim().0,
+            first.1,
+            first.0
+        ));
+    }
+    if matches!(raw, Pixels::F32(a) if a.iter().any(|v| !v.is_finite())) {
+        return Err("contains non-finite values".into());
+    }
+    Ok(())
+}
+
+/// The manifest of frames as they are in memory: a colour sensor's frames are its
+/// channel's image (a saved copy says so), and a channel taken by its own pixels has
+/// twice the sensor's pitch.
+pub(crate) fn as_in_memory(mut manifest: Manifest) -> Manifest {
+    if manifest.camera.bayer.zip(manifest.camera.channel).is_some() {
+        if !manifest.camera.demosaic {
+            manifest.system.pixel_size_um *= 2.0;
+        }
+        manifest.camera.bayer = None;
+        manifest.camera.channel = None;
+        manifest.camera.demosaic = false;
+    }
+    manifest
 }
 
 fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {

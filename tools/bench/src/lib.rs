@@ -11,6 +11,7 @@ mod frames;
 mod geometry;
 mod led_switch;
 mod link;
+mod memory;
 mod stats;
 
 use anyhow::Result;
@@ -80,6 +81,10 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Peak memory of a large reconstruction (441 frames of 20 MP by default): the
+    /// dataset is written to disk, `fpm reconstruct` runs on it in a child process, and
+    /// its peak resident set is read from the kernel.
+    Memory(memory::MemoryArgs),
     /// LED switch time of single-LED scans (the firmware's chain model): full chain
     /// versus partial shifts, for 1, 2 and 4 data lanes.
     LedSwitch {
@@ -116,6 +121,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         } => calibration::run(random, coverage, seed, repeat, json),
         BenchCommand::Geometry { size, passes, json } => geometry::run(size, passes, json),
         BenchCommand::Frames { rounds, json } => frames::run(rounds, json),
+        BenchCommand::Memory(a) => memory::run(a),
         BenchCommand::Epry {
             size,
             upsample,

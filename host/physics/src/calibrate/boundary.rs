@@ -237,19 +237,59 @@ pub fn from_frames(
     search_mm: (f64, f64),
 ) -> Option<BoundaryHeight> {
     let reference = frames.iter().find(|f| f.led == reference_led)?;
-    let dim = reference.measured.dim();
-    let blocks = Blocks::new(system, dim, side_px);
-    let means = |f: &LitFrame<'_>| blocks.means(&f.measured.intensity(Region::whole(dim)));
-    let reference_means = means(reference);
-    let read: Vec<LitFrameBlocks> = frames
-        .iter()
-        .filter(|f| f.measured.dim() == dim)
-        .map(|f| LitFrameBlocks {
+    let mut reader = BlockReader::new(system, reference, side_px);
+    for f in frames {
+        reader.read(f);
+    }
+    reader.estimate(system, geometry, search_mm)
+}
+
+/// [`from_frames`] one frame at a time, for frames that are not all in memory at once:
+/// the reference frame first, then each frame kept only as its lit blocks.
+pub struct BlockReader {
+    blocks: Blocks,
+    dim: (usize, usize),
+    reference_means: Vec<f64>,
+    read: Vec<LitFrameBlocks>,
+}
+
+impl BlockReader {
+    /// Blocks of `side_px` against `reference` (the frame under the reference LED).
+    pub fn new(system: &System, reference: &LitFrame<'_>, side_px: usize) -> Self {
+        let dim = reference.measured.dim();
+        let blocks = Blocks::new(system, dim, side_px);
+        let reference_means = blocks.means(&reference.measured.intensity(Region::whole(dim)));
+        Self {
+            blocks,
+            dim,
+            reference_means,
+            read: vec![],
+        }
+    }
+
+    /// Frame `f` (one of a size other than the reference's is left out).
+    pub fn read(&mut self, f: &LitFrame<'_>) {
+        if f.measured.dim() != self.dim {
+            return;
+        }
+        let means = self
+            .blocks
+            .means(&f.measured.intensity(Region::whole(self.dim)));
+        self.read.push(LitFrameBlocks {
             led: f.led,
-            lit: lit_blocks(&means(f), &reference_means),
-        })
-        .collect();
-    estimate(system, geometry, &blocks, &read, search_mm)
+            lit: lit_blocks(&means, &self.reference_means),
+        });
+    }
+
+    /// The estimate from the frames read (see [`estimate`]).
+    pub fn estimate(
+        &self,
+        system: &System,
+        geometry: &LedGeometry,
+        search_mm: (f64, f64),
+    ) -> Option<BoundaryHeight> {
+        estimate(system, geometry, &self.blocks, &self.read, search_mm)
+    }
 }
 
 #[cfg(test)]

@@ -19,4 +19,4 @@ pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
 pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;
 pub use streaming::Streaming;
-pub use tiled::{TileLayout, TileResult, TiledError, TiledOutcome, TiledStreaming};
+pub use tiled::{Band, Banded, TileLayout, TileResult, TiledError, TiledOutcome, TiledStreaming};

@@ -6,6 +6,7 @@
 //! starts: fresh, or from the updates made while the frames arrived.
 
 use crate::optics::LedIndex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use ndarray::Array2;
@@ -17,7 +18,7 @@ use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
 use super::Settings;
 use crate::background::{correct, FrameBackground};
-use crate::frame::{LitFrame, Region};
+use crate::frame::{LitFrame, Measured, Region};
 use crate::optics::{LedGeometry, System};
 use crate::tiles::{auto_tile_side, plan, Mosaic, Tile};
 use crate::Image;
@@ -165,6 +166,16 @@ pub enum TiledError {
         /// The size of the first.
         expected: (usize, usize),
     },
+    /// A band's frames do not fit the run (see [`Banded::solve_band`]).
+    #[error("band of rows {start}..{end}: {why}")]
+    Band {
+        /// Its first row.
+        start: usize,
+        /// One past its last row.
+        end: usize,
+        /// What is wrong.
+        why: String,
+    },
     /// A tile had no usable frame.
     #[error("tile at ({x0}, {y0}): no bright-field frame to start from")]
     Tile {
@@ -233,6 +244,164 @@ pub fn reconstruct(
     )
 }
 
+/// Each frame with its own background taken off where the settings ask (measured over
+/// the whole frame), and the backgrounds measured, by LED.
+fn corrected<'a>(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'a>],
+    settings: Settings,
+) -> (Vec<LitFrame<'a>>, Vec<(LedIndex, FrameBackground)>) {
+    let mut backgrounds = vec![];
+    let frames = frames
+        .iter()
+        .map(|f| {
+            let (frame, background) = correct(*f, system, geometry, settings.background);
+            backgrounds.extend(background.map(|b| (f.led, b)));
+            frame
+        })
+        .collect();
+    (frames, backgrounds)
+}
+
+/// What the tiles share while they run: the layout, the settings, the frames' LEDs, the
+/// clear level, and the progress over all tiles.
+struct TileJob<'a> {
+    system: &'a System,
+    geometry: &'a LedGeometry,
+    settings: Settings,
+    layout: &'a TileLayout,
+    leds: &'a [LedIndex],
+    clear_level: f32,
+    passes: usize,
+    tick: &'a (dyn Fn(usize, usize) + Sync),
+}
+
+impl TileJob<'_> {
+    /// Tiles `ks` (each from its start: None is fresh) in parallel, from `frames`
+    /// (corrected), whose first row is row `row0` of the full frame.
+    fn run(
+        &self,
+        ks: &[usize],
+        starts: Vec<Option<Streaming>>,
+        frames: &[LitFrame<'_>],
+        row0: usize,
+    ) -> Result<Vec<(TileResult, Outcome)>, TiledError> {
+        let pixel_um = self.system.sample_pixel_um();
+        let jobs: Vec<(usize, Option<Streaming>)> = ks.iter().copied().zip(starts).collect();
+        jobs.into_par_iter()
+            .map(|(k, start)| {
+                let began = Instant::now();
+                let t = self.layout.tiles[k];
+                let region = Region {
+                    y0: t.y0 - row0,
+                    ..Region::from(t)
+                };
+                // This tile's share of each frame, as amplitude: the only conversion of
+                // the counts, made here and dropped with the tile.
+                let amplitudes: Vec<Image> = frames
+                    .iter()
+                    .map(|f| f.measured.amplitude(region, self.clear_level))
+                    .collect();
+                let field = self.layout.field(k, pixel_um, Some(self.clear_level));
+                let outcome = match start {
+                    Some(s) => s.finish_amplitudes(self.leds, &amplitudes, self.passes, self.tick),
+                    None => run_amplitudes(
+                        self.system,
+                        self.geometry,
+                        field,
+                        self.leds,
+                        &amplitudes,
+                        self.settings,
+                        self.passes,
+                        self.tick,
+                    ),
+                }
+                .ok_or(TiledError::Tile { x0: t.x0, y0: t.y0 })?;
+                let result = TileResult {
+                    tile: t,
+                    centre_um: field.centre_um,
+                    initial_led: self.leds[outcome.initial],
+                    errors: outcome.errors.clone(),
+                    ms: began.elapsed().as_secs_f64() * 1e3,
+                    frequencies: outcome.frequencies.clone(),
+                };
+                Ok((result, outcome))
+            })
+            .collect()
+    }
+}
+
+/// The tiles blended as they finish, in tile order, each tile's state dropped once it
+/// is placed (only the central tile's pupil is kept).
+struct Assembly {
+    mosaic: Mosaic,
+    central: usize,
+    pupil: Option<Array2<Complex32>>,
+    tiles: Vec<TileResult>,
+}
+
+impl Assembly {
+    fn new(layout: &TileLayout, settings: Settings) -> Self {
+        Self {
+            mosaic: Mosaic::new(
+                layout.width,
+                layout.height,
+                settings.upsample.max(1),
+                layout.overlap,
+                layout.free,
+            ),
+            central: layout.central_tile(),
+            pupil: None,
+            tiles: Vec::with_capacity(layout.tiles.len()),
+        }
+    }
+
+    /// Tile `k`, the next in order.
+    fn add(&mut self, k: usize, result: TileResult, mut outcome: Outcome) {
+        self.mosaic.add(&result.tile, &outcome.sample());
+        if k == self.central {
+            self.pupil = Some(outcome.epry.pupil_centered());
+        }
+        self.tiles.push(result);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        self,
+        system: &System,
+        geometry: &LedGeometry,
+        settings: Settings,
+        layout: TileLayout,
+        leds: &[LedIndex],
+        clear_level: f32,
+        backgrounds: Vec<(LedIndex, FrameBackground)>,
+    ) -> Result<TiledOutcome, TiledError> {
+        let pixel_um = system.sample_pixel_um();
+        let tiles = self.tiles;
+        let refined_leds = settings.refine_leds.map(|_| {
+            let fields: Vec<FieldFrequencies> = tiles
+                .iter()
+                .map(|t| FieldFrequencies {
+                    centre_um: t.centre_um,
+                    frequencies: &t.frequencies,
+                })
+                .collect();
+            let bin_step = 1.0 / (layout.size as f64 * pixel_um);
+            RefinedLeds::from_fields(geometry, leds, &fields, system.wavelength_um, bin_step)
+        });
+        Ok(TiledOutcome {
+            refined_leds,
+            object: self.mosaic.finish(),
+            pupil: self.pupil.ok_or(TiledError::NoFrames)?,
+            tiles,
+            layout,
+            clear_level,
+            backgrounds,
+        })
+    }
+}
+
 /// Each tile from its start (None: fresh, nearest-first from the frames), then blended.
 #[allow(clippy::too_many_arguments)]
 fn solve(
@@ -246,100 +415,266 @@ fn solve(
     starts: Vec<Option<Streaming>>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<TiledOutcome, TiledError> {
-    let pixel_um = system.sample_pixel_um();
-    let mut backgrounds = vec![];
-    let frames: Vec<LitFrame<'_>> = frames
-        .iter()
-        .map(|f| {
-            let (frame, background) = correct(*f, system, geometry, settings.background);
-            backgrounds.extend(background.map(|b| (f.led, b)));
-            frame
-        })
-        .collect();
+    let (frames, backgrounds) = corrected(system, geometry, frames, settings);
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let total = layout.tiles.len() * passes * frames.len();
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    let tick = |_: usize, _: usize| {
-        progress(
-            done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
-            total,
-        );
+    let done = AtomicUsize::new(0);
+    let tick = |_: usize, _: usize| progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+    let job = TileJob {
+        system,
+        geometry,
+        settings,
+        layout: &layout,
+        leds: &leds,
+        clear_level,
+        passes,
+        tick: &tick,
     };
-    let jobs: Vec<(usize, Option<Streaming>)> = starts.into_iter().enumerate().collect();
-    let results: Vec<(TileResult, Outcome)> = jobs
-        .into_par_iter()
-        .map(|(k, start)| {
-            let began = Instant::now();
-            let t = layout.tiles[k];
-            // This tile's share of each frame, as amplitude: the only conversion of the
-            // counts, made here and dropped with the tile.
-            let amplitudes: Vec<Image> = frames
-                .iter()
-                .map(|f| f.measured.amplitude(Region::from(t), clear_level))
-                .collect();
-            let field = layout.field(k, pixel_um, Some(clear_level));
-            let outcome = match start {
-                Some(s) => s.finish_amplitudes(&leds, &amplitudes, passes, tick),
-                None => run_amplitudes(
-                    system,
-                    geometry,
-                    field,
-                    &leds,
-                    &amplitudes,
-                    settings,
-                    passes,
-                    tick,
-                ),
-            }
-            .ok_or(TiledError::Tile { x0: t.x0, y0: t.y0 })?;
-            let result = TileResult {
-                tile: t,
-                centre_um: field.centre_um,
-                initial_led: leds[outcome.initial],
-                errors: outcome.errors.clone(),
-                ms: began.elapsed().as_secs_f64() * 1e3,
-                frequencies: outcome.frequencies.clone(),
-            };
-            Ok((result, outcome))
-        })
-        .collect::<Result<_, TiledError>>()?;
-    let mut mosaic = Mosaic::new(
-        layout.width,
-        layout.height,
-        settings.upsample.max(1),
-        layout.overlap,
-        layout.free,
-    );
-    let central = layout.central_tile();
-    let mut pupil = None;
-    let mut tiles = Vec::with_capacity(results.len());
-    for (k, (result, mut outcome)) in results.into_iter().enumerate() {
-        mosaic.add(&result.tile, &outcome.sample());
-        if k == central {
-            pupil = Some(outcome.epry.pupil_centered());
-        }
-        tiles.push(result);
+    let all: Vec<usize> = (0..layout.tiles.len()).collect();
+    let results = job.run(&all, starts, &frames, 0)?;
+    let mut assembly = Assembly::new(&layout, settings);
+    for (k, (result, outcome)) in results.into_iter().enumerate() {
+        assembly.add(k, result, outcome);
     }
-    let refined_leds = settings.refine_leds.map(|_| {
-        let fields: Vec<FieldFrequencies> = tiles
-            .iter()
-            .map(|t| FieldFrequencies {
-                centre_um: t.centre_um,
-                frequencies: &t.frequencies,
-            })
-            .collect();
-        let bin_step = 1.0 / (layout.size as f64 * pixel_um);
-        RefinedLeds::from_fields(geometry, &leds, &fields, system.wavelength_um, bin_step)
-    });
-    Ok(TiledOutcome {
-        refined_leds,
-        object: mosaic.finish(),
-        pupil: pupil.ok_or(TiledError::NoFrames)?,
-        tiles,
+    assembly.finish(
+        system,
+        geometry,
+        settings,
         layout,
+        &leds,
         clear_level,
         backgrounds,
-    })
+    )
+}
+
+/// One band of a [`Banded`] run: the rows every frame must give, and its tiles (one
+/// row of tiles).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Band {
+    /// Frame rows `rows.start..rows.end`.
+    pub rows: std::ops::Range<usize>,
+    /// Its tiles' indices in the layout.
+    pub tiles: Vec<usize>,
+}
+
+/// A tiled reconstruction fed band by band, for frames too many or too large to hold
+/// at once (441 frames of 20 MP are 17.6 GB as 16-bit counts). What needs whole frames
+/// is gathered first, one frame at a time ([`Self::observe`]: the clear level, each
+/// dark-field frame's background); then each band of tile rows is solved from just
+/// those rows of every frame ([`Self::solve_band`]) and blended at once, so neither
+/// the frames nor the tiles' states are ever all in memory. The result equals
+/// [`reconstruct`]'s bit for bit.
+pub struct Banded {
+    system: System,
+    geometry: LedGeometry,
+    settings: Settings,
+    passes: usize,
+    layout: TileLayout,
+    leds: Vec<LedIndex>,
+    nearest: usize,
+    /// Per frame once observed: its dark level and floor after its background.
+    corrections: Vec<Option<(f32, f32)>>,
+    backgrounds: Vec<(LedIndex, FrameBackground)>,
+    clear_level: Option<f32>,
+    assembly: Assembly,
+    next_tile: usize,
+    done: AtomicUsize,
+}
+
+impl Banded {
+    /// A run over frames of `width × height` lit by `leds` (in the order they will be
+    /// given), cut as `tile` says ([`TileLayout::new`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        system: System,
+        geometry: LedGeometry,
+        settings: Settings,
+        passes: usize,
+        (height, width): (usize, usize),
+        tile: Option<usize>,
+        leds: Vec<LedIndex>,
+    ) -> Result<Self, TiledError> {
+        let nearest = *geometry
+            .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+            .first()
+            .ok_or(TiledError::NoFrames)?;
+        let layout = TileLayout::new(width, height, tile, &system, &geometry);
+        let assembly = Assembly::new(&layout, settings);
+        Ok(Self {
+            corrections: vec![None; leds.len()],
+            system,
+            geometry,
+            settings,
+            passes,
+            layout,
+            leds,
+            nearest,
+            backgrounds: vec![],
+            clear_level: None,
+            assembly,
+            next_tile: 0,
+            done: AtomicUsize::new(0),
+        })
+    }
+
+    /// How the frame is cut.
+    pub fn layout(&self) -> &TileLayout {
+        &self.layout
+    }
+
+    /// The bands, top to bottom: one per row of tiles.
+    pub fn bands(&self) -> Vec<Band> {
+        let mut bands: Vec<Band> = vec![];
+        for (k, t) in self.layout.tiles.iter().enumerate() {
+            match bands.last_mut() {
+                Some(b) if b.rows.start == t.y0 => b.tiles.push(k),
+                _ => bands.push(Band {
+                    rows: t.y0..t.y0 + t.size,
+                    tiles: vec![k],
+                }),
+            }
+        }
+        bands
+    }
+
+    /// Frame `k` whole (in any order, each once, before any band): its size checked,
+    /// its background measured, the clear level read if it is the frame nearest the
+    /// axis.
+    pub fn observe(&mut self, k: usize, frame: &LitFrame<'_>) -> Result<(), TiledError> {
+        let expected = (self.layout.height, self.layout.width);
+        if frame.measured.dim() != expected {
+            return Err(TiledError::Size {
+                index: k,
+                led: frame.led,
+                got: frame.measured.dim(),
+                expected,
+            });
+        }
+        if k == self.nearest {
+            let level = frame.measured.mean_intensity();
+            if level.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return Err(TiledError::BlackReference {
+                    index: k,
+                    led: frame.led,
+                });
+            }
+            self.clear_level = Some(level);
+        }
+        let (corrected, background) = correct(
+            *frame,
+            &self.system,
+            &self.geometry,
+            self.settings.background,
+        );
+        self.backgrounds.extend(background.map(|b| (frame.led, b)));
+        if let Some(c) = self.corrections.get_mut(k) {
+            *c = Some((corrected.measured.dark_level, corrected.measured.floor));
+        }
+        Ok(())
+    }
+
+    /// The backgrounds measured so far, by LED (in the order observed).
+    pub fn backgrounds(&self) -> &[(LedIndex, FrameBackground)] {
+        &self.backgrounds
+    }
+
+    /// Solve `band` (the next in [`Self::bands`]' order) from `rows`: rows
+    /// `band.rows` of every frame, in the order of the LEDs given to [`Self::new`], as
+    /// measured (each frame's correction is applied here). `progress(done, total)`
+    /// counts frame updates over the whole run.
+    pub fn solve_band(
+        &mut self,
+        band: &Band,
+        rows: &[LitFrame<'_>],
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<(), TiledError> {
+        let clear_level = self.clear_level.ok_or(TiledError::BlackReference {
+            index: self.nearest,
+            led: self.leds[self.nearest],
+        })?;
+        let bad = |why: String| TiledError::Band {
+            start: band.rows.start,
+            end: band.rows.end,
+            why,
+        };
+        if band.tiles.first() != Some(&self.next_tile) {
+            return Err(bad(format!(
+                "bands must come in order; tile {} is next",
+                self.next_tile
+            )));
+        }
+        if rows.len() != self.leds.len() {
+            return Err(bad(format!(
+                "{} frames given, the run has {}",
+                rows.len(),
+                self.leds.len()
+            )));
+        }
+        let wanted = (band.rows.len(), self.layout.width);
+        let mut frames = Vec::with_capacity(rows.len());
+        for (index, (f, &led)) in rows.iter().zip(&self.leds).enumerate() {
+            if f.led != led {
+                return Err(bad(format!(
+                    "frame {index} is lit by LED {:?}, the run has LED {led:?} there",
+                    f.led
+                )));
+            }
+            if f.measured.dim() != wanted {
+                return Err(bad(format!(
+                    "frame {index} (LED {led:?}) is {:?} (rows, cols), the band {wanted:?}",
+                    f.measured.dim()
+                )));
+            }
+            let (dark_level, floor) = self.corrections[index]
+                .ok_or_else(|| bad(format!("frame {index} (LED {led:?}) was not observed")))?;
+            frames.push(LitFrame {
+                led,
+                measured: Measured {
+                    dark_level,
+                    floor,
+                    ..f.measured
+                },
+            });
+        }
+        let total = self.layout.tiles.len() * self.passes * self.leds.len();
+        let done = &self.done;
+        let tick = |_: usize, _: usize| progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+        let job = TileJob {
+            system: &self.system,
+            geometry: &self.geometry,
+            settings: self.settings,
+            layout: &self.layout,
+            leds: &self.leds,
+            clear_level,
+            passes: self.passes,
+            tick: &tick,
+        };
+        let starts = band.tiles.iter().map(|_| None).collect();
+        let results = job.run(&band.tiles, starts, &frames, band.rows.start)?;
+        for (&k, (result, outcome)) in band.tiles.iter().zip(results) {
+            self.assembly.add(k, result, outcome);
+        }
+        self.next_tile = band.tiles.last().map_or(self.next_tile, |k| k + 1);
+        Ok(())
+    }
+
+    /// Blend what the bands gave (every band must have been solved).
+    pub fn finish(self) -> Result<TiledOutcome, TiledError> {
+        if self.next_tile != self.layout.tiles.len() {
+            let t = self.layout.tiles[self.next_tile];
+            return Err(TiledError::Tile { x0: t.x0, y0: t.y0 });
+        }
+        let clear_level = self.clear_level.ok_or(TiledError::NoFrames)?;
+        self.assembly.finish(
+            &self.system,
+            &self.geometry,
+            self.settings,
+            self.layout,
+            &self.leds,
+            clear_level,
+            self.backgrounds,
+        )
+    }
 }
 
 /// Streaming EPRY over the full field: one [`Streaming`] per tile of the same

@@ -1,0 +1,248 @@
+//! `fpm reconstruct --frame-memory-gb`: a dataset too large to hold is read from disk
+//! band by band, and the result is the in-memory one bit for bit, whatever the files'
+//! orientation or format (TIFF strips read in place, flipped, or PNG and transposed
+//! frames read whole and cut). A bad frame is still named.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use fpm_host::dataset::image_io;
+use fpm_host::dataset::Pixels;
+use fpm_tests::{fpm_bin, TempDir};
+
+fn fpm(args: &[&str]) -> Output {
+    Command::new(fpm_bin())
+        .args(args)
+        .output()
+        .expect("running fpm")
+}
+
+fn text(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+/// Reconstruct `dataset` into `out`, in memory or (`banded`) from disk; its stderr.
+fn reconstruct(dataset: &Path, out: &Path, banded: bool) -> String {
+    let (d, o) = (text(dataset), text(out));
+    let mut args = vec![
+        "reconstruct",
+        &d,
+        "--out",
+        &o,
+        "--tile",
+        "48",
+        "--passes",
+        "2",
+        "--upsample",
+        "2",
+    ];
+    if banded {
+        args.extend(["--frame-memory-gb", "0"]);
+    }
+    let run = fpm(&args);
+    let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
+    assert!(run.status.success(), "{}: {stderr}", dataset.display());
+    stderr
+}
+
+fn bytes(p: &Path) -> Vec<u8> {
+    std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+fn report(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&bytes(&out.join("report.json"))).expect("report.json")
+}
+
+/// The outputs of `b` equal those of `a`: images byte for byte, and what the report
+/// says of the frames.
+fn same_result(a: &Path, b: &Path, what: &str) {
+    for name in [
+        "amplitude.tif",
+        "phase.tif",
+        "pupil_amplitude.tif",
+        "pupil_phase.tif",
+    ] {
+        assert!(
+            bytes(&a.join(name)) == bytes(&b.join(name)),
+            "{what}: {name} differs from the in-memory run's"
+        );
+    }
+    let (ra, rb) = (report(a), report(b));
+    for key in [
+        "frames",
+        "frame_size",
+        "tile_size",
+        "background",
+        "height_from_boundary",
+        "error_per_pass",
+        "versus_truth",
+    ] {
+        assert_eq!(ra[key], rb[key], "{what}: report.json's {key}");
+    }
+}
+
+/// A copy of the dataset in `from` whose frame files are `rewrite(pixels)` saved by
+/// `save`, with `edit` applied to dataset.toml (and the same truth beside it).
+fn rewritten(
+    from: &Path,
+    to: &Path,
+    edit: &dyn Fn(String) -> String,
+    rewrite: &dyn Fn(ndarray::Array2<u16>) -> ndarray::Array2<u16>,
+    save: &dyn Fn(&Path, ndarray::Array2<u16>) -> PathBuf,
+) {
+    std::fs::create_dir_all(to.join("frames")).expect("frames dir");
+    let manifest = std::fs::read_to_string(from.join("dataset.toml")).expect("manifest");
+    let mut renamed = manifest.clone();
+    for entry in std::fs::read_dir(from.join("frames")).expect("frames") {
+        let path = entry.expect("entry").path();
+        let Pixels::U16(pixels) = image_io::read(&path).expect("frame") else {
+            panic!("{}: the simulator writes 16-bit frames", path.display());
+        };
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let saved = save(&to.join("frames").join(&name), rewrite(pixels));
+        let saved_name = saved
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        renamed = renamed.replace(&format!("frames/{name}"), &format!("frames/{saved_name}"));
+    }
+    std::fs::write(to.join("dataset.toml"), edit(renamed)).expect("write manifest");
+    for truth in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
+        std::fs::copy(from.join(truth), to.join(truth)).expect("copy the truth");
+    }
+}
+
+fn save_tiff(path: &Path, a: ndarray::Array2<u16>) -> PathBuf {
+    image_io::write_tiff_u16(path, a.view()).expect("write TIFF");
+    path.to_path_buf()
+}
+
+fn save_png(path: &Path, a: ndarray::Array2<u16>) -> PathBuf {
+    let path = path.with_extension("png");
+    let (h, w) = a.dim();
+    let file = std::fs::File::create(&path).expect("create PNG");
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Sixteen);
+    let data: Vec<u8> = a.iter().flat_map(|v| v.to_be_bytes()).collect();
+    enc.write_header()
+        .and_then(|mut w| w.write_image_data(&data))
+        .expect("write PNG");
+    path
+}
+
+#[test]
+fn frames_read_band_by_band_give_the_in_memory_result() {
+    let scratch = TempDir::new("frames-on-disk");
+    let root = &scratch.0;
+    let ds = root.join("dataset");
+    let sim = fpm(&[
+        "simulate",
+        "acquisition",
+        "--out",
+        &text(&ds),
+        "--size",
+        "128",
+        "--seed",
+        "5",
+        "--dx-mm",
+        "0.3",
+    ]);
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+
+    let memory = root.join("memory");
+    let stderr = reconstruct(&ds, &memory, false);
+    assert!(!stderr.contains("band by band"), "held in memory: {stderr}");
+    let tiles = report(&memory)["tiles"].as_array().map_or(0, Vec::len);
+    assert!(tiles >= 9, "several bands of tiles: {tiles} tiles");
+
+    // The simulator's own TIFFs, in strips: only each band's strips are read.
+    let banded = root.join("banded");
+    let stderr = reconstruct(&ds, &banded, true);
+    assert!(stderr.contains("band by band"), "read by bands: {stderr}");
+    same_result(&memory, &banded, "TIFF strips");
+
+    // Stored upside down and mirrored: each band comes from the other end of the file.
+    let flipped = root.join("flipped");
+    rewritten(
+        &ds,
+        &flipped,
+        &|m| {
+            m.replace("flip_x = false", "flip_x = true")
+                .replace("flip_y = false", "flip_y = true")
+        },
+        &|mut a| {
+            a.invert_axis(ndarray::Axis(0));
+            a.invert_axis(ndarray::Axis(1));
+            a.as_standard_layout().into_owned()
+        },
+        &save_tiff,
+    );
+    let out = root.join("flipped-out");
+    reconstruct(&flipped, &out, true);
+    same_result(&memory, &out, "flipped TIFFs");
+
+    // Transposed 16-bit PNGs: read whole and cut.
+    let transposed = root.join("transposed");
+    rewritten(
+        &ds,
+        &transposed,
+        &|m| m.replace("transpose = false", "transpose = true"),
+        &|a| a.reversed_axes().as_standard_layout().into_owned(),
+        &save_png,
+    );
+    let out = root.join("transposed-out");
+    reconstruct(&transposed, &out, true);
+    same_result(&memory, &out, "transposed PNGs");
+}
+
+#[test]
+fn a_bad_frame_is_named_when_frames_stay_on_disk() {
+    let scratch = TempDir::new("frames-on-disk-bad");
+    let ds = scratch.0.join("dataset");
+    let sim = fpm(&[
+        "simulate",
+        "acquisition",
+        "--out",
+        &text(&ds),
+        "--size",
+        "64",
+    ]);
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+    let victim = ds.join("frames/r03_c04.tif");
+    let Pixels::U16(pixels) = image_io::read(&victim).expect("frame") else {
+        panic!("16-bit frames expected");
+    };
+    let cropped = pixels.slice(ndarray::s![..60, ..]).to_owned();
+    image_io::write_tiff_u16(&victim, cropped.view()).expect("write");
+    let out = scratch.0.join("out");
+    let run = fpm(&[
+        "reconstruct",
+        &text(&ds),
+        "--out",
+        &text(&out),
+        "--frame-memory-gb",
+        "0",
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success(),
+        "a 64x60 frame among 64x64 ones must fail"
+    );
+    assert!(
+        stderr.contains("r03_c04.tif") && stderr.contains("differs from frame 0"),
+        "the frame and why are named: {stderr}"
+    );
+    assert!(!out.join("amplitude.tif").exists(), "nothing written");
+}

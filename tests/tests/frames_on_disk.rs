@@ -246,3 +246,35 @@ fn a_bad_frame_is_named_when_frames_stay_on_disk() {
     );
     assert!(!out.join("amplitude.tif").exists(), "nothing written");
 }
+
+#[test]
+fn the_memory_bench_reads_the_peak_of_a_banded_run() {
+    let scratch = TempDir::new("bench-memory");
+    let dir = scratch.0.join("work");
+    let run = fpm(&[
+        "bench",
+        "memory",
+        "--width",
+        "320",
+        "--height",
+        "256",
+        "--field",
+        "64",
+        "--upsample",
+        "2",
+        "--frame-memory-gb",
+        "0",
+        "--scratch",
+        &text(&dir),
+        "--json",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!(r["frames"], 441);
+    assert_eq!(r["read_by_band"], true, "{r}");
+    assert!(r["bands"].as_u64().unwrap_or(0) >= 1, "{r}");
+    // 441 frames of 320 x 256 are 72 MB; the run holds a band of them and its tiles.
+    let peak = r["peak_rss_gb"].as_f64().unwrap_or(0.0);
+    assert!(peak > 0.01 && peak < 2.0, "peak {peak} GB");
+    assert!(!dir.exists(), "the scratch directory is removed");
+}

@@ -14,6 +14,7 @@ pub mod html;
 pub mod ome;
 pub mod ome_zarr;
 pub mod pages;
+pub mod pyramid;
 pub mod reconstruction;
 pub mod refinement;
 pub mod scale_bar;

@@ -13,33 +13,10 @@ use ndarray::{Array2, ArrayView2};
 use rustfft::num_complex::Complex32;
 use serde_json::json;
 
+use crate::pyramid::halve;
+
 /// Chunk side, pixels: a 256² float32 chunk is 256 KiB before compression.
 pub const CHUNK: usize = 256;
-
-/// The next pyramid level of a complex object: 2×2 blocks averaged (the amplitude as
-/// the mean of |z|, the phase as the argument of the mean z, so that wrapped phase is
-/// not averaged across ±π). Odd last rows and columns are dropped.
-fn halve(
-    amplitude: ArrayView2<'_, f32>,
-    object: ArrayView2<'_, Complex32>,
-) -> (Array2<f32>, Array2<Complex32>) {
-    let (h, w) = (object.nrows() / 2, object.ncols() / 2);
-    let amp = Array2::from_shape_fn((h, w), |(r, c)| {
-        (amplitude[[2 * r, 2 * c]]
-            + amplitude[[2 * r + 1, 2 * c]]
-            + amplitude[[2 * r, 2 * c + 1]]
-            + amplitude[[2 * r + 1, 2 * c + 1]])
-            / 4.0
-    });
-    let obj = Array2::from_shape_fn((h, w), |(r, c)| {
-        (object[[2 * r, 2 * c]]
-            + object[[2 * r + 1, 2 * c]]
-            + object[[2 * r, 2 * c + 1]]
-            + object[[2 * r + 1, 2 * c + 1]])
-            / 4.0
-    });
-    (amp, obj)
-}
 
 /// One channel of one level as Zarr v2 chunks under `level_dir/<c>/<y>/<x>` (edge
 /// chunks padded with NaN, as the `.zarray` fill value says).

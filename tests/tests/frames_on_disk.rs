@@ -268,7 +268,11 @@ fn the_memory_bench_reads_the_peak_of_a_banded_run() {
         &text(&dir),
         "--json",
     ]);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let r: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON");
     assert_eq!(r["frames"], 441);
     assert_eq!(r["read_by_band"], true, "{r}");

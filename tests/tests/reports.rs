@@ -120,3 +120,60 @@ fn the_reconstruction_report_of_real_data_renders_with_its_numbers() {
         );
     }
 }
+
+#[test]
+fn a_large_reconstruction_is_shown_shrunk_in_its_report() {
+    let dir = TempDir::new("report-large");
+    let ds = dir.0.join("ds");
+    let out = dir.0.join("rec");
+    fpm_stdout(&[
+        "simulate",
+        "acquisition",
+        "--out",
+        &ds.to_string_lossy(),
+        "--size",
+        "64",
+    ]);
+    // 64 camera pixels at U = 40: a 2560² object, over the page's 2048.
+    fpm_stdout(&[
+        "reconstruct",
+        &ds.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--upsample",
+        "40",
+        "--passes",
+        "1",
+    ]);
+    let r = rendered_report(&out.join("report.html"), 5, &dir.0);
+    assert!(
+        r.dom.contains("shown 2× smaller"),
+        "the captions say the previews are shrunk"
+    );
+    let png_side = |p: &Path| {
+        let bytes = std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        let word = |at: usize| {
+            u32::from_be_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]])
+        };
+        (word(16), word(20))
+    };
+    assert_eq!(
+        png_side(&out.join("amplitude.png")),
+        (2560, 2560),
+        "full size beside the page"
+    );
+    assert_eq!(
+        png_side(&out.join("plots/amplitude-page.png")),
+        (1280, 1280)
+    );
+    let page = std::fs::metadata(out.join("report.html"))
+        .map(|m| m.len())
+        .unwrap_or(0);
+    let full = std::fs::metadata(out.join("amplitude.png"))
+        .map(|m| m.len())
+        .unwrap_or(0);
+    assert!(
+        page < full,
+        "the page ({page} B) embeds less than the full amplitude.png ({full} B)"
+    );
+}

@@ -131,10 +131,7 @@ pub type Rows = (Pixels, (usize, usize));
 /// Rows `rows` of a grey-scale TIFF stored in strips, decoding only the strips that
 /// hold them, with the whole image's (rows, cols). `None` when the file is not a TIFF
 /// in strips (a PNG, a tiled TIFF): read it whole then.
-pub fn read_rows(
-    path: &Path,
-    rows: std::ops::Range<usize>,
-) -> Result<Option<Rows>, ImageError> {
+pub fn read_rows(path: &Path, rows: std::ops::Range<usize>) -> Result<Option<Rows>, ImageError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -146,10 +143,7 @@ pub fn read_rows(
     read_tiff_rows(open(path)?, rows).map_err(format(path))
 }
 
-fn read_tiff_rows(
-    file: File,
-    rows: std::ops::Range<usize>,
-) -> Result<Option<Rows>, String> {
+fn read_tiff_rows(file: File, rows: std::ops::Range<usize>) -> Result<Option<Rows>, String> {
     use tiff::decoder::{ChunkType, Decoder, DecodingResult};
     let mut dec =
         Decoder::new(BufReader::new(file)).map_err(|e| format!("not a readable TIFF: {e}"))?;

@@ -9,6 +9,7 @@ use fpm_physics::{LedGeometry, System};
 
 use super::embed_chart;
 use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
+use crate::dataset::image_io;
 use crate::html::{Page, Row};
 use crate::reconstruction::{Reconstruction, Report};
 
@@ -64,6 +65,84 @@ pub fn warnings(report: &Report) -> Vec<String> {
     out
 }
 
+/// Longest side of the images the page embeds: a larger object (a full field at
+/// U = 4 runs to tens of thousands of pixels) is shown shrunk, its full-size PNGs
+/// beside the page.
+pub const PAGE_IMAGE_SIDE: usize = 2048;
+
+/// The amplitude and phase previews for the page (PNG bytes and caption): the
+/// full-size PNGs `write_outputs` wrote, or, for an object larger than
+/// [`PAGE_IMAGE_SIDE`], shrunk copies written into `dir/plots/`. A preview that cannot
+/// be had is left out with a warning.
+fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
+    const AMPLITUDE: &str = "Amplitude (0.5–99.5 % of its range), scale bar in µm";
+    const PHASE: &str = "Phase, −π (black) to +π (white), scale bar in µm, colour bar in rad";
+    let read = |file: &Path, caption: String| match std::fs::read(file) {
+        Ok(bytes) => Some((bytes, caption)),
+        Err(e) => {
+            tracing::warn!("{} not embedded in the report: {e}", file.display());
+            None
+        }
+    };
+    let Some((amplitude, complex, factor)) = crate::pyramid::shrunk(&r.object, PAGE_IMAGE_SIDE)
+    else {
+        return [("amplitude.png", AMPLITUDE), ("phase.png", PHASE)]
+            .into_iter()
+            .filter_map(|(file, caption)| read(&dir.join(file), caption.to_string()))
+            .collect();
+    };
+    let plots = dir.join("plots");
+    let pixel_um = Some(r.report.pixel_um * factor as f64);
+    let shrunk = |caption: &str, full: &str| {
+        format!("{caption}; shown {factor}× smaller ({full} beside this page is full size)")
+    };
+    let mut sorted: Vec<f32> = amplitude
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    sorted.sort_by(f32::total_cmp);
+    let at = |q: f64| {
+        sorted
+            .get(((sorted.len().saturating_sub(1)) as f64 * q) as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let pi = std::f32::consts::PI;
+    let amplitude_file = plots.join("amplitude-page.png");
+    let phase_file = plots.join("phase-page.png");
+    let written = std::fs::create_dir_all(&plots)
+        .map_err(anyhow::Error::from)
+        .and_then(|_| {
+            image_io::write_png_preview(
+                &amplitude_file,
+                &amplitude,
+                at(0.005),
+                at(0.995),
+                pixel_um,
+            )?;
+            image_io::write_png_preview_with_bar(
+                &phase_file,
+                &complex.mapv(|z| z.arg()),
+                (-pi, pi),
+                pixel_um,
+                "RAD",
+            )?;
+            Ok(())
+        });
+    if let Err(e) = written {
+        tracing::warn!("no shrunk previews for the report: {e:#}");
+        return vec![];
+    }
+    [
+        (amplitude_file, shrunk(AMPLITUDE, "amplitude.png")),
+        (phase_file, shrunk(PHASE, "phase.png")),
+    ]
+    .into_iter()
+    .filter_map(|(file, caption)| read(&file, caption))
+    .collect()
+}
+
 /// Write `dir/report.html` (charts into `dir/plots/`) for the reconstruction whose
 /// images `crate::reconstruction::write_outputs` wrote into `dir`.
 pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
@@ -72,28 +151,10 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     page.paragraph(&format!("Dataset {}.", rep.dataset));
 
     page.heading("Images");
-    let previews: Vec<(Vec<u8>, &str)> = [
-        (
-            "amplitude.png",
-            "Amplitude (0.5–99.5 % of its range), scale bar in µm",
-        ),
-        (
-            "phase.png",
-            "Phase, −π (black) to +π (white), scale bar in µm, colour bar in rad",
-        ),
-    ]
-    .into_iter()
-    .filter_map(|(file, caption)| match std::fs::read(dir.join(file)) {
-        Ok(bytes) => Some((bytes, caption)),
-        Err(e) => {
-            tracing::warn!("{file} not embedded in the report: {e}");
-            None
-        }
-    })
-    .collect();
+    let previews = page_previews(r, dir);
     let figures: Vec<(&[u8], &str, &str)> = previews
         .iter()
-        .map(|(b, caption)| (&b[..], *caption, *caption))
+        .map(|(b, caption)| (&b[..], caption.as_str(), caption.as_str()))
         .collect();
     page.figures(&figures);
 

@@ -15,6 +15,13 @@ struct EpryBench {
     /// A forward and an inverse 2-D FFT at the floor: rustfft's planned 1-D transforms
     /// over all rows in one call, the `transpose` crate between the passes.
     floor_two_ffts_us: Percentiles,
+    /// The same pair through FFTW 3 (`FFTW_MEASURE`, one thread), a second opinion on
+    /// the floor; None when FFTW is not installed (`fftw` says why).
+    fftw_two_ffts_us: Option<Percentiles>,
+    /// FFTW's version, or why it was not measured.
+    fftw: String,
+    /// The floor pair's p50 over FFTW's.
+    floor_over_fftw: Option<f64>,
     /// The same pair through `fpm_physics::fft::Fft2`, the transform EPRY uses.
     two_ffts_us: Percentiles,
     update_us: Percentiles,
@@ -279,6 +286,11 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         floor: 0.0,
     };
     let mut background_us = Vec::with_capacity(rounds);
+    let mut fftw = crate::fftw::load(size);
+    if let Ok(f) = fftw.as_mut() {
+        f.buffer().copy_from_slice(&buf);
+    }
+    let mut fftw_us = Vec::with_capacity(rounds);
     for k in 0..rounds {
         // Interleave all three so machine noise hits them alike.
         let t = Instant::now();
@@ -286,6 +298,12 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         floors.push(t.elapsed().as_secs_f64() * 1e6);
         // Keep the values bounded: the floor pair is unnormalised.
         buf.iter_mut().for_each(|v| *v *= unnormalised);
+        if let Ok(f) = fftw.as_mut() {
+            let t = Instant::now();
+            f.pair();
+            fftw_us.push(t.elapsed().as_secs_f64() * 1e6);
+            f.buffer().iter_mut().for_each(|v| *v *= unnormalised);
+        }
         let t = Instant::now();
         fft.forward(&mut buf);
         fft.inverse(&mut buf);
@@ -313,7 +331,14 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     let u = Percentiles::of(&mut update_us);
     let fl = Percentiles::of(&mut floors);
     let bg = Percentiles::of(&mut background_us);
+    let fftw_pair = (!fftw_us.is_empty()).then(|| Percentiles::of(&mut fftw_us));
     let report = EpryBench {
+        floor_over_fftw: fftw_pair.as_ref().map(|p| fl.p50_us / p.p50_us),
+        fftw: match &fftw {
+            Ok(f) => f.version.clone(),
+            Err(why) => why.clone(),
+        },
+        fftw_two_ffts_us: fftw_pair,
         size,
         upsample,
         update_over_floor: u.p50_us / fl.p50_us,
@@ -335,6 +360,13 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
             "  FFT pair, floor         p50 {:>8.1} µs   p99 {:>8.1} µs   (rustfft rows in one batch + the transpose crate)",
             fl.p50_us, fl.p99_us
         );
+        match (&report.fftw_two_ffts_us, report.floor_over_fftw) {
+            (Some(p), Some(ratio)) => println!(
+                "  FFT pair, FFTW          p50 {:>8.1} µs   p99 {:>8.1} µs   (second opinion: {}, FFTW_MEASURE; the floor is {:.2}× it)",
+                p.p50_us, p.p99_us, report.fftw, ratio
+            ),
+            _ => println!("  FFT pair, FFTW          not measured: {}", report.fftw),
+        }
         println!(
             "  FFT pair, fpm's Fft2    p50 {:>8.1} µs   p99 {:>8.1} µs   ({:.2}× the floor)",
             f.p50_us,

@@ -7,6 +7,7 @@
 
 mod calibration;
 mod epry;
+mod fftw;
 mod frames;
 mod geometry;
 mod led_switch;

@@ -168,18 +168,18 @@ impl Mosaic {
             };
             side(i, low_inner) * side(len - 1 - i, high_inner)
         };
-        // Global phase: c = Σ conj(t)·(blended so far) over the overlap.
+        // Global phase: c = Σ a·conj(t)·(blended so far) over the overlap, weighted by
+        // where both count: the tile's own weight (zero in its free border, whose
+        // values nothing constrained, rising over the ramp) times the weight placed.
         let mut c = rustfft::num_complex::Complex64::default();
         for r in 0..h {
             for col in 0..w {
                 let wsum = self.weight[[y0 + r, x0 + col]];
-                if wsum > 0.0 {
+                let a = taper(r, h, top, bottom) * taper(col, w, left, right) * wsum;
+                if a > 0.0 {
                     let placed = self.sum[[y0 + r, x0 + col]] / wsum;
-                    let t = object[[r, col]];
-                    c += rustfft::num_complex::Complex64::new(
-                        (t.conj() * placed).re as f64,
-                        (t.conj() * placed).im as f64,
-                    );
+                    let p = object[[r, col]].conj() * placed * a;
+                    c += rustfft::num_complex::Complex64::new(p.re as f64, p.im as f64);
                 }
             }
         }

@@ -1,0 +1,150 @@
+//! Stitching a field from tiles should add as little error as it can to the tiles' own:
+//! each tile's EPRY leaves the object with an unknown global phase, which the blend
+//! takes off against what neighbours placed, over the part of the overlap where both
+//! tiles were constrained by the data. On a simulated field of 3 × 3 tiles, the
+//! stitched image, scored with one global phase, is compared with each tile scored
+//! with its own.
+//!
+//! Issue 13 asks for stitching within 1.1× of the tiles' own error. Measured here:
+//! 1.69× (0.112 against 0.066; 1.72× before the alignment was weighted by where both
+//! tiles are constrained). About half of the excess is a smooth phase bowl across the
+//! whole field (fitted and printed below: taking it off brings the stitched image to
+//! 0.087, 1.32×), the rest per-tile phase offsets of ~0.1 rad. The bound below guards
+//! against stitching getting worse; it is not the target.
+
+use fpm_physics::frame::LitFrame;
+use fpm_physics::reconstruct::{tiled, Settings};
+use fpm_physics::simulate::{acquire, Camera, ObjectField};
+use fpm_physics::{LedGeometry, LedIndex, System};
+use rustfft::num_complex::Complex32;
+
+/// ‖r·c − t‖ / ‖t‖ with c the best complex factor, over `r`, `t`.
+fn nrmse(r: &[Complex32], t: &[Complex32]) -> f64 {
+    let dot = |a: &[Complex32], b: &[Complex32]| -> (f64, f64) {
+        a.iter().zip(b).fold((0.0, 0.0), |(re, im), (x, y)| {
+            let p = x.conj() * y;
+            (re + p.re as f64, im + p.im as f64)
+        })
+    };
+    let (re, im) = dot(r, t);
+    let rr: f64 = r.iter().map(|v| v.norm_sqr() as f64).sum();
+    let (cre, cim) = (re / rr, im / rr);
+    let err: f64 = r
+        .iter()
+        .zip(t)
+        .map(|(v, w)| {
+            let (vr, vi) = (v.re as f64, v.im as f64);
+            let (er, ei) = (
+                vr * cre - vi * cim - w.re as f64,
+                vr * cim + vi * cre - w.im as f64,
+            );
+            er * er + ei * ei
+        })
+        .sum();
+    let tt: f64 = t.iter().map(|v| v.norm_sqr() as f64).sum();
+    (err / tt).sqrt()
+}
+
+#[test]
+fn stitching_tiles_adds_little_to_their_own_error() {
+    let system = System::paper();
+    let geometry = LedGeometry::paper();
+    let size = 384;
+    let object = ObjectField::test_sample(&system, size, 48, 2, 11);
+    let camera = Camera::realistic();
+    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
+    let frames = acquire(
+        &system,
+        &geometry,
+        &object,
+        &shots,
+        &camera,
+        |img| camera.auto_exposure(img),
+        6,
+    );
+    let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
+    let settings = Settings {
+        upsample: 2,
+        ..Settings::default()
+    };
+    let out = tiled::reconstruct(&system, &geometry, &lit, settings, 8, Some(160), &|_, _| {})
+        .expect("reconstructs");
+    assert_eq!(out.layout.tiles.len(), 9, "3 × 3 tiles");
+    let truth = object.crop_to_camera();
+    let side = out.layout.size;
+    let mut own = vec![];
+    let (mut all_r, mut all_t) = (vec![], vec![]);
+    for t in &out.tiles {
+        // Each tile's inner part, where the blend gives it full weight.
+        let m = side / 8;
+        let region = ndarray::s![
+            2 * (t.tile.y0 + m)..2 * (t.tile.y0 + side - m),
+            2 * (t.tile.x0 + m)..2 * (t.tile.x0 + side - m)
+        ];
+        let r: Vec<Complex32> = out.object.slice(region).iter().copied().collect();
+        let w: Vec<Complex32> = truth.slice(region).iter().copied().collect();
+        own.push(nrmse(&r, &w));
+        let c: Complex32 = r.iter().zip(&w).map(|(a, b)| a.conj() * b).sum();
+        eprintln!(
+            "tile ({:4}, {:4}): NRMSE {:.3}, its own phase {:+.3} rad",
+            t.tile.x0,
+            t.tile.y0,
+            own[own.len() - 1],
+            c.arg()
+        );
+        all_r.extend(r);
+        all_t.extend(w);
+    }
+    // Diagnostic: the stitched image with a global phase bowl (a + b·x + c·y + q·r²)
+    // taken off too.
+    {
+        let (h, w) = out.object.dim();
+        let mut rows = vec![];
+        let mut rhs = vec![];
+        let mut idx = vec![];
+        for t in &out.tiles {
+            let m = side / 8;
+            for i in 2 * (t.tile.y0 + m)..2 * (t.tile.y0 + side - m) {
+                for j in 2 * (t.tile.x0 + m)..2 * (t.tile.x0 + side - m) {
+                    if (i + j) % 7 != 0 {
+                        continue;
+                    }
+                    let (x, y) = (j as f64 / w as f64 - 0.5, i as f64 / h as f64 - 0.5);
+                    let d = (out.object[[i, j]].conj() * truth[[i, j]]).arg() as f64;
+                    rows.push([1.0, x, y, x * x + y * y]);
+                    rhs.push(d);
+                    idx.push((i, j));
+                }
+            }
+        }
+        let a = nalgebra::DMatrix::from_fn(rows.len(), 4, |i, k| rows[i][k]);
+        let b = nalgebra::DVector::from_vec(rhs);
+        let fit = a.svd(true, true).solve(&b, 1e-12).expect("least squares");
+        let corrected: Vec<Complex32> = idx
+            .iter()
+            .map(|&(i, j)| {
+                let (x, y) = (j as f64 / w as f64 - 0.5, i as f64 / h as f64 - 0.5);
+                let ph = fit[0] + fit[1] * x + fit[2] * y + fit[3] * (x * x + y * y);
+                out.object[[i, j]] * Complex32::from_polar(1.0, ph as f32)
+            })
+            .collect();
+        let t: Vec<Complex32> = idx.iter().map(|&(i, j)| truth[[i, j]]).collect();
+        let plain: Vec<Complex32> = idx.iter().map(|&(i, j)| out.object[[i, j]]).collect();
+        eprintln!(
+            "bowl fit {:.3?} rad; stitched (sampled) {:.3} → {:.3} with the bowl off",
+            fit.as_slice(),
+            nrmse(&plain, &t),
+            nrmse(&corrected, &t)
+        );
+    }
+    let own_rms = (own.iter().map(|e| e * e).sum::<f64>() / own.len() as f64).sqrt();
+    let stitched = nrmse(&all_r, &all_t);
+    eprintln!(
+        "tiles' own NRMSE {own:.3?} (rms {own_rms:.3}); stitched over the same parts {stitched:.3} ({:.2}×)",
+        stitched / own_rms
+    );
+    assert!(
+        stitched <= 1.8 * own_rms,
+        "stitching adds error: {stitched:.3} against the tiles' own {own_rms:.3}"
+    );
+}

@@ -21,6 +21,17 @@ fn text(p: &Path) -> String {
     p.to_string_lossy().into_owned()
 }
 
+/// A simulated acquisition in `dataset`, made as `args` say.
+fn simulate(dataset: &Path, args: &[&str]) {
+    let out = text(dataset);
+    let sim = fpm(&[&["simulate", "acquisition", "--out", &out], args].concat());
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+}
+
 /// Reconstruct `dataset` into `out`, in memory or (`banded`) from disk; its stderr.
 fn reconstruct(dataset: &Path, out: &Path, banded: bool) -> String {
     let (d, o) = (text(dataset), text(out));
@@ -139,23 +150,7 @@ fn frames_read_band_by_band_give_the_in_memory_result() {
     let scratch = TempDir::new("frames-on-disk");
     let root = &scratch.0;
     let ds = root.join("dataset");
-    let sim = fpm(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &text(&ds),
-        "--size",
-        "128",
-        "--seed",
-        "5",
-        "--dx-mm",
-        "0.3",
-    ]);
-    assert!(
-        sim.status.success(),
-        "{}",
-        String::from_utf8_lossy(&sim.stderr)
-    );
+    simulate(&ds, &["--size", "128", "--seed", "5", "--dx-mm", "0.3"]);
 
     let memory = root.join("memory");
     let stderr = reconstruct(&ds, &memory, false);
@@ -207,19 +202,7 @@ fn frames_read_band_by_band_give_the_in_memory_result() {
 fn a_bad_frame_is_named_when_frames_stay_on_disk() {
     let scratch = TempDir::new("frames-on-disk-bad");
     let ds = scratch.0.join("dataset");
-    let sim = fpm(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &text(&ds),
-        "--size",
-        "64",
-    ]);
-    assert!(
-        sim.status.success(),
-        "{}",
-        String::from_utf8_lossy(&sim.stderr)
-    );
+    simulate(&ds, &["--size", "64"]);
     let victim = ds.join("frames/r03_c04.tif");
     let Pixels::U16(pixels) = image_io::read(&victim).expect("frame") else {
         panic!("16-bit frames expected");

@@ -433,6 +433,27 @@ impl SimFrame {
     }
 }
 
+/// Every LED of `geometry` once, in focus, each frame auto-exposed
+/// ([`Camera::auto_exposure`]): the acquisition reconstructions are tested on.
+pub fn acquire_in_focus(
+    system: &System,
+    geometry: &LedGeometry,
+    object: &ObjectField,
+    camera: &Camera,
+    seed: u64,
+) -> Vec<SimFrame> {
+    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
+    acquire(
+        system,
+        geometry,
+        object,
+        &shots,
+        camera,
+        |img| camera.auto_exposure(img),
+        seed,
+    )
+}
+
 /// Render and record `leds` (each with its defocus) in parallel, deterministically
 /// for a given seed: frame `k` uses its own random stream.
 pub fn acquire(

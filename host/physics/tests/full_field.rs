@@ -6,7 +6,7 @@
 use fpm_physics::frame::LitFrame;
 use fpm_physics::metrics::{central, complex_nrmse, resample};
 use fpm_physics::reconstruct::{tiled, Settings};
-use fpm_physics::simulate::{acquire, Camera, ObjectField};
+use fpm_physics::simulate::{acquire_in_focus, Camera, ObjectField};
 use fpm_physics::tiles::auto_tile_side;
 use fpm_physics::{LedGeometry, LedIndex, System};
 use ndarray::Array2;
@@ -65,16 +65,7 @@ fn a_field_wider_than_the_curvature_allows_comes_back_flat_with_the_default_tile
     let w = 240;
     let object = ObjectField::test_sample(&system, w, 24, 2, 3);
     let camera = Camera::realistic();
-    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
-    let frames = acquire(
-        &system,
-        &geometry,
-        &object,
-        &shots,
-        &camera,
-        |img| camera.auto_exposure(img),
-        5,
-    );
+    let frames = acquire_in_focus(&system, &geometry, &object, &camera, 5);
     let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
     let settings = Settings {
         upsample: 2,

@@ -7,8 +7,8 @@
 use fpm_physics::frame::LitFrame;
 use fpm_physics::metrics::complex_nrmse;
 use fpm_physics::reconstruct::{tiled, Settings};
-use fpm_physics::simulate::{acquire, Camera, ObjectField};
-use fpm_physics::{LedGeometry, LedIndex, System};
+use fpm_physics::simulate::{acquire_in_focus, Camera, ObjectField};
+use fpm_physics::{LedGeometry, System};
 
 /// LEDs whose light is bright-field at some corner of the square `side_um` wide at
 /// `centre_um` and dark-field at another: the partly bright frames there.
@@ -49,16 +49,7 @@ fn corner_tiles_of_an_off_axis_array_are_as_good_as_the_centre() {
     let size = 1024;
     let object = ObjectField::test_sample(&system, size, 48, 2, 4);
     let camera = Camera::realistic();
-    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
-    let frames = acquire(
-        &system,
-        &geometry,
-        &object,
-        &shots,
-        &camera,
-        |img| camera.auto_exposure(img),
-        4,
-    );
+    let frames = acquire_in_focus(&system, &geometry, &object, &camera, 4);
     let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
     let settings = Settings {
         upsample: 2,

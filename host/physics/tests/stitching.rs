@@ -14,8 +14,8 @@
 
 use fpm_physics::frame::LitFrame;
 use fpm_physics::reconstruct::{tiled, Settings};
-use fpm_physics::simulate::{acquire, Camera, ObjectField};
-use fpm_physics::{LedGeometry, LedIndex, System};
+use fpm_physics::simulate::{acquire_in_focus, Camera, ObjectField};
+use fpm_physics::{LedGeometry, System};
 use rustfft::num_complex::Complex32;
 
 /// ‖r·c − t‖ / ‖t‖ with c the best complex factor, over `r`, `t`.
@@ -52,16 +52,7 @@ fn stitching_tiles_adds_little_to_their_own_error() {
     let size = 384;
     let object = ObjectField::test_sample(&system, size, 48, 2, 11);
     let camera = Camera::realistic();
-    let shots: Vec<(LedIndex, f64)> = geometry.leds().into_iter().map(|l| (l, 0.0)).collect();
-    let frames = acquire(
-        &system,
-        &geometry,
-        &object,
-        &shots,
-        &camera,
-        |img| camera.auto_exposure(img),
-        6,
-    );
+    let frames = acquire_in_focus(&system, &geometry, &object, &camera, 6);
     let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
     let settings = Settings {
         upsample: 2,

@@ -5,6 +5,17 @@
 use ndarray::{Array2, ArrayView2};
 use rustfft::num_complex::Complex32;
 
+/// The mean of each 2×2 block of the `(2h, 2w)` image `at` reads: an `(h, w)` image.
+fn block_means<T>(h: usize, w: usize, at: impl Fn(usize, usize) -> T) -> Array2<T>
+where
+    T: std::ops::Add<Output = T> + std::ops::Div<f32, Output = T>,
+{
+    Array2::from_shape_fn((h, w), |(r, c)| {
+        (at(2 * r, 2 * c) + at(2 * r + 1, 2 * c) + at(2 * r, 2 * c + 1) + at(2 * r + 1, 2 * c + 1))
+            / 4.0
+    })
+}
+
 /// The next level: `amplitude` and `object` at half size. Odd last rows and columns
 /// are dropped.
 pub fn halve(
@@ -12,26 +23,16 @@ pub fn halve(
     object: ArrayView2<'_, Complex32>,
 ) -> (Array2<f32>, Array2<Complex32>) {
     let (h, w) = (object.nrows() / 2, object.ncols() / 2);
-    let amp = Array2::from_shape_fn((h, w), |(r, c)| {
-        (amplitude[[2 * r, 2 * c]]
-            + amplitude[[2 * r + 1, 2 * c]]
-            + amplitude[[2 * r, 2 * c + 1]]
-            + amplitude[[2 * r + 1, 2 * c + 1]])
-            / 4.0
-    });
-    let obj = Array2::from_shape_fn((h, w), |(r, c)| {
-        (object[[2 * r, 2 * c]]
-            + object[[2 * r + 1, 2 * c]]
-            + object[[2 * r, 2 * c + 1]]
-            + object[[2 * r + 1, 2 * c + 1]])
-            / 4.0
-    });
-    (amp, obj)
+    (
+        block_means(h, w, |r, c| amplitude[[r, c]]),
+        block_means(h, w, |r, c| object[[r, c]]),
+    )
 }
 
 /// A copy of `object` halved until its longer side is at most `max_side`: its
 /// amplitude, its complex values (for the phase) and how many times smaller it is.
-/// `None` when it is that small already.
+/// `None` when it is that small already. No full-size copy is made: the first level's
+/// amplitude is read from the object itself.
 pub fn shrunk(
     object: &Array2<Complex32>,
     max_side: usize,
@@ -40,11 +41,12 @@ pub fn shrunk(
     if side(object) <= max_side.max(1) {
         return None;
     }
-    let (mut amplitude, mut complex) = halve(object.mapv(|z| z.norm()).view(), object.view());
+    let (h, w) = (object.nrows() / 2, object.ncols() / 2);
+    let mut amplitude = block_means(h, w, |r, c| object[[r, c]].norm());
+    let mut complex = block_means(h, w, |r, c| object[[r, c]]);
     let mut factor = 2;
     while side(&complex) > max_side.max(1) && complex.nrows() >= 2 && complex.ncols() >= 2 {
-        let (a, c) = halve(amplitude.view(), complex.view());
-        (amplitude, complex) = (a, c);
+        (amplitude, complex) = halve(amplitude.view(), complex.view());
         factor *= 2;
     }
     Some((amplitude, complex, factor))

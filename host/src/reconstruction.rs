@@ -517,33 +517,21 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
     let tif = |name: &str, a: &Array2<f32>| image_io::write_tiff_f32(&out.join(name), a);
     tif("pupil_amplitude.tif", &pamp)?;
     tif("pupil_phase.tif", &pphase)?;
-    let pct = |a: &Array2<f32>, q: f64| {
-        let mut v: Vec<f32> = a.iter().copied().collect();
-        v.sort_by(|x, y| x.total_cmp(y));
-        v[((v.len() - 1) as f64 * q) as usize]
-    };
     // The object's previews carry a scale bar; the pupil's are in the Fourier plane.
-    let png = |name: &str, a: &Array2<f32>, lo: f32, hi: f32, pixel_um: Option<f64>| {
-        image_io::write_png_preview(&out.join(name), a, lo, hi, pixel_um)
+    write_object_previews(
+        &amp,
+        &phase,
+        r.report.pixel_um,
+        &out.join("amplitude.png"),
+        &out.join("phase.png"),
+    )?;
+    let png = |name: &str, a: &Array2<f32>, lo: f32, hi: f32| {
+        image_io::write_png_preview(&out.join(name), a, lo, hi, None)
     };
     let pi = std::f32::consts::PI;
-    let object_pixel = Some(r.report.pixel_um);
-    png(
-        "amplitude.png",
-        &amp,
-        pct(&amp, 0.005),
-        pct(&amp, 0.995),
-        object_pixel,
-    )?;
-    image_io::write_png_preview_with_bar(
-        &out.join("phase.png"),
-        &phase,
-        (-pi, pi),
-        object_pixel,
-        "RAD",
-    )?;
-    png("pupil_amplitude.png", &pamp, 0.0, pct(&pamp, 1.0), None)?;
-    png("pupil_phase.png", &pphase, -pi, pi, None)?;
+    let [pupil_max] = quantiles(&pamp, [1.0]);
+    png("pupil_amplitude.png", &pamp, 0.0, pupil_max)?;
+    png("pupil_phase.png", &pphase, -pi, pi)?;
     std::fs::write(
         out.join("report.json"),
         serde_json::to_string_pretty(&r.report)?,
@@ -557,6 +545,35 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
         crate::refinement::write_board(board, &r.report.geometry, out)?;
     }
     Ok(())
+}
+
+/// The values at fractions `qs` of `a`'s sorted order (the element at ⌊(n − 1)·q⌋),
+/// selected from one copy.
+fn quantiles<const N: usize>(a: &Array2<f32>, qs: [f64; N]) -> [f32; N] {
+    let mut v: Vec<f32> = a.iter().copied().collect();
+    if v.is_empty() {
+        return [0.0; N];
+    }
+    let last = v.len() - 1;
+    qs.map(|q| {
+        *v.select_nth_unstable_by((last as f64 * q) as usize, f32::total_cmp)
+            .1
+    })
+}
+
+/// The object's PNG previews, each with a scale bar at `pixel_um`: the amplitude over
+/// its 0.5–99.5 % range, the phase over ±π with a colour bar in radians.
+pub(crate) fn write_object_previews(
+    amplitude: &Array2<f32>,
+    phase: &Array2<f32>,
+    pixel_um: f64,
+    amplitude_png: &Path,
+    phase_png: &Path,
+) -> Result<(), image_io::ImageError> {
+    let [lo, hi] = quantiles(amplitude, [0.005, 0.995]);
+    image_io::write_png_preview(amplitude_png, amplitude, lo, hi, Some(pixel_um))?;
+    let pi = std::f32::consts::PI;
+    image_io::write_png_preview_with_bar(phase_png, phase, (-pi, pi), Some(pixel_um), "RAD")
 }
 
 /// Read a reconstruction's complex object back from `amplitude.tif` and `phase.tif`.

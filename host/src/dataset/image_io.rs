@@ -78,13 +78,17 @@ fn write_failed<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> ImageError +
     }
 }
 
-/// Read a TIFF or PNG by its extension.
-pub fn read(path: &Path) -> Result<Pixels, ImageError> {
-    let ext = path
-        .extension()
+/// A path's extension, lower case ("" without one).
+fn extension(path: &Path) -> String {
+    path.extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
-        .to_ascii_lowercase();
+        .to_ascii_lowercase()
+}
+
+/// Read a TIFF or PNG by its extension.
+pub fn read(path: &Path) -> Result<Pixels, ImageError> {
+    let ext = extension(path);
     match ext.as_str() {
         "tif" | "tiff" => read_tiff(open(path)?).map_err(format(path)),
         "png" => read_png(open(path)?).map_err(format(path)),
@@ -94,21 +98,28 @@ pub fn read(path: &Path) -> Result<Pixels, ImageError> {
     }
 }
 
-fn read_tiff(file: File) -> Result<Pixels, String> {
-    use tiff::decoder::{Decoder, DecodingResult};
-    let mut dec =
-        Decoder::new(BufReader::new(file)).map_err(|e| format!("not a readable TIFF: {e}"))?;
+type TiffDecoder = tiff::decoder::Decoder<BufReader<File>>;
+
+/// A decoder for a grey-scale TIFF, and the image's (rows, cols).
+fn grey_tiff(file: File) -> Result<(TiffDecoder, (usize, usize)), String> {
+    let mut dec = tiff::decoder::Decoder::new(BufReader::new(file))
+        .map_err(|e| format!("not a readable TIFF: {e}"))?;
     let (w, h) = dec.dimensions().map_err(|e| e.to_string())?;
     let color = dec.colortype().map_err(|e| e.to_string())?;
     if !matches!(color, tiff::ColorType::Gray(_)) {
         return Err(format!("expected a grey-scale TIFF, found {color:?}"));
     }
-    let shape = (h as usize, w as usize);
+    Ok((dec, (h as usize, w as usize)))
+}
+
+/// Decoded samples as a `shape` (rows, cols) image of the types fpm takes.
+fn pixels_of(
+    decoded: tiff::decoder::DecodingResult,
+    shape: (usize, usize),
+) -> Result<Pixels, String> {
+    use tiff::decoder::DecodingResult;
     let bad = |e: ndarray::ShapeError| e.to_string();
-    match dec
-        .read_image()
-        .map_err(|e| format!("cannot decode: {e}"))?
-    {
+    match decoded {
         DecodingResult::U8(v) => Array2::from_shape_vec(shape, v)
             .map(Pixels::U8)
             .map_err(bad),
@@ -125,6 +136,14 @@ fn read_tiff(file: File) -> Result<Pixels, String> {
     }
 }
 
+fn read_tiff(file: File) -> Result<Pixels, String> {
+    let (mut dec, shape) = grey_tiff(file)?;
+    let decoded = dec
+        .read_image()
+        .map_err(|e| format!("cannot decode: {e}"))?;
+    pixels_of(decoded, shape)
+}
+
 /// Some rows of an image, with the whole image's (rows, cols).
 pub type Rows = (Pixels, (usize, usize));
 
@@ -132,27 +151,15 @@ pub type Rows = (Pixels, (usize, usize));
 /// hold them, with the whole image's (rows, cols). `None` when the file is not a TIFF
 /// in strips (a PNG, a tiled TIFF): read it whole then.
 pub fn read_rows(path: &Path, rows: std::ops::Range<usize>) -> Result<Option<Rows>, ImageError> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    if ext != "tif" && ext != "tiff" {
+    if !matches!(extension(path).as_str(), "tif" | "tiff") {
         return Ok(None);
     }
     read_tiff_rows(open(path)?, rows).map_err(format(path))
 }
 
 fn read_tiff_rows(file: File, rows: std::ops::Range<usize>) -> Result<Option<Rows>, String> {
-    use tiff::decoder::{ChunkType, Decoder, DecodingResult};
-    let mut dec =
-        Decoder::new(BufReader::new(file)).map_err(|e| format!("not a readable TIFF: {e}"))?;
-    let (w, h) = dec.dimensions().map_err(|e| e.to_string())?;
-    let (w, h) = (w as usize, h as usize);
-    let color = dec.colortype().map_err(|e| e.to_string())?;
-    if !matches!(color, tiff::ColorType::Gray(_)) {
-        return Err(format!("expected a grey-scale TIFF, found {color:?}"));
-    }
+    use tiff::decoder::{ChunkType, DecodingResult};
+    let (mut dec, (h, w)) = grey_tiff(file)?;
     if dec.get_chunk_type() != ChunkType::Strip {
         return Ok(None);
     }
@@ -167,61 +174,43 @@ fn read_tiff_rows(file: File, rows: std::ops::Range<usize>) -> Result<Option<Row
         .map_err(|e| e.to_string())?
         .map_or(h, |r| r.min(h as u64) as usize)
         .max(1);
+    // The strips' samples for these rows, appended in order (of the file's one type).
+    fn append<T: Clone>(acc: &mut Vec<T>, strip: &[T], span: std::ops::Range<usize>) -> bool {
+        strip.get(span).map(|s| acc.extend_from_slice(s)).is_some()
+    }
     let mut out: Option<DecodingResult> = None;
     for strip in rows.start / per_strip..=(rows.end - 1) / per_strip {
         let first = strip * per_strip;
-        let (lo, hi) = (
-            (rows.start.max(first) - first) * w,
-            (rows.end.min(first + per_strip) - first) * w,
-        );
+        let span =
+            (rows.start.max(first) - first) * w..(rows.end.min(first + per_strip) - first) * w;
         let chunk = dec
             .read_chunk(strip as u32)
             .map_err(|e| format!("cannot decode strip {strip}: {e}"))?;
-        let short = || {
-            format!(
-                "strip {strip} holds fewer than the {} samples its rows need",
-                hi
-            )
-        };
-        out = Some(match (out, chunk) {
-            (None, DecodingResult::U8(v)) => {
-                DecodingResult::U8(v.get(lo..hi).ok_or_else(short)?.to_vec())
-            }
-            (None, DecodingResult::U16(v)) => {
-                DecodingResult::U16(v.get(lo..hi).ok_or_else(short)?.to_vec())
-            }
-            (None, DecodingResult::F32(v)) => {
-                DecodingResult::F32(v.get(lo..hi).ok_or_else(short)?.to_vec())
-            }
-            (Some(DecodingResult::U8(mut a)), DecodingResult::U8(v)) => {
-                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
-                DecodingResult::U8(a)
-            }
-            (Some(DecodingResult::U16(mut a)), DecodingResult::U16(v)) => {
-                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
-                DecodingResult::U16(a)
-            }
-            (Some(DecodingResult::F32(mut a)), DecodingResult::F32(v)) => {
-                a.extend_from_slice(v.get(lo..hi).ok_or_else(short)?);
-                DecodingResult::F32(a)
-            }
-            (_, other) => {
+        let acc = out.get_or_insert_with(|| match &chunk {
+            DecodingResult::U8(_) => DecodingResult::U8(vec![]),
+            DecodingResult::U16(_) => DecodingResult::U16(vec![]),
+            _ => DecodingResult::F32(vec![]),
+        });
+        let fits = match (acc, &chunk) {
+            (DecodingResult::U8(a), DecodingResult::U8(v)) => append(a, v, span.clone()),
+            (DecodingResult::U16(a), DecodingResult::U16(v)) => append(a, v, span.clone()),
+            (DecodingResult::F32(a), DecodingResult::F32(v)) => append(a, v, span.clone()),
+            _ => {
                 return Err(format!(
                     "unsupported TIFF sample type ({})",
-                    sample_name(&other)
+                    sample_name(&chunk)
                 ))
             }
-        });
+        };
+        if !fits {
+            return Err(format!(
+                "strip {strip} holds fewer than the {} samples its rows need",
+                span.end
+            ));
+        }
     }
-    let shape = (rows.len(), w);
-    let bad = |e: ndarray::ShapeError| e.to_string();
-    let pixels = match out {
-        Some(DecodingResult::U8(v)) => Pixels::U8(Array2::from_shape_vec(shape, v).map_err(bad)?),
-        Some(DecodingResult::U16(v)) => Pixels::U16(Array2::from_shape_vec(shape, v).map_err(bad)?),
-        Some(DecodingResult::F32(v)) => Pixels::F32(Array2::from_shape_vec(shape, v).map_err(bad)?),
-        _ => return Err("no strips".into()),
-    };
-    Ok(Some((pixels, (h, w))))
+    let decoded = out.ok_or("no strips")?;
+    Ok(Some((pixels_of(decoded, (rows.len(), w))?, (h, w))))
 }
 
 fn sample_name(d: &tiff::decoder::DecodingResult) -> &'static str {

@@ -9,9 +9,8 @@ use fpm_physics::{LedGeometry, System};
 
 use super::embed_chart;
 use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
-use crate::dataset::image_io;
 use crate::html::{Page, Row};
-use crate::reconstruction::{Reconstruction, Report};
+use crate::reconstruction::{write_object_previews, Reconstruction, Report};
 
 /// What the page is written from.
 pub struct Context<'a> {
@@ -92,43 +91,21 @@ fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
             .collect();
     };
     let plots = dir.join("plots");
-    let pixel_um = Some(r.report.pixel_um * factor as f64);
     let shrunk = |caption: &str, full: &str| {
         format!("{caption}; shown {factor}× smaller ({full} beside this page is full size)")
     };
-    let mut sorted: Vec<f32> = amplitude
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    sorted.sort_by(f32::total_cmp);
-    let at = |q: f64| {
-        sorted
-            .get(((sorted.len().saturating_sub(1)) as f64 * q) as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    let pi = std::f32::consts::PI;
     let amplitude_file = plots.join("amplitude-page.png");
     let phase_file = plots.join("phase-page.png");
     let written = std::fs::create_dir_all(&plots)
         .map_err(anyhow::Error::from)
         .and_then(|_| {
-            image_io::write_png_preview(
-                &amplitude_file,
+            Ok(write_object_previews(
                 &amplitude,
-                at(0.005),
-                at(0.995),
-                pixel_um,
-            )?;
-            image_io::write_png_preview_with_bar(
-                &phase_file,
                 &complex.mapv(|z| z.arg()),
-                (-pi, pi),
-                pixel_um,
-                "RAD",
-            )?;
-            Ok(())
+                r.report.pixel_um * factor as f64,
+                &amplitude_file,
+                &phase_file,
+            )?)
         });
     if let Err(e) = written {
         tracing::warn!("no shrunk previews for the report: {e:#}");

@@ -194,18 +194,35 @@ pub fn clear_level(
     frames: &[LitFrame<'_>],
 ) -> Result<(usize, f32), TiledError> {
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
-    let nearest = *geometry
-        .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+    let nearest = nearest_to_axis(system, geometry, &leds)?;
+    Ok((nearest, reference_level(nearest, &frames[nearest])?))
+}
+
+/// The index of the LED nearest the axis among `leds`: the frame the clear level is
+/// read from.
+fn nearest_to_axis(
+    system: &System,
+    geometry: &LedGeometry,
+    leds: &[LedIndex],
+) -> Result<usize, TiledError> {
+    geometry
+        .nearest_first(leds, (0.0, 0.0), system.wavelength_um)
         .first()
-        .ok_or(TiledError::NoFrames)?;
-    let level = frames[nearest].measured.mean_intensity();
+        .copied()
+        .ok_or(TiledError::NoFrames)
+}
+
+/// The clear level from frame `index`, the one nearest the axis: its whole-frame mean
+/// intensity, which must be positive.
+fn reference_level(index: usize, frame: &LitFrame<'_>) -> Result<f32, TiledError> {
+    let level = frame.measured.mean_intensity();
     if level.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Err(TiledError::BlackReference {
-            index: nearest,
-            led: frames[nearest].led,
+            index,
+            led: frame.led,
         });
     }
-    Ok((nearest, level))
+    Ok(level)
 }
 
 fn check_sizes(frames: &[LitFrame<'_>]) -> Result<(usize, usize), TiledError> {
@@ -484,7 +501,6 @@ pub struct Banded {
 impl Banded {
     /// A run over frames of `width × height` lit by `leds` (in the order they will be
     /// given), cut as `tile` says ([`TileLayout::new`]).
-    #[allow(clippy::too_many_arguments)]
     pub fn new(
         system: System,
         geometry: LedGeometry,
@@ -494,10 +510,7 @@ impl Banded {
         tile: Option<usize>,
         leds: Vec<LedIndex>,
     ) -> Result<Self, TiledError> {
-        let nearest = *geometry
-            .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
-            .first()
-            .ok_or(TiledError::NoFrames)?;
+        let nearest = nearest_to_axis(&system, &geometry, &leds)?;
         let layout = TileLayout::new(width, height, tile, &system, &geometry);
         let assembly = Assembly::new(&layout, settings);
         Ok(Self {
@@ -551,14 +564,7 @@ impl Banded {
             });
         }
         if k == self.nearest {
-            let level = frame.measured.mean_intensity();
-            if level.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                return Err(TiledError::BlackReference {
-                    index: k,
-                    led: frame.led,
-                });
-            }
-            self.clear_level = Some(level);
+            self.clear_level = Some(reference_level(k, frame)?);
         }
         let (corrected, background) = correct(
             *frame,
@@ -571,11 +577,6 @@ impl Banded {
             *c = Some((corrected.measured.dark_level, corrected.measured.floor));
         }
         Ok(())
-    }
-
-    /// The backgrounds measured so far, by LED (in the order observed).
-    pub fn backgrounds(&self) -> &[(LedIndex, FrameBackground)] {
-        &self.backgrounds
     }
 
     /// Solve `band` (the next in [`Self::bands`]' order) from `rows`: rows

@@ -71,6 +71,9 @@ pub struct Report {
     /// Border of each tile, on sides facing another tile, where the measurement is not
     /// imposed (absorbs the FFT's wrap-around), camera pixels.
     pub tile_free_border: usize,
+    /// Border of each tile, on sides facing another tile, that gets no weight in the
+    /// blend (where a tile is least sure of its object), camera pixels.
+    pub tile_unblended_border: usize,
     /// Per tile: where it is, its centre and its convergence.
     pub tiles: Vec<TileReport>,
     /// Mean over tiles of the relative amplitude error of the frames, per pass.
@@ -219,6 +222,7 @@ impl Report {
             tile_size: layout.size,
             tile_overlap: layout.overlap,
             tile_free_border: layout.free,
+            tile_unblended_border: layout.unblended,
             tiles,
             error_per_pass,
             ms_per_pass: total_ms / passes.max(1) as f64,

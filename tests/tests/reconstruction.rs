@@ -390,8 +390,9 @@ fn tiles_blend_into_the_whole_field() {
     assert_eq!(r["frame_size"], serde_json::json!([256, 120]));
     assert_eq!(
         r["tiles"].as_array().unwrap().len(),
-        3,
-        "three 120-px tiles across 256 px"
+        4,
+        "four 120-px tiles across 256 px (overlapping by half a tile, the most allowed: \
+         8 PSF widths would be 63 px)"
     );
     assert_eq!(
         read_f32(&out.0.join("amplitude.tif")).dim(),

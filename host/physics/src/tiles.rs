@@ -127,8 +127,9 @@ pub struct Mosaic {
 }
 
 impl Mosaic {
-    /// An empty mosaic for a `width × height` camera frame; `overlap` and the tiles'
-    /// unconstrained border `free` in camera pixels (`free` < `overlap` / 2).
+    /// An empty mosaic for a `width × height` camera frame; `overlap` and the border
+    /// `free` that gets no weight (at least the tiles' unconstrained border) in camera
+    /// pixels (`free` < `overlap` / 2).
     pub fn new(width: usize, height: usize, upsample: usize, overlap: usize, free: usize) -> Self {
         let u = upsample.max(1);
         Self {

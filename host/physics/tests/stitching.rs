@@ -1,15 +1,18 @@
 //! Stitching a field from tiles should add as little error as it can to the tiles' own:
 //! each tile's EPRY leaves the object with an unknown global phase, which the blend
 //! takes off against what neighbours placed, over the part of the overlap where both
-//! tiles were constrained by the data. On a simulated field of 3 × 3 tiles, the
+//! tiles were constrained by the data. On a simulated field of 4 × 4 tiles, the
 //! stitched image, scored with one global phase, is compared with each tile scored
 //! with its own.
 //!
 //! Issue 13 asks for stitching within 1.1× of the tiles' own error. Measured here:
-//! 1.69× (0.112 against 0.066; 1.72× before the alignment was weighted by where both
-//! tiles are constrained). About half of the excess is a smooth phase bowl across the
-//! whole field (fitted and printed below: taking it off brings the stitched image to
-//! 0.087, 1.32×), the rest per-tile phase offsets of ~0.1 rad. The bound below guards
+//! 1.29× (0.079 against 0.061). It was 1.69× (0.112 against 0.066) while the overlap
+//! was a quarter tile and the blend weighted all but a sixteenth (40 and 10 px here):
+//! a tile's object is worst within a few PSF widths of its inner edges, and the blend
+//! used exactly that part ([`fpm_physics::reconstruct::tiled::TileMargins`] now sizes
+//! both from the PSF). What is left is mostly a smooth phase bowl across the whole
+//! field, consistent across the overlaps and so invisible to the alignment (fitted and
+//! printed below: taking it off brings the stitched image to 0.064). The bound guards
 //! against stitching getting worse; it is not the target.
 
 use fpm_physics::frame::LitFrame;
@@ -60,7 +63,11 @@ fn stitching_tiles_adds_little_to_their_own_error() {
     };
     let out = tiled::reconstruct(&system, &geometry, &lit, settings, 8, Some(160), &|_, _| {})
         .expect("reconstructs");
-    assert_eq!(out.layout.tiles.len(), 9, "3 × 3 tiles");
+    assert!(
+        out.layout.tiles.len() >= 9,
+        "a field of several tiles each way: {} tiles",
+        out.layout.tiles.len()
+    );
     let truth = object.crop_to_camera();
     let side = out.layout.size;
     let mut own = vec![];
@@ -135,7 +142,7 @@ fn stitching_tiles_adds_little_to_their_own_error() {
         stitched / own_rms
     );
     assert!(
-        stitched <= 1.8 * own_rms,
+        stitched <= 1.4 * own_rms,
         "stitching adds error: {stitched:.3} against the tiles' own {own_rms:.3}"
     );
 }

@@ -275,11 +275,12 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         Row::new(
             "tiles",
             format!(
-                "{} of {} px, overlap {} px, free border {} px",
+                "{} of {} px, overlap {} px, free border {} px, unblended border {} px",
                 rep.tiles.len(),
                 rep.tile_size,
                 rep.tile_overlap,
-                rep.tile_free_border
+                rep.tile_free_border,
+                rep.tile_unblended_border
             ),
         ),
         Row::new(

@@ -66,8 +66,7 @@ pub struct ReconstructArgs {
     fixed_pupil: bool,
     /// Tile side, camera pixels: larger or non-square frames are cut into overlapping
     /// tiles (a quarter tile of overlap, at least 8 PSF widths), each with its own wave
-    /// vectors, reconstructed
-    /// in parallel and blended. Default: from the physics, the largest side over which
+    /// vectors, reconstructed in parallel and blended. Default: from the physics, the largest side over which
     /// every LED's wave stays within 0.25 rad of the axial LED's curvature at the tile's
     /// edge (64–512 px); a square frame no larger is one tile.
     #[arg(long)]

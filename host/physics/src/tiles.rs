@@ -121,23 +121,29 @@ pub struct Mosaic {
     width: usize,
     height: usize,
     overlap_hr: usize,
-    free_hr: usize,
+    unblended_hr: usize,
     sum: Array2<Complex32>,
     weight: Array2<f32>,
 }
 
 impl Mosaic {
     /// An empty mosaic for a `width × height` camera frame; `overlap` and the border
-    /// `free` that gets no weight (at least the tiles' unconstrained border) in camera
-    /// pixels (`free` < `overlap` / 2).
-    pub fn new(width: usize, height: usize, upsample: usize, overlap: usize, free: usize) -> Self {
+    /// `unblended` that gets no weight (at least the tiles' unconstrained border) in
+    /// camera pixels (`unblended` < `overlap` / 2).
+    pub fn new(
+        width: usize,
+        height: usize,
+        upsample: usize,
+        overlap: usize,
+        unblended: usize,
+    ) -> Self {
         let u = upsample.max(1);
         Self {
             upsample: u,
             width,
             height,
             overlap_hr: overlap * u,
-            free_hr: free * u,
+            unblended_hr: unblended * u,
             sum: Array2::zeros((height * u, width * u)),
             weight: Array2::zeros((height * u, width * u)),
         }
@@ -148,11 +154,12 @@ impl Mosaic {
         let (x0, y0) = (tile.x0 * self.upsample, tile.y0 * self.upsample);
         let (h, w) = object.dim();
         let [left, right, top, bottom] = tile.free_border(self.width, self.height, 1);
-        // Along one axis: nothing in the free border of a side that faces another tile,
-        // then a sin² ramp up to the end of the overlap; frame edges keep full weight.
+        // Along one axis: nothing in the unblended border of a side that faces another
+        // tile, then a sin² ramp up to the end of the overlap; frame edges keep full
+        // weight.
         let (free, ramp) = (
-            self.free_hr,
-            self.overlap_hr.saturating_sub(2 * self.free_hr).max(1),
+            self.unblended_hr,
+            self.overlap_hr.saturating_sub(2 * self.unblended_hr).max(1),
         );
         let taper = |i: usize, len: usize, low_inner: usize, high_inner: usize| -> f32 {
             let side = |d: usize, inner: usize| -> f32 {

@@ -171,7 +171,7 @@ fn stitching_tiles_adds_little_to_their_own_error() {
 fn seam_steps(out: &tiled::TiledOutcome, truth: &ndarray::Array2<Complex32>) -> (usize, f64, f64) {
     let layout = &out.layout;
     let (side, band) = (layout.size, 8);
-    let u = 2;
+    let u = out.object.dim().1 / layout.width;
     // Mean phase of stitched·conj(truth) over HR rows `rows` and columns `cols`.
     let mean_phase = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| -> f64 {
         let mut c = Complex32::default();

@@ -31,6 +31,7 @@
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use super::flatten::Flatten;
 use super::refine::Refine;
 use crate::background::Correction;
 use crate::fft::{bin_frequency, Fft2};
@@ -59,6 +60,9 @@ pub struct Settings {
     /// Refine each LED's illumination frequency inside the passes (None: the
     /// geometry's frequencies are taken as exact).
     pub refine_leds: Option<Refine>,
+    /// Whether the clear background's low-order phase is taken off each tile's
+    /// object before it is blended ([`super::flatten`]).
+    pub flatten: Flatten,
 }
 
 impl Default for Settings {
@@ -70,6 +74,7 @@ impl Default for Settings {
             update_pupil: true,
             background: Correction::PerFrame { floor_sigma: 3.0 },
             refine_leds: None,
+            flatten: Flatten::Keep,
         }
     }
 }

@@ -5,9 +5,11 @@
 //! * [`refine`]: each LED's illumination frequency refined inside the passes;
 //! * [`offline`]: one square field with every frame at hand;
 //! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
-//! * [`tiled`]: the full field of view in tiles, offline and streaming alike.
+//! * [`tiled`]: the full field of view in tiles, offline and streaming alike;
+//! * [`flatten`]: the clear background's low-order phase taken off each tile.
 
 pub mod epry;
+pub mod flatten;
 pub mod offline;
 pub mod refine;
 pub mod schedule;
@@ -15,6 +17,7 @@ pub mod streaming;
 pub mod tiled;
 
 pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
+pub use flatten::{flatten_background_phase, Flatten, Flattening};
 pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
 pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;

@@ -13,6 +13,7 @@ use ndarray::Array2;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use super::flatten::{flatten_background_phase, Flattening};
 use super::offline::{run_amplitudes, Field, Outcome};
 use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
@@ -176,6 +177,9 @@ pub struct TileResult {
     /// Each frame's illumination frequency at the tile's centre at the end (cycles/µm,
     /// frames' order): refined when the settings ask for it.
     pub frequencies: Vec<(f64, f64)>,
+    /// The clear background's low-order phase taken off before blending (None when the
+    /// settings keep it).
+    pub flattening: Option<Flattening>,
 }
 
 /// A reconstruction of the full field.
@@ -401,6 +405,7 @@ impl TileJob<'_> {
                     errors: outcome.errors.clone(),
                     ms: began.elapsed().as_secs_f64() * 1e3,
                     frequencies: outcome.frequencies.clone(),
+                    flattening: None,
                 };
                 Ok((result, outcome))
             })
@@ -408,17 +413,31 @@ impl TileJob<'_> {
     }
 }
 
+/// The settings' background block ([`Settings::flatten`]) in HR pixels.
+fn flatten_block(system: &System, geometry: &LedGeometry, settings: Settings) -> Option<usize> {
+    let hr_pixel_um = system.sample_pixel_um() / settings.upsample.max(1) as f64;
+    let um = settings.flatten.block_um(geometry, system.wavelength_um)?;
+    Some((um / hr_pixel_um).round().min(usize::MAX as f64 / 4.0) as usize)
+}
+
 /// The tiles blended as they finish, in tile order, each tile's state dropped once it
 /// is placed (only the central tile's pupil is kept).
 struct Assembly {
     mosaic: Mosaic,
+    /// Block side of the background flattening, HR pixels (None: keep the phase).
+    flatten: Option<usize>,
     central: usize,
     pupil: Option<Array2<Complex32>>,
     tiles: Vec<TileResult>,
 }
 
 impl Assembly {
-    fn new(layout: &TileLayout, settings: Settings) -> Self {
+    fn new(
+        system: &System,
+        geometry: &LedGeometry,
+        layout: &TileLayout,
+        settings: Settings,
+    ) -> Self {
         Self {
             mosaic: Mosaic::new(
                 layout.width,
@@ -427,6 +446,7 @@ impl Assembly {
                 layout.overlap,
                 layout.unblended,
             ),
+            flatten: flatten_block(system, geometry, settings),
             central: layout.central_tile(),
             pupil: None,
             tiles: Vec::with_capacity(layout.tiles.len()),
@@ -434,8 +454,12 @@ impl Assembly {
     }
 
     /// Tile `k`, the next in order.
-    fn add(&mut self, k: usize, result: TileResult, mut outcome: Outcome) {
-        self.mosaic.add(&result.tile, &outcome.sample());
+    fn add(&mut self, k: usize, mut result: TileResult, mut outcome: Outcome) {
+        let mut sample = outcome.sample();
+        if let Some(block) = self.flatten {
+            result.flattening = Some(flatten_background_phase(&mut sample, block));
+        }
+        self.mosaic.add(&result.tile, &sample);
         if k == self.central {
             self.pupil = Some(outcome.epry.pupil_centered());
         }
@@ -508,7 +532,7 @@ fn solve(
     };
     let all: Vec<usize> = (0..layout.tiles.len()).collect();
     let results = job.run(&all, starts, &frames, 0)?;
-    let mut assembly = Assembly::new(&layout, settings);
+    let mut assembly = Assembly::new(system, geometry, &layout, settings);
     for (k, (result, outcome)) in results.into_iter().enumerate() {
         assembly.add(k, result, outcome);
     }
@@ -571,7 +595,7 @@ impl Banded {
     ) -> Result<Self, TiledError> {
         let nearest = nearest_to_axis(&system, &geometry, &leds)?;
         let layout = TileLayout::new(width, height, tile, &system, &geometry);
-        let assembly = Assembly::new(&layout, settings);
+        let assembly = Assembly::new(&system, &geometry, &layout, settings);
         Ok(Self {
             corrections: vec![None; leds.len()],
             system,
@@ -835,7 +859,11 @@ impl TiledStreaming {
             self.layout.unblended,
         );
         for (t, tile) in self.tiles.iter_mut().zip(&self.layout.tiles) {
-            mosaic.add(tile, &t.snapshot_sample()?);
+            let mut sample = t.snapshot_sample()?;
+            if let Some(block) = flatten_block(&self.system, &self.geometry, self.settings) {
+                flatten_background_phase(&mut sample, block);
+            }
+            mosaic.add(tile, &sample);
         }
         Some(mosaic.finish())
     }

@@ -14,6 +14,8 @@ use fpm_physics::System;
 use fpm_protocol::Rgb;
 use fpm_rig::stage::VirtualStage;
 
+use crate::flatten::FlattenArgs;
+
 /// How the focus stage moves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum StageKind {
@@ -93,6 +95,8 @@ pub struct AcquireArgs {
     /// largest over which one illumination curvature holds; see `fpm reconstruct`).
     #[arg(long)]
     pub tile: Option<usize>,
+    #[command(flatten)]
+    pub flatten: FlattenArgs,
 }
 
 /// Run `fpm acquire`.
@@ -148,6 +152,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         },
         passes: a.passes,
         tile: a.tile,
+        flatten: a.flatten.flatten(),
     };
     let bar = indicatif::ProgressBar::new(0).with_style(
         indicatif::ProgressStyle::with_template(

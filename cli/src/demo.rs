@@ -15,6 +15,7 @@ use fpm_physics::LedGeometry;
 use fpm_protocol::*;
 
 use crate::acquire::{acquire, AcquireArgs, StageKind};
+use crate::flatten::FlattenArgs;
 use fpm_acquire::controller::Controller;
 use fpm_host::dataset::Dataset;
 use fpm_host::reconstruction::reconstruct;
@@ -209,6 +210,11 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
         pixel_um: 2.4,
         passes: 5,
         tile: None,
+        // The hidden sample is cells and bars on clear glass.
+        flatten: FlattenArgs {
+            flatten_background: true,
+            background_block_um: None,
+        },
     };
     let start = Instant::now();
     let summary = acquire(&args)?;
@@ -259,7 +265,10 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
     // Quality against the hidden sample: nominal vs calibrated geometry, same passes.
     let ds = Dataset::load(&out)?;
     let nominal = ds.manifest.geometry();
-    let settings = Settings::default();
+    let settings = Settings {
+        flatten: args.flatten.flatten(),
+        ..Settings::default()
+    };
     let run =
         |geometry: &LedGeometry| reconstruct(&ds, geometry, "demo", settings, 10, None, &|_, _| {});
     let (with_nominal, with_calibrated) = (run(&nominal)?, run(&g)?);
@@ -324,7 +333,7 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
     );
     say!(
         a.json,
-        "re-run offline: fpm reconstruct {} --out /tmp/rec --calibration {}/calibration.json",
+        "re-run offline: fpm reconstruct {} --out /tmp/rec --calibration {}/calibration.json --flatten-background",
         out.display(),
         out.display()
     );

@@ -9,6 +9,7 @@ mod camera;
 mod color;
 mod demo;
 mod device;
+mod flatten;
 mod reconstruct;
 mod shell;
 mod simulate;

@@ -7,6 +7,8 @@ use clap::Args;
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
 
+use crate::flatten::FlattenArgs;
+
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
@@ -64,6 +66,8 @@ pub struct ReconstructArgs {
     /// Keep the ideal pupil instead of recovering it.
     #[arg(long)]
     fixed_pupil: bool,
+    #[command(flatten)]
+    flatten: FlattenArgs,
     /// Tile side, camera pixels: larger or non-square frames are cut into overlapping
     /// tiles (a quarter tile of overlap, at least 8 PSF widths), each with its own wave
     /// vectors, reconstructed in parallel and blended. Default: from the physics, the largest side over which
@@ -185,6 +189,7 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         beta: a.beta,
         background: a.background(),
         refine_leds: a.refine_leds.then(Refine::default),
+        flatten: a.flatten.flatten(),
     };
     let bar = indicatif::ProgressBar::new(1).with_style(
         indicatif::ProgressStyle::with_template(&format!(
@@ -285,6 +290,12 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
                 out.join(fpm_host::refinement::BOARD_FILE).display()
             );
         }
+    }
+    if rep.background_phase.block_um.is_some() {
+        println!(
+            "background phase: {}",
+            fpm_host::pages::reconstruction::background_phase(&rep.background_phase)
+        );
     }
     if let Some(s) = &rep.versus_truth {
         println!(

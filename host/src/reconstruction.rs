@@ -9,7 +9,7 @@ use fpm_physics::background::{Correction, FrameBackground};
 use fpm_physics::calibrate::boundary::{self, BlockReader, BoundaryHeight};
 use fpm_physics::frame::LitFrame;
 use fpm_physics::reconstruct::tiled::{self, Banded, TiledOutcome};
-use fpm_physics::reconstruct::Settings;
+use fpm_physics::reconstruct::{Flattening, Settings};
 use fpm_physics::tiles::Tile;
 use fpm_physics::{LedGeometry, LedIndex, System};
 use ndarray::Array2;
@@ -89,6 +89,8 @@ pub struct Report {
     pub disc_placement: &'static str,
     /// What was taken off the frames before they were imposed.
     pub background: BackgroundReport,
+    /// The clear background's low-order phase taken off the object (docs/dataset.md).
+    pub background_phase: BackgroundPhaseReport,
     /// Against the simulation's ground truth, when the dataset has one (docs/dataset.md §6).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub versus_truth: Option<fpm_physics::metrics::Scores>,
@@ -197,6 +199,7 @@ impl Report {
                 initial_led: t.initial_led,
                 error_per_pass: t.errors.clone(),
                 ms: t.ms,
+                background_phase: t.flattening.clone(),
             })
             .collect();
         let error_per_pass = (0..passes)
@@ -230,6 +233,7 @@ impl Report {
             threads: rayon::current_num_threads().min(layout.tiles.len()),
             disc_placement: DISC_PLACEMENT,
             background: BackgroundReport::new(settings.background, &outcome.backgrounds),
+            background_phase: BackgroundPhaseReport::new(system, geometry, settings, outcome),
             versus_truth: None,
             height_from_boundary: None,
             refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
@@ -307,6 +311,46 @@ pub struct TileReport {
     pub error_per_pass: Vec<f64>,
     /// Time this tile took, ms.
     pub ms: f64,
+    /// The low-order phase taken off its clear background (absent when kept).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_phase: Option<Flattening>,
+}
+
+/// `background_phase` in `report.json`: whether the clear background's low-order
+/// phase (offset, ramps, defocus, astigmatism: what the frames hardly determine) was
+/// fitted over blocks and taken off, and how much.
+#[derive(Debug, Clone, Serialize)]
+pub struct BackgroundPhaseReport {
+    /// "flattened" or "kept".
+    pub treatment: &'static str,
+    /// Block side, µm (absent when kept).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_um: Option<f64>,
+    /// Over all tiles: blocks, blocks fitted, largest phase taken off, residual.
+    #[serde(flatten)]
+    pub totals: Flattening,
+}
+
+impl BackgroundPhaseReport {
+    fn new(
+        system: &System,
+        geometry: &LedGeometry,
+        settings: Settings,
+        outcome: &TiledOutcome,
+    ) -> Self {
+        let block_um = settings.flatten.block_um(geometry, system.wavelength_um);
+        Self {
+            treatment: if block_um.is_some() {
+                "flattened"
+            } else {
+                "kept"
+            },
+            block_um,
+            totals: Flattening::combined(
+                outcome.tiles.iter().filter_map(|t| t.flattening.as_ref()),
+            ),
+        }
+    }
 }
 
 /// Reconstruct the in-focus frames of `ds` with `geometry`, tile by tile (`tile`: side

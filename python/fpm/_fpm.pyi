@@ -143,6 +143,8 @@ class Streaming:
         fixed_pupil: bool = False,
         background: str = "per-frame",
         floor_sigma: float = 3.0,
+        flatten_background: bool = False,
+        background_block_um: Optional[float] = None,
     ) -> None: ...
     def push(self, led: Led, frame: npt.ArrayLike, exposure_ms: float = 1.0) -> None:
         """A frame taken under `led`; the estimate is updated at once."""
@@ -174,6 +176,8 @@ def reconstruct(
     fixed_pupil: bool = False,
     background: str = "per-frame",
     floor_sigma: float = 3.0,
+    flatten_background: bool = False,
+    background_block_um: Optional[float] = None,
     progress: Optional[Progress] = None,
 ) -> Result:
     """EPRY reconstruction of the dataset's in-focus frames (GIL released)."""

@@ -9,7 +9,7 @@ use fpm_host::reconstruction::{
     reconstruct as run, write_outputs_with, ImageFormat, OutputOptions,
 };
 use fpm_physics::background::Correction;
-use fpm_physics::reconstruct::{Refine, Settings};
+use fpm_physics::reconstruct::{Flatten, Refine, Settings};
 use fpm_physics::LedGeometry;
 use numpy::{IntoPyArray, PyArray2};
 use pyo3::exceptions::PyValueError;
@@ -137,6 +137,8 @@ pub(crate) fn settings(
     fixed_pupil: bool,
     background: &str,
     floor_sigma: f32,
+    flatten_background: bool,
+    background_block_um: Option<f64>,
 ) -> PyResult<Settings> {
     let background = match background {
         "per-frame" => Correction::PerFrame { floor_sigma },
@@ -150,10 +152,26 @@ pub(crate) fn settings(
     if upsample == 0 {
         return Err(PyValueError::new_err("upsample must be at least 1"));
     }
+    let flatten = match (flatten_background, background_block_um) {
+        (false, None) => Flatten::Keep,
+        (false, Some(_)) => {
+            return Err(PyValueError::new_err(
+                "background_block_um needs flatten_background=True",
+            ))
+        }
+        (true, None) => Flatten::Auto,
+        (true, Some(um)) if um > 0.0 && um.is_finite() => Flatten::BlockUm(um),
+        (true, Some(um)) => {
+            return Err(PyValueError::new_err(format!(
+                "background_block_um = {um}: give a positive size in µm"
+            )))
+        }
+    };
     Ok(Settings {
         upsample,
         update_pupil: !fixed_pupil,
         background,
+        flatten,
         ..Settings::default()
     })
 }
@@ -164,9 +182,12 @@ pub(crate) fn settings(
 /// physics). `background`: "per-frame" (each dark-field frame's own background taken
 /// off, pixels within `floor_sigma` of its noise read as no light) or "dark-level".
 /// `progress(done, total)` is called as frame updates complete (tqdm: pass
-/// `lambda d, t: bar.update(d - bar.n)`). Raises FpmError when it cannot run.
+/// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
+/// background's low-order phase off, over blocks of `background_block_um` (default
+/// from the LED array), for samples on clear glass (see `fpm reconstruct --help`).
+/// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct(
     py: Python<'_>,
@@ -179,6 +200,8 @@ pub fn reconstruct(
     fixed_pupil: bool,
     background: &str,
     floor_sigma: f32,
+    flatten_background: bool,
+    background_block_um: Option<f64>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
     let ds = &dataset.get().inner;
@@ -188,7 +211,14 @@ pub fn reconstruct(
     }
     let settings = Settings {
         refine_leds: refine_leds.then(Refine::default),
-        ..settings(upsample, fixed_pupil, background, floor_sigma)?
+        ..settings(
+            upsample,
+            fixed_pupil,
+            background,
+            floor_sigma,
+            flatten_background,
+            background_block_um,
+        )?
     };
     let progress = Progress::new(progress);
     let result = py.detach(|| {

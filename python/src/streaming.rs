@@ -58,7 +58,7 @@ impl Streaming {
     /// the LED array `geometry` (a dict, e.g. `Calibration.geometry`), cut into tiles
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]
-    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0))]
+    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         system: &Bound<'_, PyAny>,
@@ -71,6 +71,8 @@ impl Streaming {
         fixed_pupil: bool,
         background: &str,
         floor_sigma: f32,
+        flatten_background: bool,
+        background_block_um: Option<f64>,
     ) -> PyResult<Self> {
         let system: System = from_py(system, "system")?;
         let geometry: LedGeometry = from_py(geometry, "geometry")?;
@@ -79,7 +81,14 @@ impl Streaming {
                 "{width}x{height}: frames need at least 16 pixels a side"
             )));
         }
-        let settings = settings(upsample, fixed_pupil, background, floor_sigma)?;
+        let settings = settings(
+            upsample,
+            fixed_pupil,
+            background,
+            floor_sigma,
+            flatten_background,
+            background_block_um,
+        )?;
         Ok(Self {
             system,
             geometry,

@@ -31,6 +31,23 @@ def test_the_true_placement_beats_the_nominal_one(acquisition, placement):
     assert placed.report["geometry"]["dx_mm"] == placement["dx_mm"]
 
 
+def test_flattening_the_clear_background_is_asked_for_and_reported(tmp_path):
+    # Cells and bars on clear glass, a field of several blocks (the shared 64² set is
+    # about one cell wide: no glass to fit), 10 passes (after 4 the glass's amplitude
+    # has not settled into one level, and nothing is fitted).
+    ds, truth = fpm.simulate_acquisition(tmp_path, size=160, seed=1)
+    placement = {k: truth[k] for k in ("dx_mm", "dy_mm", "theta_deg", "height_mm")}
+    kept = fpm.reconstruct(ds, geometry=placement, upsample=2)
+    flat = fpm.reconstruct(ds, geometry=placement, upsample=2, flatten_background=True)
+    assert kept.report["background_phase"]["treatment"] == "kept"
+    done = flat.report["background_phase"]
+    assert done["treatment"] == "flattened" and done["fitted"] > 0, done
+    score = lambda r: r.report["versus_truth"]["complex_nrmse"]
+    assert score(flat) < 0.7 * score(kept), (score(flat), score(kept))
+    with pytest.raises(ValueError, match="flatten_background"):
+        fpm.reconstruct(ds, passes=1, background_block_um=40.0)
+
+
 def test_progress_counts_up_to_the_total(acquisition, placement):
     ds, _ = acquisition
     seen = []

@@ -18,7 +18,7 @@ use fpm_host::calibration::calibrate_dataset;
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
 use fpm_physics::calibrate::Options;
-use fpm_physics::reconstruct::{tiled, Settings, TiledStreaming};
+use fpm_physics::reconstruct::{tiled, Flatten, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, LedIndex, Rgb, StoredCalibration};
 use serde::Serialize;
@@ -60,6 +60,8 @@ pub struct Plan {
     pub passes: usize,
     /// Tile side for the reconstruction, camera pixels (None: chosen by frame size).
     pub tile: Option<usize>,
+    /// Whether the clear background's low-order phase is taken off the result.
+    pub flatten: Flatten,
 }
 
 /// What an acquisition did, also written as `acquisition.json`.
@@ -279,7 +281,10 @@ pub fn acquire(
         .into_iter()
         .map(|k| all[k])
         .collect();
-    let settings = Settings::default();
+    let settings = Settings {
+        flatten: plan.flatten,
+        ..Settings::default()
+    };
     let dark = plan.dark_level as f32;
     let mut streaming: Option<TiledStreaming> = None;
     let mut stream_error: Option<String> = None;

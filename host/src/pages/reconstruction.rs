@@ -61,6 +61,13 @@ pub fn warnings(report: &Report) -> Vec<String> {
             report.background.dark_field_frames.len()
         ));
     }
+    let b = &report.background_phase;
+    if b.block_um.is_some() && b.totals.fitted * 2 < b.totals.blocks {
+        out.push(format!(
+            "--flatten-background found clear background in only {} of {} blocks: elsewhere the slow phase is as EPRY left it (is the sample on clear glass? for one that fills the field, leave the flag off)",
+            b.totals.fitted, b.totals.blocks
+        ));
+    }
     out
 }
 
@@ -299,6 +306,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                 None => rep.background.correction.to_string(),
             },
         ),
+        Row::new("background phase", background_phase(&rep.background_phase)),
         Row::new("disc placement", rep.disc_placement),
     ]);
 
@@ -339,4 +347,23 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     page.heading("Reproduce");
     page.command(c.reproduce);
     page.write(&dir.join("report.html"))
+}
+
+/// The "background phase" row (and `fpm reconstruct`'s line): kept, or what the
+/// flattening took off.
+pub fn background_phase(b: &crate::reconstruction::BackgroundPhaseReport) -> String {
+    match b.block_um {
+        None => "kept as EPRY left it (--flatten-background takes the clear glass's low-order phase off)".into(),
+        Some(block) if b.totals.fitted == 0 => format!(
+            "kept: too little clear background in any {block:.0} µm block to fit"
+        ),
+        Some(block) => format!(
+            "flattened over {block:.0} µm blocks: {} of {} fitted ({:.0} % of their pixels at the clear amplitude), up to {:.2} rad taken off, background {:.3} rad RMS about the fit",
+            b.totals.fitted,
+            b.totals.blocks,
+            100.0 * b.totals.clear_fraction,
+            b.totals.peak_rad,
+            b.totals.residual_rad
+        ),
+    }
 }

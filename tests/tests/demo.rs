@@ -47,7 +47,31 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
     assert!(err("theta_deg") < 0.25 && err("height_mm") < 0.92, "{text}");
     let nominal = number_after(&text, "nominal geometry");
     let calibrated = number_after(&text, "calibrated");
+    let streamed = number_after(&text, "streamed while acquiring");
     assert!(calibrated < 0.5 * nominal, "{text}");
+    // Issue 13 §5: the demo as sharp as an offline run, streamed and offline.
+    assert!(calibrated <= 0.08 && streamed <= 0.08, "{text}");
+    // The offline command the demo prints, run as printed (into our directory).
+    let line = text
+        .lines()
+        .find_map(|l| l.strip_prefix("re-run offline: fpm "))
+        .unwrap_or_else(|| panic!("no re-run command in:\n{text}"));
+    let rec = dir.0.join("rec");
+    let args: Vec<String> = line
+        .split_whitespace()
+        .map(|a| {
+            if a == "/tmp/rec" {
+                rec.to_string_lossy().into_owned()
+            } else {
+                a.to_string()
+            }
+        })
+        .collect();
+    let offline = Command::new(fpm_bin()).args(&args).output().unwrap();
+    let offline_text = String::from_utf8_lossy(&offline.stdout);
+    assert!(offline.status.success(), "{line}\n{offline_text}");
+    let offline_nrmse = number_after(&offline_text, "complex NRMSE");
+    assert!(offline_nrmse <= 0.08, "{line}\n{offline_text}");
     assert!(
         text.contains(&format!("{}", out.join("comparison.png").display())),
         "{text}"

@@ -70,32 +70,11 @@ fn stitching_tiles_adds_little_to_their_own_error() {
         eprintln!("{flatten:?}:");
         measure(&out, &truth)
     };
+    // (border step against the middle of a tile, stitched against the tiles' own)
     let kept = stitch(Flatten::Keep);
-    assert!(
-        kept.seams <= 2.0 * kept.within,
-        "kept: tile borders step by {:.3} rad against {:.3} rad inside tiles",
-        kept.seams,
-        kept.within
-    );
-    assert!(
-        kept.stitched <= 1.4 * kept.own_rms,
-        "kept: stitching adds error: {:.3} against the tiles' own {:.3}",
-        kept.stitched,
-        kept.own_rms
-    );
+    kept.within_bounds("kept", 2.0, 1.4);
     let flat = stitch(Flatten::Auto);
-    assert!(
-        flat.seams <= 1.3 * flat.within,
-        "flattened: tile borders step by {:.3} rad against {:.3} rad inside tiles",
-        flat.seams,
-        flat.within
-    );
-    assert!(
-        flat.stitched <= 1.1 * flat.own_rms,
-        "flattened: stitching adds error: {:.3} against the tiles' own {:.3}",
-        flat.stitched,
-        flat.own_rms
-    );
+    flat.within_bounds("flattened", 1.3, 1.1);
     assert!(
         flat.stitched < 0.7 * kept.stitched,
         "flattening the clear background leaves {:.3} against {:.3} kept",
@@ -113,6 +92,25 @@ struct Stitched {
     /// RMS phase step across tile borders, and across the middle of a tile, rad.
     seams: f64,
     within: f64,
+}
+
+impl Stitched {
+    /// Assert the border step within `seam_factor` of the step across a tile's middle
+    /// and the stitched image within `stitch_factor` of the tiles' own NRMSE.
+    fn within_bounds(&self, label: &str, seam_factor: f64, stitch_factor: f64) {
+        assert!(
+            self.seams <= seam_factor * self.within,
+            "{label}: tile borders step by {:.3} rad against {:.3} rad inside tiles",
+            self.seams,
+            self.within
+        );
+        assert!(
+            self.stitched <= stitch_factor * self.own_rms,
+            "{label}: stitching adds error: {:.3} against the tiles' own {:.3}",
+            self.stitched,
+            self.own_rms
+        );
+    }
 }
 
 /// Score `out` against `truth` (printing each tile, the bowl and the seams).

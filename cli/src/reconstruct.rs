@@ -7,8 +7,6 @@ use clap::Args;
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
 
-use crate::flatten::FlattenArgs;
-
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
@@ -16,6 +14,8 @@ use fpm_host::reconstruction::{
     reconstruct, reconstruct_on_disk, write_outputs_with, ImageFormat, OutputOptions, ZARR_NAME,
 };
 use fpm_host::truth::score_reconstruction;
+
+use crate::flatten::FlattenArgs;
 
 mod batch;
 
@@ -70,9 +70,10 @@ pub struct ReconstructArgs {
     flatten: FlattenArgs,
     /// Tile side, camera pixels: larger or non-square frames are cut into overlapping
     /// tiles (a quarter tile of overlap, at least 8 PSF widths), each with its own wave
-    /// vectors, reconstructed in parallel and blended. Default: from the physics, the largest side over which
-    /// every LED's wave stays within 0.25 rad of the axial LED's curvature at the tile's
-    /// edge (64–512 px); a square frame no larger is one tile.
+    /// vectors, reconstructed in parallel and blended. Default: from the physics, the
+    /// largest side over which every LED's wave stays within 0.25 rad of the axial
+    /// LED's curvature at the tile's edge (64–512 px); a square frame no larger is one
+    /// tile.
     #[arg(long)]
     tile: Option<usize>,
     /// What is taken off the frames: the dataset's dark level only, or also each

@@ -103,7 +103,8 @@ pub struct Flattening {
     /// Mean over the fitted blocks of the fraction of their pixels at the clear
     /// amplitude (the background's candidates, before the objects are clipped).
     pub clear_fraction: f64,
-    /// Largest phase taken off anywhere apart from each block's offset, rad.
+    /// Largest phase taken off anywhere apart from each fit's offset, rad (the whole
+    /// field's fit and the blocks' added: a bound).
     pub peak_rad: f64,
     /// Median over the fitted blocks of the background's spread about its fit (robust,
     /// 1.48·MAD), rad.
@@ -194,25 +195,23 @@ pub fn flatten_background_phase(field: &mut Array2<Complex32>, block: usize) -> 
 /// One fit over the whole field, taken off.
 fn flatten_whole(field: &mut Array2<Complex32>) -> Flattening {
     let (rows, cols) = field.dim();
-    {
-        let fit = fit_block(field.view());
-        let mut out = Flattening {
-            blocks: 1,
-            ..Flattening::default()
-        };
-        if let Some(fit) = fit {
-            out.fitted = 1;
-            out.quadratic = usize::from(fit.terms == 6);
-            out.residual_rad = fit.spread;
-            out.clear_fraction = fit.candidates;
-            for ((r, c), v) in field.indexed_iter_mut() {
-                let m = fit.at(r, c, rows, cols);
-                out.peak_rad = out.peak_rad.max((m - fit.model[0]).abs());
-                *v *= Complex32::from_polar(1.0, -m as f32);
-            }
-        }
-        out
+    let mut out = Flattening {
+        blocks: 1,
+        ..Flattening::default()
+    };
+    let Some(fit) = fit_block(field.view()) else {
+        return out;
+    };
+    out.fitted = 1;
+    out.quadratic = usize::from(fit.terms == 6);
+    out.residual_rad = fit.spread;
+    out.clear_fraction = fit.candidates;
+    for ((r, c), v) in field.indexed_iter_mut() {
+        let m = fit.at(r, c, rows, cols);
+        out.peak_rad = out.peak_rad.max((m - fit.model[0]).abs());
+        *v *= Complex32::from_polar(1.0, -m as f32);
     }
+    out
 }
 
 /// Fits over blocks of side `block` overlapping by half, blended and taken off.

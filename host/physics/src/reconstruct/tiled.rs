@@ -858,9 +858,10 @@ impl TiledStreaming {
             self.layout.overlap,
             self.layout.unblended,
         );
+        let flatten = flatten_block(&self.system, &self.geometry, self.settings);
         for (t, tile) in self.tiles.iter_mut().zip(&self.layout.tiles) {
             let mut sample = t.snapshot_sample()?;
-            if let Some(block) = flatten_block(&self.system, &self.geometry, self.settings) {
+            if let Some(block) = flatten {
                 flatten_background_phase(&mut sample, block);
             }
             mosaic.add(tile, &sample);

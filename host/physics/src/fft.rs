@@ -85,10 +85,25 @@ impl Fft2 {
     pub fn inverse_unnormalised_sparse_cols(&mut self, data: &mut [Complex32], cols: &[usize]) {
         let (w, h) = (self.width, self.height);
         assert_eq!(data.len(), w * h, "array does not match the planned size");
+        self.inverse_unnormalised_sparse_rows(data, cols, 0..h);
+    }
+
+    /// [`Self::inverse_unnormalised_sparse_cols`] where only the rows `rows` of the
+    /// result are wanted: the last pass transforms just those. The other rows hold
+    /// column-transformed values, not the 2-D transform.
+    pub fn inverse_unnormalised_sparse_rows(
+        &mut self,
+        data: &mut [Complex32],
+        cols: &[usize],
+        rows: std::ops::Range<usize>,
+    ) {
+        let (w, h) = (self.width, self.height);
+        assert_eq!(data.len(), w * h, "array does not match the planned size");
+        assert!(rows.end <= h, "rows {rows:?} beyond the grid's {h}");
         let plan = self.col_inv.clone();
         self.columns(data, cols, &*plan);
         let plan = self.row_inv.clone();
-        self.rows(data, &*plan);
+        self.rows(&mut data[rows.start * w..rows.end * w], &*plan);
     }
 
     /// Forward transform where only the columns `cols` of the result are wanted: rows
@@ -268,10 +283,20 @@ mod pruned_tests {
             }
         }
         let mut full = sparse.clone();
+        let mut some_rows = sparse.clone();
         fft.inverse(&mut full);
         fft.inverse_unnormalised_sparse_cols(&mut sparse, &cols);
         let norm = 1.0 / (w * h) as f32;
         for (a, b) in sparse.iter().zip(&full) {
+            assert!((a * norm - b).norm() < 1e-5);
+        }
+        // Wanted rows of that inverse: the same values there.
+        let rows = 7..19;
+        fft.inverse_unnormalised_sparse_rows(&mut some_rows, &cols, rows.clone());
+        for (a, b) in some_rows[rows.start * w..rows.end * w]
+            .iter()
+            .zip(&full[rows.start * w..rows.end * w])
+        {
             assert!((a * norm - b).norm() < 1e-5);
         }
         // Wanted columns of a forward transform.

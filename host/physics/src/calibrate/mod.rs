@@ -23,6 +23,7 @@ pub mod window;
 use crate::optics::LedIndex;
 use serde::{Deserialize, Serialize};
 
+use crate::image::{row_slice, row_sum};
 use crate::optics::{LedGeometry, System};
 use crate::Image;
 use feature::{FeatureError, Polarity, Roi};
@@ -344,13 +345,7 @@ pub fn calibrate(
         area: feature.area_px,
     })?;
     if let Some(sat) = reference.saturation {
-        let w = reference_moment.window;
-        let n = reference
-            .image
-            .slice(ndarray::s![w.y..w.y + w.h, w.x..w.x + w.w])
-            .iter()
-            .filter(|&&v| v >= sat)
-            .count();
+        let n = saturated_pixels(reference.image, reference_moment.window, sat);
         if n > 0 {
             return Err(CalibrationError::SaturatedReference(n));
         }
@@ -371,13 +366,8 @@ pub fn calibrate(
             let m = shift::first_moment(f.image, feature.polarity, start, half_window, 4)
                 .map(|m| m.with_pixel_noise(f.image));
             let saturated = |m: &shift::Moment| {
-                f.saturation.is_some_and(|sat| {
-                    let w = m.window;
-                    f.image
-                        .slice(ndarray::s![w.y..w.y + w.h, w.x..w.x + w.w])
-                        .iter()
-                        .any(|&v| v >= sat)
-                })
+                f.saturation
+                    .is_some_and(|sat| saturated_pixels(f.image, m.window, sat) > 0)
             };
             let (shift_um, mut status) = match m {
                 Some(m) if saturated(&m) => (None, LedStatus::Saturated),
@@ -421,8 +411,13 @@ pub fn calibrate(
             .filter_map(|m| m.shift_um)
             .map(|s| s.0.hypot(s.1) / px)
             .fold(0.0, f64::max);
-        let mut m =
-            model::FeatureModel::new(reference.image, &feature, half_window, max_shift_px + 4.0);
+        let mut m = model::FeatureModel::new(
+            system,
+            reference.image,
+            &feature,
+            half_window,
+            max_shift_px + 4.0,
+        );
         m.reference_half_window = reference_half.min(half_window);
         m
     });
@@ -714,7 +709,25 @@ fn reclassify_outliers(
 }
 
 /// Mean intensity per ms of exposure.
+/// Pixels of `window` at or above the saturation level `sat`.
+fn saturated_pixels(img: &Image, window: Roi, sat: f32) -> usize {
+    (window.y..window.y + window.h)
+        .map(|r| {
+            row_slice(img, r)[window.x..window.x + window.w]
+                .iter()
+                .filter(|&&v| v >= sat)
+                .count()
+        })
+        .sum()
+}
+
 fn frame_brightness(f: &Frame) -> f64 {
     let n = f.image.len().max(1) as f64;
-    f.image.iter().map(|&v| v as f64).sum::<f64>() / n / f.exposure_ms.max(1e-12)
+    let total: f64 = f
+        .image
+        .rows()
+        .into_iter()
+        .map(|row| row_sum(row) as f64)
+        .sum();
+    total / n / f.exposure_ms.max(1e-12)
 }

@@ -9,10 +9,10 @@
 //! window's pixels in bins of intensity.
 
 use super::window::Roi;
-use crate::image::{median, Image};
+use crate::image::{from_order_key, median, order_key, row_slice, Image};
 
-/// Pixels read for the noise law at most: 8 bins of ~1000.
-const MAX_SAMPLES: usize = 8192;
+/// Pixels read for the noise law at most: 8 bins of ~500.
+const MAX_SAMPLES: usize = 4096;
 
 /// Pixel variance σ² = a + b·I (counts², I in counts above zero).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,20 +40,17 @@ pub fn measure(img: &Image, window: Roi) -> NoiseModel {
     // with noise up) and bias every bin's variance.
     // A few thousand pixels pin each bin's variance to a few per cent; a large window
     // is read at a stride (every k-th pixel in reading order, so rows do not align).
-    let interior = window.w.saturating_sub(2) * window.h.saturating_sub(2);
+    let (inner_w, inner_h) = (window.w.saturating_sub(2), window.h.saturating_sub(2));
+    let interior = inner_w * inner_h;
     let stride = interior.div_ceil(MAX_SAMPLES).max(1);
-    let mut samples: Vec<(f32, f32)> = Vec::with_capacity(interior / stride + 1);
-    let mut k = 0usize;
-    for r in window.y + 1..(window.y + window.h).saturating_sub(1) {
-        for c in window.x + 1..(window.x + window.w).saturating_sub(1) {
-            k += 1;
-            if !k.is_multiple_of(stride) {
-                continue;
-            }
-            let (l, m, rr) = (img[[r, c - 1]], img[[r, c]], img[[r, c + 1]]);
-            let level = 0.5 * (img[[r - 1, c]] + img[[r + 1, c]]);
-            samples.push((level, m - 0.5 * (l + rr)));
-        }
+    // (the intensity's order key, the second difference): the bins below select on
+    // integer keys.
+    let mut samples: Vec<(u32, f32)> = Vec::with_capacity(interior / stride + 1);
+    for k in (stride - 1..interior).step_by(stride) {
+        let (r, c) = (window.y + 1 + k / inner_w, window.x + 1 + k % inner_w);
+        let (l, m, rr) = (img[[r, c - 1]], img[[r, c]], img[[r, c + 1]]);
+        let level = 0.5 * (img[[r - 1, c]] + img[[r + 1, c]]);
+        samples.push((order_key(level), m - 0.5 * (l + rr)));
     }
     if samples.len() < 16 {
         return NoiseModel { a: 1.0, b: 0.0 };
@@ -68,7 +65,7 @@ pub fn measure(img: &Image, window: Roi) -> NoiseModel {
     // (selection, ~4n comparisons) instead of sorting (~13n).
     let mut rest = &mut samples[..];
     while rest.len() > chunk {
-        rest.select_nth_unstable_by(chunk, |x, y| x.0.total_cmp(&y.0));
+        rest.select_nth_unstable_by_key(chunk, |s| s.0);
         rest = &mut rest[chunk..];
     }
     let bins: Vec<(f64, f64)> = samples
@@ -76,7 +73,7 @@ pub fn measure(img: &Image, window: Roi) -> NoiseModel {
         .map(|part| {
             let mad = median(part.iter().map(|s| s.1.abs())) as f64;
             (
-                median(part.iter().map(|s| s.0)) as f64,
+                median(part.iter().map(|s| from_order_key(s.0))) as f64,
                 (1.4826 * mad).powi(2) / 1.5,
             )
         })
@@ -110,19 +107,22 @@ pub fn moment_sigma(
     if signal <= 0.0 {
         return (f64::INFINITY, f64::INFINITY);
     }
-    let (mut vx, mut vy, mut lever_x, mut lever_y, mut var_sum) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut vx, mut vy, mut var_sum) = (0.0, 0.0, 0.0);
+    let first_dx = (window.x as f64 - center.0) as f32;
     for r in window.y..window.y + window.h {
         let dy = r as f64 - center.1;
-        for c in window.x..window.x + window.w {
-            let dx = c as f64 - center.0;
-            let v = noise.variance(img[[r, c]]);
-            vx += dx * dx * v;
-            vy += dy * dy * v;
-            lever_x += dx;
-            lever_y += dy;
-            var_sum += v;
-        }
+        let row = row_slice(img, r);
+        let (row_v, row_xv) = row_variance(&row[window.x..window.x + window.w], noise, first_dx);
+        vx += row_xv as f64;
+        vy += dy * dy * row_v as f64;
+        var_sum += row_v as f64;
     }
+    // Σ dx and Σ dy over the window: how far the background's error levers the moment.
+    let offsets = |first: usize, len: usize, at: f64| {
+        len as f64 * (first as f64 + (len as f64 - 1.0) / 2.0 - at)
+    };
+    let lever_x = window.h as f64 * offsets(window.x, window.w, center.0);
+    let lever_y = window.w as f64 * offsets(window.y, window.h, center.1);
     // The median of n background pixels: variance π/2 · σ²/n, σ² of the darkest pixels.
     let n = (window.w * window.h) as f64;
     let var_background = std::f64::consts::FRAC_PI_2 * (var_sum / n).min(noise.a * 4.0)
@@ -132,6 +132,39 @@ pub fn moment_sigma(
         ((vx + lever_x * lever_x * var_background) / s2).sqrt(),
         ((vy + lever_y * lever_y * var_background) / s2).sqrt(),
     )
+}
+
+/// Σ σ² and Σ dx²·σ² over one row's `pixels`, the first `first_dx` from the moment:
+/// eight running f32 sums per total (a row's few hundred terms) and one total per
+/// pass, so the compiler keeps them in vector registers.
+fn row_variance(pixels: &[f32], noise: &NoiseModel, first_dx: f32) -> (f32, f32) {
+    const LANES: usize = 8;
+    let (a, b) = (noise.a as f32, noise.b as f32);
+    let floor = noise.a.max(1e-6) as f32;
+    let variance = |p: f32| (a + b * p.max(0.0)).max(floor);
+    let chunks = pixels.chunks_exact(LANES);
+    let mut v = [0.0f32; LANES];
+    for chunk in chunks.clone() {
+        for (acc, &p) in v.iter_mut().zip(chunk) {
+            *acc += variance(p);
+        }
+    }
+    let mut xv = [0.0f32; LANES];
+    let mut dx: [f32; LANES] = std::array::from_fn(|l| first_dx + l as f32);
+    for chunk in chunks.clone() {
+        for ((acc, &p), d) in xv.iter_mut().zip(chunk).zip(dx.iter_mut()) {
+            *acc += *d * *d * variance(p);
+            *d += LANES as f32;
+        }
+    }
+    let (mut sum_v, mut sum_xv) = (v.iter().sum::<f32>(), xv.iter().sum::<f32>());
+    let first = pixels.len() - chunks.remainder().len();
+    for (j, &p) in (first..).zip(chunks.remainder()) {
+        let dx = first_dx + j as f32;
+        sum_v += variance(p);
+        sum_xv += dx * dx * variance(p);
+    }
+    (sum_v, sum_xv)
 }
 
 #[cfg(test)]

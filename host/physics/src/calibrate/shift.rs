@@ -7,7 +7,7 @@
 
 use super::noise;
 use super::window::{signed_moment, Polarity, Roi};
-use crate::image::{median, Image};
+use crate::image::{median, row_slice, Image};
 
 /// The feature's position in one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,6 +45,9 @@ impl Moment {
     }
 }
 
+/// Width of the band around the window that the background is taken from, pixels.
+pub const RING_BAND: usize = 6;
+
 /// Background: the median of a band around the window, and how many pixels it took.
 fn ring_background(
     img: &Image,
@@ -59,12 +62,12 @@ fn ring_background(
     let (bx1, by1) = ((x1 + band).min(w), (y1 + band).min(h));
     let mut ring: Vec<f32> = Vec::with_capacity(2 * band * (bx1 - bx0 + by1 - by0));
     for r in by0..by1 {
-        let row = img.row(r);
+        let row = row_slice(img, r);
         if r < y0 || r >= y1 {
-            ring.extend(row.slice(ndarray::s![bx0..bx1]).iter());
+            ring.extend_from_slice(&row[bx0..bx1]);
         } else {
-            ring.extend(row.slice(ndarray::s![bx0..x0]).iter());
-            ring.extend(row.slice(ndarray::s![x1..bx1]).iter());
+            ring.extend_from_slice(&row[bx0..x0]);
+            ring.extend_from_slice(&row[x1..bx1]);
         }
     }
     let n = ring.len();
@@ -108,7 +111,7 @@ pub fn first_moment(
             || cy - (half as i64) < 0
             || cx + half as i64 + 1 > w as i64
             || cy + half as i64 + 1 > h as i64;
-        let (bg, ring) = ring_background(img, x0, y0, x1, y1, 6);
+        let (bg, ring) = ring_background(img, x0, y0, x1, y1, RING_BAND);
         let (c, sw) = signed_moment(img, sign, bg, (x0, x1), (y0, y1))?;
         center = c;
         result = Some(Moment {

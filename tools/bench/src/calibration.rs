@@ -15,6 +15,9 @@ struct CalibrationCase {
     error: [f64; 4],
     used_leds: usize,
     calibrate_ms: f64,
+    /// Calibration time over the floor's (forward transforms of as many 256² frames),
+    /// timed right after it: the machine's speed divides out.
+    floor_ratio: f64,
 }
 
 #[derive(Serialize)]
@@ -28,6 +31,48 @@ struct CalibrationBench {
     paper_table1_max_error: [f64; 4],
     calibrate_ms_median: f64,
     calibrate_ms_max: f64,
+    /// Median over the cases of the calibration time over the floor's.
+    floor_ratio_median: f64,
+    /// Median time of the floor (forward FFTs of 26 frames of 256²), ms.
+    floor_ms_median: f64,
+}
+
+/// The same-run baseline: the forward 2-D FFTs of as many 256² frames as a
+/// calibration gets (what merely looking at each frame in Fourier space costs).
+struct Floor {
+    fft: fpm_physics::fft::Fft2,
+    frame: Vec<rustfft::num_complex::Complex32>,
+}
+
+impl Floor {
+    fn new() -> Self {
+        let n = 256;
+        let frame = (0..n * n)
+            .map(|i| rustfft::num_complex::Complex32::new((i % 251) as f32, 0.0))
+            .collect();
+        Self {
+            fft: fpm_physics::fft::Fft2::new(n, n),
+            frame,
+        }
+    }
+
+    /// Seconds for `frames` forward transforms.
+    fn time(&mut self, frames: usize) -> f64 {
+        let mut buf = self.frame.clone();
+        let start = std::time::Instant::now();
+        for _ in 0..frames {
+            buf.copy_from_slice(&self.frame);
+            self.fft.forward(&mut buf);
+        }
+        let took = start.elapsed().as_secs_f64();
+        std::hint::black_box(&buf);
+        took
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 pub(crate) fn run(
@@ -94,19 +139,29 @@ pub(crate) fn run(
         indicatif::ProgressBar::new(cases.len() as u64)
     };
     let mut out = vec![];
+    let (mut floor, mut floors) = (Floor::new(), vec![]);
     for (k, (name, truth, side, at)) in cases.iter().enumerate() {
         let mut scene = CalibrationScene::paper(*truth, seed.wrapping_mul(1000) + k as u64);
         scene.feature_um = *side;
         scene.feature_at_um = *at;
         let frames = scene.acquire();
-        let (cal, took) = calibrate_simulated(&scene, &frames, &nominal, &Options::default())?;
-        let mut times = vec![took.as_secs_f64() * 1e3];
-        for _ in 1..repeat {
-            let (_, took) = calibrate_simulated(&scene, &frames, &nominal, &Options::default())?;
-            times.push(took.as_secs_f64() * 1e3);
+        let mut cal = None;
+        let (mut times, mut ratios) = (vec![], vec![]);
+        for _ in 0..repeat.max(1) {
+            let (found, took) =
+                calibrate_simulated(&scene, &frames, &nominal, &Options::default())?;
+            let took = took.as_secs_f64();
+            let floor = floor.time(frames.len());
+            times.push(took * 1e3);
+            ratios.push(took / floor);
+            floors.push(floor * 1e3);
+            cal.get_or_insert(found);
         }
-        times.sort_by(|a, b| a.total_cmp(b));
-        let ms = times[times.len() / 2];
+        let Some(cal) = cal else {
+            anyhow::bail!("no calibration of case {name}");
+        };
+        let ms = median(&mut times);
+        let ratio = median(&mut ratios);
         let found = [cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm];
         let tr = [truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm];
         out.push(CalibrationCase {
@@ -125,6 +180,7 @@ pub(crate) fn run(
                 .filter(|l| l.status == LedStatus::Used)
                 .count(),
             calibrate_ms: ms,
+            floor_ratio: ratio,
         });
         bar.inc(1);
     }
@@ -132,10 +188,6 @@ pub(crate) fn run(
     let column = |i: usize| -> Vec<f64> { out.iter().map(|c| c.error[i]).collect() };
     let stat = |f: fn(&mut [f64]) -> f64| [0, 1, 2, 3].map(|i| f(&mut column(i)));
     let max = |v: &mut [f64]| v.iter().copied().fold(0.0, f64::max);
-    let median = |v: &mut [f64]| {
-        v.sort_by(|a, b| a.total_cmp(b));
-        v[v.len() / 2]
-    };
     // Coverage: the simulator's defocus is exact, so h's σ leaves the defocus out.
     let hard = coverage_cases(coverage, seed, json);
     let summary = (!hard.is_empty()).then(|| fpm_physics::coverage::coverage(&hard));
@@ -147,6 +199,8 @@ pub(crate) fn run(
         paper_table1_max_error: [6.0, 12.0, 0.200, 0.92],
         calibrate_ms_median: t.p50_us,
         calibrate_ms_max: t.max_us,
+        floor_ratio_median: median(&mut out.iter().map(|c| c.floor_ratio).collect::<Vec<_>>()),
+        floor_ms_median: median(&mut floors),
         cases: out,
         coverage_cases: hard,
         coverage: summary,
@@ -182,6 +236,10 @@ pub(crate) fn run(
     println!(
         "  calibration time (one core, frames in memory; each case's median of {repeat}): median {:.1} ms, max {:.1} ms",
         e.calibrate_ms_median, e.calibrate_ms_max
+    );
+    println!(
+        "  against the same run's floor (forward FFTs of 26 frames of 256², median {:.2} ms): calibration = {:.1}× the floor (median over the cases)",
+        e.floor_ms_median, e.floor_ratio_median
     );
     if let Some(c) = &e.coverage {
         print_coverage(c);

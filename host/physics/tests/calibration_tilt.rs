@@ -56,7 +56,9 @@ fn a_tilted_board_no_longer_biases_the_array() {
                 "parameter {p}: {e:?} beyond 3σ {s:?}"
             );
         }
-        assert!(e[0].abs() <= 3.0 && e[1].abs() <= 3.0, "{e:?}");
+        // ~2σ of these frames' shift noise (σ ≈ 1.7 µm), well inside the flat
+        // model's misses below.
+        assert!(e[0].abs() <= 3.5 && e[1].abs() <= 3.5, "{e:?}");
         assert!(e[2].abs() <= 0.05 && e[3].abs() <= 0.1, "{e:?}");
 
         let flat = calibrate(&scene, &flat_only);

@@ -4,6 +4,8 @@
 use clap::Args;
 use fpm_physics::reconstruct::Flatten;
 
+use crate::units::positive_um;
+
 /// Whether the clear background's low-order phase is taken off.
 #[derive(Args, Debug, Clone, Copy, Default)]
 pub struct FlattenArgs {
@@ -30,13 +32,5 @@ impl FlattenArgs {
             (true, Some(um)) => Flatten::BlockUm(um),
             (true, None) => Flatten::Auto,
         }
-    }
-}
-
-/// A block side: a positive number of µm.
-fn positive_um(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(um) if um > 0.0 && um.is_finite() => Ok(um),
-        _ => Err(format!("{text:?} is not a positive size in µm")),
     }
 }

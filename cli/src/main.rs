@@ -13,6 +13,7 @@ mod flatten;
 mod reconstruct;
 mod shell;
 mod simulate;
+mod units;
 
 use std::process::ExitCode;
 

@@ -6,6 +6,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Refine, Settings};
+use fpm_physics::LedGeometry;
 
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
@@ -16,6 +17,7 @@ use fpm_host::reconstruction::{
 use fpm_host::truth::score_reconstruction;
 
 use crate::flatten::FlattenArgs;
+use crate::units::positive_mm;
 
 mod batch;
 
@@ -51,6 +53,12 @@ pub struct ReconstructArgs {
     /// (an array measured by other means; the grid then comes from the dataset).
     #[arg(long)]
     calibration: Option<PathBuf>,
+    /// The LEDs' height below the sample, mm, instead of the dataset's (the rest of the
+    /// nominal placement kept): for a height misreported or measured to another plane.
+    /// When the bright/dark-field edge of the frames disagrees with the dataset's
+    /// height, this command warns and names the height it finds there.
+    #[arg(long, conflicts_with = "calibration", value_parser = positive_mm)]
+    led_height_mm: Option<f64>,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -173,15 +181,20 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     };
     // The manifest and directory, whichever way the frames are read.
     let ds: &dyn DatasetInfo = &on_disk;
-    let (geometry, source) = match &a.calibration {
-        Some(path) => (
-            Placement::read(path)?.geometry(&ds.manifest().geometry()),
+    let nominal = ds.manifest().geometry();
+    let (geometry, source) = match (&a.calibration, a.led_height_mm) {
+        (Some(path), _) => (
+            Placement::read(path)?.geometry(&nominal),
             path.display().to_string(),
         ),
-        None => (
-            ds.manifest().geometry(),
-            "nominal (dataset.toml)".to_string(),
+        (None, Some(height_mm)) => (
+            LedGeometry {
+                height_mm,
+                ..nominal
+            },
+            format!("nominal (dataset.toml) at --led-height-mm {height_mm}"),
         ),
+        (None, None) => (nominal, "nominal (dataset.toml)".to_string()),
     };
     let settings = Settings {
         upsample: a.upsample.max(1),
@@ -230,7 +243,7 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     // The report is an extra: failing to write it is a warning, not a failed run.
     let context = fpm_host::pages::reconstruction::Context {
         system: &ds.manifest().system(),
-        nominal: &ds.manifest().geometry(),
+        nominal: &nominal,
         reproduce: &fpm_host::html::command_line(),
     };
     let page = fpm_host::pages::reconstruction::write(&r, out, &context);

@@ -44,8 +44,19 @@ pub fn warnings(report: &Report) -> Vec<String> {
         out.extend(crate::refinement::warnings(r));
     }
     if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
+        // A calibrated h is only as good as the defocus it was told; a dataset's h
+        // may simply be wrong, and the edge's own estimate can stand in for it.
+        let advice = if report.geometry_source.starts_with("nominal") {
+            format!(
+                "the dataset's height_mm (or its NA) may be off: --led-height-mm {:.1} reconstructs with the edge's height",
+                b.estimate.height_mm
+            )
+        } else {
+            "check the defocus the calibration was told (h is proportional to it) and the NA"
+                .to_string()
+        };
         out.push(format!(
-            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): check the defocus the calibration was told (h is proportional to it) and the NA",
+            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): {advice}",
             b.estimate.height_mm, b.sigma_with_na_mm, b.na_relative_sigma * 100.0, b.geometry_height_mm, b.difference_sigma
         ));
     }

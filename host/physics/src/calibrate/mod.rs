@@ -708,7 +708,6 @@ fn reclassify_outliers(
     changed
 }
 
-/// Mean intensity per ms of exposure.
 /// Pixels of `window` at or above the saturation level `sat`.
 fn saturated_pixels(img: &Image, window: Roi, sat: f32) -> usize {
     (window.y..window.y + window.h)
@@ -721,6 +720,7 @@ fn saturated_pixels(img: &Image, window: Roi, sat: f32) -> usize {
         .sum()
 }
 
+/// Mean intensity per ms of exposure.
 fn frame_brightness(f: &Frame) -> f64 {
     let n = f.image.len().max(1) as f64;
     let total: f64 = f

@@ -24,9 +24,11 @@ pub struct NoiseModel {
 }
 
 impl NoiseModel {
-    /// The variance of a pixel reading `value` counts.
-    pub fn variance(&self, value: f32) -> f64 {
-        (self.a + self.b * value.max(0.0) as f64).max(self.a.max(1e-6))
+    /// The variance of a pixel reading `value` counts (in f32: the moment's noise sums
+    /// it over every pixel of a window, in vector lanes).
+    pub fn variance(&self, value: f32) -> f32 {
+        let floor = self.a.max(1e-6) as f32;
+        (self.a as f32 + self.b as f32 * value.max(0.0)).max(floor)
     }
 }
 
@@ -139,9 +141,7 @@ pub fn moment_sigma(
 /// pass, so the compiler keeps them in vector registers.
 fn row_variance(pixels: &[f32], noise: &NoiseModel, first_dx: f32) -> (f32, f32) {
     const LANES: usize = 8;
-    let (a, b) = (noise.a as f32, noise.b as f32);
-    let floor = noise.a.max(1e-6) as f32;
-    let variance = |p: f32| (a + b * p.max(0.0)).max(floor);
+    let variance = |p: f32| noise.variance(p);
     let chunks = pixels.chunks_exact(LANES);
     let mut v = [0.0f32; LANES];
     for chunk in chunks.clone() {

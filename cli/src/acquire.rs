@@ -149,6 +149,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
             na: a.na,
             magnification: a.magnification,
             pixel_size_um: a.pixel_um,
+            entrance_pupil_mm: None,
         },
         passes: a.passes,
         tile: a.tile,

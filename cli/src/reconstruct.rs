@@ -59,6 +59,15 @@ pub struct ReconstructArgs {
     /// height, this command warns and names the height it finds there.
     #[arg(long, conflicts_with = "calibration", value_parser = positive_mm)]
     led_height_mm: Option<f64>,
+    /// The objective's entrance pupil distance above the sample, mm, for objectives
+    /// that are not telecentric (camera lenses, simple low-power objectives): the
+    /// chief ray of a point x off the axis aims at the pupil, so every LED's angle to
+    /// it changes across the field. Stated wrong or left out, outer tiles get stripes
+    /// and ripples at the frequency of that error, and frames that are partly bright
+    /// where the nominal geometry says dark. Default: telecentric. The report's edge
+    /// check says when the frames' bright/dark-field edges ask for one
+    #[arg(long, value_parser = positive_mm)]
+    entrance_pupil_mm: Option<f64>,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -166,10 +175,13 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
 /// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
 /// stay quiet but for warnings (a batch prints its own line per dataset).
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
-    let on_disk = DatasetOnDisk::open(dir)?;
+    let mut on_disk = DatasetOnDisk::open(dir)?;
+    on_disk.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
     let bytes = on_disk.in_focus_bytes();
     let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
-        Some(Dataset::load(dir)?)
+        let mut ds = Dataset::load(dir)?;
+        ds.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
+        Some(ds)
     } else {
         eprintln!(
             "{}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",

@@ -42,6 +42,7 @@ fn manifest(frames: usize) -> Manifest {
                 exposure_ms: 2.5 + k as f64,
             })
             .collect(),
+        entrance_pupil_mm: None,
     }
 }
 

@@ -277,7 +277,7 @@ pub fn acquire(
     // the reconstruction as the frames arrive.
     let all = nominal.leds();
     let leds: Vec<LedIndex> = geometry
-        .nearest_first(&all, (0.0, 0.0), system.wavelength_um)
+        .nearest_first(&all, (0.0, 0.0), &system)
         .into_iter()
         .map(|k| all[k])
         .collect();

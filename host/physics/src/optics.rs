@@ -15,6 +15,13 @@ pub struct System {
     pub magnification: f64,
     /// Camera pixel pitch, µm.
     pub pixel_size_um: f64,
+    /// Distance from the sample up to the objective's entrance pupil, mm: where the
+    /// chief rays of off-axis points aim. `None`: telecentric (chief rays parallel to
+    /// the axis). Camera lenses and simple low-power objectives are not telecentric;
+    /// their pupil, seen from a point x off the axis, is centred on the direction
+    /// −x/p, so every LED's angle to it changes across the field (docs/dataset.md §2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entrance_pupil_mm: Option<f64>,
 }
 
 impl System {
@@ -25,6 +32,21 @@ impl System {
             na: 0.1,
             magnification: 4.0,
             pixel_size_um: 2.4,
+            entrance_pupil_mm: None,
+        }
+    }
+
+    /// The spatial frequency (cycles/µm) of the chief ray at sample point (x, y) µm:
+    /// the centre of the pupil as that point sees it. Zero everywhere for a
+    /// telecentric objective.
+    pub fn chief_ray_frequency(&self, x_um: f64, y_um: f64) -> (f64, f64) {
+        match self.entrance_pupil_mm {
+            None => (0.0, 0.0),
+            Some(p_mm) => {
+                let p = p_mm * 1e3;
+                let r = (x_um * x_um + y_um * y_um + p * p).sqrt() * self.wavelength_um;
+                (-x_um / r, -y_um / r)
+            }
         }
     }
 
@@ -204,44 +226,62 @@ impl LedGeometry {
         (s[0] / wavelength_um, s[1] / wavelength_um)
     }
 
-    /// Whether `led` is bright-field at sample point (x, y): |f_i| < NA/λ.
+    /// The illumination frequency of `led` at sample point (x, y) relative to the pupil's
+    /// centre there ([`System::chief_ray_frequency`]), cycles/µm: where the frame reads
+    /// the object's spectrum. The illumination frequency itself for a telecentric
+    /// objective.
+    pub fn pupil_frequency(
+        &self,
+        led: LedIndex,
+        x_um: f64,
+        y_um: f64,
+        system: &System,
+    ) -> (f64, f64) {
+        let f = self.illumination_frequency(led, x_um, y_um, system.wavelength_um);
+        let c = system.chief_ray_frequency(x_um, y_um);
+        (f.0 - c.0, f.1 - c.1)
+    }
+
+    /// Whether `led` is bright-field at sample point (x, y): |f_i − f_chief| < NA/λ.
     pub fn is_bright_field(&self, led: LedIndex, x_um: f64, y_um: f64, system: &System) -> bool {
-        let (fx, fy) = self.illumination_frequency(led, x_um, y_um, system.wavelength_um);
+        let (fx, fy) = self.pupil_frequency(led, x_um, y_um, system);
         (fx * fx + fy * fy).sqrt() < system.cutoff()
     }
 
     /// Whether `led` is dark-field at every point of the rectangle of half-sides
-    /// `half_um` (x, y) centred on the optical axis, µm. The illumination's sine grows
-    /// with the distance from the point straight above which the LED sits, so it is
-    /// smallest at the rectangle's point nearest that one.
+    /// `half_um` (x, y) centred on the optical axis, µm. The illumination's sine relative
+    /// to the chief ray grows with the distance from the point where the two meet (the
+    /// point straight above the LED for a telecentric objective; x_led·p/(p + h) with an
+    /// entrance pupil at p), so it is smallest at the rectangle's point nearest that one.
     pub fn is_dark_field_everywhere(
         &self,
         led: LedIndex,
         half_um: (f64, f64),
         system: &System,
     ) -> bool {
-        let (lx, ly) = self.led_position_mm(led);
+        let (lx, ly, lh) = self.led_position_3d_mm(led);
+        let meet = system.entrance_pupil_mm.map_or(1.0, |p| p / (p + lh));
         let nearest = (
-            (lx * 1e3).clamp(-half_um.0, half_um.0),
-            (ly * 1e3).clamp(-half_um.1, half_um.1),
+            (lx * 1e3 * meet).clamp(-half_um.0, half_um.0),
+            (ly * 1e3 * meet).clamp(-half_um.1, half_um.1),
         );
         !self.is_bright_field(led, nearest.0, nearest.1, system)
     }
 
-    /// Indices into `leds` ordered nearest-first: by |f_i| at sample point `at_um`,
-    /// ties kept in the given order. This is EPRY's order (it also copes with a wrongly
-    /// chosen centre LED) and the acquisition's, so frames arrive in the order they
-    /// are used.
+    /// Indices into `leds` ordered nearest-first: by |f_i − f_chief| at sample point
+    /// `at_um`, ties kept in the given order. This is EPRY's order (it also copes with a
+    /// wrongly chosen centre LED) and the acquisition's, so frames arrive in the order
+    /// they are used.
     pub fn nearest_first(
         &self,
         leds: &[LedIndex],
         at_um: (f64, f64),
-        wavelength_um: f64,
+        system: &System,
     ) -> Vec<usize> {
         let radius: Vec<f64> = leds
             .iter()
             .map(|&led| {
-                let f = self.illumination_frequency(led, at_um.0, at_um.1, wavelength_um);
+                let f = self.pupil_frequency(led, at_um.0, at_um.1, system);
                 f.0.hypot(f.1)
             })
             .collect();

@@ -195,7 +195,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
     let object = ObjectField::test_sample(&system, w, 32, 2, 7);
     let camera = Camera::realistic();
     let all = geometry.leds();
-    let order = geometry.nearest_first(&all, (0.0, 0.0), system.wavelength_um);
+    let order = geometry.nearest_first(&all, (0.0, 0.0), &system);
     let shots: Vec<(LedIndex, f64)> = order.iter().map(|&k| (all[k], 0.0)).collect();
     let frames = acquire(
         &system,

@@ -154,6 +154,11 @@ pub struct Manifest {
     /// `[[frame]]`.
     #[serde(rename = "frame")]
     pub frames: Vec<FrameEntry>,
+    /// The objective's entrance pupil distance above the sample, mm (None:
+    /// telecentric). Not a key of `dataset.toml` (docs/dataset.md §5.1 fixes its
+    /// keys): the user states it (`fpm reconstruct --entrance-pupil-mm`).
+    #[serde(skip)]
+    pub entrance_pupil_mm: Option<f64>,
 }
 
 impl Manifest {
@@ -184,6 +189,7 @@ impl Manifest {
             },
             camera,
             frames,
+            entrance_pupil_mm: system.entrance_pupil_mm,
         }
     }
 
@@ -195,6 +201,7 @@ impl Manifest {
             na: s.na,
             magnification: s.magnification,
             pixel_size_um: s.pixel_size_um,
+            entrance_pupil_mm: self.entrance_pupil_mm,
         }
     }
 

@@ -142,7 +142,7 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let object = ObjectField::test_sample(&system, size, 32, 2, 9);
     let leds = geometry.leds();
     let shots: Vec<(fpm_physics::LedIndex, f64)> = geometry
-        .nearest_first(&leds, (0.0, 0.0), system.wavelength_um)
+        .nearest_first(&leds, (0.0, 0.0), &system)
         .into_iter()
         .map(|k| (leds[k], 0.0))
         .collect();

@@ -118,6 +118,33 @@ fn edge_blur_um(system: &System) -> f64 {
     system.wavelength_um / system.na
 }
 
+/// The board height (mm) above which the LED at `led_mm` (x, y; `depth` mm below the
+/// board's plane) is bright at block centre `at_um`: where its lateral distance from
+/// the chief ray, at the LED's depth, is h·tan(asin NA) (`ratio` = √(1 − NA²)/NA).
+/// A telecentric chief ray goes straight down; one aimed at an entrance pupil p above
+/// the sample has moved by x·h/p there, so h appears on both sides and is found by
+/// fixed-point steps (each shrinks the error by |x|·ratio/p, ≪ 1 for fields of mm).
+fn turns_bright_at_mm(
+    system: &System,
+    led_mm: (f64, f64),
+    depth: f64,
+    at_um: (f64, f64),
+    ratio: f64,
+) -> f64 {
+    let (x, y) = (at_um.0 * 1e-3, at_um.1 * 1e-3);
+    let threshold = |spread: f64| {
+        let (cx, cy) = (x * (1.0 + spread), y * (1.0 + spread));
+        (cx - led_mm.0).hypot(cy - led_mm.1) * ratio - depth
+    };
+    let mut h = threshold(0.0);
+    if let Some(p) = system.entrance_pupil_mm {
+        for _ in 0..12 {
+            h = threshold((h + depth).max(0.0) / p);
+        }
+    }
+    h
+}
+
 /// Estimate h (mm) within `search_mm` from `frames` read in `blocks`, with the lateral
 /// placement, rotation and tilt of `geometry` (its h is not used). `None` when no
 /// block changes state inside the search range, or the best range touches its edge
@@ -141,8 +168,12 @@ pub fn estimate(
                 .iter()
                 .zip(&f.lit)
                 .filter_map(|(&(x, y), lit)| {
-                    let rho_mm = (x - lx * 1e3).hypot(y - ly * 1e3) * 1e-3;
-                    lit.map(|l| (rho_mm * ratio - depth, l))
+                    lit.map(|l| {
+                        (
+                            turns_bright_at_mm(system, (lx, ly), depth, (x, y), ratio),
+                            l,
+                        )
+                    })
                 })
                 .collect()
         })

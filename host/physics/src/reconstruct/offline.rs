@@ -48,16 +48,25 @@ impl Outcome {
     }
 }
 
-/// Distance from `led` to the sample-plane point `centre_um`, µm: the radius of its
-/// spherical wave there.
+/// The radius (µm) of the curvature EPRY's object is seeded with at `centre_um`: the
+/// distance R from `led` to that point (its spherical wave's radius), combined with
+/// the entrance pupil's distance p as 1/(1/R + 1/p). Across the field the chief ray
+/// turns by x/p just as the illumination turns by x/R, and both move every frame's
+/// window the same way, so the object carries both curvatures (and sheds them again).
 pub(crate) fn illumination_radius_um(
+    system: &System,
     geometry: &LedGeometry,
     led: LedIndex,
     centre_um: (f64, f64),
 ) -> f64 {
     let (lx, ly, lh) = geometry.led_position_3d_mm(led);
-    ((lx * 1e3 - centre_um.0).powi(2) + (ly * 1e3 - centre_um.1).powi(2) + (lh * 1e3).powi(2))
-        .sqrt()
+    let r =
+        ((lx * 1e3 - centre_um.0).powi(2) + (ly * 1e3 - centre_um.1).powi(2) + (lh * 1e3).powi(2))
+            .sqrt();
+    match system.entrance_pupil_mm {
+        Some(p_mm) => 1.0 / (1.0 / r + 1.0 / (p_mm * 1e3)),
+        None => r,
+    }
 }
 
 /// Where a square field sits in the camera frame and how its intensities are scaled.
@@ -91,7 +100,7 @@ pub fn run(
     progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
     let leds: Vec<LedIndex> = shots.iter().map(|s| s.led).collect();
-    let order = geometry.nearest_first(&leds, field.centre_um, system.wavelength_um);
+    let order = geometry.nearest_first(&leds, field.centre_um, system);
     let initial = *order.first()?;
     let scale = match field.clear_level {
         Some(level) => Some(level).filter(|l| *l > 0.0)?,
@@ -126,19 +135,19 @@ pub fn run_amplitudes(
     passes: usize,
     mut progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
-    let order = geometry.nearest_first(leds, field.centre_um, system.wavelength_um);
+    let order = geometry.nearest_first(leds, field.centre_um, system);
     let initial = *order.first()?;
     let mut epry = Epry::new(system, &amplitudes[initial].mapv(|a| a * a), settings);
     epry.set_free_border(field.free_border);
     epry.apply_illumination_curvature(
         system.wavelength_um,
-        illumination_radius_um(geometry, leds[initial], field.centre_um),
+        illumination_radius_um(system, geometry, leds[initial], field.centre_um),
     );
     let (cx, cy) = field.centre_um;
     let frames: Vec<(&Image, (f64, f64))> = order
         .iter()
         .map(|&k| {
-            let f = geometry.illumination_frequency(leds[k], cx, cy, system.wavelength_um);
+            let f = geometry.pupil_frequency(leds[k], cx, cy, system);
             (&amplitudes[k], f)
         })
         .collect();

@@ -67,8 +67,7 @@ impl Streaming {
 
     fn frequency(&self, led: LedIndex) -> (f64, f64) {
         let (x, y) = self.field.centre_um;
-        self.geometry
-            .illumination_frequency(led, x, y, self.system.wavelength_um)
+        self.geometry.pupil_frequency(led, x, y, &self.system)
     }
 
     fn bright_field(&self, led: LedIndex) -> bool {
@@ -142,7 +141,12 @@ impl Streaming {
         epry.set_free_border(self.field.free_border);
         epry.apply_illumination_curvature(
             self.system.wavelength_um,
-            illumination_radius_um(&self.geometry, self.waiting[seed].0, self.field.centre_um),
+            illumination_radius_um(
+                &self.system,
+                &self.geometry,
+                self.waiting[seed].0,
+                self.field.centre_um,
+            ),
         );
         self.epry = Some(epry);
         // Earlier (dark-field) frames first, as they arrived, then the seed and the rest.
@@ -204,9 +208,9 @@ impl Streaming {
         progress: impl FnMut(usize, usize),
     ) -> Option<Outcome> {
         let mut epry = self.epry.take()?;
-        let order =
-            self.geometry
-                .nearest_first(leds, self.field.centre_um, self.system.wavelength_um);
+        let order = self
+            .geometry
+            .nearest_first(leds, self.field.centre_um, &self.system);
         let initial = *order.first()?;
         let frames: Vec<(&Image, (f64, f64))> = order
             .iter()

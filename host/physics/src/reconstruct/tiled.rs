@@ -269,7 +269,7 @@ fn nearest_to_axis(
     leds: &[LedIndex],
 ) -> Result<usize, TiledError> {
     geometry
-        .nearest_first(leds, (0.0, 0.0), system.wavelength_um)
+        .nearest_first(leds, (0.0, 0.0), system)
         .first()
         .copied()
         .ok_or(TiledError::NoFrames)
@@ -480,11 +480,24 @@ impl Assembly {
         let pixel_um = system.sample_pixel_um();
         let tiles = self.tiles;
         let refined_leds = settings.refine_leds.map(|_| {
+            // The passes refine frequencies relative to the pupil's centre; the board
+            // is fitted to the illumination's own.
+            let illumination: Vec<Vec<(f64, f64)>> = tiles
+                .iter()
+                .map(|t| {
+                    let c = system.chief_ray_frequency(t.centre_um.0, t.centre_um.1);
+                    t.frequencies
+                        .iter()
+                        .map(|f| (f.0 + c.0, f.1 + c.1))
+                        .collect()
+                })
+                .collect();
             let fields: Vec<FieldFrequencies> = tiles
                 .iter()
-                .map(|t| FieldFrequencies {
+                .zip(&illumination)
+                .map(|(t, frequencies)| FieldFrequencies {
                     centre_um: t.centre_um,
-                    frequencies: &t.frequencies,
+                    frequencies,
                 })
                 .collect();
             let bin_step = 1.0 / (layout.size as f64 * pixel_um);

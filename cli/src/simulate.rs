@@ -114,6 +114,13 @@ pub struct AcquisitionArgs {
     /// truth.json lists where every LED really was.
     #[arg(long, default_value_t = 0.0)]
     led_jitter_mm: f64,
+    /// Image through an objective that is not telecentric, its entrance pupil this
+    /// many mm above the sample (a camera lens, a simple low-power objective): the
+    /// exit field is propagated to the pupil and cut there (Fresnel), so each point
+    /// sees the pupil centred on its own chief ray. The dataset cannot state it:
+    /// truth.json does, and `fpm reconstruct --entrance-pupil-mm` takes it
+    #[arg(long, value_parser = crate::units::positive_mm)]
+    entrance_pupil_mm: Option<f64>,
 }
 
 impl SceneArgs {
@@ -192,6 +199,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         upsample: a.upsample.max(1),
         dark_field_peak_dn: a.dark_field_peak_dn,
         led_jitter_mm: a.led_jitter_mm,
+        entrance_pupil_mm: a.entrance_pupil_mm,
     };
     let bar = indicatif::ProgressBar::new_spinner()
         .with_message(format!("rendering {} frames", s.scene().truth.leds().len()));

@@ -91,6 +91,7 @@ impl Scene {
             object_pixel_um: None,
             seed: Some(self.seed),
             leds: None,
+            entrance_pupil_mm: None,
         }
     }
 }
@@ -127,6 +128,9 @@ pub struct AcquisitionSet {
     pub dark_field_peak_dn: Option<f64>,
     /// Each LED off its grid place by this much (1σ per axis, mm).
     pub led_jitter_mm: f64,
+    /// The objective's entrance pupil distance above the sample, mm (None:
+    /// telecentric). The dataset cannot state it; truth.json does.
+    pub entrance_pupil_mm: Option<f64>,
 }
 
 impl Default for AcquisitionSet {
@@ -135,6 +139,7 @@ impl Default for AcquisitionSet {
             upsample: 2,
             dark_field_peak_dn: None,
             led_jitter_mm: 0.0,
+            entrance_pupil_mm: None,
         }
     }
 }
@@ -183,7 +188,10 @@ pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) ->
 /// truth_amplitude.tif, truth_phase.tif). Frames are auto-exposed as a camera would:
 /// the brightest pixel at 80 % of full scale, from 2 ms (bright field) up to 1 s.
 pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Result<Written> {
-    let system = System::paper();
+    let system = System {
+        entrance_pupil_mm: set.entrance_pupil_mm,
+        ..System::paper()
+    };
     let camera = scene.camera();
     let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample.max(1), scene.seed);
     let truth = scene.truth;
@@ -212,6 +220,7 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
     let truth = Truth {
         object_pixel_um: Some(object.pitch_um()),
         leds: (set.led_jitter_mm > 0.0).then_some(positions),
+        entrance_pupil_mm: set.entrance_pupil_mm,
         ..scene.truth_file()
     };
     write_json(&out.join("truth.json"), &truth)?;

@@ -50,6 +50,10 @@ pub struct Truth {
     /// LEDs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub leds: Option<Vec<TrueLed>>,
+    /// The simulated objective's entrance pupil distance above the sample, mm, when it
+    /// was not telecentric (`fpm simulate acquisition --entrance-pupil-mm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entrance_pupil_mm: Option<f64>,
 }
 
 /// One LED's true place.

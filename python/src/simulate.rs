@@ -96,6 +96,7 @@ pub fn simulate_acquisition<'py>(
         upsample: upsample.max(1),
         dark_field_peak_dn,
         led_jitter_mm,
+        entrance_pupil_mm: None,
     };
     let written = py
         .detach(|| simulation::write_acquisition(&scene, &set, &out))

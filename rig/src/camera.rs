@@ -169,6 +169,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 object_pixel_um: Some(sample.pitch_um()),
                 seed: Some(a.seed),
                 leds: None,
+                entrance_pupil_mm: None,
             })?,
         )?;
     }

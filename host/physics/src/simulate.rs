@@ -245,6 +245,11 @@ impl Renderer {
         let k = 2.0 * std::f64::consts::PI / system.wavelength_um;
         let (lx, ly, h) = (led_mm.0 * 1e3, led_mm.1 * 1e3, led_mm.2 * 1e3);
         let r0 = (lx * lx + ly * ly + h * h).sqrt();
+        // An entrance pupil at p above the sample: the exit field reaches it by Fresnel
+        // propagation, ∝ F[u·exp(iπ|x|²/(λp))] at frequency ξ/(λp), where the
+        // aperture of radius p·NA cuts it (the outer quadratic phases do not change
+        // the intensity). So the chirp goes on the exit field before the pupil below.
+        let to_pupil = system.entrance_pupil_mm.map_or(0.0, |p| 0.5 / (p * 1e3));
         // Spherical wave from the LED, phase relative to the field centre (f64, then
         // reduced: k·R is ~10⁶ rad).
         for r in 0..n {
@@ -254,7 +259,7 @@ impl Renderer {
                     ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt() - r0
                 } else {
                     (x * (-lx) + y * (-ly)) / r0
-                };
+                } + to_pupil * (x * x + y * y);
                 let phase = (k * rr).rem_euclid(2.0 * std::f64::consts::PI);
                 let (s, co) = phase.sin_cos();
                 self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co as f32, s as f32);
@@ -542,6 +547,61 @@ mod tests {
         assert!(
             img.iter().all(|&v| v < 1e-3),
             "an empty sample scatters nothing into the pupil"
+        );
+    }
+
+    #[test]
+    fn through_a_non_telecentric_objective_each_point_sees_the_leds_its_chief_ray_sees() {
+        // The simulator cuts the Fresnel-propagated field at an entrance pupil 5 mm up;
+        // the reconstruction's rule says a point x is lit by an LED within the NA of
+        // its chief ray (aimed at that pupil). LED (10, 14), 10 mm off the axis, is
+        // dark everywhere for a telecentric objective; here the rule puts its edge
+        // inside the field. Two independent models: the edge the simulator draws (a
+        // Fresnel knife edge, at intensity 1/4 where the geometric edge is) must sit
+        // where the rule puts it.
+        let s = System {
+            entrance_pupil_mm: Some(5.0),
+            ..system()
+        };
+        let g = geometry();
+        let led = LedIndex::new(10, 14);
+        let o = ObjectField::square_hole(&s, 256, 48, 2, 1000.0, (0.0, 0.0), 1.0);
+        let img = Renderer::new(&o).render(&s, &g, &o, led, 0.0);
+        let x_of = |col: f64| s.pixel_to_sample(col, 128.0, 256, 256).0;
+        // The rule's edge along the middle row, by bisection.
+        let (mut lo, mut hi) = (x_of(0.0), x_of(255.0));
+        assert!(!g.is_bright_field(led, lo, 0.0, &s) && g.is_bright_field(led, hi, 0.0, &s));
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if g.is_bright_field(led, mid, 0.0, &s) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        let rule_um = 0.5 * (lo + hi);
+        // The simulated edge: the first crossing of 1/4 from the dark side.
+        let row: Vec<f32> = (0..256).map(|c| img[[128, c]]).collect();
+        let k = row
+            .windows(2)
+            .position(|w| w[0] < 0.25 && w[1] >= 0.25)
+            .expect("the frame turns bright somewhere");
+        let frac = f64::from((0.25 - row[k]) / (row[k + 1] - row[k]));
+        let simulated_um = x_of(k as f64 + frac);
+        // The simulator's pupil is a disc of whole frequency bins (1/(352·0.6 µm)): its
+        // edge is placed to half a bin, which the frequencies' slope across the field,
+        // (1/p + 1/R)/λ, turns into µm.
+        let half_bin = 0.5 / ((256 + 2 * 48) as f64 * s.sample_pixel_um());
+        let slope = (1.0 / 5000.0 + 1.0 / 92_500.0) / s.wavelength_um;
+        let tolerance_um = half_bin / slope + 1.0;
+        assert!(
+            (simulated_um - rule_um).abs() < tolerance_um,
+            "edge: simulated {simulated_um:.1} µm, rule {rule_um:.1} µm (± {tolerance_um:.1})"
+        );
+        assert!(row[0] < 0.05 && row[255] > 0.8, "dark at −x, lit at +x");
+        assert!(
+            (0..256).all(|c| !g.is_bright_field(led, x_of(c as f64), 0.0, &system())),
+            "a telecentric objective would see it dark everywhere"
         );
     }
 

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::background::{Correction, FrameBackground};
-use fpm_physics::calibrate::boundary::{self, BlockReader, BoundaryHeight};
+use fpm_physics::calibrate::boundary::{BlockReader, BoundaryHeight, PupilFromBoundary};
 use fpm_physics::frame::LitFrame;
 use fpm_physics::reconstruct::tiled::{self, Banded, TiledOutcome};
 use fpm_physics::reconstruct::{Flattening, Settings};
@@ -118,6 +118,10 @@ pub struct BoundaryCheck {
     pub sigma_with_na_mm: f64,
     /// (boundary − geometry) over `sigma_with_na_mm`.
     pub difference_sigma: f64,
+    /// The entrance pupil distance the edges fit best (an objective that is not
+    /// telecentric), with its h and the blocks it and the system as given get wrong.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub entrance_pupil: Option<PupilFromBoundary>,
 }
 
 /// How well an objective's NA is known, relative: the label is nominal, and the NA
@@ -143,16 +147,12 @@ pub fn boundary_check(
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
 ) -> Option<BoundaryCheck> {
-    let h = geometry.height_mm;
-    let estimate = boundary::from_frames(
-        system,
-        geometry,
-        frames,
-        geometry.center,
-        BOUNDARY_BLOCK_PX,
-        boundary_search(h),
-    )?;
-    Some(BoundaryCheck::new(system, h, estimate))
+    let reference = frames.iter().find(|f| f.led == geometry.center)?;
+    let mut reader = BlockReader::new(system, reference, BOUNDARY_BLOCK_PX);
+    for f in frames {
+        reader.read(f);
+    }
+    BoundaryCheck::read(system, geometry, &reader)
 }
 
 /// Where h is searched from the edges: 0.75× to 1.33× the geometry's `h`.
@@ -161,6 +161,17 @@ fn boundary_search(h: f64) -> (f64, f64) {
 }
 
 impl BoundaryCheck {
+    /// The check from the frames `reader` has read, with `geometry`'s lateral
+    /// placement; and the entrance pupil they fit best.
+    fn read(system: &System, geometry: &LedGeometry, reader: &BlockReader) -> Option<Self> {
+        let h = geometry.height_mm;
+        let estimate = reader.estimate(system, geometry, boundary_search(h))?;
+        Some(Self {
+            entrance_pupil: reader.fit_entrance_pupil(system, geometry, boundary_search(h)),
+            ..Self::new(system, h, estimate)
+        })
+    }
+
     /// `estimate` beside the geometry's `h`, the NA's uncertainty added.
     fn new(system: &System, h: f64, estimate: BoundaryHeight) -> Self {
         let na_share = estimate.height_mm * NA_RELATIVE_SIGMA / (1.0 - system.na * system.na);
@@ -171,6 +182,7 @@ impl BoundaryCheck {
             na_relative_sigma: NA_RELATIVE_SIGMA,
             sigma_with_na_mm,
             difference_sigma: (estimate.height_mm - h) / sigma_with_na_mm.max(1e-9),
+            entrance_pupil: None,
         }
     }
 }
@@ -487,10 +499,7 @@ pub fn reconstruct_on_disk(
         &outcome,
         total_ms,
     );
-    let h = geometry.height_mm;
-    report.height_from_boundary = edges
-        .and_then(|e| e.estimate(&system, geometry, boundary_search(h)))
-        .map(|estimate| BoundaryCheck::new(&system, h, estimate));
+    report.height_from_boundary = edges.and_then(|e| BoundaryCheck::read(&system, geometry, &e));
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

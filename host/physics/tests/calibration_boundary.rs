@@ -5,9 +5,9 @@
 
 use fpm_physics::calibrate::{boundary, Options};
 use fpm_physics::frame::LitFrame;
-use fpm_physics::simulate::{acquire, CalibrationScene, ObjectField, SimFrame};
+use fpm_physics::simulate::{acquire, CalibrationScene, Camera, ObjectField, SimFrame};
 use fpm_physics::study::calibrate_simulated;
-use fpm_physics::{LedGeometry, LedIndex};
+use fpm_physics::{LedGeometry, LedIndex, System};
 
 #[test]
 fn the_boundary_gives_h_when_the_defocus_is_misreported() {
@@ -77,4 +77,68 @@ fn the_boundary_gives_h_when_the_defocus_is_misreported() {
             b.sigma_mm
         );
     }
+}
+
+/// docs/dataset.md §2: through an objective whose entrance pupil is 40 mm above the
+/// sample (simulated by Fresnel propagation to the pupil), the edges across a 614 µm
+/// field fit that distance, and a telecentric acquisition of the same field is not
+/// taken for one.
+#[test]
+fn the_edges_find_an_entrance_pupil_at_a_finite_distance() {
+    let geometry = LedGeometry::paper();
+    // 1.2 µm pixels: the camera's own grid holds every frequency that reaches the
+    // pupil from LEDs near the edge, so 512 px span 614 µm at one simulation pixel each.
+    let telecentric = System {
+        pixel_size_um: 4.8,
+        ..System::paper()
+    };
+    let camera = Camera::realistic();
+    let w = 512;
+    let object = ObjectField::test_sample(&telecentric, w, 256, 1, 21);
+    // The reference and every LED whose edge can cross the field (h·NA ≈ 9.2 mm).
+    let shots: Vec<(LedIndex, f64)> = geometry
+        .leds()
+        .into_iter()
+        .filter(|&l| {
+            let (x, y) = geometry.led_position_mm(l);
+            l == geometry.center || (6.0..13.0).contains(&x.hypot(y))
+        })
+        .map(|l| (l, 0.0))
+        .collect();
+    let fit = |system: &System| {
+        let frames = acquire(
+            system,
+            &geometry,
+            &object,
+            &shots,
+            &camera,
+            |img| camera.auto_exposure(img),
+            31,
+        );
+        let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
+        let reference = lit.iter().find(|f| f.led == geometry.center).unwrap();
+        let mut reader = boundary::BlockReader::new(&telecentric, reference, 16);
+        for f in &lit {
+            reader.read(f);
+        }
+        reader
+            .fit_entrance_pupil(&telecentric, &geometry, (69.0, 122.0))
+            .expect("the edges bound h")
+    };
+    let far = fit(&System {
+        entrance_pupil_mm: Some(40.0),
+        ..telecentric
+    });
+    eprintln!("pupil at 40 mm: {far:?}");
+    let p = far.entrance_pupil_mm.expect("a finite distance");
+    assert!((p / 40.0 - 1.0).abs() < 0.15, "{p} mm");
+    assert!(far.fits_better(None), "{far:?}");
+    assert!(
+        (far.mismatched_blocks as f64) < 0.6 * far.mismatched_blocks_as_given as f64,
+        "{far:?}"
+    );
+    assert!((far.height_mm - 92.0).abs() < 3.0, "{far:?}");
+    let straight = fit(&telecentric);
+    eprintln!("telecentric: {straight:?}");
+    assert!(!straight.fits_better(None), "{straight:?}");
 }

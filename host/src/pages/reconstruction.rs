@@ -60,6 +60,33 @@ pub fn warnings(report: &Report) -> Vec<String> {
             b.estimate.height_mm, b.sigma_with_na_mm, b.na_relative_sigma * 100.0, b.geometry_height_mm, b.difference_sigma
         ));
     }
+    if let Some(p) = report
+        .height_from_boundary
+        .and_then(|b| b.entrance_pupil)
+        .filter(|p| p.fits_better(report.system.entrance_pupil_mm))
+    {
+        let (best, advice) = match p.entrance_pupil_mm {
+            Some(mm) => (
+                format!("an objective whose entrance pupil is {mm:.0} mm above the sample"),
+                format!(
+                    "if the objective is not telecentric (a camera lens, a simple low-power objective), reconstruct with --entrance-pupil-mm {mm:.0}{}",
+                    if report.geometry_source.starts_with("nominal") {
+                        format!(" --led-height-mm {:.1}", p.height_mm)
+                    } else {
+                        String::new()
+                    }
+                ),
+            ),
+            None => (
+                "a telecentric objective".to_string(),
+                "leave --entrance-pupil-mm out".to_string(),
+            ),
+        };
+        out.push(format!(
+            "the frames' bright/dark-field edges fit {best} (h {:.1} mm) better than the system as given: {} blocks off against {}; {advice}",
+            p.height_mm, p.mismatched_blocks, p.mismatched_blocks_as_given
+        ));
+    }
     let refused = report
         .background
         .dark_field_frames

@@ -158,6 +158,11 @@ fn simulate_centred(dir: &TempDir, size: &str, seed: &str) {
     );
 }
 
+/// `truth.json` beside a simulated dataset in `dir`.
+fn truth_json(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).unwrap()).unwrap()
+}
+
 fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
@@ -427,8 +432,7 @@ fn refined_leds_come_closer_to_a_misbuilt_board() {
             "0.25",
         ],
     );
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(data.0.join("truth.json")).unwrap()).unwrap();
+    let truth = truth_json(&data.0);
     assert_eq!(
         truth["leds"].as_array().map(Vec::len),
         Some(441),
@@ -642,8 +646,7 @@ fn an_entrance_pupil_off_at_a_finite_distance_is_reconstructed_when_stated() {
             "20",
         ],
     );
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(data.0.join("truth.json")).unwrap()).unwrap();
+    let truth = truth_json(&data.0);
     assert_eq!(
         truth["entrance_pupil_mm"], 20.0,
         "truth.json states the pupil"

@@ -147,11 +147,7 @@ pub fn boundary_check(
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
 ) -> Option<BoundaryCheck> {
-    let reference = frames.iter().find(|f| f.led == geometry.center)?;
-    let mut reader = BlockReader::new(system, reference, BOUNDARY_BLOCK_PX);
-    for f in frames {
-        reader.read(f);
-    }
+    let reader = BlockReader::from_frames(system, frames, geometry.center, BOUNDARY_BLOCK_PX)?;
     BoundaryCheck::read(system, geometry, &reader)
 }
 
@@ -167,7 +163,12 @@ impl BoundaryCheck {
         let h = geometry.height_mm;
         let estimate = reader.estimate(system, geometry, boundary_search(h))?;
         Some(Self {
-            entrance_pupil: reader.fit_entrance_pupil(system, geometry, boundary_search(h)),
+            entrance_pupil: reader.fit_entrance_pupil(
+                system,
+                geometry,
+                boundary_search(h),
+                &estimate,
+            ),
             ..Self::new(system, h, estimate)
         })
     }

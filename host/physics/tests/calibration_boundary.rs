@@ -116,13 +116,14 @@ fn the_edges_find_an_entrance_pupil_at_a_finite_distance() {
             31,
         );
         let lit: Vec<LitFrame> = frames.iter().map(|f| f.lit(&camera)).collect();
-        let reference = lit.iter().find(|f| f.led == geometry.center).unwrap();
-        let mut reader = boundary::BlockReader::new(&telecentric, reference, 16);
-        for f in &lit {
-            reader.read(f);
-        }
+        let reader = boundary::BlockReader::from_frames(&telecentric, &lit, geometry.center, 16)
+            .expect("the reference frame");
+        let search = (69.0, 122.0);
+        let as_given = reader
+            .estimate(&telecentric, &geometry, search)
+            .expect("the edges bound h");
         reader
-            .fit_entrance_pupil(&telecentric, &geometry, (69.0, 122.0))
+            .fit_entrance_pupil(&telecentric, &geometry, search, &as_given)
             .expect("the edges bound h")
     };
     let far = fit(&System {

@@ -18,6 +18,7 @@
 //! that the sample scatters next to the edge, and the bright-field light it loses
 //! there, from changing a block's state.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{LitFrame, Region};
@@ -120,10 +121,15 @@ fn edge_blur_um(system: &System) -> f64 {
 
 /// The board height (mm) above which the LED at `led_mm` (x, y; `depth` mm below the
 /// board's plane) is bright at block centre `at_um`: where its lateral distance from
-/// the chief ray, at the LED's depth, is h·tan(asin NA) (`ratio` = √(1 − NA²)/NA).
-/// A telecentric chief ray goes straight down; one aimed at an entrance pupil p above
-/// the sample has moved by x·h/p there, so h appears on both sides and is found by
-/// fixed-point steps (each shrinks the error by |x|·ratio/p, ≪ 1 for fields of mm).
+/// the chief ray, at the LED's own distance D = h + depth, is D·tan(asin NA)
+/// (`ratio` = √(1 − NA²)/NA). A telecentric chief ray goes straight down: D =
+/// ratio·|x − x_led|. One aimed at an entrance pupil p above the sample has moved by
+/// x·D/p at the LED, so D = ratio·|a + b·D| with a = x − x_led, b = x/p: a quadratic,
+/// (1 − ratio²|b|²)·D² − 2·ratio²(a·b)·D − ratio²|a|² = 0, whose positive root is the
+/// one that tends to the telecentric D as p grows. Points so far out that
+/// ratio·|x|/p ≥ 1 see the chief ray's cone outrun the LEDs: never bright.
+/// This runs for every block of every frame and every pupil distance tried
+/// ([`fit_entrance_pupil`]), so it is one square root, not an iteration.
 fn turns_bright_at_mm(
     system: &System,
     led_mm: (f64, f64),
@@ -132,17 +138,51 @@ fn turns_bright_at_mm(
     ratio: f64,
 ) -> f64 {
     let (x, y) = (at_um.0 * 1e-3, at_um.1 * 1e-3);
-    let threshold = |spread: f64| {
-        let (cx, cy) = (x * (1.0 + spread), y * (1.0 + spread));
-        (cx - led_mm.0).hypot(cy - led_mm.1) * ratio - depth
-    };
-    let mut h = threshold(0.0);
-    if let Some(p) = system.entrance_pupil_mm {
-        for _ in 0..12 {
-            h = threshold((h + depth).max(0.0) / p);
+    let (ax, ay) = (x - led_mm.0, y - led_mm.1);
+    let (r2, a2) = (ratio * ratio, ax * ax + ay * ay);
+    let distance = match system.entrance_pupil_mm {
+        None => ratio * a2.sqrt(),
+        Some(p) => {
+            let (bx, by) = (x / p, y / p);
+            let ab = ax * bx + ay * by;
+            let lead = 1.0 - r2 * (bx * bx + by * by);
+            if lead <= 0.0 {
+                return f64::INFINITY;
+            }
+            (r2 * ab + (r2 * r2 * ab * ab + lead * r2 * a2).sqrt()) / lead
         }
-    }
-    h
+    };
+    distance - depth
+}
+
+/// Per readable block of `frame`: the h at which the block turns bright, and whether
+/// it is lit (computed as it is read: a full frame set of them takes GB).
+fn frame_thresholds<'a>(
+    system: &'a System,
+    geometry: &LedGeometry,
+    blocks: &'a Blocks,
+    frame: &'a LitFrameBlocks,
+) -> impl Iterator<Item = (f64, bool)> + Clone + 'a {
+    let ratio = (1.0 - system.na * system.na).sqrt() / system.na;
+    let (lx, ly, lh) = geometry.led_position_3d_mm(frame.led);
+    let depth = lh - geometry.height_mm;
+    blocks
+        .centres_um
+        .iter()
+        .zip(&frame.lit)
+        .filter_map(move |(&at, lit)| {
+            lit.map(|l| (turns_bright_at_mm(system, (lx, ly), depth, at, ratio), l))
+        })
+}
+
+/// [`best_range`] over every block of every frame, `None` unless it lies strictly
+/// inside `search_mm` (else the frames bound h on one side only).
+fn bounded_best_range(
+    blocks: impl Iterator<Item = (f64, bool)> + Clone,
+    (lo, hi): (f64, f64),
+) -> Option<(f64, f64, usize)> {
+    let (best_lo, best_hi, mismatched) = best_range(blocks, lo, hi)?;
+    (best_lo > lo && best_hi < hi).then_some((best_lo, best_hi, mismatched))
 }
 
 /// Estimate h (mm) within `search_mm` from `frames` read in `blocks`, with the lateral
@@ -160,29 +200,11 @@ pub fn estimate(
     // Per frame and block: (the h at which the block turns bright, whether it is lit).
     let thresholds: Vec<Vec<(f64, bool)>> = frames
         .iter()
-        .map(|f| {
-            let (lx, ly, lh) = geometry.led_position_3d_mm(f.led);
-            let depth = lh - geometry.height_mm;
-            blocks
-                .centres_um
-                .iter()
-                .zip(&f.lit)
-                .filter_map(|(&(x, y), lit)| {
-                    lit.map(|l| {
-                        (
-                            turns_bright_at_mm(system, (lx, ly), depth, (x, y), ratio),
-                            l,
-                        )
-                    })
-                })
-                .collect()
-        })
+        .map(|f| frame_thresholds(system, geometry, blocks, f).collect())
         .collect();
     let (lo, hi) = search_mm;
-    let (best_lo, best_hi, mismatched) = best_range(thresholds.iter().flatten(), lo, hi)?;
-    if best_lo <= lo || best_hi >= hi {
-        return None;
-    }
+    let (best_lo, best_hi, mismatched) =
+        bounded_best_range(thresholds.iter().flatten().copied(), search_mm)?;
     let height_mm = 0.5 * (best_lo + best_hi);
     // Each frame the edge crosses gives its own h: their spread shows how well the
     // edges are read.
@@ -190,7 +212,7 @@ pub fn estimate(
         .iter()
         .filter(|t| t.iter().any(|&(h, _)| h < height_mm) && t.iter().any(|&(h, _)| h > height_mm))
         .filter_map(|t| {
-            let (a, b, _) = best_range(t.iter(), lo, hi)?;
+            let (a, b, _) = best_range(t.iter().copied(), lo, hi)?;
             (a > lo && b < hi).then_some(0.5 * (a + b))
         })
         .collect();
@@ -223,20 +245,17 @@ pub fn estimate(
 /// The range of h in (`lo`, `hi`) where the fewest blocks disagree with the rule
 /// "lit ⇔ h above the block's threshold", and that fewest. The hull of all ranges that
 /// tie.
-fn best_range<'a>(
-    blocks: impl Iterator<Item = &'a (f64, bool)> + Clone,
+fn best_range(
+    blocks: impl Iterator<Item = (f64, bool)> + Clone,
     lo: f64,
     hi: f64,
 ) -> Option<(f64, f64, usize)> {
     // At h = lo: lit blocks above lo disagree, dark blocks below lo disagree.
     let mut wrong = blocks
         .clone()
-        .filter(|&&(t, lit)| if lit { t >= lo } else { t < lo })
+        .filter(|&(t, lit)| if lit { t >= lo } else { t < lo })
         .count();
-    let mut events: Vec<(f64, bool)> = blocks
-        .filter(|(t, _)| *t > lo && *t < hi)
-        .copied()
-        .collect();
+    let mut events: Vec<(f64, bool)> = blocks.filter(|(t, _)| *t > lo && *t < hi).collect();
     if events.is_empty() {
         return None;
     }
@@ -284,38 +303,57 @@ impl PupilFromBoundary {
     }
 }
 
-/// See [`PupilFromBoundary`]. `None` when the edges bound h for no candidate.
+/// See [`PupilFromBoundary`]; `as_given` is [`estimate`] with `system` itself (the
+/// candidate equal to it is not estimated again). `None` when the edges bound h for
+/// no candidate.
 pub fn fit_entrance_pupil(
     system: &System,
     geometry: &LedGeometry,
     blocks: &Blocks,
     frames: &[LitFrameBlocks],
     search_mm: (f64, f64),
+    as_given: &BoundaryHeight,
 ) -> Option<PupilFromBoundary> {
-    let as_given = estimate(system, geometry, blocks, frames, search_mm)?;
     let candidates = std::iter::once(None).chain(
         (0..=40)
             .rev()
             .map(|k| Some(10.0 * 100f64.powf(k as f64 / 40.0))),
     );
-    let mut best: Option<(Option<f64>, BoundaryHeight)> = None;
-    for p in candidates {
-        let trial = System {
-            entrance_pupil_mm: p,
-            ..*system
-        };
-        let Some(e) = estimate(&trial, geometry, blocks, frames, search_mm) else {
+    // Each candidate needs only its best h and how many blocks it gets wrong (not the
+    // spread that makes a full estimate's σ); they are independent, so in parallel.
+    let candidates: Vec<Option<f64>> = candidates.collect();
+    let fits: Vec<Option<(f64, usize)>> = candidates
+        .par_iter()
+        .map(|&p| {
+            if p == system.entrance_pupil_mm {
+                return Some((as_given.height_mm, as_given.mismatched_blocks));
+            }
+            let trial = System {
+                entrance_pupil_mm: p,
+                ..*system
+            };
+            let all = frames
+                .iter()
+                .flat_map(|f| frame_thresholds(&trial, geometry, blocks, f));
+            let (lo, hi, wrong) = bounded_best_range(all, search_mm)?;
+            Some((0.5 * (lo + hi), wrong))
+        })
+        .collect();
+    // The first of the fewest, in the candidates' order (telecentric, then far to near).
+    let mut best: Option<(Option<f64>, f64, usize)> = None;
+    for (&p, fit) in candidates.iter().zip(fits) {
+        let Some((height_mm, wrong)) = fit else {
             continue;
         };
-        if best.is_none_or(|(_, b)| e.mismatched_blocks < b.mismatched_blocks) {
-            best = Some((p, e));
+        if best.is_none_or(|(_, _, fewest)| wrong < fewest) {
+            best = Some((p, height_mm, wrong));
         }
     }
-    let (entrance_pupil_mm, e) = best?;
+    let (entrance_pupil_mm, height_mm, mismatched_blocks) = best?;
     Some(PupilFromBoundary {
         entrance_pupil_mm,
-        height_mm: e.height_mm,
-        mismatched_blocks: e.mismatched_blocks,
+        height_mm,
+        mismatched_blocks,
         mismatched_blocks_as_given: as_given.mismatched_blocks,
     })
 }
@@ -331,12 +369,8 @@ pub fn from_frames(
     side_px: usize,
     search_mm: (f64, f64),
 ) -> Option<BoundaryHeight> {
-    let reference = frames.iter().find(|f| f.led == reference_led)?;
-    let mut reader = BlockReader::new(system, reference, side_px);
-    for f in frames {
-        reader.read(f);
-    }
-    reader.estimate(system, geometry, search_mm)
+    BlockReader::from_frames(system, frames, reference_led, side_px)?
+        .estimate(system, geometry, search_mm)
 }
 
 /// [`from_frames`] one frame at a time, for frames that are not all in memory at once:
@@ -349,6 +383,22 @@ pub struct BlockReader {
 }
 
 impl BlockReader {
+    /// All of in-focus `frames` read against the one under `reference_led` (None when
+    /// it is missing).
+    pub fn from_frames(
+        system: &System,
+        frames: &[LitFrame<'_>],
+        reference_led: LedIndex,
+        side_px: usize,
+    ) -> Option<Self> {
+        let reference = frames.iter().find(|f| f.led == reference_led)?;
+        let mut reader = Self::new(system, reference, side_px);
+        for f in frames {
+            reader.read(f);
+        }
+        Some(reader)
+    }
+
     /// Blocks of `side_px` against `reference` (the frame under the reference LED).
     pub fn new(system: &System, reference: &LitFrame<'_>, side_px: usize) -> Self {
         let dim = reference.measured.dim();
@@ -386,14 +436,23 @@ impl BlockReader {
         estimate(system, geometry, &self.blocks, &self.read, search_mm)
     }
 
-    /// The entrance pupil the frames read fit best (see [`fit_entrance_pupil`]).
+    /// The entrance pupil the frames read fit best (see [`fit_entrance_pupil`]), beside
+    /// `as_given`, this reader's [`Self::estimate`] with `system`.
     pub fn fit_entrance_pupil(
         &self,
         system: &System,
         geometry: &LedGeometry,
         search_mm: (f64, f64),
+        as_given: &BoundaryHeight,
     ) -> Option<PupilFromBoundary> {
-        fit_entrance_pupil(system, geometry, &self.blocks, &self.read, search_mm)
+        fit_entrance_pupil(
+            system,
+            geometry,
+            &self.blocks,
+            &self.read,
+            search_mm,
+            as_given,
+        )
     }
 }
 

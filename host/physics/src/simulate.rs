@@ -232,6 +232,37 @@ impl Renderer {
         self.render_from(system, geometry.led_position_3d_mm(led), object, defocus_um)
     }
 
+    /// Carry the exit field in `buf` over the defocus on the whole simulation grid,
+    /// then put the pupil's chirp exp(i·`chirp`·|x|²) on it, at the focal plane.
+    fn defocus_then_chirp(
+        &mut self,
+        object: &ObjectField,
+        defocus_um: f64,
+        wavelength_um: f64,
+        chirp: f64,
+    ) {
+        let n = object.n;
+        let d = object.pitch_um();
+        self.big.forward(&mut self.buf);
+        for ky in 0..n {
+            let fy = bin_frequency(ky, n, d);
+            for kx in 0..n {
+                let fx = bin_frequency(kx, n, d);
+                let (hr, hi) = defocus_transfer(fx, fy, defocus_um, wavelength_um);
+                self.buf[ky * n + kx] *= Complex32::new(hr as f32, hi as f32);
+            }
+        }
+        self.big.inverse(&mut self.buf);
+        for r in 0..n {
+            for c in 0..n {
+                let (x, y) = object.position(r, c);
+                let phase = (chirp * (x * x + y * y)).rem_euclid(2.0 * std::f64::consts::PI);
+                let (s, co) = phase.sin_cos();
+                self.buf[r * n + c] *= Complex32::new(co as f32, s as f32);
+            }
+        }
+    }
+
     /// [`Self::render`] for an LED at `led_mm` = (x, y, distance below the sample), mm:
     /// a board whose LEDs are off their grid.
     pub fn render_from(
@@ -249,7 +280,12 @@ impl Renderer {
         // propagation, ∝ F[u·exp(iπ|x|²/(λp))] at frequency ξ/(λp), where the
         // aperture of radius p·NA cuts it (the outer quadratic phases do not change
         // the intensity). So the chirp goes on the exit field before the pupil below.
+        // A defocused sample's exit field first travels the defocus to the focal plane,
+        // which the pupil's distance is measured from: defocus, then chirp (the other
+        // order would carry the chirp's tilt x/p along the defocus, a magnification
+        // the stage's move does not make).
         let to_pupil = system.entrance_pupil_mm.map_or(0.0, |p| 0.5 / (p * 1e3));
+        let defocus_first = to_pupil != 0.0 && defocus_um != 0.0;
         // Spherical wave from the LED, phase relative to the field centre (f64, then
         // reduced: k·R is ~10⁶ rad).
         for r in 0..n {
@@ -259,11 +295,18 @@ impl Renderer {
                     ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt() - r0
                 } else {
                     (x * (-lx) + y * (-ly)) / r0
-                } + to_pupil * (x * x + y * y);
+                } + if defocus_first {
+                    0.0
+                } else {
+                    to_pupil * (x * x + y * y)
+                };
                 let phase = (k * rr).rem_euclid(2.0 * std::f64::consts::PI);
                 let (s, co) = phase.sin_cos();
                 self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co as f32, s as f32);
             }
+        }
+        if defocus_first {
+            self.defocus_then_chirp(object, defocus_um, system.wavelength_um, k * to_pupil);
         }
         self.big.forward(&mut self.buf);
         // Keep the frequencies the camera grid can hold; apply pupil and defocus there.
@@ -278,7 +321,8 @@ impl Renderer {
                 let fx = bin_frequency(kx, m, d_cam);
                 let bx = if kx < m / 2 { kx } else { n - (m - kx) };
                 let v = if fx * fx + fy * fy <= cutoff2 {
-                    let (hr, hi) = defocus_transfer(fx, fy, defocus_um, system.wavelength_um);
+                    let z = if defocus_first { 0.0 } else { defocus_um };
+                    let (hr, hi) = defocus_transfer(fx, fy, z, system.wavelength_um);
                     self.buf[by * n + bx] * Complex32::new(hr as f32, hi as f32) * scale
                 } else {
                     Complex32::default()

@@ -419,6 +419,7 @@ pub fn calibrate(
             max_shift_px + 4.0,
         );
         m.reference_half_window = reference_half.min(half_window);
+        m.pupil_centre = system.chief_ray_frequency(xc, yc);
         m
     });
     // The feature's spectrum is ~2/size wide; keep LEDs whose disc edge clears it.
@@ -448,7 +449,7 @@ pub fn calibrate(
         let geometry = to_geometry(nominal, &fit.params);
         // Leave out LEDs near the pupil edge under the fitted geometry.
         for m in measured.iter_mut().filter(|m| m.status == LedStatus::Used) {
-            let (fx, fy) = geometry.illumination_frequency(m.led, xc, yc, system.wavelength_um);
+            let (fx, fy) = geometry.pupil_frequency(m.led, xc, yc, system);
             if fx.hypot(fy) > system.cutoff() - spectral_margin {
                 m.status = LedStatus::NearPupilEdge;
             }

@@ -47,6 +47,9 @@ pub struct FeatureModel {
     reference: Option<((f64, f64), (f64, f64))>,
     /// The defocus transfer for the last defocus asked for.
     defocus: Option<DefocusTable>,
+    /// Where the pupil is centred at the feature, cycles/µm: the chief ray's frequency
+    /// there ([`System::chief_ray_frequency`]), zero for a telecentric objective.
+    pub pupil_centre: (f64, f64),
 }
 
 /// The defocus transfer inside the pupil as a function of the squared frequency ρ²,
@@ -56,19 +59,21 @@ pub struct FeatureModel {
 /// and an LED costs no sine or cosine.
 struct DefocusTable {
     z_um: f64,
+    /// The largest frequency tabulated, cycles/µm.
+    reach: f64,
     /// ρ² per step, cycles²/µm².
     step: f64,
     values: Vec<Complex32>,
 }
 
 impl DefocusTable {
-    fn new(z_um: f64, cutoff: f64, wavelength_um: f64) -> Self {
+    fn new(z_um: f64, reach: f64, wavelength_um: f64) -> Self {
         let k0 = 1.0 / wavelength_um;
         let phase = |rho2: f64| {
             let axial = (k0 * k0 - rho2).max(0.0).sqrt();
             -2.0 * std::f64::consts::PI * z_um * rho2 / (axial + k0)
         };
-        let rho2_max = cutoff * cutoff;
+        let rho2_max = reach * reach;
         let steps = (phase(rho2_max).abs() / 2e-3).ceil().clamp(64.0, 65536.0) as usize;
         let step = rho2_max / steps as f64;
         let values = (0..=steps + 1)
@@ -77,10 +82,15 @@ impl DefocusTable {
                 Complex32::new(c as f32, s as f32)
             })
             .collect();
-        Self { z_um, step, values }
+        Self {
+            z_um,
+            reach,
+            step,
+            values,
+        }
     }
 
-    /// The transfer at squared frequency `rho2` (within the pupil).
+    /// The transfer at squared frequency `rho2` (within the reach).
     fn at(&self, rho2: f64) -> Complex32 {
         let x = (rho2 / self.step).max(0.0);
         let i = (x as usize).min(self.values.len() - 2);
@@ -179,6 +189,7 @@ impl FeatureModel {
             origin: ((n / 2) as f64, (n / 2) as f64),
             reference: None,
             defocus: None,
+            pupil_centre: (0.0, 0.0),
         }
     }
 
@@ -193,29 +204,35 @@ impl FeatureModel {
     ) -> Image {
         let n = self.n;
         let cutoff = system.cutoff();
-        if self.defocus.as_ref().is_some_and(|t| t.z_um != z_um) {
+        // The pupil moved by −f: the bins whose frequency + f it passes (relative to
+        // its centre), each with the defocus transfer of that tilted component.
+        let c = self.pupil_centre;
+        let reach = cutoff + c.0.hypot(c.1);
+        if self
+            .defocus
+            .as_ref()
+            .is_some_and(|t| t.z_um != z_um || t.reach != reach)
+        {
             self.defocus = None;
         }
         let defocus = &*self
             .defocus
-            .get_or_insert_with(|| DefocusTable::new(z_um, cutoff, system.wavelength_um));
-        // The pupil moved by −f: the bins whose frequency + f it passes, each with
-        // the defocus transfer of that tilted component.
+            .get_or_insert_with(|| DefocusTable::new(z_um, reach, system.wavelength_um));
         let pupil_cols: Vec<usize> = (0..n)
-            .filter(|&k| (self.bin_freq[k] + f.0).abs() <= cutoff)
+            .filter(|&k| (self.bin_freq[k] + f.0 - c.0).abs() <= cutoff)
             .collect();
         self.buf.fill(Complex32::default());
         for (r, &fy_bin) in self.bin_freq.iter().enumerate() {
             let fy = fy_bin + f.1;
-            if fy.abs() > cutoff {
+            if (fy - c.1).abs() > cutoff {
                 continue;
             }
-            for &c in &pupil_cols {
-                let fx = self.bin_freq[c] + f.0;
-                if fx * fx + fy * fy > cutoff * cutoff {
+            for &col in &pupil_cols {
+                let fx = self.bin_freq[col] + f.0;
+                if (fx - c.0).powi(2) + (fy - c.1).powi(2) > cutoff * cutoff {
                     continue;
                 }
-                self.buf[r * n + c] = self.spectrum[r * n + c] * defocus.at(fx * fx + fy * fy);
+                self.buf[r * n + col] = self.spectrum[r * n + col] * defocus.at(fx * fx + fy * fy);
             }
         }
         self.fft

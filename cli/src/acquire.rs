@@ -88,6 +88,12 @@ pub struct AcquireArgs {
     /// Camera pixel, µm.
     #[arg(long, default_value_t = 2.4)]
     pub pixel_um: f64,
+    /// The objective's entrance pupil distance above the sample, mm, for objectives
+    /// that are not telecentric (see `fpm reconstruct --entrance-pupil-mm`): the
+    /// acquisition order and the streamed reconstruction read every frame where its
+    /// LED falls in the pupil of each tile. Default: telecentric
+    #[arg(long, value_parser = crate::units::positive_mm)]
+    pub entrance_pupil_mm: Option<f64>,
     /// EPRY passes after the last frame.
     #[arg(long, default_value_t = 5)]
     pub passes: usize,
@@ -149,7 +155,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
             na: a.na,
             magnification: a.magnification,
             pixel_size_um: a.pixel_um,
-            entrance_pupil_mm: None,
+            entrance_pupil_mm: a.entrance_pupil_mm,
         },
         passes: a.passes,
         tile: a.tile,
@@ -203,6 +209,11 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
         g.theta_deg,
         g.height_mm
     );
+    if let Some(p) = s.entrance_pupil_mm {
+        println!(
+            "objective's entrance pupil {p} mm above the sample (not telecentric): dataset.toml cannot state it, so reconstruct the dataset again with --entrance-pupil-mm {p}"
+        );
+    }
     if let Some(ms) = s.last_frame_to_final_ms {
         println!("last frame → final image: {ms:.0} ms");
     }

@@ -208,6 +208,7 @@ fn virtual_microscope(a: &DemoArgs, emulator: &EmulatorProcess) -> Result<serde_
         na: 0.1,
         magnification: 4.0,
         pixel_um: 2.4,
+        entrance_pupil_mm: None,
         passes: 5,
         tile: None,
         // The hidden sample is cells and bars on clear glass.

@@ -48,6 +48,12 @@ pub struct VirtualCameraArgs {
     /// Hidden LED-to-sample distance, mm (default: random 87–97 mm by seed).
     #[arg(long)]
     pub height_mm: Option<f64>,
+    /// Image through an objective that is not telecentric, its entrance pupil this
+    /// many mm above the focal plane (a camera lens, a simple low-power objective):
+    /// each point sees the pupil centred on its own chief ray. Hidden like the array:
+    /// only truth.json states it.
+    #[arg(long, value_parser = positive_mm)]
+    pub entrance_pupil_mm: Option<f64>,
     /// Write the hidden truth here once listening (truth.json, virtual-camera.json,
     /// truth_amplitude.tif, truth_phase.tif), for scoring; truth.json appears last.
     #[arg(long)]
@@ -71,6 +77,13 @@ pub struct VirtualCameraArgs {
     /// Random jitter of each frame's stamp, ms (uniform, this wide).
     #[arg(long, default_value_t = 0.0)]
     pub clock_jitter_ms: f64,
+}
+
+fn positive_mm(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("{text:?} is not a positive distance in mm")),
+    }
 }
 
 /// The hidden state, written to `truth_dir/virtual-camera.json`.
@@ -116,7 +129,10 @@ impl VirtualCameraArgs {
 /// Run until SIGINT/SIGTERM.
 pub fn run(a: VirtualCameraArgs) -> Result<()> {
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
-    let system = System::paper();
+    let system = System {
+        entrance_pupil_mm: a.entrance_pupil_mm,
+        ..System::paper()
+    };
     let hidden = a.hidden_geometry();
     let width = a.size.max(16);
     let height = a.height.unwrap_or(width).max(16);
@@ -169,18 +185,21 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
                 object_pixel_um: Some(sample.pitch_um()),
                 seed: Some(a.seed),
                 leds: None,
-                entrance_pupil_mm: None,
+                entrance_pupil_mm: a.entrance_pupil_mm,
             })?,
         )?;
     }
     tracing::info!(
-        "virtual camera {} on rig {}: {width}x{height} frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm",
+        "virtual camera {} on rig {}: {width}x{height} frames; hidden array Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm; {}",
         a.camera,
         a.rig,
         hidden.dx_mm,
         hidden.dy_mm,
         hidden.theta_deg,
-        hidden.height_mm
+        hidden.height_mm,
+        a.entrance_pupil_mm.map_or("telecentric objective".to_string(), |p| {
+            format!("entrance pupil {p} mm above the sample")
+        })
     );
     let mut frame_number = 0u64;
     let mut clock_rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0xC10C);

@@ -71,6 +71,11 @@ pub struct AcquireSummary {
     pub nominal: LedGeometry,
     /// The geometry used for the acquisition order and the reconstruction.
     pub geometry: LedGeometry,
+    /// The objective's entrance pupil distance above the sample, mm, as given (None:
+    /// telecentric). dataset.toml has no key for it: a later `fpm reconstruct` of the
+    /// dataset needs `--entrance-pupil-mm` again.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub entrance_pupil_mm: Option<f64>,
     /// Where it came from: "calibration.json", "board" (the calibration stored on the
     /// controller) or "nominal".
     pub geometry_source: &'static str,
@@ -423,6 +428,7 @@ pub fn acquire(
     let summary = AcquireSummary {
         nominal,
         geometry,
+        entrance_pupil_mm: system.entrance_pupil_mm,
         geometry_source,
         board_calibration,
         camera_settings,

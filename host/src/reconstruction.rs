@@ -378,6 +378,25 @@ pub fn reconstruct(
     tile: Option<usize>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Reconstruction> {
+    let system = ds.manifest.system();
+    reconstruct_with_system(
+        ds, &system, geometry, source, settings, passes, tile, progress,
+    )
+}
+
+/// [`reconstruct`] through `system` instead of the manifest's (an objective whose
+/// entrance pupil the dataset cannot state, for a dataset borrowed as it is).
+#[allow(clippy::too_many_arguments)]
+pub fn reconstruct_with_system(
+    ds: &Dataset,
+    system: &System,
+    geometry: &LedGeometry,
+    source: &str,
+    settings: Settings,
+    passes: usize,
+    tile: Option<usize>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Reconstruction> {
     let frames = ds.in_focus();
     if frames.is_empty() {
         bail!(
@@ -386,20 +405,12 @@ pub fn reconstruct(
         );
     }
     let start = Instant::now();
-    let outcome = tiled::reconstruct(
-        &ds.manifest.system(),
-        geometry,
-        &frames,
-        settings,
-        passes,
-        tile,
-        progress,
-    )
-    .with_context(|| format!("reconstructing {}", ds.dir.display()))?;
+    let outcome = tiled::reconstruct(system, geometry, &frames, settings, passes, tile, progress)
+        .with_context(|| format!("reconstructing {}", ds.dir.display()))?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut report = Report::new(
         &ds.dir,
-        &ds.manifest.system(),
+        system,
         geometry,
         source,
         settings,
@@ -408,7 +419,7 @@ pub fn reconstruct(
         &outcome,
         total_ms,
     );
-    report.height_from_boundary = boundary_check(&ds.manifest.system(), geometry, &frames);
+    report.height_from_boundary = boundary_check(system, geometry, &frames);
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

@@ -178,9 +178,13 @@ def reconstruct(
     floor_sigma: float = 3.0,
     flatten_background: bool = False,
     background_block_um: Optional[float] = None,
+    entrance_pupil_mm: Optional[float] = None,
     progress: Optional[Progress] = None,
 ) -> Result:
-    """EPRY reconstruction of the dataset's in-focus frames (GIL released)."""
+    """EPRY reconstruction of the dataset's in-focus frames (GIL released).
+
+    `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
+    objectives that are not telecentric (default: telecentric)."""
 
 def simulate_acquisition(
     out: Union[str, PathLike[str]],
@@ -197,8 +201,12 @@ def simulate_acquisition(
     upsample: int = 2,
     dark_field_peak_dn: Optional[float] = None,
     led_jitter_mm: float = 0.0,
+    entrance_pupil_mm: Optional[float] = None,
 ) -> Tuple[Dataset, dict[str, Json]]:
-    """A full simulated acquisition written into `out`: (dataset, truth)."""
+    """A full simulated acquisition written into `out`: (dataset, truth).
+
+    `entrance_pupil_mm`: through an objective that is not telecentric (the dataset
+    cannot state it; the truth does)."""
 
 def simulate_calibration(
     out: Union[str, PathLike[str]],

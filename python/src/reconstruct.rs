@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
-    reconstruct as run, write_outputs_with, ImageFormat, OutputOptions,
+    reconstruct_with_system as run, write_outputs_with, ImageFormat, OutputOptions,
 };
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Flatten, Refine, Settings};
@@ -185,9 +185,12 @@ pub(crate) fn settings(
 /// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
 /// background's low-order phase off, over blocks of `background_block_um` (default
 /// from the LED array), for samples on clear glass (see `fpm reconstruct --help`).
+/// `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
+/// objectives that are not telecentric (camera lenses, simple low-power objectives;
+/// default telecentric; see `fpm reconstruct --help`).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, progress = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct(
     py: Python<'_>,
@@ -202,9 +205,19 @@ pub fn reconstruct(
     floor_sigma: f32,
     flatten_background: bool,
     background_block_um: Option<f64>,
+    entrance_pupil_mm: Option<f64>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
     let ds = &dataset.get().inner;
+    if let Some(p) = entrance_pupil_mm.filter(|p| !(p.is_finite() && *p > 0.0)) {
+        return Err(PyValueError::new_err(format!(
+            "entrance_pupil_mm: {p} is not a positive distance in mm"
+        )));
+    }
+    let system = fpm_physics::System {
+        entrance_pupil_mm,
+        ..ds.manifest.system()
+    };
     let (geometry, source) = geometry_from(geometry, &ds.manifest.geometry())?;
     if passes == 0 {
         return Err(PyValueError::new_err("passes must be at least 1"));
@@ -224,6 +237,7 @@ pub fn reconstruct(
     let result = py.detach(|| {
         let mut r = run(
             ds,
+            &system,
             &geometry,
             &source,
             settings,

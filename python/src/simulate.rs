@@ -64,9 +64,10 @@ fn loaded<'py>(
 /// the LED array really at (dx_mm, dy_mm, theta_deg, height_mm) and tilted by
 /// `tilt_deg`, while the dataset states the nominal array. Written into `out`
 /// (dataset.toml, frames/, truth.json, truth_amplitude.tif, truth_phase.tif);
-/// returns (Dataset, truth dict).
+/// returns (Dataset, truth dict). `entrance_pupil_mm`: image through an objective
+/// that is not telecentric (the dataset cannot state it; the truth does).
 #[pyfunction]
-#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0))]
+#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate_acquisition<'py>(
     py: Python<'py>,
@@ -83,7 +84,13 @@ pub fn simulate_acquisition<'py>(
     upsample: usize,
     dark_field_peak_dn: Option<f64>,
     led_jitter_mm: f64,
+    entrance_pupil_mm: Option<f64>,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
+    if let Some(p) = entrance_pupil_mm.filter(|p| !(p.is_finite() && *p > 0.0)) {
+        return Err(PyValueError::new_err(format!(
+            "entrance_pupil_mm: {p} is not a positive distance in mm"
+        )));
+    }
     let scene = scene(
         size,
         seed,
@@ -96,7 +103,7 @@ pub fn simulate_acquisition<'py>(
         upsample: upsample.max(1),
         dark_field_peak_dn,
         led_jitter_mm,
-        entrance_pupil_mm: None,
+        entrance_pupil_mm,
     };
     let written = py
         .detach(|| simulation::write_acquisition(&scene, &set, &out))

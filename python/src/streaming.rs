@@ -54,7 +54,8 @@ impl Kept {
 
 #[pymethods]
 impl Streaming {
-    /// A stream for `width` × `height` frames of a microscope (`system`, a dict) with
+    /// A stream for `width` × `height` frames of a microscope (`system`, a dict, with
+    /// `entrance_pupil_mm` for an objective that is not telecentric) with
     /// the LED array `geometry` (a dict, e.g. `Calibration.geometry`), cut into tiles
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]

@@ -39,6 +39,17 @@ pub fn to_py<'py>(py: Python<'py>, value: &impl Serialize) -> PyResult<Bound<'py
     py.import("json")?.call_method1("loads", (text,))
 }
 
+/// `entrance_pupil_mm` as given by a keyword: None (telecentric) or a positive,
+/// finite distance; anything else is refused by name.
+pub fn entrance_pupil(entrance_pupil_mm: Option<f64>) -> PyResult<Option<f64>> {
+    match entrance_pupil_mm {
+        Some(p) if !(p.is_finite() && p > 0.0) => Err(PyValueError::new_err(format!(
+            "entrance_pupil_mm: {p} is not a positive distance in mm"
+        ))),
+        other => Ok(other),
+    }
+}
+
 /// A Python value (a dict, say) read as `T`; `what` names it in the error.
 pub fn from_py<T: DeserializeOwned>(value: &Bound<'_, PyAny>, what: &str) -> PyResult<T> {
     let text: String = value

@@ -17,7 +17,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::calibrate::Calibration;
-use crate::convert::{failed, from_py, to_py, Progress};
+use crate::convert::{entrance_pupil, failed, from_py, to_py, Progress};
 use crate::dataset::Dataset;
 
 /// A reconstruction: the high-resolution object (amplitude, phase, complex), the
@@ -209,13 +209,8 @@ pub fn reconstruct(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
     let ds = &dataset.get().inner;
-    if let Some(p) = entrance_pupil_mm.filter(|p| !(p.is_finite() && *p > 0.0)) {
-        return Err(PyValueError::new_err(format!(
-            "entrance_pupil_mm: {p} is not a positive distance in mm"
-        )));
-    }
     let system = fpm_physics::System {
-        entrance_pupil_mm,
+        entrance_pupil_mm: entrance_pupil(entrance_pupil_mm)?,
         ..ds.manifest.system()
     };
     let (geometry, source) = geometry_from(geometry, &ds.manifest.geometry())?;

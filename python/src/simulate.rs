@@ -7,7 +7,7 @@ use fpm_host::simulation::{self, AcquisitionSet, CalibrationSet, Noise, Scene, W
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::convert::{failed, to_py};
+use crate::convert::{entrance_pupil, failed, to_py};
 use crate::dataset::Dataset;
 
 /// The scene from the common arguments, checked.
@@ -86,11 +86,7 @@ pub fn simulate_acquisition<'py>(
     led_jitter_mm: f64,
     entrance_pupil_mm: Option<f64>,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
-    if let Some(p) = entrance_pupil_mm.filter(|p| !(p.is_finite() && *p > 0.0)) {
-        return Err(PyValueError::new_err(format!(
-            "entrance_pupil_mm: {p} is not a positive distance in mm"
-        )));
-    }
+    let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
     let scene = scene(
         size,
         seed,

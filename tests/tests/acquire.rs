@@ -350,12 +350,7 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     for name in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
         std::fs::copy(dir.0.join("truth").join(name), out.join(name)).unwrap();
     }
-    let score = |object| {
-        fpm_host::truth::score_reconstruction(&ds, object, 4)
-            .expect("a truth of the sensor's field")
-            .complex_nrmse
-    };
-    let (streamed, offline) = (score(&streamed), score(&offline.object));
+    let (streamed, offline) = (score(&ds, &streamed), score(&ds, &offline.object));
     eprintln!(
         "512x384 in {tiles} tiles vs the truth: streamed {streamed:.3}, offline {offline:.3}"
     );
@@ -364,6 +359,14 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
         streamed < 1.25 * offline,
         "streamed {streamed} vs offline {offline}"
     );
+}
+
+/// Complex NRMSE of a 4× `object` of `ds` against the hidden sample under the sensor
+/// (the truth the virtual camera wrote, copied beside the dataset).
+fn score(ds: &Dataset, object: &ndarray::Array2<rustfft::num_complex::Complex32>) -> f64 {
+    fpm_host::truth::score_reconstruction(ds, object, 4)
+        .expect("a truth of the sensor's field")
+        .complex_nrmse
 }
 
 /// LEDs whose frame's brightness contradicts the hidden array's bright-field disc
@@ -533,11 +536,6 @@ fn a_live_acquisition_through_a_non_telecentric_objective_states_its_pupil() {
     // the pupil stated, and as a telecentric objective.
     let geometry: LedGeometry = serde_json::from_value(report["geometry"].clone()).unwrap();
     let mut ds = Dataset::load(&out).unwrap();
-    fn score(ds: &Dataset, object: &ndarray::Array2<rustfft::num_complex::Complex32>) -> f64 {
-        fpm_host::truth::score_reconstruction(ds, object, 4)
-            .expect("a truth of the sensor's field")
-            .complex_nrmse
-    }
     let streamed = fpm_host::reconstruction::read_object(&out.join("reconstruction")).unwrap();
     let streamed = score(&ds, &streamed);
     let mut offline = |pupil: Option<f64>| {

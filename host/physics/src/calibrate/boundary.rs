@@ -119,6 +119,12 @@ fn edge_blur_um(system: &System) -> f64 {
     system.wavelength_um / system.na
 }
 
+/// √(1 − NA²)/NA = 1/tan(asin NA): an LED at lateral distance d from the chief ray
+/// is at the pupil's edge at distance d times this.
+fn edge_ratio(system: &System) -> f64 {
+    (1.0 - system.na * system.na).sqrt() / system.na
+}
+
 /// The board height (mm) above which the LED at `led_mm` (x, y; `depth` mm below the
 /// board's plane) is bright at block centre `at_um`: where its lateral distance from
 /// the chief ray, at the LED's own distance D = h + depth, is D·tan(asin NA)
@@ -163,7 +169,7 @@ fn frame_thresholds<'a>(
     blocks: &'a Blocks,
     frame: &'a LitFrameBlocks,
 ) -> impl Iterator<Item = (f64, bool)> + Clone + 'a {
-    let ratio = (1.0 - system.na * system.na).sqrt() / system.na;
+    let ratio = edge_ratio(system);
     let (lx, ly, lh) = geometry.led_position_3d_mm(frame.led);
     let depth = lh - geometry.height_mm;
     blocks
@@ -196,7 +202,7 @@ pub fn estimate(
     frames: &[LitFrameBlocks],
     search_mm: (f64, f64),
 ) -> Option<BoundaryHeight> {
-    let ratio = (1.0 - system.na * system.na).sqrt() / system.na;
+    let ratio = edge_ratio(system);
     // Per frame and block: (the h at which the block turns bright, whether it is lit).
     let thresholds: Vec<Vec<(f64, bool)>> = frames
         .iter()
@@ -339,17 +345,13 @@ pub fn fit_entrance_pupil(
             Some((0.5 * (lo + hi), wrong))
         })
         .collect();
-    // The first of the fewest, in the candidates' order (telecentric, then far to near).
-    let mut best: Option<(Option<f64>, f64, usize)> = None;
-    for (&p, fit) in candidates.iter().zip(fits) {
-        let Some((height_mm, wrong)) = fit else {
-            continue;
-        };
-        if best.is_none_or(|(_, _, fewest)| wrong < fewest) {
-            best = Some((p, height_mm, wrong));
-        }
-    }
-    let (entrance_pupil_mm, height_mm, mismatched_blocks) = best?;
+    // The first of the fewest (min_by_key keeps the first), in the candidates' order:
+    // telecentric, then far to near.
+    let (entrance_pupil_mm, (height_mm, mismatched_blocks)) = candidates
+        .into_iter()
+        .zip(fits)
+        .filter_map(|(p, fit)| Some((p, fit?)))
+        .min_by_key(|&(_, (_, wrong))| wrong)?;
     Some(PupilFromBoundary {
         entrance_pupil_mm,
         height_mm,

@@ -48,7 +48,8 @@ pub struct SceneArgs {
     /// Draw Δx, Δy, θ, h at random from the paper's range instead (±2.5 mm, ±5°, 87–97 mm).
     #[arg(long)]
     random_geometry: bool,
-    /// Camera noise: realistic (shot, read, 12-bit) or none.
+    /// Camera noise: realistic (shot, read, 12-bit), eight-bit (a home-built rig's
+    /// 8-bit camera) or none.
     #[arg(long, value_enum, default_value_t = Noise::Realistic)]
     noise: Noise,
     /// Sensor size, pixels (square).
@@ -73,6 +74,10 @@ pub struct SceneArgs {
 pub enum Noise {
     /// Shot noise, read noise, offset, 12-bit quantisation.
     Realistic,
+    /// An 8-bit camera as on home-built rigs: read noise of 3.5 DN about an offset of
+    /// 2 DN, clipped at zero (dark frames skewed like the vendored USAF set's); with
+    /// --dark-field-peak-dn 25, dark-field frames as dim as that set's.
+    EightBit,
     /// Quantisation only.
     None,
 }
@@ -134,6 +139,7 @@ impl SceneArgs {
             truth: placed.tilted(self.tilt_x_deg, self.tilt_y_deg),
             noise: match self.noise {
                 Noise::Realistic => simulation::Noise::Realistic,
+                Noise::EightBit => simulation::Noise::EightBit,
                 Noise::None => simulation::Noise::None,
             },
             size: self.size,

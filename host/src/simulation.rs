@@ -19,6 +19,9 @@ use crate::truth::{write_truth_images, TrueLed, Truth};
 pub enum Noise {
     /// Shot noise, read noise, offset, 12-bit quantisation.
     Realistic,
+    /// A home-built rig's 8-bit camera ([`Camera::eight_bit`]): strong read noise
+    /// about a small offset, clipped at zero.
+    EightBit,
     /// Quantisation only.
     None,
 }
@@ -68,6 +71,7 @@ impl Scene {
     pub fn camera(&self) -> Camera {
         let camera = match self.noise {
             Noise::Realistic => Camera::realistic(),
+            Noise::EightBit => Camera::eight_bit(),
             Noise::None => Camera::noiseless(),
         };
         Camera {

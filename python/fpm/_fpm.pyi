@@ -205,6 +205,10 @@ def simulate_acquisition(
 ) -> Tuple[Dataset, dict[str, Json]]:
     """A full simulated acquisition written into `out`: (dataset, truth).
 
+    `noise`: "realistic" (a 12-bit machine-vision sensor), "eight-bit" (a home-built
+    rig's 8-bit camera, as noisy as the vendored USAF set's; with
+    `dark_field_peak_dn=25`, dark-field frames as dim as that set's) or "none".
+
     `entrance_pupil_mm`: through an objective that is not telecentric (the dataset
     cannot state it; the truth does)."""
 

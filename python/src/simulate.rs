@@ -26,10 +26,11 @@ fn scene(
     }
     let noise = match noise {
         "realistic" => Noise::Realistic,
+        "eight-bit" => Noise::EightBit,
         "none" => Noise::None,
         other => {
             return Err(PyValueError::new_err(format!(
-                "noise = '{other}': give 'realistic' or 'none'"
+                "noise = '{other}': give 'realistic', 'eight-bit' or 'none'"
             )))
         }
     };

@@ -273,6 +273,107 @@ fn dark_field_backgrounds_come_off_the_real_usaf_frames() {
     assert!(ours < 0.5 * plain, "{ours} against {plain}");
 }
 
+/// The background of a dark frame as `fpm reconstruct` measures it: (level, noise).
+fn dark_frame_background(counts: fpm_physics::frame::Counts<'_>) -> (f64, f64) {
+    let b = fpm_physics::background::estimate(&fpm_physics::frame::Measured {
+        counts,
+        dark_level: 0.0,
+        exposure_ms: 1.0,
+        floor: 0.0,
+    })
+    .expect("a 128² frame has blocks");
+    (f64::from(b.level), f64::from(b.noise))
+}
+
+/// The simulator's 8-bit camera (`--noise eight-bit`) against the camera behind the
+/// vendored USAF set: its dark frames sit on the same background, level and noise as
+/// `fpm reconstruct` measures them, against the median of the set's dark-field frames.
+/// At that noise, with dark-field frames as dim as the set's (25 counts at the peak),
+/// the default reconstruction of a simulated acquisition leaves the clear glass varying
+/// about as much as the raw centre frame's: the camera's noise alone does not make the
+/// several-fold excess the real set shows (README, dark-field backgrounds).
+#[test]
+fn an_eight_bit_camera_as_noisy_as_the_usaf_sets_leaves_clear_glass_clean() {
+    use rand::SeedableRng;
+    // The set's dark-field frames (all but the 3×3 bright-field block in its middle):
+    // the median of each statistic, as a few of them hold more stray light or signal.
+    let bright_field =
+        |k: usize| (4..=6).contains(&((k - 1) / 11)) && (4..=6).contains(&((k - 1) % 11));
+    let real: Vec<(f64, f64)> = (1..=121)
+        .filter(|&k| !bright_field(k))
+        .map(|k| {
+            let image_io::Pixels::U8(a) =
+                image_io::read(&usaf().join(format!("frames/img_{k:03}.tif"))).unwrap()
+            else {
+                panic!("the USAF frames are 8-bit");
+            };
+            dark_frame_background(fpm_physics::frame::Counts::U8(a.view()))
+        })
+        .collect();
+    let mid = real.len() / 2;
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[mid]
+    };
+    let real = (
+        median(&mut real.iter().map(|r| r.0).collect()),
+        median(&mut real.iter().map(|r| r.1).collect()),
+    );
+    let camera = fpm_physics::simulate::Camera::eight_bit();
+    let dark = camera.record(
+        &Array2::zeros((128, 128)),
+        1000.0,
+        &mut rand::rngs::StdRng::seed_from_u64(3),
+    );
+    let sim = dark_frame_background(fpm_physics::frame::Counts::U16(dark.view()));
+    eprintln!("dark frames (level, noise): real {real:?}, simulated {sim:?}");
+    assert!(
+        (sim.0 - real.0).abs() < 0.5 && (0.8..1.25).contains(&(sim.1 / real.1)),
+        "simulated {sim:?} against real {real:?}"
+    );
+
+    let (data, out) = (
+        TempDir::new("eight-bit-data"),
+        TempDir::new("eight-bit-out"),
+    );
+    simulate_acquisition(
+        &data,
+        &[
+            "--size",
+            "128",
+            "--noise",
+            "eight-bit",
+            "--dark-field-peak-dn",
+            "25",
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--theta-deg",
+            "0",
+        ],
+    );
+    fpm_stdout(&[
+        "reconstruct",
+        &data.0.to_string_lossy(),
+        "--out",
+        &out.0.to_string_lossy(),
+    ]);
+    let image_io::Pixels::U16(centre) = image_io::read(&data.0.join("frames/r10_c10.tif")).unwrap()
+    else {
+        panic!("simulated frames are 16-bit TIFFs");
+    };
+    let centre = centre.mapv(|v| (f32::from(v) - camera.dark_level_dn as f32).max(0.0));
+    let (ours, raw) = (
+        clear_glass_variation(&centre, &read_f32(&out.0.join("amplitude.tif"))),
+        clear_glass_variation(&centre, &centre.mapv(f32::sqrt)),
+    );
+    eprintln!("clear-glass variation of |o|: reconstruction {ours:.4}, centre frame {raw:.4}");
+    // Measured: 0.0151 against 0.0162. The real set by the same measure: 0.062 against
+    // 0.009 (the test above), ~7×.
+    assert!(ours < 2.0 * raw, "{ours} against the centre frame's {raw}");
+}
+
 /// The full field of view in tiles: on a simulated acquisition (full wave-optics
 /// model, truth beside the data), 3×3 overlapping tiles — each with
 /// its own wave vectors — blend into one image close to the whole-field reconstruction;

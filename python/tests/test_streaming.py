@@ -46,3 +46,12 @@ def test_bad_frames_are_refused_and_named(acquisition):
     with pytest.raises(ValueError, match="exposure_ms"):
         stream.push((10, 10), np.zeros((64, 64), np.uint16), exposure_ms=0.0)
     assert stream.received == 0
+
+
+def test_an_entrance_pupil_that_is_no_distance_is_refused(acquisition):
+    ds, _ = acquisition
+    for bad in (0.0, -20.0):
+        with pytest.raises(ValueError, match="entrance_pupil_mm"):
+            fpm.Streaming(dict(ds.system, entrance_pupil_mm=bad), ds.geometry, 64, 64)
+    stream = fpm.Streaming(dict(ds.system, entrance_pupil_mm=40.0), ds.geometry, 64, 64)
+    assert stream.received == 0

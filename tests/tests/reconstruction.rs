@@ -141,22 +141,13 @@ fn simulate_acquisition(dir: &TempDir, extra: &[&str]) {
 /// A simulated acquisition with the array where the dataset says it is (for tests that
 /// are not about geometry): `size`² frames, `seed`.
 fn simulate_centred(dir: &TempDir, size: &str, seed: &str) {
-    simulate_acquisition(
-        dir,
-        &[
-            "--size",
-            size,
-            "--seed",
-            seed,
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-        ],
-    );
+    let mut args = vec!["--size", size, "--seed", seed];
+    args.extend_from_slice(CENTRED);
+    simulate_acquisition(dir, &args);
 }
+
+/// The array where the dataset says it is.
+const CENTRED: &[&str] = &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"];
 
 /// `truth.json` beside a simulated dataset in `dir`.
 fn truth_json(dir: &Path) -> serde_json::Value {
@@ -336,23 +327,16 @@ fn an_eight_bit_camera_as_noisy_as_the_usaf_sets_leaves_clear_glass_clean() {
         TempDir::new("eight-bit-data"),
         TempDir::new("eight-bit-out"),
     );
-    simulate_acquisition(
-        &data,
-        &[
-            "--size",
-            "128",
-            "--noise",
-            "eight-bit",
-            "--dark-field-peak-dn",
-            "25",
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-        ],
-    );
+    let mut args = vec![
+        "--size",
+        "128",
+        "--noise",
+        "eight-bit",
+        "--dark-field-peak-dn",
+        "25",
+    ];
+    args.extend_from_slice(CENTRED);
+    simulate_acquisition(&data, &args);
     fpm_stdout(&[
         "reconstruct",
         &data.0.to_string_lossy(),

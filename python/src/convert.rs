@@ -50,6 +50,16 @@ pub fn entrance_pupil(entrance_pupil_mm: Option<f64>) -> PyResult<Option<f64>> {
     }
 }
 
+/// A `system` dict read as the microscope, with `entrance_pupil_mm` checked as the
+/// keyword of the same name is ([`entrance_pupil`]).
+pub fn system_from_py(value: &Bound<'_, PyAny>) -> PyResult<fpm_physics::System> {
+    let system: fpm_physics::System = from_py(value, "system")?;
+    Ok(fpm_physics::System {
+        entrance_pupil_mm: entrance_pupil(system.entrance_pupil_mm)?,
+        ..system
+    })
+}
+
 /// A Python value (a dict, say) read as `T`; `what` names it in the error.
 pub fn from_py<T: DeserializeOwned>(value: &Bound<'_, PyAny>, what: &str) -> PyResult<T> {
     let text: String = value

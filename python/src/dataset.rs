@@ -4,13 +4,13 @@
 use std::path::PathBuf;
 
 use fpm_host::dataset::{CameraSection, FrameEntry, Manifest, Pixels};
-use fpm_physics::{LedGeometry, LedIndex, System};
+use fpm_physics::{LedGeometry, LedIndex};
 use numpy::{PyArray2, PyReadonlyArray2};
 use pyo3::exceptions::{PyIndexError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{dataset_error, from_py, to_py};
+use crate::convert::{dataset_error, from_py, system_from_py, to_py};
 
 /// The `dir` of a dataset made from arrays without one.
 const IN_MEMORY: &str = "<in memory>";
@@ -94,7 +94,7 @@ impl Dataset {
         bit_depth: Option<u32>,
         dir: Option<PathBuf>,
     ) -> PyResult<Self> {
-        let system: System = from_py(system, "system")?;
+        let system = system_from_py(system)?;
         let geometry: LedGeometry = from_py(geometry, "geometry")?;
         let images: Vec<Pixels> = frames
             .try_iter()?

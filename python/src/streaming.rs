@@ -13,7 +13,7 @@ use numpy::{IntoPyArray, PyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::convert::{entrance_pupil, from_py, FpmError, Progress};
+use crate::convert::{from_py, system_from_py, FpmError, Progress};
 use crate::dataset::pixels;
 use crate::reconstruct::{settings, Reconstruction};
 
@@ -75,13 +75,7 @@ impl Streaming {
         flatten_background: bool,
         background_block_um: Option<f64>,
     ) -> PyResult<Self> {
-        let system: System = from_py(system, "system")?;
-        // The same check as `reconstruct(entrance_pupil_mm=...)`: a zero or negative
-        // distance would put every chief ray at infinity or behind the sample.
-        let system = System {
-            entrance_pupil_mm: entrance_pupil(system.entrance_pupil_mm)?,
-            ..system
-        };
+        let system = system_from_py(system)?;
         let geometry: LedGeometry = from_py(geometry, "geometry")?;
         if width < 16 || height < 16 {
             return Err(PyValueError::new_err(format!(

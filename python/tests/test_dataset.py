@@ -117,6 +117,10 @@ def test_bad_arrays_are_named(usaf):
         fpm.Dataset.from_arrays([nan], usaf.leds[:1], usaf.system, usaf.geometry)
     with pytest.raises(ValueError, match="system.*wavelength_um"):
         fpm.Dataset.from_arrays(frames, usaf.leds[:3], {"na": 0.1}, usaf.geometry)
+    with pytest.raises(ValueError, match="entrance_pupil_mm"):
+        fpm.Dataset.from_arrays(
+            frames, usaf.leds[:3], dict(usaf.system, entrance_pupil_mm=0.0), usaf.geometry
+        )
     with pytest.raises(ValueError, match="exposure_ms: 2 values for 3 frames"):
         fpm.Dataset.from_arrays(
             frames, usaf.leds[:3], usaf.system, usaf.geometry, exposure_ms=[1, 2]

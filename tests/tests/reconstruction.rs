@@ -301,14 +301,13 @@ fn an_eight_bit_camera_as_noisy_as_the_usaf_sets_leaves_clear_glass_clean() {
             dark_frame_background(fpm_physics::frame::Counts::U8(a.view()))
         })
         .collect();
-    let mid = real.len() / 2;
-    let median = |v: &mut Vec<f64>| {
+    let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
-        v[mid]
+        v[v.len() / 2]
     };
     let real = (
-        median(&mut real.iter().map(|r| r.0).collect()),
-        median(&mut real.iter().map(|r| r.1).collect()),
+        median(real.iter().map(|r| r.0).collect()),
+        median(real.iter().map(|r| r.1).collect()),
     );
     let camera = fpm_physics::simulate::Camera::eight_bit();
     let dark = camera.record(

@@ -377,11 +377,11 @@ impl Camera {
     /// The 8-bit camera of a home-built rig, modelled on the one behind the vendored
     /// USAF set (`data/zuo-usaf-11x11`): 3.5 DN read noise about an offset of 2 DN, so
     /// that clipping at zero leaves a dark frame skewed as that set's are (about a third
-    /// of the pixels at 0, a mean of 2–3 counts, a tail to ~15); 0.1 DN per electron (a
-    /// clear bright-field frame at 200 DN has ~2 % shot noise, after some 40 ms: fewer
-    /// photons per ms than the 12-bit sensor, so that no frame needs under the 2 ms
-    /// that auto-exposure allows). With dim dark-field
-    /// frames (`dim_dark_field_exposure`, ~25 counts at the peak, as in that set) the
+    /// of the pixels at 0, a mean of 2–3 counts, a tail to ~15). 0.1 DN per electron
+    /// and 50 e⁻ per ms: a clear bright-field frame reaches 200 DN in ~40 ms with ~2 %
+    /// shot noise (the 12-bit sensor's 1500 e⁻/ms would saturate 8 bits within the 2 ms
+    /// auto-exposure minimum). With dim dark-field frames
+    /// ([`Self::dim_dark_field_exposure`], ~25 counts at the peak, as in that set) the
     /// noise is a large part of every dark-field signal.
     pub fn eight_bit() -> Self {
         Self {

@@ -9,7 +9,7 @@ use fpm_physics::background::{Correction, FrameBackground};
 use fpm_physics::calibrate::boundary::{BlockReader, BoundaryHeight, PupilFromBoundary};
 use fpm_physics::frame::LitFrame;
 use fpm_physics::reconstruct::tiled::{self, Banded, TiledOutcome};
-use fpm_physics::reconstruct::{Flattening, Settings};
+use fpm_physics::reconstruct::{ContrastFit, Flattening, Settings};
 use fpm_physics::tiles::Tile;
 use fpm_physics::{LedGeometry, LedIndex, System};
 use ndarray::Array2;
@@ -102,6 +102,13 @@ pub struct Report {
     /// fitted to them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refined_leds: Option<RefinedLedsReport>,
+    /// The dataset's `[camera] gamma`: its frames were decoded from a display encoding.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera_gamma: Option<f64>,
+    /// The bright-field frames regressed on the intensities the result predicts for
+    /// them: an offset share well above 0 is light no object explains.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bright_field_fit: Option<ContrastFit>,
 }
 
 /// h from the bright/dark-field boundary, beside the geometry's h.
@@ -250,6 +257,8 @@ impl Report {
             versus_truth: None,
             height_from_boundary: None,
             refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
+            camera_gamma: None,
+            bright_field_fit: outcome.bright_field,
         }
     }
 }
@@ -420,6 +429,7 @@ pub fn reconstruct_with_system(
         total_ms,
     );
     report.height_from_boundary = boundary_check(system, geometry, &frames);
+    report.camera_gamma = ds.manifest.camera.gamma;
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 
@@ -512,6 +522,7 @@ pub fn reconstruct_on_disk(
         total_ms,
     );
     report.height_from_boundary = edges.and_then(|e| BoundaryCheck::read(&system, geometry, &e));
+    report.camera_gamma = ds.manifest.camera.gamma;
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

@@ -36,10 +36,13 @@ class Dataset:
         dark_level: float = 0.0,
         bit_depth: Optional[int] = None,
         dir: Union[str, PathLike[str], None] = None,
+        gamma: Optional[float] = None,
     ) -> Dataset:
         """A dataset from frames in memory (uint8, uint16 or float; sample-plane
         orientation), the (row, col) LED of each, and the optics and LED array as
-        dicts of the dataset's keys."""
+        dicts of the dataset's keys. `gamma`: the frames were saved with a display
+        gamma (a stored v is the light F·(v/F)^gamma, F = 2^bit_depth − 1; needs
+        `bit_depth`)."""
     def save(self, dir: Union[str, PathLike[str]]) -> None:
         """Write frames/ (TIFF) and dataset.toml into `dir`."""
     @property
@@ -60,6 +63,9 @@ class Dataset:
     def defocus_um(self) -> list[float]: ...
     @property
     def dark_level(self) -> float: ...
+    @property
+    def gamma(self) -> Optional[float]:
+        """The display gamma the frames were saved with (None: linear counts)."""
     @property
     def frames(self) -> list[np.ndarray]:
         """Read-only NumPy views of the frames (no copy; uint8, uint16 or float32)."""

@@ -79,9 +79,10 @@ impl Dataset {
     /// A dataset from arrays in memory: `frames` (a 3-D array or a sequence of 2-D
     /// images in the sample-plane orientation; uint8, uint16 or float), `leds` (the
     /// (row, col) lit for each), `system` and `geometry` as dicts of the dataset's
-    /// keys, each frame's exposure (ms) and defocus (µm), the camera's dark level.
+    /// keys, each frame's exposure (ms) and defocus (µm), the camera's dark level, and
+    /// `gamma` for frames saved with a display gamma (needs `bit_depth`).
     #[staticmethod]
-    #[pyo3(signature = (frames, leds, system, geometry, exposure_ms = None, defocus_um = None, dark_level = 0.0, bit_depth = None, dir = None))]
+    #[pyo3(signature = (frames, leds, system, geometry, exposure_ms = None, defocus_um = None, dark_level = 0.0, bit_depth = None, dir = None, gamma = None))]
     #[allow(clippy::too_many_arguments)]
     fn from_arrays(
         frames: &Bound<'_, PyAny>,
@@ -93,6 +94,7 @@ impl Dataset {
         dark_level: f64,
         bit_depth: Option<u32>,
         dir: Option<PathBuf>,
+        gamma: Option<f64>,
     ) -> PyResult<Self> {
         let system = system_from_py(system)?;
         let geometry: LedGeometry = from_py(geometry, "geometry")?;
@@ -127,6 +129,7 @@ impl Dataset {
         let camera = CameraSection {
             dark_level,
             bit_depth,
+            gamma,
             ..CameraSection::default()
         };
         let manifest = Manifest::new(&system, &geometry, camera, entries);
@@ -197,6 +200,12 @@ impl Dataset {
     #[getter]
     fn dark_level(&self) -> f64 {
         self.inner.manifest.camera.dark_level
+    }
+
+    /// The display gamma the frames were saved with (None: linear counts).
+    #[getter]
+    fn gamma(&self) -> Option<f64> {
+        self.inner.manifest.camera.gamma
     }
 
     /// Every frame, as read-only NumPy views of the frames in memory (no copy).

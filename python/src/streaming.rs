@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use fpm_host::dataset::Pixels;
 use fpm_host::reconstruction::Report;
-use fpm_physics::frame::{LitFrame, Measured};
+use fpm_physics::frame::{LitFrame, Measured, Response};
 use fpm_physics::reconstruct::{Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, LedIndex, System};
 use numpy::{IntoPyArray, PyArray2};
@@ -44,6 +44,7 @@ impl Kept {
             led: self.led,
             measured: Measured {
                 counts: self.counts.view(),
+                response: Response::Linear,
                 dark_level,
                 exposure_ms: self.exposure_ms,
                 floor: 0.0,

@@ -57,6 +57,21 @@ def test_arrays_in_save_and_load_back(usaf, tmp_path):
         assert np.array_equal(back.frame(k), frames[k])
 
 
+def test_a_display_gamma_is_stated_kept_and_checked(usaf, tmp_path):
+    # The vendored frames were saved for viewing: the dataset says how to decode them.
+    assert usaf.gamma == pytest.approx(2.2)
+    frames = list(usaf.frames[:3])
+    ds = fpm.Dataset.from_arrays(
+        frames, usaf.leds[:3], usaf.system, usaf.geometry, bit_depth=8, gamma=2.2
+    )
+    ds.save(tmp_path / "copy")
+    assert fpm.Dataset.load(tmp_path / "copy").gamma == pytest.approx(2.2)
+    linear = fpm.Dataset.from_arrays(frames, usaf.leds[:3], usaf.system, usaf.geometry)
+    assert linear.gamma is None
+    with pytest.raises(fpm.DatasetError, match=r"camera\.gamma.*bit_depth"):
+        fpm.Dataset.from_arrays(frames, usaf.leds[:3], usaf.system, usaf.geometry, gamma=2.2)
+
+
 def test_arrays_never_borrow_a_truth_from_the_working_directory(acquisition, monkeypatch):
     # A simulated set's truth sits in its directory; a dataset made from its arrays
     # has no directory, so it must not be scored against that truth.

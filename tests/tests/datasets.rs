@@ -134,6 +134,18 @@ fn the_vendored_usaf_dataset_from_another_lab_loads() {
         mean(centre),
         mean(corner)
     );
+    // Its frames were saved with a display gamma: a stored v is the light 255·(v/255)^2.2.
+    assert_eq!(ds.manifest.camera.gamma, Some(2.2));
+    let whole = fpm_physics::frame::Region::whole((128, 128));
+    let light = ds.measured(centre).intensity(whole);
+    let stored = ds.frames[centre].raw.to_f32();
+    for (&v, &i) in stored.iter().zip(&light).step_by(97) {
+        let expected = 255.0 * (v / 255.0).powf(2.2);
+        assert!(
+            (i - expected).abs() <= 1e-3 * expected.max(1.0),
+            "{v} read as {i}"
+        );
+    }
 }
 
 /// Write a good dataset, break it with `edit`, and return the load error's text.
@@ -232,6 +244,14 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         }
     });
     assert!(e.contains("frame 0") && e.contains("even"), "{e}");
+
+    // A display gamma: positive and finite, and only with a bit depth (its full scale).
+    let e = broken("gamma-zero", colour("gamma = 0.0\n"));
+    assert!(e.contains("camera.gamma") && e.contains("above 0"), "{e}");
+    let e = broken("gamma-no-depth", |d| {
+        edit_toml(d, |t| t.replace("bit_depth = 12\n", "gamma = 2.2\n"))
+    });
+    assert!(e.contains("camera.gamma") && e.contains("bit_depth"), "{e}");
 }
 
 fn fpm(args: &[&str]) -> std::process::Output {

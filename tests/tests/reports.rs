@@ -108,6 +108,18 @@ fn the_reconstruction_report_of_real_data_renders_with_its_numbers() {
     let cell = format!("id=\"final_error\">{:.4}<", last.as_f64().unwrap());
     assert!(r.dom.contains(&cell), "{cell} not on the page");
     assert!(r.dom.contains("fpm reconstruct"), "no command line");
+    // The frames are decoded from the set's display gamma, and the page says how well
+    // the result explains the bright-field frames.
+    let fit = &report["bright_field_fit"];
+    let cell = format!(
+        "id=\"bright_field_fit\">measured ≈ {:.3} × modelled",
+        fit["gain"].as_f64().unwrap()
+    );
+    assert!(r.dom.contains(&cell), "{cell} not on the page");
+    assert!(
+        r.dom.contains("the dataset's gamma 2.2"),
+        "no gamma on the page"
+    );
     // The dataset's LED positions are used as stated: the page says they are not ours.
     assert!(
         r.dom.contains("not calibrated"),

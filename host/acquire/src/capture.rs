@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use fpm_frames::{FrameHeader, FrameSubscriber, ServiceNames};
-use fpm_physics::frame::{Counts, LitFrame, Measured};
+use fpm_physics::frame::{Counts, LitFrame, Measured, Response};
 use fpm_protocol::{
     Illumination, LedIndex, Polarity, Rgb, SequenceOutcome, SequenceTiming, Step, TriggerOut,
 };
@@ -59,6 +59,7 @@ impl<'a> ShotView<'a> {
             led: self.led,
             measured: Measured {
                 counts: Counts::U16(self.pixels),
+                response: Response::Linear,
                 dark_level,
                 exposure_ms: self.header.exposure_us.max(1) as f32 / 1e3,
                 floor: 0.0,

@@ -11,7 +11,7 @@
 //! part of the field empty, or at least dimmer, and the darkest blocks of the frame show
 //! the level of that part and its noise.
 
-use crate::frame::{Counts, LitFrame, Measured};
+use crate::frame::{LitFrame, Measured};
 use crate::optics::{LedGeometry, System};
 
 /// What is taken off the frames before they are imposed.
@@ -116,7 +116,7 @@ pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
         sum2.fill(0.0);
         diff2.fill(0.0);
         for r in band * side..(band + 1) * side {
-            read_row(&frame.counts, r, frame.dark_level, &mut row);
+            frame.dark_subtracted_row(r, &mut row);
             for ((s, s2), &x) in sum.iter_mut().zip(sum2.iter_mut()).zip(&row) {
                 *s += x;
                 *s2 += x * x;
@@ -187,21 +187,6 @@ impl BlockStats {
     }
 }
 
-/// Row `r` of `counts` minus `dark`, as floats, into `out`.
-fn read_row(counts: &Counts<'_>, r: usize, dark: f32, out: &mut [f32]) {
-    fn convert<T: Copy>(row: ndarray::ArrayView1<'_, T>, out: &mut [f32], f: impl Fn(T) -> f32) {
-        match row.as_slice() {
-            Some(row) => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
-            None => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
-        }
-    }
-    match counts {
-        Counts::U8(a) => convert(a.row(r), out, |v| f32::from(v) - dark),
-        Counts::U16(a) => convert(a.row(r), out, |v| f32::from(v) - dark),
-        Counts::F32(a) => convert(a.row(r), out, |v| v - dark),
-    }
-}
-
 /// `frame` with its background taken off: the dark level raised by the measured level,
 /// and everything within `floor_sigma` × the background's noise of it read as zero
 /// (0: only the level is taken off; negative levels are never added back).
@@ -220,7 +205,7 @@ pub fn subtract<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::{Pixels, Region};
+    use crate::frame::{Pixels, Region, Response};
     use ndarray::Array2;
     use rand::{Rng, SeedableRng};
     use rand_distr::{Distribution, Normal};
@@ -229,6 +214,7 @@ mod tests {
     fn measured(pixels: &Pixels, dark: f32) -> Measured<'_> {
         Measured {
             counts: pixels.view(),
+            response: Response::Linear,
             dark_level: dark,
             exposure_ms: 1.0,
             floor: 0.0,

@@ -1,10 +1,11 @@
 //! A measured frame as the reconstruction and the calibration take it: the counts as
 //! the camera stored them (8/16-bit integers or floats, never converted as a whole),
-//! the dark level and the exposure. This is the one place where counts become
-//! intensities, for datasets read from disk and for frames arriving live alike.
+//! how they stand for light, the dark level and the exposure. This is the one place
+//! where counts become intensities, for datasets read from disk and for frames
+//! arriving live alike.
 
 use crate::optics::LedIndex;
-use ndarray::{s, Array2, ArrayView2};
+use ndarray::{s, Array2, ArrayView1, ArrayView2};
 
 use crate::Image;
 
@@ -81,13 +82,52 @@ impl Counts<'_> {
         }
     }
 
-    /// `f(sample − offset)` over `region`, in one pass.
-    fn region_map(&self, r: Region, offset: f32, f: impl Fn(f32) -> f32) -> Image {
+    /// `f(sample)` over `region`, in one pass.
+    fn region_map(&self, r: Region, f: impl Fn(f32) -> f32) -> Image {
         let cut = s![r.y0..r.y0 + r.height, r.x0..r.x0 + r.width];
         match self {
-            Counts::U8(a) => a.slice(cut).mapv(|v| f(f32::from(v) - offset)),
-            Counts::U16(a) => a.slice(cut).mapv(|v| f(f32::from(v) - offset)),
-            Counts::F32(a) => a.slice(cut).mapv(|v| f(v - offset)),
+            Counts::U8(a) => a.slice(cut).mapv(|v| f(f32::from(v))),
+            Counts::U16(a) => a.slice(cut).mapv(|v| f(f32::from(v))),
+            Counts::F32(a) => a.slice(cut).mapv(f),
+        }
+    }
+
+    /// The sum of `f(sample)` over the whole frame.
+    fn sum_map(&self, f: impl Fn(f32) -> f32) -> f64 {
+        match self {
+            Counts::U8(a) => a.iter().map(|&v| f(f32::from(v)) as f64).sum(),
+            Counts::U16(a) => a.iter().map(|&v| f(f32::from(v)) as f64).sum(),
+            Counts::F32(a) => a.iter().map(|&v| f(v) as f64).sum(),
+        }
+    }
+}
+
+/// How stored values stand for light.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Response {
+    /// Proportional to the light, as a sensor reads it (the format's rule).
+    #[default]
+    Linear,
+    /// Encoded for display, as 8-bit images saved for viewing often are: a stored
+    /// value v stands for the light `full_scale·(v/full_scale)^gamma`. The vendored
+    /// USAF frames are (γ ≈ 2.2): read as linear, no object fits their bright-field
+    /// frames, and the reconstruction rings.
+    Gamma {
+        /// The exponent (2.2 for sRGB-like encodings).
+        gamma: f32,
+        /// The stored value of full scale (255 for 8 bits).
+        full_scale: f32,
+    },
+}
+
+impl Response {
+    /// The light a stored value stands for, in counts of the same full scale.
+    pub fn decode(&self, v: f32) -> f32 {
+        match *self {
+            Response::Linear => v,
+            Response::Gamma { gamma, full_scale } => {
+                full_scale * (v.max(0.0) / full_scale).powf(gamma)
+            }
         }
     }
 }
@@ -128,12 +168,16 @@ impl From<crate::tiles::Tile> for Region {
     }
 }
 
-/// A measured frame: counts, the camera's dark level (counts) and the exposure (ms).
+/// A measured frame: counts, how they stand for light, the camera's dark level
+/// (counts) and the exposure (ms).
 #[derive(Debug, Clone, Copy)]
 pub struct Measured<'a> {
     /// The samples.
     pub counts: Counts<'a>,
-    /// Counts the sensor reads with no light.
+    /// How the samples stand for light.
+    pub response: Response,
+    /// Counts the sensor reads with no light, as light: for a display-encoded frame,
+    /// the stored dark level through [`Response::decode`].
     pub dark_level: f32,
     /// Exposure, ms; intensities are per ms so that frames of different exposures
     /// compare.
@@ -150,9 +194,31 @@ impl Measured<'_> {
     }
 
     /// Counts minus the dark level over `region`, not divided by the exposure (noise
-    /// may go below zero: the calibration's background estimate needs it).
+    /// may go below zero: the calibration's background estimate needs it). Decoded
+    /// to light first when the frame is display-encoded ([`Response`]).
     pub fn dark_subtracted(&self, region: Region) -> Image {
-        self.counts.region_f32(region, self.dark_level)
+        self.counts.region_map(region, |v| self.above_dark(v))
+    }
+
+    /// Row `r` as [`Self::dark_subtracted`] gives it, into `out` (one row's width):
+    /// for statistics over frames too large to convert whole.
+    pub fn dark_subtracted_row(&self, r: usize, out: &mut [f32]) {
+        fn convert<T: Copy>(row: ArrayView1<'_, T>, out: &mut [f32], f: impl Fn(T) -> f32) {
+            match row.as_slice() {
+                Some(row) => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
+                None => out.iter_mut().zip(row).for_each(|(o, &v)| *o = f(v)),
+            }
+        }
+        match self.counts {
+            Counts::U8(a) => convert(a.row(r), out, |v| self.above_dark(f32::from(v))),
+            Counts::U16(a) => convert(a.row(r), out, |v| self.above_dark(f32::from(v))),
+            Counts::F32(a) => convert(a.row(r), out, |v| self.above_dark(v)),
+        }
+    }
+
+    /// A stored sample as light above the dark level, in counts.
+    fn above_dark(&self, v: f32) -> f32 {
+        self.response.decode(v) - self.dark_level
     }
 
     /// Counts above the dark level as the light they stand for: noise below the dark
@@ -170,7 +236,7 @@ impl Measured<'_> {
     pub fn intensity(&self, region: Region) -> Image {
         let per_ms = 1.0 / self.exposure_ms.max(f32::MIN_POSITIVE);
         self.counts
-            .region_map(region, self.dark_level, |v| self.light(v) * per_ms)
+            .region_map(region, |v| self.light(self.above_dark(v)) * per_ms)
     }
 
     /// √(intensity / `clear_level`) over `region`: the amplitude EPRY imposes, with a
@@ -178,27 +244,14 @@ impl Measured<'_> {
     pub fn amplitude(&self, region: Region, clear_level: f32) -> Image {
         let scale = 1.0 / (self.exposure_ms.max(f32::MIN_POSITIVE) * clear_level);
         self.counts
-            .region_map(region, self.dark_level, |v| (self.light(v) * scale).sqrt())
+            .region_map(region, |v| (self.light(self.above_dark(v)) * scale).sqrt())
     }
 
     /// Mean intensity per ms over the whole frame.
     pub fn mean_intensity(&self) -> f32 {
         let (h, w) = self.dim();
         let per_ms = 1.0 / self.exposure_ms.max(f32::MIN_POSITIVE);
-        let sum: f64 = match self.counts {
-            Counts::U8(a) => a
-                .iter()
-                .map(|&v| self.light(f32::from(v) - self.dark_level) as f64)
-                .sum(),
-            Counts::U16(a) => a
-                .iter()
-                .map(|&v| self.light(f32::from(v) - self.dark_level) as f64)
-                .sum(),
-            Counts::F32(a) => a
-                .iter()
-                .map(|&v| self.light(v - self.dark_level) as f64)
-                .sum(),
-        };
+        let sum = self.counts.sum_map(|v| self.light(self.above_dark(v)));
         (sum / (h * w).max(1) as f64) as f32 * per_ms
     }
 }
@@ -222,6 +275,7 @@ mod tests {
             Pixels::U16(Array2::from_shape_vec((2, 3), vec![100, 110, 140, 90, 500, 100]).unwrap());
         let m = Measured {
             counts: raw.view(),
+            response: Response::Linear,
             dark_level: 100.0,
             exposure_ms: 2.0,
             floor: 0.0,
@@ -247,5 +301,38 @@ mod tests {
             a[[0, 1]]
         );
         assert!((m.mean_intensity() - (10.0 + 40.0 + 400.0) / 6.0 / 2.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn display_encoded_counts_are_decoded_before_anything_else() {
+        let raw = Pixels::U8(Array2::from_shape_vec((1, 4), vec![0, 10, 128, 255]).unwrap());
+        let response = Response::Gamma {
+            gamma: 2.2,
+            full_scale: 255.0,
+        };
+        let dark = response.decode(10.0);
+        let m = Measured {
+            counts: raw.view(),
+            response,
+            dark_level: dark,
+            exposure_ms: 1.0,
+            floor: 0.0,
+        };
+        let light: Vec<f32> = [0.0f32, 10.0, 128.0, 255.0]
+            .iter()
+            .map(|&v| 255.0 * (v / 255.0).powf(2.2) - dark)
+            .collect();
+        let mut row = vec![0.0; 4];
+        m.dark_subtracted_row(0, &mut row);
+        let whole = Region::whole(m.dim());
+        for (k, &l) in light.iter().enumerate() {
+            assert!((row[k] - l).abs() < 1e-3, "{row:?} against {light:?}");
+            assert!((m.dark_subtracted(whole)[[0, k]] - l).abs() < 1e-3);
+            assert!((m.intensity(whole)[[0, k]] - l.max(0.0)).abs() < 1e-3);
+        }
+        // 128 of 255 is a fifth of full scale's light, not a half.
+        assert!((m.intensity(whole)[[0, 2]] / 255.0 - 0.219).abs() < 0.01);
+        let mean = light.iter().map(|l| l.max(0.0)).sum::<f32>() / 4.0;
+        assert!((m.mean_intensity() - mean).abs() < 1e-3);
     }
 }

@@ -6,7 +6,7 @@
 //! quantisation. The sample is larger than the field of view: a padded field is imaged
 //! and the sensor region cropped.
 
-use crate::frame::{Counts, LitFrame, Measured};
+use crate::frame::{Counts, LitFrame, Measured, Response};
 use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
@@ -488,6 +488,7 @@ impl SimFrame {
     pub fn measured(&self, camera: &Camera) -> Measured<'_> {
         Measured {
             counts: Counts::U16(self.counts.view()),
+            response: Response::Linear,
             dark_level: camera.dark_level_dn as f32,
             exposure_ms: self.exposure_ms as f32,
             floor: 0.0,

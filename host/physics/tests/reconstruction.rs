@@ -173,7 +173,7 @@ fn calibration_recovers_what_a_misplaced_array_costs() {
 /// tiles does.
 #[test]
 fn tiled_streaming_is_as_good_as_offline_tiles() {
-    use fpm_physics::frame::{Counts, LitFrame, Measured};
+    use fpm_physics::frame::{Counts, LitFrame, Measured, Response};
     use fpm_physics::reconstruct::{tiled, TiledStreaming};
 
     let system = System::paper();
@@ -212,6 +212,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
             led: f.led,
             measured: Measured {
                 counts: Counts::U16(f.counts.view()),
+                response: Response::Linear,
                 dark_level: camera.dark_level_dn as f32,
                 exposure_ms: f.exposure_ms as f32,
                 floor: 0.0,

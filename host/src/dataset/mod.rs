@@ -11,7 +11,7 @@ pub mod on_disk;
 use std::path::{Path, PathBuf};
 
 use fpm_physics::bayer::{self, BayerChannel, BayerPattern};
-use fpm_physics::frame::{LitFrame, Measured, Region};
+use fpm_physics::frame::{LitFrame, Measured, Region, Response};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use serde::{Deserialize, Serialize};
 
@@ -118,6 +118,34 @@ pub struct CameraSection {
     /// pitch) instead of taking its own pixels (half size, twice the pitch).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub demosaic: bool,
+    /// The frames are encoded for display, not raw: a stored value v stands for the
+    /// light full·(v/full)^gamma, full = 2^bit_depth − 1 (an extension of the format,
+    /// for data saved as viewable 8-bit images; absent: linear counts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gamma: Option<f64>,
+}
+
+impl CameraSection {
+    /// How the stored values stand for light.
+    pub fn response(&self) -> Response {
+        match (self.gamma, self.bit_depth) {
+            (Some(gamma), Some(bits)) => Response::Gamma {
+                gamma: gamma as f32,
+                full_scale: full_scale(bits),
+            },
+            _ => Response::Linear,
+        }
+    }
+
+    /// The dark level as light (decoded when the frames are display-encoded).
+    pub fn dark_light(&self) -> f32 {
+        self.response().decode(self.dark_level as f32)
+    }
+}
+
+/// The largest value a `bits`-bit sample holds.
+fn full_scale(bits: u32) -> f32 {
+    ((1u64 << bits.min(32)) - 1) as f32
 }
 
 fn one() -> f64 {
@@ -313,7 +341,8 @@ impl Dataset {
     pub fn measured(&self, k: usize) -> Measured<'_> {
         Measured {
             counts: self.frames[k].raw.view(),
-            dark_level: self.manifest.camera.dark_level as f32,
+            response: self.manifest.camera.response(),
+            dark_level: self.manifest.camera.dark_light(),
             exposure_ms: self.frames[k].entry.exposure_ms as f32,
             floor: 0.0,
         }
@@ -338,10 +367,10 @@ impl Dataset {
 
     /// The dark-subtracted value at which the sensor saturates, if the bit depth is known.
     pub fn saturation(&self) -> Option<f32> {
-        self.manifest
-            .camera
+        let camera = &self.manifest.camera;
+        camera
             .bit_depth
-            .map(|b| ((1u64 << b.min(32)) - 1) as f32 - self.manifest.camera.dark_level as f32)
+            .map(|b| camera.response().decode(full_scale(b)) - camera.dark_light())
     }
 
     /// A dataset made in memory (an acquisition), to be [`Self::save`]d into `dir`:
@@ -670,6 +699,22 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             m.camera.dark_level.to_string(),
             "must be finite",
         ));
+    }
+    if let Some(gamma) = m.camera.gamma {
+        if !(gamma.is_finite() && gamma > 0.0 && gamma <= 5.0) {
+            return Err(value(
+                "camera.gamma",
+                gamma.to_string(),
+                "must be above 0 and at most 5 (2.2 for sRGB-like 8-bit images)",
+            ));
+        }
+        if m.camera.bit_depth.is_none() {
+            return Err(value(
+                "camera.gamma",
+                gamma.to_string(),
+                "needs camera.bit_depth: full scale is 2^bit_depth - 1",
+            ));
+        }
     }
     match (m.camera.bayer, m.camera.channel) {
         (Some(_), None) => {

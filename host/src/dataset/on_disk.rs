@@ -118,7 +118,8 @@ impl DatasetOnDisk {
     pub fn measured<'a>(&self, k: usize, pixels: &'a Pixels) -> Measured<'a> {
         Measured {
             counts: pixels.view(),
-            dark_level: self.manifest.camera.dark_level as f32,
+            response: self.manifest.camera.response(),
+            dark_level: self.manifest.camera.dark_light(),
             exposure_ms: self.manifest.frames[k].exposure_ms as f32,
             floor: 0.0,
         }

@@ -43,6 +43,16 @@ pub fn warnings(report: &Report) -> Vec<String> {
     if let Some(r) = &report.refined_leds {
         out.extend(crate::refinement::warnings(r));
     }
+    if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
+        let cause = match report.camera_gamma {
+            None => "8-bit frames saved for viewing carry a display gamma (then set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
+            Some(_) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
+        };
+        out.push(format!(
+            "the bright-field frames hold {:.0} % of their light as an offset that no object explains (measured ≈ {:.2} × modelled + offset, correlation {:.3}): {cause}; the image will ring around edges",
+            100.0 * fit.offset_share, fit.gain, fit.correlation
+        ));
+    }
     if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
         // A calibrated h is only as good as the defocus it was told; a dataset's h
         // may simply be wrong, and the edge's own estimate can stand in for it.
@@ -284,6 +294,24 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     b.geometry_height_mm
                 ),
                 None => "not bracketed by these frames".to_string(),
+            },
+        ),
+        Row::with_id(
+            "bright_field_fit",
+            "Bright-field frames against the result",
+            match &rep.bright_field_fit {
+                Some(f) => format!(
+                    "measured ≈ {:.3} × modelled + {:.1} % of their light as offset, correlation {:.3} ({} frames over tiles){}",
+                    f.gain,
+                    100.0 * f.offset_share,
+                    f.correlation,
+                    f.frames,
+                    match rep.camera_gamma {
+                        Some(g) => format!("; frames decoded with the dataset's gamma {g}"),
+                        None => String::new(),
+                    }
+                ),
+                None => "no bright-field frame".to_string(),
             },
         ),
         Row::with_id(

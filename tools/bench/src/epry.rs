@@ -281,6 +281,7 @@ pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         }));
     let dark_field = fpm_physics::frame::Measured {
         counts: counts.view(),
+        response: fpm_physics::frame::Response::Linear,
         dark_level: 100.0,
         exposure_ms: 1.0,
         floor: 0.0,

@@ -31,6 +31,7 @@
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use super::contrast::ContrastSums;
 use super::flatten::Flatten;
 use super::refine::Refine;
 use crate::background::Correction;
@@ -369,6 +370,24 @@ impl Epry {
             norm += m;
         }
         relative_error(err, norm)
+    }
+
+    /// Add the frame lit at `f` to `sums`: its measured intensity against the
+    /// intensity the current object and pupil predict, pixel by pixel over the
+    /// constrained window ([`super::contrast`]).
+    pub fn add_contrast(&mut self, amplitude: &Image, f: (f64, f64), sums: &mut ContrastSums) {
+        self.exit_wave(f);
+        // The model's amplitude in the measurement's units (see `update_amplitude`).
+        let scale = 1.0 / ((self.n * self.n) as f32 * (self.upsample * self.upsample) as f32);
+        let [c0, c1, r0, r1] = self.constrained;
+        for r in r0..r1 {
+            for c in c0..c1 {
+                let model = (self.phi[r * self.n + c].norm() * scale) as f64;
+                let measured = amplitude[[r, c]] as f64;
+                sums.push(model * model, measured * measured);
+            }
+        }
+        sums.frames += 1;
     }
 
     /// Multiply the current object by the illumination's curvature,

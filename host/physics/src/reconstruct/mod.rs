@@ -6,8 +6,10 @@
 //! * [`offline`]: one square field with every frame at hand;
 //! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
 //! * [`tiled`]: the full field of view in tiles, offline and streaming alike;
-//! * [`flatten`]: the clear background's low-order phase taken off each tile.
+//! * [`flatten`]: the clear background's low-order phase taken off each tile;
+//! * [`contrast`]: whether the result explains its bright-field frames.
 
+pub mod contrast;
 pub mod epry;
 pub mod flatten;
 pub mod offline;
@@ -16,6 +18,7 @@ pub mod schedule;
 pub mod streaming;
 pub mod tiled;
 
+pub use contrast::{ContrastFit, ContrastSums};
 pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
 pub use flatten::{flatten_background_phase, Flatten, Flattening};
 pub use offline::{run, run_amplitudes, Field, Outcome, Shot};

@@ -13,6 +13,7 @@ use ndarray::Array2;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 
+use super::contrast::{ContrastFit, ContrastSums};
 use super::flatten::{flatten_background_phase, Flattening};
 use super::offline::{run_amplitudes, Field, Outcome};
 use super::refine::{FieldFrequencies, RefinedLeds};
@@ -180,6 +181,8 @@ pub struct TileResult {
     /// The clear background's low-order phase taken off before blending (None when the
     /// settings keep it).
     pub flattening: Option<Flattening>,
+    /// The tile's bright-field frames against the intensities its result predicts.
+    pub bright_field: ContrastSums,
 }
 
 /// A reconstruction of the full field.
@@ -201,6 +204,9 @@ pub struct TiledOutcome {
     /// The LED positions refined inside the passes, over all tiles (when the settings
     /// ask for it).
     pub refined_leds: Option<RefinedLeds>,
+    /// The bright-field frames against the intensities the result predicts, over all
+    /// tiles ([`super::contrast`]; None when no tile had a bright-field frame).
+    pub bright_field: Option<ContrastFit>,
 }
 
 /// Why a tiled reconstruction could not run.
@@ -384,7 +390,7 @@ impl TileJob<'_> {
                     .map(|f| f.measured.amplitude(region, self.clear_level))
                     .collect();
                 let field = self.layout.field(k, pixel_um, Some(self.clear_level));
-                let outcome = match start {
+                let mut outcome = match start {
                     Some(s) => s.finish_amplitudes(self.leds, &amplitudes, self.passes, self.tick),
                     None => run_amplitudes(
                         self.system,
@@ -398,6 +404,20 @@ impl TileJob<'_> {
                     ),
                 }
                 .ok_or(TiledError::Tile { x0: t.x0, y0: t.y0 })?;
+                let (cx, cy) = field.centre_um;
+                let mut bright_field = ContrastSums::default();
+                for (k, amplitude) in amplitudes.iter().enumerate() {
+                    if self
+                        .geometry
+                        .is_bright_field(self.leds[k], cx, cy, self.system)
+                    {
+                        outcome.epry.add_contrast(
+                            amplitude,
+                            outcome.frequencies[k],
+                            &mut bright_field,
+                        );
+                    }
+                }
                 let result = TileResult {
                     tile: t,
                     centre_um: field.centre_um,
@@ -406,6 +426,7 @@ impl TileJob<'_> {
                     ms: began.elapsed().as_secs_f64() * 1e3,
                     frequencies: outcome.frequencies.clone(),
                     flattening: None,
+                    bright_field,
                 };
                 Ok((result, outcome))
             })
@@ -503,8 +524,13 @@ impl Assembly {
             let bin_step = 1.0 / (layout.size as f64 * pixel_um);
             RefinedLeds::from_fields(geometry, leds, &fields, system.wavelength_um, bin_step)
         });
+        let mut bright_field = ContrastSums::default();
+        for t in &tiles {
+            bright_field.merge(&t.bright_field);
+        }
         Ok(TiledOutcome {
             refined_leds,
+            bright_field: bright_field.fit(),
             object: self.mosaic.finish(),
             pupil: self.pupil.ok_or(TiledError::NoFrames)?,
             tiles,

@@ -126,6 +126,11 @@ pub struct AcquisitionArgs {
     /// truth.json does, and `fpm reconstruct --entrance-pupil-mm` takes it
     #[arg(long, value_parser = crate::units::positive_mm)]
     entrance_pupil_mm: Option<f64>,
+    /// Store the frames for display with this gamma (e.g. 2.2), as camera software
+    /// exporting 8-bit images for viewing does; the dataset states it as
+    /// `[camera] gamma`, which `fpm reconstruct` decodes.
+    #[arg(long)]
+    display_gamma: Option<f64>,
 }
 
 impl SceneArgs {
@@ -206,6 +211,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         dark_field_peak_dn: a.dark_field_peak_dn,
         led_jitter_mm: a.led_jitter_mm,
         entrance_pupil_mm: a.entrance_pupil_mm,
+        display_gamma: a.display_gamma,
     };
     let bar = indicatif::ProgressBar::new_spinner()
         .with_message(format!("rendering {} frames", s.scene().truth.leds().len()));

@@ -135,6 +135,9 @@ pub struct AcquisitionSet {
     /// The objective's entrance pupil distance above the sample, mm (None:
     /// telecentric). The dataset cannot state it; truth.json does.
     pub entrance_pupil_mm: Option<f64>,
+    /// Frames stored for display with this gamma ([`Camera::display_gamma`]); the
+    /// dataset states it as `[camera] gamma`.
+    pub display_gamma: Option<f64>,
 }
 
 impl Default for AcquisitionSet {
@@ -144,6 +147,7 @@ impl Default for AcquisitionSet {
             dark_field_peak_dn: None,
             led_jitter_mm: 0.0,
             entrance_pupil_mm: None,
+            display_gamma: None,
         }
     }
 }
@@ -192,11 +196,20 @@ pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) ->
 /// truth_amplitude.tif, truth_phase.tif). Frames are auto-exposed as a camera would:
 /// the brightest pixel at 80 % of full scale, from 2 ms (bright field) up to 1 s.
 pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Result<Written> {
+    if let Some(gamma) = set
+        .display_gamma
+        .filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0))
+    {
+        anyhow::bail!("display gamma {gamma}: give an exponent above 0 and at most 5 (2.2 for sRGB-like images)");
+    }
     let system = System {
         entrance_pupil_mm: set.entrance_pupil_mm,
         ..System::paper()
     };
-    let camera = scene.camera();
+    let camera = Camera {
+        display_gamma: set.display_gamma,
+        ..scene.camera()
+    };
     let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample.max(1), scene.seed);
     let truth = scene.truth;
     let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
@@ -267,8 +280,9 @@ fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame
         })
         .collect();
     let section = CameraSection {
-        dark_level: camera.dark_level_dn,
+        dark_level: camera.stored_dark_level(),
         bit_depth: Some(camera.bit_depth),
+        gamma: camera.display_gamma,
         ..CameraSection::default()
     };
     let manifest = Manifest::new(system, &nominal(), section, entries);

@@ -208,6 +208,7 @@ def simulate_acquisition(
     dark_field_peak_dn: Optional[float] = None,
     led_jitter_mm: float = 0.0,
     entrance_pupil_mm: Optional[float] = None,
+    display_gamma: Optional[float] = None,
 ) -> Tuple[Dataset, dict[str, Json]]:
     """A full simulated acquisition written into `out`: (dataset, truth).
 
@@ -216,7 +217,10 @@ def simulate_acquisition(
     `dark_field_peak_dn=25`, dark-field frames as dim as that set's) or "none".
 
     `entrance_pupil_mm`: through an objective that is not telecentric (the dataset
-    cannot state it; the truth does)."""
+    cannot state it; the truth does).
+
+    `display_gamma`: frames stored for viewing with this gamma (e.g. 2.2), as camera
+    software exporting 8-bit images does; the dataset states it (`Dataset.gamma`)."""
 
 def simulate_calibration(
     out: Union[str, PathLike[str]],

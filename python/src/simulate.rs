@@ -68,7 +68,7 @@ fn loaded<'py>(
 /// returns (Dataset, truth dict). `entrance_pupil_mm`: image through an objective
 /// that is not telecentric (the dataset cannot state it; the truth does).
 #[pyfunction]
-#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None))]
+#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate_acquisition<'py>(
     py: Python<'py>,
@@ -86,8 +86,14 @@ pub fn simulate_acquisition<'py>(
     dark_field_peak_dn: Option<f64>,
     led_jitter_mm: f64,
     entrance_pupil_mm: Option<f64>,
+    display_gamma: Option<f64>,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
+    if let Some(g) = display_gamma.filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0)) {
+        return Err(PyValueError::new_err(format!(
+            "display_gamma: {g} is not an exponent above 0 and at most 5 (2.2 for sRGB-like images)"
+        )));
+    }
     let scene = scene(
         size,
         seed,
@@ -101,6 +107,7 @@ pub fn simulate_acquisition<'py>(
         dark_field_peak_dn,
         led_jitter_mm,
         entrance_pupil_mm,
+        display_gamma,
     };
     let written = py
         .detach(|| simulation::write_acquisition(&scene, &set, &out))

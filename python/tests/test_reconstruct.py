@@ -20,6 +20,20 @@ def test_real_usaf_reconstructs(usaf):
     report = res.report
     assert report["frames"] == 121 and report["passes"] == 2
     assert report["error_per_pass"][-1] < report["error_per_pass"][0]
+    # Its frames are decoded from their display gamma, and the result explains them.
+    assert report["camera_gamma"] == pytest.approx(2.2)
+    assert abs(report["bright_field_fit"]["offset_share"]) < 0.15
+
+
+def test_frames_stored_for_display_are_simulated_and_stated(tmp_path):
+    ds, _ = fpm.simulate_acquisition(
+        tmp_path / "encoded", size=64, noise="eight-bit", display_gamma=2.2
+    )
+    assert ds.gamma == pytest.approx(2.2)
+    # The offset is stored encoded, as the pixels are: 2 counts of light read ~28.
+    assert ds.dark_level == pytest.approx(255 * (2 / 255) ** (1 / 2.2))
+    with pytest.raises(ValueError, match="display_gamma: 0 is not"):
+        fpm.simulate_acquisition(tmp_path / "bad", size=64, display_gamma=0.0)
 
 
 def test_the_true_placement_beats_the_nominal_one(acquisition, placement):

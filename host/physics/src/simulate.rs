@@ -358,6 +358,10 @@ pub struct Camera {
     /// clear sample under the on-axis LED). It adds up over long dark-field exposures
     /// into the few-count background that real dark-field frames sit on.
     pub stray_light: f64,
+    /// Frames stored for display with this gamma, as camera software exporting 8-bit
+    /// images for viewing does: the counts c (offset included) are stored as
+    /// F·(c/F)^(1/γ), F full scale, rounded (None: raw counts).
+    pub display_gamma: Option<f64>,
 }
 
 impl Camera {
@@ -371,6 +375,7 @@ impl Camera {
             bit_depth: 12,
             noisy: true,
             stray_light: 0.0,
+            display_gamma: None,
         }
     }
 
@@ -392,6 +397,7 @@ impl Camera {
             bit_depth: 8,
             noisy: true,
             stray_light: 0.0,
+            display_gamma: None,
         }
     }
 
@@ -462,10 +468,35 @@ impl Camera {
             } else {
                 mean_e
             };
-            (e * self.gain_dn_per_e + self.dark_level_dn)
-                .round()
-                .clamp(0.0, max) as u16
+            let counts = (e * self.gain_dn_per_e + self.dark_level_dn).clamp(0.0, max);
+            let stored = match self.display_gamma {
+                // The sensor's own ADC rounds first; the display encoding is applied
+                // to its whole counts.
+                Some(gamma) => max * (counts.round() / max).powf(1.0 / gamma),
+                None => counts,
+            };
+            stored.round() as u16
         })
+    }
+
+    /// The offset as stored: encoded like the pixels when the frames are stored for
+    /// display (a dataset states its dark level in stored counts).
+    pub fn stored_dark_level(&self) -> f64 {
+        match self.display_gamma {
+            Some(gamma) => self.max_dn() * (self.dark_level_dn / self.max_dn()).powf(1.0 / gamma),
+            None => self.dark_level_dn,
+        }
+    }
+
+    /// How the stored counts stand for light ([`crate::frame::Response`]).
+    pub fn response(&self) -> Response {
+        match self.display_gamma {
+            Some(gamma) => Response::Gamma {
+                gamma: gamma as f32,
+                full_scale: self.max_dn() as f32,
+            },
+            None => Response::Linear,
+        }
     }
 }
 
@@ -488,7 +519,7 @@ impl SimFrame {
     pub fn measured(&self, camera: &Camera) -> Measured<'_> {
         Measured {
             counts: Counts::U16(self.counts.view()),
-            response: Response::Linear,
+            response: camera.response(),
             dark_level: camera.dark_level_dn as f32,
             exposure_ms: self.exposure_ms as f32,
             floor: 0.0,
@@ -723,6 +754,62 @@ mod tests {
         );
         let bright = c.record(&Image::from_elem((4, 4), 100.0), 100.0, &mut rng);
         assert!(bright.iter().all(|&v| v == 4095));
+    }
+
+    #[test]
+    fn frames_stored_for_display_decode_to_the_sensors_counts() {
+        let raw = Camera {
+            noisy: false,
+            ..Camera::eight_bit()
+        };
+        let encoded = Camera {
+            display_gamma: Some(2.2),
+            ..raw
+        };
+        // 1 ms of intensity 0.1 … 3 (5 … 15 DN above the 2 DN offset) and 40 ms of 1.0.
+        let img = Image::from_shape_fn((1, 4), |(_, c)| [0.1f32, 1.0, 3.0, 0.0][c]);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        for ms in [1.0, 40.0] {
+            let (linear, stored) = (
+                raw.record(&img, ms, &mut rng),
+                encoded.record(&img, ms, &mut rng),
+            );
+            let frame = |counts: Array2<u16>| SimFrame {
+                led: LedIndex::new(0, 0),
+                defocus_um: 0.0,
+                exposure_ms: ms,
+                counts,
+            };
+            let (a, b) = (frame(linear.clone()), frame(stored.clone()));
+            let whole = crate::frame::Region::whole((1, 4));
+            let (la, lb) = (
+                a.measured(&raw).intensity(whole),
+                b.measured(&encoded).intensity(whole),
+            );
+            for k in 0..4 {
+                // Dim values are stored brighter (more levels for them) …
+                assert!(
+                    stored[[0, k]] >= linear[[0, k]],
+                    "{stored} against {linear}"
+                );
+                // … and decode to the same light within the encoding's rounding: half a
+                // stored step, γ·(c/F)^(1 − 1/γ)·½ sensor counts at c.
+                let c = linear[[0, k]] as f32 + 1.0;
+                let step = 2.2 * (c / 255.0).powf(1.0 - 1.0 / 2.2) * 0.5;
+                assert!(
+                    (la[[0, k]] - lb[[0, k]]).abs() * ms as f32 <= step,
+                    "{la} against {lb} at {ms} ms"
+                );
+            }
+        }
+        assert!(
+            (encoded
+                .response()
+                .decode(encoded.stored_dark_level() as f32)
+                - 2.0)
+                .abs()
+                < 1e-3
+        );
     }
 }
 

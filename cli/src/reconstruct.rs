@@ -68,6 +68,12 @@ pub struct ReconstructArgs {
     /// check says when the frames' bright/dark-field edges ask for one
     #[arg(long, value_parser = positive_mm)]
     entrance_pupil_mm: Option<f64>,
+    /// The frames were saved for viewing with this display gamma (e.g. 2.2), not as
+    /// raw counts: decode them so (overrides the dataset's `[camera] gamma`; needs its
+    /// `bit_depth`). The report's bright-field fit warns when frames read as linear hold
+    /// light no object explains
+    #[arg(long)]
+    camera_gamma: Option<f64>,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -175,12 +181,17 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
 /// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
 /// stay quiet but for warnings (a batch prints its own line per dataset).
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
+    let manifest_path = dir.join("dataset.toml");
     let mut on_disk = DatasetOnDisk::open(dir)?;
     on_disk.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
+    if let Some(gamma) = a.camera_gamma {
+        on_disk.manifest.camera.set_gamma(gamma, &manifest_path)?;
+    }
     let bytes = on_disk.in_focus_bytes();
     let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
         let mut ds = Dataset::load(dir)?;
         ds.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
+        ds.manifest.camera = on_disk.manifest.camera;
         Some(ds)
     } else {
         eprintln!(

@@ -252,6 +252,26 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         edit_toml(d, |t| t.replace("bit_depth = 12\n", "gamma = 2.2\n"))
     });
     assert!(e.contains("camera.gamma") && e.contains("bit_depth"), "{e}");
+    // `fpm reconstruct --camera-gamma` is checked as the key is.
+    let dir = TempDir::new("gamma-flag");
+    Dataset::write(&dir.0, &manifest(3), &frames(3, 16, 16)).unwrap();
+    edit_toml(&dir.0, |t| t.replace("bit_depth = 12\n", ""));
+    let out = dir.0.join("out");
+    for (gamma, why) in [("2.2", "bit_depth"), ("0", "above 0")] {
+        let run = fpm(&[
+            "reconstruct",
+            &dir.0.to_string_lossy(),
+            "--out",
+            &out.to_string_lossy(),
+            "--camera-gamma",
+            gamma,
+        ]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(
+            !run.status.success() && stderr.contains("camera.gamma") && stderr.contains(why),
+            "--camera-gamma {gamma}: {stderr}"
+        );
+    }
 }
 
 fn fpm(args: &[&str]) -> std::process::Output {

@@ -330,10 +330,11 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     let stated = std::fs::read_to_string(&toml).unwrap();
     assert!(stated.contains("gamma = 2.2\n"), "{stated}");
     std::fs::write(&toml, stated.replace("gamma = 2.2\n", "")).unwrap();
-    let run = |dataset: &Path, out: &Path| {
+    let run = |dataset: &Path, out: &Path, extra: &[&str]| {
         let done = Command::new(fpm_bin())
             .args(["reconstruct", &dataset.to_string_lossy(), "--out"])
             .arg(out)
+            .args(extra)
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
@@ -341,8 +342,13 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
         (report(out), read_f32(&out.join("amplitude.tif")), stderr)
     };
     let (as_linear, decoded) = (dir.0.join("as-linear"), dir.0.join("decoded"));
-    let (r_linear, a_linear, warned_linear) = run(&linear, &as_linear);
-    let (r_decoded, a_decoded, warned_decoded) = run(&usaf(), &decoded);
+    let (r_linear, a_linear, warned_linear) = run(&linear, &as_linear, &[]);
+    let (r_decoded, a_decoded, warned_decoded) = run(&usaf(), &decoded, &[]);
+    // The command line can say what the dataset does not, to the same result.
+    let told = dir.0.join("told");
+    let (r_told, _, _) = run(&linear, &told, &["--camera-gamma", "2.2"]);
+    assert_eq!(r_told["bright_field_fit"], r_decoded["bright_field_fit"]);
+    assert_eq!(r_told["camera_gamma"], 2.2);
     let share = |r: &serde_json::Value| r["bright_field_fit"]["offset_share"].as_f64().unwrap();
     let correlation =
         |r: &serde_json::Value| r["bright_field_fit"]["correlation"].as_f64().unwrap();
@@ -351,7 +357,10 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
         r_linear["bright_field_fit"], r_decoded["bright_field_fit"]
     );
     assert!(share(&r_linear) > 0.15, "{}", r_linear["bright_field_fit"]);
-    assert!(warned_linear.contains("display gamma"), "{warned_linear}");
+    assert!(
+        warned_linear.contains("display gamma") && warned_linear.contains("--camera-gamma 2.2"),
+        "{warned_linear}"
+    );
     assert!(
         share(&r_decoded).abs() < 0.05 && correlation(&r_decoded) > 0.97,
         "{}",

@@ -141,6 +141,34 @@ impl CameraSection {
     pub fn dark_light(&self) -> f32 {
         self.response().decode(self.dark_level as f32)
     }
+
+    /// State that the frames of the dataset whose manifest is `path` are
+    /// display-encoded with `gamma` (a command-line override of the manifest), checked
+    /// as the manifest's own key is.
+    pub fn set_gamma(&mut self, gamma: f64, path: &Path) -> Result<(), DatasetError> {
+        let before = self.gamma.replace(gamma);
+        self.check_gamma(path).inspect_err(|_| self.gamma = before)
+    }
+
+    /// `gamma`: above 0, at most 5, and with a bit depth for its full scale.
+    fn check_gamma(&self, path: &Path) -> Result<(), DatasetError> {
+        let Some(gamma) = self.gamma else {
+            return Ok(());
+        };
+        let why = if !(gamma.is_finite() && gamma > 0.0 && gamma <= 5.0) {
+            "must be above 0 and at most 5 (2.2 for sRGB-like 8-bit images)"
+        } else if self.bit_depth.is_none() {
+            "needs camera.bit_depth: full scale is 2^bit_depth - 1"
+        } else {
+            return Ok(());
+        };
+        Err(DatasetError::Value {
+            path: path.to_path_buf(),
+            key: "camera.gamma".into(),
+            value: gamma.to_string(),
+            why,
+        })
+    }
 }
 
 /// The largest value a `bits`-bit sample holds.
@@ -700,22 +728,7 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "must be finite",
         ));
     }
-    if let Some(gamma) = m.camera.gamma {
-        if !(gamma.is_finite() && gamma > 0.0 && gamma <= 5.0) {
-            return Err(value(
-                "camera.gamma",
-                gamma.to_string(),
-                "must be above 0 and at most 5 (2.2 for sRGB-like 8-bit images)",
-            ));
-        }
-        if m.camera.bit_depth.is_none() {
-            return Err(value(
-                "camera.gamma",
-                gamma.to_string(),
-                "needs camera.bit_depth: full scale is 2^bit_depth - 1",
-            ));
-        }
-    }
+    m.camera.check_gamma(path)?;
     match (m.camera.bayer, m.camera.channel) {
         (Some(_), None) => {
             return Err(value(

@@ -45,7 +45,7 @@ pub fn warnings(report: &Report) -> Vec<String> {
     }
     if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
         let cause = match report.camera_gamma {
-            None => "8-bit frames saved for viewing carry a display gamma (then set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
+            None => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
             Some(_) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
         };
         out.push(format!(

@@ -28,6 +28,7 @@ fn manifest(frames: usize) -> Manifest {
             offset_mm: [0.1, -0.2],
             rotation_deg: 1.5,
             tilt_deg: [0.0, 0.0],
+            rings: None,
         },
         camera: CameraSection {
             dark_level: 100.0,
@@ -252,6 +253,40 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         edit_toml(d, |t| t.replace("bit_depth = 12\n", "gamma = 2.2\n"))
     });
     assert!(e.contains("camera.gamma") && e.contains("bit_depth"), "{e}");
+    // A ring array: rows, cols and center say what the rings do, and every frame's LED
+    // is on a ring.
+    let rings = |rows: &'static str, extra: &'static str| {
+        move |d: &Path| {
+            edit_toml(d, |t| {
+                let ringed = format!("center = [0, 0]\n{extra}");
+                t.replace("rows = 21\ncols = 21\n", rows)
+                    .replace("center = [10, 10]\n", &ringed)
+                    .replace("center = [\n    10,\n    10,\n]\n", &ringed)
+            })
+        }
+    };
+    let e = broken(
+        "rings-rows",
+        rings("rows = 21\ncols = 21\n", "rings = [1, 8, 12]\n"),
+    );
+    assert!(
+        e.contains("led.rows/cols/center") && e.contains("number of rings"),
+        "{e}"
+    );
+    let e = broken(
+        "rings-first",
+        rings("rows = 2\ncols = 8\n", "rings = [3, 8]\n"),
+    );
+    assert!(e.contains("rings = [3, 8]") && e.contains("centre LED"), "{e}");
+    // The manifest's frames light (1, 7) and (2, 14): ring 2 holds 12.
+    let e = broken(
+        "rings-led",
+        rings("rows = 3\ncols = 12\n", "rings = [1, 8, 12]\n"),
+    );
+    assert!(
+        e.contains("frame 2") && e.contains("not on the rings"),
+        "{e}"
+    );
     // `fpm reconstruct --camera-gamma` is checked as the key is.
     let dir = TempDir::new("gamma-flag");
     Dataset::write(&dir.0, &manifest(3), &frames(3, 16, 16)).unwrap();

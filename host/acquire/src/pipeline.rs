@@ -155,6 +155,7 @@ pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
         theta_deg: 0.0,
         tilt_x_deg: 0.0,
         tilt_y_deg: 0.0,
+        rings: None,
     }
 }
 

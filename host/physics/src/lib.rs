@@ -31,4 +31,4 @@ pub mod study;
 pub mod tiles;
 
 pub use image::Image;
-pub use optics::{LedGeometry, LedIndex, System};
+pub use optics::{LedGeometry, LedIndex, Rings, System};

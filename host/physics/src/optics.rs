@@ -93,7 +93,97 @@ pub fn direction_from(led_mm: (f64, f64, f64), at_um: (f64, f64)) -> [f64; 3] {
     [v[0] / r, v[1] / r, v[2] / r]
 }
 
-/// A regular LED grid below the sample (docs/dataset.md §1).
+/// The most rings a [`Rings`] layout holds.
+pub const MAX_RINGS: usize = 16;
+
+/// LEDs on concentric rings instead of a grid (ring arrays, as several labs build
+/// their FPM illuminators; docs/dataset.md §1.2): ring r holds `count(r)` LEDs at
+/// radius r × pitch, LED j at 360°·j/count(r) from the board's +x toward +y. Ring 0
+/// is the centre LED. An LED is (row, col) = (ring, j).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "Vec<u16>", into = "Vec<u16>")]
+pub struct Rings {
+    counts: [u8; MAX_RINGS],
+    len: usize,
+}
+
+impl Rings {
+    /// Rings of `counts` LEDs, from the centre out: one LED at the centre, each ring
+    /// 1–256 LEDs (LED indices are 0–255), at most [`MAX_RINGS`] rings.
+    pub fn new(counts: &[u16]) -> Result<Self, String> {
+        if counts.is_empty() || counts.len() > MAX_RINGS {
+            return Err(format!(
+                "{counts:?}: give 1 to {MAX_RINGS} rings, the centre LED first"
+            ));
+        }
+        if counts[0] != 1 {
+            return Err(format!(
+                "{counts:?}: ring 0 is the centre LED alone (1, not {})",
+                counts[0]
+            ));
+        }
+        let mut packed = [0u8; MAX_RINGS];
+        for (k, &n) in counts.iter().enumerate() {
+            if !(1..=256).contains(&n) {
+                return Err(format!(
+                    "{counts:?}: ring {k} holds {n} LEDs; each holds 1 to 256"
+                ));
+            }
+            packed[k] = (n - 1) as u8;
+        }
+        Ok(Self {
+            counts: packed,
+            len: counts.len(),
+        })
+    }
+
+    /// Rings, the centre LED's included.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Never: ring 0 always holds the centre LED.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// LEDs on ring `r` (0 beyond the last ring).
+    pub fn count(&self, r: usize) -> usize {
+        if r < self.len {
+            self.counts[r] as usize + 1
+        } else {
+            0
+        }
+    }
+
+    /// The most LEDs on one ring.
+    pub fn widest(&self) -> usize {
+        (0..self.len).map(|r| self.count(r)).max().unwrap_or(0)
+    }
+
+    /// The position of `led` on the board in pitches (ring radius, angle).
+    fn offset(&self, led: LedIndex) -> (f64, f64) {
+        let (r, n) = (led.r() as f64, self.count(led.r()).max(1) as f64);
+        let angle = std::f64::consts::TAU * led.c() as f64 / n;
+        (r * angle.cos(), r * angle.sin())
+    }
+}
+
+impl TryFrom<Vec<u16>> for Rings {
+    type Error = String;
+    fn try_from(counts: Vec<u16>) -> Result<Self, String> {
+        Self::new(&counts)
+    }
+}
+
+impl From<Rings> for Vec<u16> {
+    fn from(r: Rings) -> Vec<u16> {
+        (0..r.len).map(|k| r.count(k) as u16).collect()
+    }
+}
+
+/// A regular LED grid below the sample (docs/dataset.md §1), or LEDs on rings
+/// ([`Rings`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LedGeometry {
     /// Grid rows.
@@ -120,6 +210,10 @@ pub struct LedGeometry {
     /// the board's +x side sit farther from the sample by x·sin(tilt).
     #[serde(default)]
     pub tilt_y_deg: f64,
+    /// LEDs on concentric rings `pitch_mm` apart in radius, not on a grid; `rows` is
+    /// then the number of rings, `cols` the largest ring's LEDs, `center` (0, 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings: Option<Rings>,
 }
 
 impl LedGeometry {
@@ -137,6 +231,24 @@ impl LedGeometry {
             theta_deg: 0.0,
             tilt_x_deg: 0.0,
             tilt_y_deg: 0.0,
+            rings: None,
+        }
+    }
+
+    /// A ring array (`rings`, radii `pitch_mm` apart) at `height_mm`, nominally placed.
+    pub fn ring_array(rings: Rings, pitch_mm: f64, height_mm: f64) -> Self {
+        Self {
+            rows: rings.len(),
+            cols: rings.widest(),
+            pitch_mm,
+            height_mm,
+            center: LedIndex::new(0, 0),
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_deg: 0.0,
+            tilt_x_deg: 0.0,
+            tilt_y_deg: 0.0,
+            rings: Some(rings),
         }
     }
 
@@ -164,28 +276,37 @@ impl LedGeometry {
     /// Whether `other` is the same grid (rows, columns, pitch, centre LED), wherever
     /// either is placed.
     pub fn same_grid(&self, other: &LedGeometry) -> bool {
-        (self.rows, self.cols, self.center) == (other.rows, other.cols, other.center)
+        (self.rows, self.cols, self.center, self.rings)
+            == (other.rows, other.cols, other.center, other.rings)
             && (self.pitch_mm - other.pitch_mm).abs() < 1e-6
     }
 
-    /// Whether `led` is on this grid.
+    /// Whether `led` is on this grid (or on its rings).
     pub fn contains(&self, led: LedIndex) -> bool {
-        led.r() < self.rows && led.c() < self.cols
+        match &self.rings {
+            Some(rings) => led.c() < rings.count(led.r()),
+            None => led.r() < self.rows && led.c() < self.cols,
+        }
     }
 
-    /// Every LED of the grid, row by row.
+    /// Every LED, row by row (ring by ring).
     pub fn leds(&self) -> Vec<LedIndex> {
         (0..self.rows.min(256))
             .flat_map(|r| (0..self.cols.min(256)).map(move |c| LedIndex::new(r as u8, c as u8)))
+            .filter(|&led| self.contains(led))
             .collect()
     }
 
-    /// Grid offsets (p, q) = (c − c₀, r − r₀) of `led`.
+    /// Board offsets (p, q) of `led` from the centre LED, in pitches: (c − c₀, r − r₀)
+    /// on a grid, (r·cos φ, r·sin φ) on rings.
     pub fn grid_offset(&self, led: LedIndex) -> (f64, f64) {
-        (
-            led.col as f64 - self.center.col as f64,
-            led.row as f64 - self.center.row as f64,
-        )
+        match &self.rings {
+            Some(rings) => rings.offset(led),
+            None => (
+                led.col as f64 - self.center.col as f64,
+                led.row as f64 - self.center.row as f64,
+            ),
+        }
     }
 
     /// Position (x, y) of `led` in mm.
@@ -400,5 +521,29 @@ mod tests {
         assert_eq!(defocus_transfer(3.0, 0.0, 10.0, 0.47), (0.0, 0.0));
         let (re, im) = defocus_transfer(0.1, 0.05, 123.0, 0.47);
         assert!(((re * re + im * im) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn ring_leds_sit_on_their_circles_and_turn_with_the_board() {
+        let rings = Rings::new(&[1, 8, 12]).unwrap();
+        let g = LedGeometry::ring_array(rings, 9.0, 110.0);
+        assert_eq!((g.rows, g.cols, g.leds().len()), (3, 12, 21));
+        assert!(g.contains(LedIndex::new(1, 7)) && !g.contains(LedIndex::new(1, 8)));
+        // Ring 2, LED 3 of 12: 90° from +x, 18 mm out.
+        let (x, y) = g.led_position_mm(LedIndex::new(2, 3));
+        assert!(x.abs() < 1e-9 && (y - 18.0).abs() < 1e-9, "({x}, {y})");
+        // θ turns it like a grid's LEDs, the offset moves it.
+        let turned = g.placed(1.0, -2.0, 90.0, 110.0);
+        let (x, y) = turned.led_position_mm(LedIndex::new(1, 0));
+        assert!(
+            (x - 1.0).abs() < 1e-9 && (y - 7.0).abs() < 1e-9,
+            "({x}, {y})"
+        );
+        assert_eq!(g.led_position_mm(LedIndex::new(0, 0)), (0.0, 0.0));
+        assert!(!g.same_grid(&LedGeometry::paper()));
+        for bad in [&[][..], &[2, 8], &[1, 0], &[1, 257]] {
+            assert!(Rings::new(bad).is_err(), "{bad:?}");
+        }
+        assert_eq!(Vec::<u16>::from(rings), vec![1, 8, 12]);
     }
 }

@@ -23,6 +23,7 @@ fn epry_beats_the_centre_frame_by_far() {
 
         tilt_x_deg: 0.0,
         tilt_y_deg: 0.0,
+        rings: None,
     };
     let w = 96;
     let object = ObjectField::test_sample(&system, w, 32, 2, 5);
@@ -189,6 +190,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
 
         tilt_x_deg: 0.0,
         tilt_y_deg: 0.0,
+        rings: None,
     };
     let w = 160;
     let tile = Some(80);

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use fpm_physics::bayer::{self, BayerChannel, BayerPattern};
 use fpm_physics::frame::{LitFrame, Measured, Region, Response};
-use fpm_physics::{Image, LedGeometry, LedIndex, System};
+use fpm_physics::{Image, LedGeometry, LedIndex, Rings, System};
 use serde::{Deserialize, Serialize};
 
 pub use image_io::{ImageError, Pixels};
@@ -83,6 +83,12 @@ pub struct LedSection {
     /// extension of the format; written only when not zero).
     #[serde(default, skip_serializing_if = "is_flat")]
     pub tilt_deg: [f64; 2],
+    /// LEDs per ring, from the centre LED out, for an array of concentric rings
+    /// `pitch_mm` apart in radius (an extension of the format; docs/dataset.md §1.2):
+    /// `rows` is then the number of rings, `cols` the largest ring's LEDs and `center`
+    /// [0, 0]; frame LEDs are [ring, LED on the ring].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings: Option<Rings>,
 }
 
 fn is_flat(tilt: &[f64; 2]) -> bool {
@@ -242,6 +248,7 @@ impl Manifest {
                 offset_mm: [geometry.dx_mm, geometry.dy_mm],
                 rotation_deg: geometry.theta_deg,
                 tilt_deg: [geometry.tilt_x_deg, geometry.tilt_y_deg],
+                rings: geometry.rings,
             },
             camera,
             frames,
@@ -275,6 +282,7 @@ impl Manifest {
             theta_deg: l.rotation_deg,
             tilt_x_deg: l.tilt_deg[0],
             tilt_y_deg: l.tilt_deg[1],
+            rings: l.rings,
         }
     }
 }
@@ -700,6 +708,17 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "at most 256x256 (LED indices are 0-255)",
         ));
     }
+    if let Some(rings) = m.led.rings {
+        let stated = (m.led.rows, m.led.cols, m.led.center);
+        let implied = (rings.len(), rings.widest(), LedIndex::new(0, 0));
+        if stated != implied {
+            return Err(value(
+                "led.rows/cols/center",
+                format!("{}x{}, center {}", stated.0, stated.1, stated.2),
+                "with led.rings: rows = the number of rings, cols = the largest ring's LEDs, center = [0, 0]",
+            ));
+        }
+    }
     if m.led.center.r() >= m.led.rows || m.led.center.c() >= m.led.cols {
         return Err(value(
             "led.center",
@@ -766,11 +785,22 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             file: f.file.clone(),
             reason,
         };
-        if f.led.r() >= m.led.rows || f.led.c() >= m.led.cols {
-            return Err(bad(format!(
-                "LED {} is outside the {}x{} array",
-                f.led, m.led.rows, m.led.cols
-            )));
+        match m.led.rings {
+            Some(rings) if f.led.c() >= rings.count(f.led.r()) => {
+                return Err(bad(format!(
+                    "LED {} is not on the rings (ring {} holds {} LEDs)",
+                    f.led,
+                    f.led.r(),
+                    rings.count(f.led.r())
+                )));
+            }
+            None if f.led.r() >= m.led.rows || f.led.c() >= m.led.cols => {
+                return Err(bad(format!(
+                    "LED {} is outside the {}x{} array",
+                    f.led, m.led.rows, m.led.cols
+                )));
+            }
+            _ => {}
         }
         if !f.defocus_um.is_finite() {
             return Err(bad(format!("defocus_um = {} is not finite", f.defocus_um)));

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use clap::Args;
 use fpm_physics::background::Correction;
-use fpm_physics::reconstruct::{Refine, Settings};
+use fpm_physics::reconstruct::{GammaScan, Refine, Settings};
 use fpm_physics::LedGeometry;
 
 use fpm_host::calibration::Placement;
@@ -70,10 +70,12 @@ pub struct ReconstructArgs {
     entrance_pupil_mm: Option<f64>,
     /// The frames were saved for viewing with this display gamma (e.g. 2.2), not as
     /// raw counts: decode them so (overrides the dataset's `[camera] gamma`; needs its
-    /// `bit_depth`). The report's bright-field fit warns when frames read as linear hold
-    /// light no object explains
-    #[arg(long)]
-    camera_gamma: Option<f64>,
+    /// `bit_depth`). `auto` reads it from the frames: the central square (≤ 256 px) is
+    /// reconstructed with each candidate gamma (1–3) and the one whose result explains
+    /// the frames best is taken (1: linear; about ten short runs first). The report's
+    /// bright-field fit warns when frames read as linear hold light no object explains
+    #[arg(long, value_name = "GAMMA|auto", value_parser = camera_gamma)]
+    camera_gamma: Option<CameraGamma>,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -134,6 +136,24 @@ pub struct ReconstructArgs {
     json: bool,
 }
 
+/// `--camera-gamma`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraGamma {
+    /// Read from the frames.
+    Auto,
+    /// This exponent.
+    Exponent(f64),
+}
+
+fn camera_gamma(text: &str) -> Result<CameraGamma, String> {
+    if text.eq_ignore_ascii_case("auto") {
+        return Ok(CameraGamma::Auto);
+    }
+    text.parse()
+        .map(CameraGamma::Exponent)
+        .map_err(|_| format!("{text}: give an exponent (2.2 for sRGB-like images) or auto"))
+}
+
 /// `--format`.
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq)]
 pub enum FormatArg {
@@ -178,33 +198,68 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     }
 }
 
+/// `--camera-gamma auto`: scan the frames of `ds` and decode them with the gamma
+/// found (or as linear). Without a stated bit depth, the frames' sample type gives the
+/// full scale.
+fn scan_gamma(
+    ds: &mut DatasetOnDisk,
+    geometry: &LedGeometry,
+    settings: Settings,
+    passes: usize,
+) -> Result<GammaScan> {
+    let bar = indicatif::ProgressBar::new(1).with_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "reading the camera gamma of {} [{{bar:40}}] {{pos}}/{{len}} candidates ({{eta}} left)",
+            ds.dir.display()
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let system = ds.manifest.system();
+    let scan = fpm_host::camera_gamma::scan(ds, &system, geometry, settings, passes, &progress)?;
+    bar.finish_and_clear();
+    let bits = ds.sample_bits();
+    let camera = &mut ds.manifest.camera;
+    camera.gamma = scan.gamma();
+    if camera.gamma.is_some() && camera.bit_depth.is_none() {
+        camera.bit_depth = Some(bits);
+    }
+    Ok(scan)
+}
+
+/// One line on what `--camera-gamma auto` found.
+fn gamma_summary(scan: &GammaScan) -> String {
+    let read = if scan.linear {
+        "linear (no display encoding)".to_string()
+    } else {
+        format!("gamma {:.2}", scan.best)
+    };
+    let table: Vec<String> = scan
+        .candidates
+        .iter()
+        .map(|c| format!("{:.1}: {:.4}", c.gamma, c.error))
+        .collect();
+    format!(
+        "camera gamma read from the frames ({} px square, {} passes each): {read}; error within {:.0} % of its least for gamma {:.1}-{:.1} [{}]",
+        scan.side_px,
+        scan.passes,
+        100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
+        scan.range.0,
+        scan.range.1,
+        table.join(", ")
+    )
+}
+
 /// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
 /// stay quiet but for warnings (a batch prints its own line per dataset).
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     let manifest_path = dir.join("dataset.toml");
     let mut on_disk = DatasetOnDisk::open(dir)?;
     on_disk.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
-    if let Some(gamma) = a.camera_gamma {
-        on_disk.manifest.camera.set_gamma(gamma, &manifest_path)?;
-    }
-    let bytes = on_disk.in_focus_bytes();
-    let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
-        let mut ds = Dataset::load(dir)?;
-        ds.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
-        ds.manifest.camera = on_disk.manifest.camera;
-        Some(ds)
-    } else {
-        eprintln!(
-            "{}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",
-            dir.display(),
-            bytes as f64 / 1e9,
-            a.frame_memory_gb
-        );
-        None
-    };
-    // The manifest and directory, whichever way the frames are read.
-    let ds: &dyn DatasetInfo = &on_disk;
-    let nominal = ds.manifest().geometry();
+    let nominal = on_disk.manifest.geometry();
     let (geometry, source) = match (&a.calibration, a.led_height_mm) {
         (Some(path), _) => (
             Placement::read(path)?.geometry(&nominal),
@@ -228,6 +283,37 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         refine_leds: a.refine_leds.then(Refine::default),
         flatten: a.flatten.flatten(),
     };
+    let gamma_scan = match a.camera_gamma {
+        Some(CameraGamma::Exponent(gamma)) => {
+            on_disk.manifest.camera.set_gamma(gamma, &manifest_path)?;
+            None
+        }
+        Some(CameraGamma::Auto) => {
+            let scan = scan_gamma(&mut on_disk, &geometry, settings, a.passes)?;
+            if print {
+                println!("{}", gamma_summary(&scan));
+            }
+            Some(scan)
+        }
+        None => None,
+    };
+    let bytes = on_disk.in_focus_bytes();
+    let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
+        let mut ds = Dataset::load(dir)?;
+        ds.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
+        ds.manifest.camera = on_disk.manifest.camera;
+        Some(ds)
+    } else {
+        eprintln!(
+            "{}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",
+            dir.display(),
+            bytes as f64 / 1e9,
+            a.frame_memory_gb
+        );
+        None
+    };
+    // The manifest and directory, whichever way the frames are read.
+    let ds: &dyn DatasetInfo = &on_disk;
     let bar = indicatif::ProgressBar::new(1).with_style(
         indicatif::ProgressStyle::with_template(&format!(
             "reconstructing {} [{{bar:40}}] {{pos}}/{{len}} frame updates ({{eta}} left)",
@@ -250,6 +336,7 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     // The frames are not needed for the outputs.
     drop(in_memory);
     bar.finish_and_clear();
+    r.report.camera_gamma_scan = gamma_scan;
     r.report.versus_truth = score_reconstruction(ds, &r.object, r.report.upsample);
     if let Some(refined) = r.report.refined_leds.as_mut() {
         refined.versus_truth = fpm_host::truth::score_led_positions(ds, refined);

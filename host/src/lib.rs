@@ -6,6 +6,7 @@
 //! `fpm-physics`; acquisition from a live rig is `fpm-acquire`.
 
 pub mod calibration;
+pub mod camera_gamma;
 pub mod charts;
 pub mod colour_bar;
 pub mod dataset;

@@ -105,6 +105,10 @@ pub struct Report {
     /// The dataset's `[camera] gamma`: its frames were decoded from a display encoding.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub camera_gamma: Option<f64>,
+    /// How `--camera-gamma auto` read the gamma from the frames: each candidate's
+    /// error and bright-field fit over the central square.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera_gamma_scan: Option<fpm_physics::reconstruct::GammaScan>,
     /// The bright-field frames regressed on the intensities the result predicts for
     /// them: an offset share well above 0 is light no object explains.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -258,6 +262,7 @@ impl Report {
             height_from_boundary: None,
             refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
             camera_gamma: None,
+            camera_gamma_scan: None,
             bright_field_fit: outcome.bright_field,
         }
     }

@@ -349,6 +349,24 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     let (r_told, _, _) = run(&linear, &told, &["--camera-gamma", "2.2"]);
     assert_eq!(r_told["bright_field_fit"], r_decoded["bright_field_fit"]);
     assert_eq!(r_told["camera_gamma"], 2.2);
+    // Or it can read the gamma from the frames.
+    let auto = dir.0.join("auto");
+    let (r_auto, _, warned_auto) = run(&linear, &auto, &["--camera-gamma", "auto"]);
+    let scan = &r_auto["camera_gamma_scan"];
+    let best = scan["best"].as_f64().unwrap();
+    eprintln!("gamma read from the frames: {best} ({scan})");
+    assert!((2.0..=2.5).contains(&best), "{scan}");
+    assert_eq!(r_auto["camera_gamma"].as_f64(), Some(best));
+    assert!(
+        r_auto["bright_field_fit"]["offset_share"]
+            .as_f64()
+            .unwrap()
+            .abs()
+            < 0.05,
+        "{}",
+        r_auto["bright_field_fit"]
+    );
+    assert!(!warned_auto.contains("is weak"), "{warned_auto}");
     let share = |r: &serde_json::Value| r["bright_field_fit"]["offset_share"].as_f64().unwrap();
     let correlation =
         |r: &serde_json::Value| r["bright_field_fit"]["correlation"].as_f64().unwrap();
@@ -358,7 +376,7 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     );
     assert!(share(&r_linear) > 0.15, "{}", r_linear["bright_field_fit"]);
     assert!(
-        warned_linear.contains("display gamma") && warned_linear.contains("--camera-gamma 2.2"),
+        warned_linear.contains("display gamma") && warned_linear.contains("--camera-gamma auto"),
         "{warned_linear}"
     );
     assert!(
@@ -782,6 +800,38 @@ fn display_encoded_frames_decoded_reconstruct_as_well_as_raw_counts() {
     // Measured: 0.145, 0.146, 0.203.
     assert!(e_decoded < 1.1 * e_raw, "{e_decoded} against {e_raw}");
     assert!(e_linear > 1.2 * e_decoded, "{e_linear} against {e_decoded}");
+    // Nobody wrote the gamma down: it is read from the frames, where the bright-field
+    // fit cannot see it (a weak sample); raw counts are found linear.
+    let auto = |dataset: &Path, tag: &str| {
+        let out = dir.0.join(tag);
+        fpm_stdout(&[
+            "reconstruct",
+            &dataset.to_string_lossy(),
+            "--out",
+            &out.to_string_lossy(),
+            "--camera-gamma",
+            "auto",
+        ]);
+        report(&out)
+    };
+    let (r_encoded, r_raw) = (auto(&as_linear, "auto-encoded"), auto(&raw.0, "auto-raw"));
+    let scan = |r: &serde_json::Value| r["camera_gamma_scan"].clone();
+    let nrmse_of = |r: &serde_json::Value| r["versus_truth"]["complex_nrmse"].as_f64().unwrap();
+    eprintln!(
+        "read from the frames: stored with 2.2 {}, raw counts {}",
+        scan(&r_encoded),
+        scan(&r_raw)
+    );
+    let best = scan(&r_encoded)["best"].as_f64().unwrap();
+    assert!((1.9..=2.5).contains(&best), "{}", scan(&r_encoded));
+    assert!(
+        nrmse_of(&r_encoded) < 1.1 * e_decoded,
+        "{} against {e_decoded} with the gamma stated",
+        nrmse_of(&r_encoded)
+    );
+    assert_eq!(scan(&r_raw)["linear"], true, "{}", scan(&r_raw));
+    assert!(r_raw.get("camera_gamma").is_none());
+    assert!(nrmse_of(&r_raw) < 1.1 * e_raw);
 }
 
 /// A dataset that states the wrong LED height (a height measured to the wrong plane of

@@ -62,6 +62,18 @@ pub enum Counts<'a> {
     F32(ArrayView2<'a, f32>),
 }
 
+impl<'a> Counts<'a> {
+    /// `region` of the samples, borrowed as they are.
+    pub fn region(self, r: Region) -> Counts<'a> {
+        let cut = s![r.y0..r.y0 + r.height, r.x0..r.x0 + r.width];
+        match self {
+            Counts::U8(a) => Counts::U8(a.slice_move(cut)),
+            Counts::U16(a) => Counts::U16(a.slice_move(cut)),
+            Counts::F32(a) => Counts::F32(a.slice_move(cut)),
+        }
+    }
+}
+
 impl Counts<'_> {
     /// (rows, cols).
     pub fn dim(&self) -> (usize, usize) {

@@ -178,7 +178,7 @@ impl CameraSection {
 }
 
 /// The largest value a `bits`-bit sample holds.
-fn full_scale(bits: u32) -> f32 {
+pub fn full_scale(bits: u32) -> f32 {
     ((1u64 << bits.min(32)) - 1) as f32
 }
 

@@ -64,6 +64,11 @@ impl DatasetOnDisk {
             .collect()
     }
 
+    /// Bits per sample as stored in memory (8, 16 or 32).
+    pub fn sample_bits(&self) -> u32 {
+        (self.sample_bytes * 8) as u32
+    }
+
     /// Bytes the in-focus frames take in memory, as stored.
     pub fn in_focus_bytes(&self) -> u64 {
         (self.in_focus().len() * self.dim.0 * self.dim.1 * self.sample_bytes) as u64

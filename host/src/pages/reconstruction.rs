@@ -44,13 +44,22 @@ pub fn warnings(report: &Report) -> Vec<String> {
         out.extend(crate::refinement::warnings(r));
     }
     if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
-        let cause = match report.camera_gamma {
-            None => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
-            Some(_) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
+        let cause = match (report.camera_gamma, &report.camera_gamma_scan) {
+            (_, Some(_)) => "stray light lifts the frames (the gamma read from them did not explain it)",
+            (None, None) => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma auto or 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
+            (Some(_), None) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
         };
         out.push(format!(
             "the bright-field frames hold {:.0} % of their light as an offset that no object explains (measured ≈ {:.2} × modelled + offset, correlation {:.3}): {cause}; the image will ring around edges",
             100.0 * fit.offset_share, fit.gain, fit.correlation
+        ));
+    }
+    if let Some(scan) = report.camera_gamma_scan.as_ref().filter(|s| s.is_flat()) {
+        out.push(format!(
+            "the camera gamma read from the frames is weak: their error stays within {:.0} % of its least for every gamma from {:.1} to {:.1} (a sample with little contrast, or no dim dark-field light); state the camera's gamma if it is known",
+            100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
+            scan.range.0,
+            scan.range.1
         ));
     }
     if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
@@ -306,9 +315,11 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     100.0 * f.offset_share,
                     f.correlation,
                     f.frames,
-                    match rep.camera_gamma {
-                        Some(g) => format!("; frames decoded with the dataset's gamma {g}"),
-                        None => String::new(),
+                    match (rep.camera_gamma, &rep.camera_gamma_scan) {
+                        (Some(g), Some(_)) => format!("; frames decoded with gamma {g}, read from them"),
+                        (None, Some(_)) => "; frames read as linear, as their scan found".to_string(),
+                        (Some(g), None) => format!("; frames decoded with the dataset's gamma {g}"),
+                        (None, None) => String::new(),
                     }
                 ),
                 None => "no bright-field frame".to_string(),

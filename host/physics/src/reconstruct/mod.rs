@@ -7,11 +7,13 @@
 //! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
 //! * [`tiled`]: the full field of view in tiles, offline and streaming alike;
 //! * [`flatten`]: the clear background's low-order phase taken off each tile;
-//! * [`contrast`]: whether the result explains its bright-field frames.
+//! * [`contrast`]: whether the result explains its bright-field frames;
+//! * [`gamma`]: the display gamma of frames saved for viewing, read from the frames.
 
 pub mod contrast;
 pub mod epry;
 pub mod flatten;
+pub mod gamma;
 pub mod offline;
 pub mod refine;
 pub mod schedule;
@@ -21,6 +23,7 @@ pub mod tiled;
 pub use contrast::{ContrastFit, ContrastSums};
 pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
 pub use flatten::{flatten_background_phase, Flatten, Flattening};
+pub use gamma::{GammaCandidate, GammaScan};
 pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
 pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;

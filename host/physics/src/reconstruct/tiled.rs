@@ -294,7 +294,8 @@ fn reference_level(index: usize, frame: &LitFrame<'_>) -> Result<f32, TiledError
     Ok(level)
 }
 
-fn check_sizes(frames: &[LitFrame<'_>]) -> Result<(usize, usize), TiledError> {
+/// The frames' common (rows, cols), or which frame differs.
+pub(crate) fn check_sizes(frames: &[LitFrame<'_>]) -> Result<(usize, usize), TiledError> {
     let expected = frames.first().ok_or(TiledError::NoFrames)?.measured.dim();
     for (index, f) in frames.iter().enumerate() {
         if f.measured.dim() != expected {

@@ -1,0 +1,341 @@
+//! A display gamma read from the frames themselves, for frames saved for viewing whose
+//! encoding nobody wrote down: the central square of the field is reconstructed with
+//! the frames decoded by each candidate gamma ([`Response::Gamma`]), and the gamma whose
+//! result explains its frames best (least relative amplitude error) is taken.
+//!
+//! Why the frames can tell: decoding moves the dim dark-field frames against the bright
+//! ones by orders of magnitude (25 of 255 is 10 % of full scale read linearly, 0.6 % at
+//! γ = 2.2), and only one ratio lets the light they scatter agree with the object that
+//! the bright-field frames' contrast shows. On the vendored USAF frames the error is
+//! least at γ 2.2–2.4 (0.607 read as linear, 0.526 at 2.2), where the bright-field
+//! fit's offset ([`super::contrast`]) vanishes too.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::tiled::{self, TiledError};
+use super::{ContrastFit, Settings};
+use crate::frame::{Counts, LitFrame, Measured, Region, Response};
+use crate::tiles::auto_tile_side;
+use crate::{LedGeometry, System};
+
+/// The first, coarse candidates: linear, up to beyond the sRGB-like 2.2.
+pub const COARSE: [f64; 6] = [1.0, 1.4, 1.8, 2.2, 2.6, 3.0];
+
+/// The step of the fine candidates around the coarse minimum.
+pub const FINE_STEP: f64 = 0.1;
+
+/// A best gamma at or below this is read as linear frames (no decoding).
+pub const LINEAR_BELOW: f64 = 1.1;
+
+/// The relative rise of the error over its least that [`GammaScan::range`] spans: a
+/// statement of how flat the curve is, not a confidence interval.
+pub const FLAT_WITHIN: f64 = 0.01;
+
+/// The side of the central square the scan reconstructs is at most this, camera
+/// pixels (enough bright-field structure, cheap enough for a dozen runs).
+pub const MAX_SIDE: usize = 256;
+
+/// One candidate's run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GammaCandidate {
+    /// The exponent the frames were decoded with (1: linear).
+    pub gamma: f64,
+    /// The mean relative amplitude error of the frames in the last pass.
+    pub error: f64,
+    /// The bright-field frames against the result's intensities.
+    pub bright_field: Option<ContrastFit>,
+}
+
+/// The scan and what it concludes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GammaScan {
+    /// Every candidate run, by gamma.
+    pub candidates: Vec<GammaCandidate>,
+    /// The gamma of least error (refined through its neighbours).
+    pub best: f64,
+    /// The gammas whose error is within [`FLAT_WITHIN`] of the least (lowest,
+    /// highest candidate).
+    pub range: (f64, f64),
+    /// Whether the frames are read as linear: the best gamma is at most
+    /// [`LINEAR_BELOW`].
+    pub linear: bool,
+    /// The side of the central square reconstructed, camera pixels.
+    pub side_px: usize,
+    /// Passes per candidate.
+    pub passes: usize,
+}
+
+impl GammaScan {
+    /// The gamma to decode with: None for linear frames.
+    pub fn gamma(&self) -> Option<f64> {
+        (!self.linear).then_some(self.best)
+    }
+
+    /// Whether the error barely changes with gamma (a sample that shows little
+    /// contrast, or frames without dim dark-field light): the estimate is then weak.
+    pub fn is_flat(&self) -> bool {
+        self.range.1 - self.range.0 > 0.8
+    }
+}
+
+/// The side of the central square scanned in frames of `(rows, cols)`: at most
+/// [`MAX_SIDE`], and no larger than a tile (one illumination curvature holds).
+pub fn side(system: &System, geometry: &LedGeometry, (h, w): (usize, usize)) -> usize {
+    h.min(w).min(MAX_SIDE).min(auto_tile_side(system, geometry))
+}
+
+/// The frames' central `side` × `side` square (the optical axis is the frame's
+/// centre, so the square is reconstructed as a field of its own).
+fn central_square<'a>(frames: &[LitFrame<'a>], side: usize) -> Vec<LitFrame<'a>> {
+    frames
+        .iter()
+        .map(|f| {
+            let (h, w) = f.measured.dim();
+            let region = Region {
+                y0: (h - side) / 2,
+                x0: (w - side) / 2,
+                height: side,
+                width: side,
+            };
+            LitFrame {
+                led: f.led,
+                measured: Measured {
+                    counts: f.measured.counts.region(region),
+                    ..f.measured
+                },
+            }
+        })
+        .collect()
+}
+
+/// The frames decoded with `gamma` (1: linear) from stored values of `full_scale`,
+/// their stored dark level `dark_counts` decoded alike.
+fn decoded<'a>(
+    frames: &[LitFrame<'a>],
+    gamma: f64,
+    full_scale: f32,
+    dark_counts: f32,
+) -> Vec<LitFrame<'a>> {
+    let response = if gamma == 1.0 {
+        Response::Linear
+    } else {
+        Response::Gamma {
+            gamma: gamma as f32,
+            full_scale,
+        }
+    };
+    frames
+        .iter()
+        .map(|f| LitFrame {
+            led: f.led,
+            measured: Measured {
+                response,
+                dark_level: response.decode(dark_counts),
+                ..f.measured
+            },
+        })
+        .collect()
+}
+
+/// Scan the display gamma of `frames` (their stored values of `full_scale`, the stored
+/// dark level `dark_counts`; their own response is ignored): [`COARSE`], then
+/// [`FINE_STEP`]s around the coarse minimum, each candidate reconstructed over the
+/// central square for `passes` with `settings` (candidates run in parallel).
+/// `progress(done, total)` counts candidates.
+#[allow(clippy::too_many_arguments)]
+pub fn scan(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+    full_scale: f32,
+    dark_counts: f32,
+    settings: Settings,
+    passes: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<GammaScan, TiledError> {
+    let side = side(system, geometry, tiled::check_sizes(frames)?);
+    let square = central_square(frames, side);
+    let settings = Settings {
+        // Not needed to compare the candidates, and each costs a fit per pass.
+        refine_leds: None,
+        ..settings
+    };
+    let total = COARSE.len() + 4;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let run = |gamma: f64| -> Result<GammaCandidate, TiledError> {
+        let frames = decoded(&square, gamma, full_scale, dark_counts);
+        let outcome = tiled::reconstruct(
+            system,
+            geometry,
+            &frames,
+            settings,
+            passes,
+            Some(side),
+            &|_, _| {},
+        )?;
+        let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        progress(n, total);
+        Ok(GammaCandidate {
+            gamma,
+            error: outcome
+                .tiles
+                .iter()
+                .filter_map(|t| t.errors.last())
+                .sum::<f64>()
+                / outcome.tiles.len().max(1) as f64,
+            bright_field: outcome.bright_field,
+        })
+    };
+    let mut candidates: Vec<GammaCandidate> = COARSE
+        .par_iter()
+        .map(|&g| run(g))
+        .collect::<Result<_, _>>()?;
+    let coarse_best = least(&candidates).gamma;
+    let fine: Vec<f64> = [-2.0, -1.0, 1.0, 2.0]
+        .iter()
+        .map(|k| round_tenth(coarse_best + k * FINE_STEP))
+        .filter(|g| (COARSE[0]..=COARSE[COARSE.len() - 1]).contains(g))
+        .filter(|g| !candidates.iter().any(|c| c.gamma == *g))
+        .collect();
+    candidates.extend(
+        fine.par_iter()
+            .map(|&g| run(g))
+            .collect::<Result<Vec<_>, _>>()?,
+    );
+    progress(total, total);
+    candidates.sort_by(|a, b| a.gamma.total_cmp(&b.gamma));
+    Ok(conclude(candidates, side, passes))
+}
+
+/// Rounded to a tenth (the candidates' grid), so that fine and coarse ones coincide.
+fn round_tenth(g: f64) -> f64 {
+    (g * 10.0).round() / 10.0
+}
+
+/// The candidate of least error (the first of equals).
+fn least(candidates: &[GammaCandidate]) -> GammaCandidate {
+    candidates
+        .iter()
+        .copied()
+        .min_by(|a, b| a.error.total_cmp(&b.error))
+        .unwrap_or(GammaCandidate {
+            gamma: 1.0,
+            error: f64::NAN,
+            bright_field: None,
+        })
+}
+
+/// The best gamma (a parabola through the least and its neighbours on the fine grid),
+/// the flat range and whether that means linear; `candidates` sorted by gamma.
+fn conclude(candidates: Vec<GammaCandidate>, side_px: usize, passes: usize) -> GammaScan {
+    let best = least(&candidates);
+    let at = candidates
+        .iter()
+        .position(|c| c.gamma == best.gamma)
+        .unwrap_or(0);
+    let vertex = match (
+        at.checked_sub(1).map(|i| candidates[i]),
+        candidates.get(at + 1),
+    ) {
+        (Some(lo), Some(hi))
+            if (best.gamma - lo.gamma - FINE_STEP).abs() < 1e-9
+                && (hi.gamma - best.gamma - FINE_STEP).abs() < 1e-9 =>
+        {
+            let curvature = lo.error - 2.0 * best.error + hi.error;
+            if curvature > 0.0 {
+                best.gamma + 0.5 * FINE_STEP * (lo.error - hi.error) / curvature
+            } else {
+                best.gamma
+            }
+        }
+        _ => best.gamma,
+    };
+    let flat: Vec<f64> = candidates
+        .iter()
+        .filter(|c| c.error <= best.error * (1.0 + FLAT_WITHIN))
+        .map(|c| c.gamma)
+        .collect();
+    let range = (
+        flat.first().copied().unwrap_or(best.gamma),
+        flat.last().copied().unwrap_or(best.gamma),
+    );
+    let best = round_hundredth(vertex);
+    GammaScan {
+        candidates,
+        best,
+        range,
+        linear: best <= LINEAR_BELOW,
+        side_px,
+        passes,
+    }
+}
+
+fn round_hundredth(g: f64) -> f64 {
+    (g * 100.0).round() / 100.0
+}
+
+/// The full scale of samples stored as `counts` without a stated bit depth: decoding
+/// is a power law, so a wrong full scale only scales every frame alike, which the clear
+/// level takes out. None for floats (no full scale).
+pub fn full_scale_of(counts: &Counts<'_>) -> Option<f32> {
+    match counts {
+        Counts::U8(_) => Some(255.0),
+        Counts::U16(_) => Some(65535.0),
+        Counts::F32(_) => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn candidate(gamma: f64, error: f64) -> GammaCandidate {
+        GammaCandidate {
+            gamma,
+            error,
+            bright_field: None,
+        }
+    }
+
+    #[test]
+    fn the_least_error_is_refined_through_its_neighbours() {
+        // error = 0.5 + (γ − 2.23)², sampled on the scan's grid.
+        let grid = [1.0, 1.4, 1.8, 2.0, 2.1, 2.2, 2.3, 2.4, 2.6, 3.0];
+        let scan = conclude(
+            grid.iter()
+                .map(|&g| candidate(g, 0.5 + (g - 2.23) * (g - 2.23)))
+                .collect(),
+            128,
+            10,
+        );
+        assert!((scan.best - 2.23).abs() < 0.006, "{}", scan.best);
+        assert_eq!(scan.gamma(), Some(scan.best));
+        // Within 1 % of 0.5: |γ − 2.23| ≤ 0.0707.
+        assert_eq!(scan.range, (2.2, 2.3));
+        assert!(!scan.is_flat());
+    }
+
+    #[test]
+    fn a_minimum_at_one_means_linear_frames_and_a_flat_curve_says_so() {
+        let rising = conclude(
+            [1.0, 1.1, 1.2, 1.4, 1.8]
+                .iter()
+                .map(|&g| candidate(g, 0.46 + 0.05 * (g - 1.0)))
+                .collect(),
+            128,
+            10,
+        );
+        assert!(rising.linear);
+        assert_eq!(rising.gamma(), None);
+        let flat = conclude(
+            [1.0, 1.4, 1.8, 2.2, 2.6, 3.0]
+                .iter()
+                .map(|&g| candidate(g, 0.3 + 0.001 * (g - 2.2).abs()))
+                .collect(),
+            128,
+            10,
+        );
+        assert!(flat.is_flat(), "{:?}", flat.range);
+    }
+}

@@ -76,6 +76,13 @@ pub struct ReconstructArgs {
     /// bright-field fit warns when frames read as linear hold light no object explains
     #[arg(long, value_name = "GAMMA|auto", value_parser = camera_gamma)]
     camera_gamma: Option<CameraGamma>,
+    /// The sample sat this far from focus when the frames were taken, µm (toward the
+    /// LEDs positive, as dataset.toml's defocus_um): the pupil starts with that
+    /// defocus and the image comes out refocused onto the sample. Frames of a sample
+    /// left out of focus give spoke-like artefacts around small features and smeared
+    /// fine detail when reconstructed as in focus
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    refocus_um: f64,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -282,6 +289,7 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         background: a.background(),
         refine_leds: a.refine_leds.then(Refine::default),
         flatten: a.flatten.flatten(),
+        defocus_um: a.refocus_um,
     };
     let gamma_scan = match a.camera_gamma {
         Some(CameraGamma::Exponent(gamma)) => {

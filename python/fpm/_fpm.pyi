@@ -185,12 +185,15 @@ def reconstruct(
     flatten_background: bool = False,
     background_block_um: Optional[float] = None,
     entrance_pupil_mm: Optional[float] = None,
+    refocus_um: float = 0.0,
     progress: Optional[Progress] = None,
 ) -> Result:
     """EPRY reconstruction of the dataset's in-focus frames (GIL released).
 
     `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
-    objectives that are not telecentric (default: telecentric)."""
+    objectives that are not telecentric (default: telecentric). `refocus_um`: how far
+    the sample sat from focus when the frames were taken, µm (toward the LEDs
+    positive); the image comes out refocused onto the sample."""
 
 def simulate_acquisition(
     out: Union[str, PathLike[str]],

@@ -187,10 +187,12 @@ pub(crate) fn settings(
 /// from the LED array), for samples on clear glass (see `fpm reconstruct --help`).
 /// `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
 /// objectives that are not telecentric (camera lenses, simple low-power objectives;
-/// default telecentric; see `fpm reconstruct --help`).
+/// default telecentric; see `fpm reconstruct --help`). `refocus_um`: how far the
+/// sample sat from focus when the frames were taken, µm (toward the LEDs positive); the
+/// pupil starts with that defocus and the image comes out refocused.
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = 0.0, progress = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct(
     py: Python<'_>,
@@ -206,6 +208,7 @@ pub fn reconstruct(
     flatten_background: bool,
     background_block_um: Option<f64>,
     entrance_pupil_mm: Option<f64>,
+    refocus_um: f64,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
     let ds = &dataset.get().inner;
@@ -217,8 +220,14 @@ pub fn reconstruct(
     if passes == 0 {
         return Err(PyValueError::new_err("passes must be at least 1"));
     }
+    if !refocus_um.is_finite() {
+        return Err(PyValueError::new_err(format!(
+            "refocus_um = {refocus_um}: give a finite distance in µm"
+        )));
+    }
     let settings = Settings {
         refine_leds: refine_leds.then(Refine::default),
+        defocus_um: refocus_um,
         ..settings(
             upsample,
             fixed_pupil,

@@ -36,7 +36,7 @@ use super::flatten::Flatten;
 use super::refine::Refine;
 use crate::background::Correction;
 use crate::fft::{bin_frequency, Fft2};
-use crate::optics::System;
+use crate::optics::{defocus_transfer, System};
 use crate::Image;
 
 /// Step sizes and options.
@@ -64,6 +64,12 @@ pub struct Settings {
     /// Whether the clear background's low-order phase is taken off each tile's
     /// object before it is blended ([`super::flatten`]).
     pub flatten: Flatten,
+    /// How far the sample sat from focus when the frames were taken, µm (toward the
+    /// LEDs positive, as a dataset's `defocus_um`): the pupil starts as the disc times
+    /// that defocus (docs/dataset.md §2), so the object comes out refocused onto the
+    /// sample. A defocus the pupil does not start with is left for pupil learning,
+    /// which cannot follow more than about a wave from the bright-field frames alone.
+    pub defocus_um: f64,
 }
 
 impl Default for Settings {
@@ -76,6 +82,7 @@ impl Default for Settings {
             background: Correction::PerFrame { floor_sigma: 3.0 },
             refine_leds: None,
             flatten: Flatten::Keep,
+            defocus_um: 0.0,
         }
     }
 }
@@ -143,9 +150,29 @@ impl Epry {
             .filter(|&i| reachable[i])
             .map(|i| (i as u32, signed(i % n, n), signed(i / n, n)))
             .collect();
+        let z = settings.defocus_um;
         let pupil = reachable
             .iter()
-            .map(|&s| Complex32::new(if s { 1.0 } else { 0.0 }, 0.0))
+            .enumerate()
+            .map(|(i, &s)| {
+                if !s {
+                    return Complex32::default();
+                }
+                if z == 0.0 {
+                    return Complex32::new(1.0, 0.0);
+                }
+                // The defocus's phase relative to the axial wave's (a global phase).
+                let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
+                let (re, im) = defocus_transfer(fx, fy, z, system.wavelength_um);
+                let (ax, ay) = defocus_transfer(0.0, 0.0, z, system.wavelength_um);
+                let v =
+                    Complex32::new(re as f32, im as f32) * Complex32::new(ax as f32, -ay as f32);
+                if v.norm_sqr() > 0.0 {
+                    v
+                } else {
+                    Complex32::new(1.0, 0.0)
+                }
+            })
             .collect();
         // Initial object: the frame's amplitude, its spectrum zero-padded to the HR grid.
         let mut fft = Fft2::new(n, n);

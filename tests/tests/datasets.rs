@@ -277,7 +277,10 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         "rings-first",
         rings("rows = 2\ncols = 8\n", "rings = [3, 8]\n"),
     );
-    assert!(e.contains("rings = [3, 8]") && e.contains("centre LED"), "{e}");
+    assert!(
+        e.contains("rings = [3, 8]") && e.contains("centre LED"),
+        "{e}"
+    );
     // The manifest's frames light (1, 7) and (2, 14): ring 2 holds 12.
     let e = broken(
         "rings-led",

@@ -18,6 +18,13 @@ def test_real_usaf_set_loads_with_its_parameters(usaf):
     assert (5, 5) in usaf.leds
 
 
+def test_a_full_frame_behind_a_ring_array_loads():
+    ring = fpm.Dataset.load(USAF.parent / "thuhololab-ring93")
+    assert ring.geometry["rings"] == [1, 8, 12, 16, 24, 32]
+    assert len(ring) == 93 and ring.leds[1] == (1, 0) and ring.leds[-1] == (5, 31)
+    assert ring.frame(0).shape == (1024, 1024) and ring.frame(0).dtype == np.uint8
+
+
 def test_frames_are_read_only_views_not_copies(usaf):
     a, b = usaf.frame(0), usaf.frames[0]
     assert a.dtype == np.uint8 and a.shape == (128, 128)

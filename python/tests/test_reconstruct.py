@@ -169,6 +169,8 @@ def test_bad_arguments_are_refused(usaf):
         fpm.reconstruct(usaf, geometry="/nowhere.json")
     with pytest.raises(ValueError, match="entrance_pupil_mm"):
         fpm.reconstruct(usaf, entrance_pupil_mm=-5.0)
+    with pytest.raises(ValueError, match="refocus_um"):
+        fpm.reconstruct(usaf, refocus_um=float("nan"))
 
 
 def test_ome_zarr_pyramid_opens_with_zarr(usaf, tmp_path):

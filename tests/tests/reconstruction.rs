@@ -779,22 +779,19 @@ fn display_encoded_frames_decoded_reconstruct_as_well_as_raw_counts() {
     let stated = std::fs::read_to_string(&toml).unwrap();
     assert!(stated.contains("gamma = 2.2\n"), "{stated}");
     std::fs::write(&toml, stated.replace("gamma = 2.2\n", "")).unwrap();
-    let nrmse = |dataset: &Path, tag: &str| {
+    let run = |dataset: &Path, tag: &str, extra: &[&str]| {
         let out = dir.0.join(tag);
-        fpm_stdout(&[
-            "reconstruct",
-            &dataset.to_string_lossy(),
-            "--out",
-            &out.to_string_lossy(),
-        ]);
-        report(&out)["versus_truth"]["complex_nrmse"]
-            .as_f64()
-            .unwrap()
+        let (dataset, out_arg) = (dataset.to_string_lossy(), out.to_string_lossy());
+        let mut args = vec!["reconstruct", &dataset, "--out", &out_arg];
+        args.extend_from_slice(extra);
+        fpm_stdout(&args);
+        report(&out)
     };
+    let nrmse_of = |r: &serde_json::Value| r["versus_truth"]["complex_nrmse"].as_f64().unwrap();
     let (e_raw, e_decoded, e_linear) = (
-        nrmse(&raw.0, "raw"),
-        nrmse(&encoded.0, "decoded"),
-        nrmse(&as_linear, "linear"),
+        nrmse_of(&run(&raw.0, "raw", &[])),
+        nrmse_of(&run(&encoded.0, "decoded", &[])),
+        nrmse_of(&run(&as_linear, "linear", &[])),
     );
     eprintln!("complex NRMSE: raw counts {e_raw:.3}, decoded {e_decoded:.3}, read as linear {e_linear:.3}");
     // Measured: 0.145, 0.146, 0.203.
@@ -802,21 +799,12 @@ fn display_encoded_frames_decoded_reconstruct_as_well_as_raw_counts() {
     assert!(e_linear > 1.2 * e_decoded, "{e_linear} against {e_decoded}");
     // Nobody wrote the gamma down: it is read from the frames, where the bright-field
     // fit cannot see it (a weak sample); raw counts are found linear.
-    let auto = |dataset: &Path, tag: &str| {
-        let out = dir.0.join(tag);
-        fpm_stdout(&[
-            "reconstruct",
-            &dataset.to_string_lossy(),
-            "--out",
-            &out.to_string_lossy(),
-            "--camera-gamma",
-            "auto",
-        ]);
-        report(&out)
-    };
-    let (r_encoded, r_raw) = (auto(&as_linear, "auto-encoded"), auto(&raw.0, "auto-raw"));
+    let auto = ["--camera-gamma", "auto"];
+    let (r_encoded, r_raw) = (
+        run(&as_linear, "auto-encoded", &auto),
+        run(&raw.0, "auto-raw", &auto),
+    );
     let scan = |r: &serde_json::Value| r["camera_gamma_scan"].clone();
-    let nrmse_of = |r: &serde_json::Value| r["versus_truth"]["complex_nrmse"].as_f64().unwrap();
     eprintln!(
         "read from the frames: stored with 2.2 {}, raw counts {}",
         scan(&r_encoded),

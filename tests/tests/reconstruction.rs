@@ -171,6 +171,20 @@ fn report(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
 }
 
+/// `fpm reconstruct DATASET --out OUT EXTRA…`, which must succeed; its stderr (the
+/// warnings).
+fn reconstruct_ok(dataset: &Path, out: &Path, extra: &[&str]) -> String {
+    let done = Command::new(fpm_bin())
+        .args(["reconstruct", &dataset.to_string_lossy(), "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
+    assert!(done.status.success(), "{stderr}");
+    stderr
+}
+
 /// Variation of `amplitude` over the clear glass: pixels where the centre frame `raw`
 /// (camera grid of `raw_pixel_um` at the sample, `amplitude` is `f`× finer) is within
 /// 15 % of its bright level, three camera pixels and a further 2 µm away from any edge
@@ -331,14 +345,7 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     assert!(stated.contains("gamma = 2.2\n"), "{stated}");
     std::fs::write(&toml, stated.replace("gamma = 2.2\n", "")).unwrap();
     let run = |dataset: &Path, out: &Path, extra: &[&str]| {
-        let done = Command::new(fpm_bin())
-            .args(["reconstruct", &dataset.to_string_lossy(), "--out"])
-            .arg(out)
-            .args(extra)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
-        assert!(done.status.success(), "{stderr}");
+        let stderr = reconstruct_ok(dataset, out, extra);
         (report(out), read_f32(&out.join("amplitude.tif")), stderr)
     };
     let (as_linear, decoded) = (dir.0.join("as-linear"), dir.0.join("decoded"));
@@ -845,15 +852,8 @@ fn a_wrong_dataset_height_is_named_and_the_edges_height_fits_the_frames_better()
     .unwrap();
     let run = |out: &str, extra: &[&str]| -> (serde_json::Value, String) {
         let out = dir.0.join(out);
-        let done = Command::new(fpm_bin())
-            .args(["reconstruct", &data.to_string_lossy(), "--passes", "10"])
-            .arg("--out")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
-        assert!(done.status.success(), "{stderr}");
+        let args = [&["--passes", "10"], extra].concat();
+        let stderr = reconstruct_ok(&data, &out, &args);
         (report(&out), stderr)
     };
     let boundary = |r: &serde_json::Value, key: &str| {
@@ -1203,14 +1203,7 @@ fn a_full_real_frame_from_a_ring_array_refocused_is_sharp_and_its_glass_clean() 
     let dir = TempDir::new("ring93");
     let run = |tag: &str, extra: &[&str]| {
         let out = dir.0.join(tag);
-        let done = Command::new(fpm_bin())
-            .args(["reconstruct", &ring93().to_string_lossy(), "--out"])
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&done.stderr).into_owned();
-        assert!(done.status.success(), "{stderr}");
+        reconstruct_ok(&ring93(), &out, extra);
         let r = report(&out);
         assert_eq!(
             (r["frames"].as_u64(), r["tiles"].as_array().map(Vec::len)),

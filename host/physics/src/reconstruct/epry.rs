@@ -150,27 +150,21 @@ impl Epry {
             .filter(|&i| reachable[i])
             .map(|i| (i as u32, signed(i % n, n), signed(i / n, n)))
             .collect();
+        // The defocus's phase relative to the axial wave's (a global phase); pupil bins
+        // lie inside 1/λ, so none is evanescent.
         let z = settings.defocus_um;
+        let (ax, ay) = defocus_transfer(0.0, 0.0, z, system.wavelength_um);
+        let axial = Complex32::new(ax as f32, -ay as f32);
         let pupil = reachable
             .iter()
             .enumerate()
-            .map(|(i, &s)| {
-                if !s {
-                    return Complex32::default();
-                }
-                if z == 0.0 {
-                    return Complex32::new(1.0, 0.0);
-                }
-                // The defocus's phase relative to the axial wave's (a global phase).
-                let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
-                let (re, im) = defocus_transfer(fx, fy, z, system.wavelength_um);
-                let (ax, ay) = defocus_transfer(0.0, 0.0, z, system.wavelength_um);
-                let v =
-                    Complex32::new(re as f32, im as f32) * Complex32::new(ax as f32, -ay as f32);
-                if v.norm_sqr() > 0.0 {
-                    v
-                } else {
-                    Complex32::new(1.0, 0.0)
+            .map(|(i, &s)| match (s, z == 0.0) {
+                (false, _) => Complex32::default(),
+                (true, true) => Complex32::new(1.0, 0.0),
+                (true, false) => {
+                    let (fx, fy) = (bin_frequency(i % n, n, d), bin_frequency(i / n, n, d));
+                    let (re, im) = defocus_transfer(fx, fy, z, system.wavelength_um);
+                    Complex32::new(re as f32, im as f32) * axial
                 }
             })
             .collect();

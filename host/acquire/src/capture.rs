@@ -10,13 +10,15 @@ use anyhow::{bail, Context, Result};
 use fpm_frames::{FrameHeader, FrameSubscriber, ServiceNames};
 use fpm_physics::frame::{Counts, LitFrame, Measured, Response};
 use fpm_protocol::{
-    Illumination, LedIndex, Polarity, Rgb, SequenceOutcome, SequenceTiming, Step, TriggerOut,
+    Illumination, LedIndex, Polarity, Rgb, SequenceEnd, SequenceOutcome, SequenceTiming, Step,
+    TriggerOut,
 };
 use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
-use crate::controller::{Controller, ControllerError, SequenceEvent};
-use crate::label::{pair_with_arrivals, step_for, Arrivals, FrameTime, StepTime};
+use crate::controller::{Controller, ControllerError, SequenceEvent, SequenceEvents};
+use crate::label::{FrameTime, StepTime};
+use crate::labeller::{Labelled, Labeller};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -229,128 +231,54 @@ pub fn capture(
     let mut events = dev.subscribe()?;
     let start = Instant::now();
     dev.start_sequence(sequence_id)?;
-    let mut step_times: Vec<StepTime> = vec![];
-    // When each step report and each frame reached this host (ns since the start), to
-    // decide between clock offsets a whole step apart (label::pair_with_arrivals).
-    let mut step_arrival_ns: Vec<i64> = vec![];
-    let mut frame_arrival_ns: Vec<i64> = vec![];
+    // Arrival times are ns since `start`, taken before the sequence started.
+    let since_start = || start.elapsed().as_nanos() as i64;
+    let mut labeller = Labeller::new(leds.len(), tolerance);
     let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
-    let mut online: Vec<Option<usize>> = vec![];
-    let mut outcome = None;
+    let mut ended = None;
     let mut last_frame = Instant::now();
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
-    let mut changed = false;
     let mut failure: Option<String> = None;
-    let mut anchor: Option<i64> = None;
-    let mut anchored_at = 0usize;
-    let mut pending: Vec<usize> = vec![];
-    let mut given = vec![false; leds.len()];
     loop {
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
-            pending.push(received.len());
-            frame_arrival_ns.push(start.elapsed().as_nanos() as i64);
+            labeller.frame(frame_time(&f.0), since_start());
             received.push(f);
-            online.push(None);
             last_frame = Instant::now();
-            changed = true;
         }
-        loop {
-            match events.next(Duration::from_millis(1)) {
-                Ok(SequenceEvent::Step(s)) => {
-                    step_times.push(StepTime {
-                        step: s.step as usize,
-                        trigger_ns: s.trigger_us * 1000,
-                    });
-                    step_arrival_ns.push(start.elapsed().as_nanos() as i64);
-                    changed = true;
-                }
-                Ok(SequenceEvent::End(e)) => {
-                    outcome = Some(e);
-                    changed = true;
-                    break;
-                }
-                Err(ControllerError::Timeout { .. }) => break,
-                Err(e) => {
-                    // Keep what arrived: the caller writes it and reports the failure.
-                    failure = Some(format!("the LED controller was lost mid-sequence: {e}"));
-                    break;
-                }
-            }
+        match next_event(&mut events, &mut labeller, since_start) {
+            Ok(Some(end)) => ended = Some(end),
+            Ok(None) => {}
+            // Keep what arrived: the caller writes it and reports the failure.
+            Err(e) => failure = Some(format!("the LED controller was lost mid-sequence: {e}")),
         }
-        // Label what can be labelled now, so the stream gets frames while they arrive.
-        // The clock offset is fitted on what has arrived (the same pairing as the final
-        // one, on fewer frames), from 8 frames on and again as the count doubles; until
-        // it is known, or while it is ambiguous, frames wait. The final pairing below
-        // checks every label, and a disagreement is reported as `relabelled`.
-        if changed {
-            changed = false;
-            if received.len() >= 8.max(anchored_at * 2) && step_times.len() >= 8 {
-                anchored_at = received.len();
-                // As many steps as frames: steps run ahead of frames still in flight, and
-                // with extra steps an offset a step later would fit as well.
-                let n = received.len().min(step_times.len());
-                let times: Vec<FrameTime> =
-                    received[..n].iter().map(|(h, _)| frame_time(h)).collect();
-                let arrivals = Arrivals {
-                    steps_ns: &step_arrival_ns[..n],
-                    frames_ns: &frame_arrival_ns[..n],
-                };
-                let p = pair_with_arrivals(
-                    &step_times[..n],
-                    &times,
-                    tolerance,
-                    u64::MAX,
-                    Some(arrivals),
-                );
-                anchor =
-                    (p.clock_problem.is_none() && p.arrivals_agree && p.matched.len() * 4 >= n * 3)
-                        .then_some(p.clock_offset_ns);
-            }
-            if let Some(offset) = anchor {
-                let newest = step_times.last().map(|s| s.step);
-                pending.retain(|&k| {
-                    let time = frame_time(&received[k].0);
-                    let Some(si) = step_for(&step_times, &time, offset, tolerance) else {
-                        return true;
-                    };
-                    let step = step_times[si].step;
-                    // The newest step may still get a second, rival frame; a step index
-                    // outside the sequence is the controller's error, left to the
-                    // final pairing.
-                    if (outcome.is_none() && Some(step) == newest)
-                        || given.get(step).is_none_or(|&g| g)
-                    {
-                        return true;
-                    }
-                    given[step] = true;
-                    online[k] = Some(step);
-                    on_frame(ShotView {
-                        led: leds[step],
-                        header: &received[k].0,
-                        pixels: received[k].1.view(),
-                    });
-                    false
-                });
-            }
-            // Time spent labelling and streaming is not the camera being idle: frames
-            // that arrived meanwhile are still to be drained.
+        // Hand frames on while they arrive; the final pairing below checks every label.
+        let labels = labeller.labels();
+        for l in &labels {
+            let (header, pixels) = &received[l.frame];
+            on_frame(ShotView {
+                led: leds[l.step],
+                header,
+                pixels: pixels.view(),
+            });
+        }
+        if !labels.is_empty() {
+            // Time spent streaming is not the camera being idle.
             last_frame = Instant::now();
         }
         let complete = received.len() >= leds.len();
-        if outcome.is_some() && (complete || last_frame.elapsed() > idle_after_end) {
+        if ended.is_some() && (complete || last_frame.elapsed() > idle_after_end) {
             break;
         }
         if failure.is_some() {
             // Frames already on their way still count.
             std::thread::sleep(Duration::from_millis(300));
             while let Ok(f) = drain.rx.try_recv() {
-                frame_arrival_ns.push(start.elapsed().as_nanos() as i64);
+                labeller.frame(frame_time(&f.0), since_start());
                 received.push(f);
-                online.push(None);
             }
             break;
         }
-        if outcome.is_none()
+        if ended.is_none()
             && start.elapsed()
                 > Duration::from_nanos(period_ns * (leds.len() as u64 + 50))
                     + Duration::from_secs(30)
@@ -359,52 +287,30 @@ pub fn capture(
         }
     }
     drop(drain);
-    let times: Vec<FrameTime> = received.iter().map(|(h, _)| frame_time(h)).collect();
-    // A real camera's clock may be anything (seconds since it powered up, the Unix
-    // epoch): no bound on the offset.
-    let arrivals = Arrivals {
-        steps_ns: &step_arrival_ns,
-        frames_ns: &frame_arrival_ns,
-    };
-    let p = pair_with_arrivals(&step_times, &times, tolerance, u64::MAX, Some(arrivals));
     let seconds = start.elapsed().as_secs_f64();
-    log_residuals(&p, &step_times, &times);
+    let Labelled {
+        pairing: p,
+        matched,
+        late,
+        relabelled,
+    } = labeller.finish();
     if let Some(problem) = &p.clock_problem {
         bail!(
             "none of the {} frames could be labelled with its LED: {problem}; is the camera triggered by the controller's trigger-out, and its clock steady?",
             received.len()
         );
     }
-    let mut shots = Vec::with_capacity(p.matched.len());
-    let mut matched: Vec<(usize, usize)> = p
-        .matched
-        .iter()
-        .map(|&(si, fi)| (step_times[si].step, fi))
-        .filter(|&(step, _)| step < leds.len())
-        .collect();
-    matched.sort_by_key(|&(step, _)| step);
-    // Frames the stream got under another label than the final one, or that the final
-    // pairing refused: the caller must not trust what it built from them.
-    let mut final_label: Vec<Option<usize>> = vec![None; received.len()];
-    for &(step, fi) in &matched {
-        final_label[fi] = Some(step);
+    // Every labelled frame reaches the stream once: those not handed out while
+    // acquiring go now, with their final label.
+    for l in late {
+        let (header, pixels) = &received[l.frame];
+        on_frame(ShotView {
+            led: leds[l.step],
+            header,
+            pixels: pixels.view(),
+        });
     }
-    let relabelled = online
-        .iter()
-        .zip(&final_label)
-        .filter(|(streamed, label)| streamed.is_some() && streamed != label)
-        .count();
-    for &(step, fi) in &matched {
-        // Every labelled frame reaches the stream once: those not handed out while
-        // acquiring go now, with their final label.
-        if online[fi].is_none() {
-            on_frame(ShotView {
-                led: leds[step],
-                header: &received[fi].0,
-                pixels: received[fi].1.view(),
-            });
-        }
-    }
+    let mut shots = Vec::with_capacity(matched.len());
     let mut labelled = vec![false; leds.len()];
     for &(step, _) in &matched {
         labelled[step] = true;
@@ -433,7 +339,7 @@ pub fn capture(
         seconds,
         frames_per_s: shots.len() as f64 / seconds.max(1e-9),
         relabelled,
-        outcome: match (&failure, outcome.map(|e| e.outcome)) {
+        outcome: match (&failure, ended.map(|e| e.outcome)) {
             (Some(f), _) => f.clone(),
             (None, Some(SequenceOutcome::Done)) => "done".into(),
             (None, Some(other)) => format!("{other:?}"),
@@ -444,30 +350,28 @@ pub fn capture(
     Ok((shots, report))
 }
 
-/// The fitted clock mapping and how tightly the labelled frames follow it (the
-/// camera's trigger-to-stamp jitter), and every frame that found no step, for whoever
-/// tunes a camera.
-fn log_residuals(p: &crate::label::Pairing, steps: &[StepTime], frames: &[FrameTime]) {
-    if !p.matched.is_empty() {
-        tracing::info!(
-            "camera clock: offset {:.6} s, drift {:+.1} ppm; labelled frames within {:.1} ms of the fitted mapping",
-            p.clock_offset_ns as f64 / 1e9,
-            p.clock_drift_ppm,
-            p.residual_spread_ns as f64 / 1e6
-        );
-    }
-    for &fi in p.extra_frames.iter().chain(&p.ambiguous_frames) {
-        let t = frames[fi].timestamp_ns as i128 - p.clock_offset_ns as i128;
-        let nearest = steps
-            .iter()
-            .min_by_key(|s| (s.trigger_ns as i128 - t).unsigned_abs());
-        if let Some(s) = nearest {
-            tracing::debug!(
-                "frame {} unlabelled: about {:+.1} ms from step {}'s trigger",
-                frames[fi].frame_number,
-                (t - s.trigger_ns as i128) as f64 / 1e6,
-                s.step
-            );
+/// Give the labeller the controller's step reports waiting now; the end of the sequence
+/// when it came.
+fn next_event(
+    events: &mut SequenceEvents,
+    labeller: &mut Labeller,
+    since_start: impl Fn() -> i64,
+) -> Result<Option<SequenceEnd>, ControllerError> {
+    loop {
+        match events.next(Duration::from_millis(1)) {
+            Ok(SequenceEvent::Step(s)) => labeller.step(
+                StepTime {
+                    step: s.step as usize,
+                    trigger_ns: s.trigger_us * 1000,
+                },
+                since_start(),
+            ),
+            Ok(SequenceEvent::End(e)) => {
+                labeller.end();
+                return Ok(Some(e));
+            }
+            Err(ControllerError::Timeout { .. }) => return Ok(None),
+            Err(e) => return Err(e),
         }
     }
 }

@@ -74,6 +74,9 @@ impl ClockMap {
 const DECISIVE_RMS_RATIO: f64 = 4.0;
 /// See [`DECISIVE_RMS_RATIO`]: below this, both are within any camera's stamp jitter.
 const MIN_RMS_DIFFERENCE_NS: f64 = 100_000.0;
+/// Stamp residuals decide between offsets only over at least this many pairs: with
+/// offset and drift fitted to a handful, any candidate can look tight.
+const MIN_PAIRS_TO_COMPARE: usize = 8;
 
 /// A frame may come this many tolerances late after its trigger but only one early:
 /// a camera's latency is one-sided (it waits for its next tick or line, or its first
@@ -87,7 +90,7 @@ fn within(residual_ns: f64, tolerance_ns: u64) -> bool {
     (-tol..=LATE_TOLERANCES * tol).contains(&residual_ns)
 }
 
-/// Drift beyond this is no clock of a working camera: the data are inconsistent.
+/// Drift beyond this is no clock of a working camera: fits are held within it.
 const MAX_DRIFT_PPM: f64 = 1000.0;
 
 /// Pair `frames` with `steps`. The camera's clock may differ from the controller's by
@@ -148,18 +151,29 @@ pub fn pair_with_arrivals(
             ..Pairing::default()
         };
     };
-    let densest = estimate_offset(steps, frames, tolerance_ns, max_offset_ns) as f64;
-    // Steps are nearly periodic, so offsets a whole period apart explain the data
-    // almost as well: fit each and keep the one that labels the most frames. A tie
+    // Steps are nearly periodic, so offsets a whole step apart explain the data almost
+    // as well: every alignment of a frame with a step is a candidate, the most
+    // promising are fitted, and the one that labels the most frames is kept. A tie
     // (e.g. the first frame lost) that the stamps' residuals do not decide either is
     // not guessed: nothing is labelled then.
-    let period = step_period_ns(steps);
-    let mut fits: Vec<(ClockMap, Pairing)> = (-10i32..=10)
-        .filter(|&j| j == 0 || period > 0.0)
-        .map(|j| {
+    let Some(starts) =
+        candidate_offsets(steps, frames, tolerance_ns, max_offset_ns, first, arrivals)
+    else {
+        return refused(
+            steps.len(),
+            frames.len(),
+            format!(
+                "{} frames fit more than {MAX_FITTED} clock offsets a whole step apart equally well (far fewer frames than steps): which LED each frame belongs to cannot be told from the stamps, and is not guessed",
+                frames.len()
+            ),
+        );
+    };
+    let mut fits: Vec<(ClockMap, Pairing)> = starts
+        .into_iter()
+        .map(|offset_ns| {
             let start = ClockMap {
                 t0_ns: first as i128,
-                offset_ns: densest + j as f64 * period,
+                offset_ns,
                 drift: 0.0,
             };
             refine(steps, frames, start, tolerance_ns)
@@ -208,7 +222,7 @@ pub fn pair_with_arrivals(
             first / 1e3,
             second / 1e3
         );
-        if second >= DECISIVE_RMS_RATIO * first + MIN_RMS_DIFFERENCE_NS {
+        if first.is_finite() && second >= DECISIVE_RMS_RATIO * first + MIN_RMS_DIFFERENCE_NS {
             fits.swap(0, closest);
             tie = false;
         }
@@ -245,6 +259,13 @@ pub fn pair_with_arrivals(
     let (map, mut out) = fits.swap_remove(0);
     out.arrivals_agree = arrivals_agree;
     let drift_ppm = map.drift * 1e6;
+    let residuals: Vec<f64> = out
+        .matched
+        .iter()
+        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
+        .collect();
+    let spread = residuals.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        - residuals.iter().cloned().fold(f64::INFINITY, f64::min);
     let usable = frames.len().min(steps.len());
     let problem = if usable >= 4 && out.matched.len() * 2 < usable {
         Some(format!(
@@ -258,20 +279,9 @@ pub fn pair_with_arrivals(
             "{} frames fit clock offsets a whole step apart equally well (frames lost at the start or end of a periodic sequence, e.g. a camera that stopped): which LED each frame belongs to cannot be told from the stamps, and is not guessed",
             out.matched.len()
         ))
-    } else if drift_ppm.abs() > MAX_DRIFT_PPM {
-        Some(format!(
-            "the camera's clock would run {drift_ppm:+.0} ppm off the controller's"
-        ))
     } else {
         None
     };
-    let residuals: Vec<f64> = out
-        .matched
-        .iter()
-        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
-        .collect();
-    let spread = residuals.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-        - residuals.iter().cloned().fold(f64::INFINITY, f64::min);
     out.clock_offset_ns = map.offset_ns.round() as i64;
     out.clock_drift_ppm = drift_ppm;
     out.residual_spread_ns = if spread.is_finite() { spread as u64 } else { 0 };
@@ -298,19 +308,64 @@ fn refused(steps: usize, frames: usize, why: String) -> Pairing {
 }
 
 /// Whether most of a candidate's frames would have reached the host before the
-/// earliest instant their LED can have been lit: the step's trigger counted from the
-/// first trigger (which came after the arrivals' zero), on a controller clock up to
-/// [`MAX_DRIFT_PPM`] fast. Most, not any: a stray frame does not rule out the rest.
+/// earliest instant their LED can have been lit. Most, not any: a stray frame does not
+/// rule out the rest.
 fn arrives_before_lit(steps: &[StepTime], first: u64, a: Arrivals<'_>, p: &Pairing) -> bool {
+    let Some(rate) = controller_rate_lower_bound(steps, a.steps_ns) else {
+        return false;
+    };
     let early = p
         .matched
         .iter()
         .filter(|&&(si, fi)| {
-            let earliest = (steps[si].trigger_ns - first) as f64 * (1.0 - MAX_DRIFT_PPM * 1e-6);
+            let earliest = (steps[si].trigger_ns - first) as f64 * rate;
             a.frames_ns.get(fi).is_some_and(|&t| (t as f64) < earliest)
         })
         .count();
     early * 2 > p.matched.len()
+}
+
+/// How many host ns at least pass per controller ns, as the step reports show it.
+///
+/// A step's LED is lit no earlier than the first trigger (which came after the
+/// arrivals' zero) plus its controller time since then, converted at the controller's
+/// rate against this host's clock. That rate is not assumed (an emulated RP2040 runs at
+/// a fraction of real time, a real one within ppm): it is fitted, by least squares, to
+/// when the step reports arrived against their trigger times, and lowered by what the
+/// reports' latency spread leaves uncertain (twice the fit's residual range over the
+/// span of the steps) and by [`MAX_DRIFT_PPM`]. Any steady controller clock passes.
+/// None with fewer than 3 reports or no span: then nothing is ruled out.
+fn controller_rate_lower_bound(steps: &[StepTime], arrived_ns: &[i64]) -> Option<f64> {
+    let points: Vec<(f64, f64)> = steps
+        .iter()
+        .zip(arrived_ns)
+        .map(|(s, &t)| (s.trigger_ns as f64, t as f64))
+        .collect();
+    if points.len() < 3 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let sxx: f64 = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
+    let sxy: f64 = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    let (lo, hi) = points
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p.0), hi.max(p.0))
+        });
+    let span = hi - lo;
+    if sxx <= 0.0 || span <= 0.0 {
+        return None;
+    }
+    let rate = sxy / sxx;
+    let residuals = points.iter().map(|(x, y)| y - (my + rate * (x - mx)));
+    let (rlo, rhi) = residuals.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+        (lo.min(r), hi.max(r))
+    });
+    let bound = rate * (1.0 - MAX_DRIFT_PPM * 1e-6) - 2.0 * (rhi - rlo) / span;
+    (bound > 0.0).then_some(bound)
 }
 
 /// From a first guess of the mapping, alternately pair and fit offset and drift until
@@ -340,28 +395,22 @@ fn refine(
     (map, out)
 }
 
-/// How far a candidate's stamps are from its mapped triggers (rms over its pairs), ns.
+/// How far a candidate's stamps scatter about its mapped triggers (rms about their
+/// mean: the offset is free, so a candidate that was not refitted is not favoured by
+/// where its fit started), ns. Infinite under [`MIN_PAIRS_TO_COMPARE`] pairs.
 fn residual_rms_ns(steps: &[StepTime], frames: &[FrameTime], fit: &(ClockMap, Pairing)) -> f64 {
     let (map, p) = fit;
-    let n = p.matched.len().max(1) as f64;
-    let sum: f64 = p
+    if p.matched.len() < MIN_PAIRS_TO_COMPARE {
+        return f64::INFINITY;
+    }
+    let r: Vec<f64> = p
         .matched
         .iter()
-        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]).powi(2))
-        .sum();
-    (sum / n).sqrt()
-}
-
-/// The median interval between consecutive triggers, ns (0 for fewer than 2 steps).
-fn step_period_ns(steps: &[StepTime]) -> f64 {
-    let mut t: Vec<u64> = steps.iter().map(|s| s.trigger_ns).collect();
-    t.sort_unstable();
-    let mut d: Vec<u64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    if d.is_empty() {
-        return 0.0;
-    }
-    d.sort_unstable();
-    d[d.len() / 2] as f64
+        .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
+        .collect();
+    let n = r.len() as f64;
+    let mean = r.iter().sum::<f64>() / n;
+    (r.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt()
 }
 
 /// Pair with a known clock mapping: a frame gets the one step near its stamp, if that
@@ -440,8 +489,16 @@ fn fit(
         .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
     let sxx: f64 = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
     let sxy: f64 = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
-    // Over less than a millisecond of controller time drift is not observable.
-    let slope = if sxx > 1e-6 { sxy / sxx } else { 0.0 };
+    // Over less than a millisecond of controller time drift is not observable; and no
+    // working camera's clock drifts beyond MAX_DRIFT_PPM, however a short run's jitter
+    // would have it (a fitted drift extrapolated beyond the frames fitted would move
+    // later windows onto the neighbouring step).
+    let max_slope = MAX_DRIFT_PPM * 1e-6 * 1e9;
+    let slope = if sxx > 1e-6 {
+        (sxy / sxx).clamp(-max_slope, max_slope)
+    } else {
+        0.0
+    };
     Some(ClockMap {
         t0_ns: map.t0_ns,
         offset_ns: my - slope * mx,
@@ -449,25 +506,128 @@ fn fit(
     })
 }
 
-/// The step `frame` belongs to when the clock offset (camera minus controller) is known:
-/// the index into `steps` (sorted by trigger time) of the one step in whose window
-/// (see [`pair`]) the frame's corrected time falls; None when none or several are.
-pub fn step_for(
-    steps: &[StepTime],
-    frame: &FrameTime,
-    offset_ns: i64,
-    tolerance_ns: u64,
-) -> Option<usize> {
-    let t = frame.timestamp_ns as i128 - offset_ns as i128;
-    let lo = t - (LATE_TOLERANCES * tolerance_ns as f64) as i128;
-    let first = steps.partition_point(|s| (s.trigger_ns as i128) < lo);
-    let near: Vec<usize> = (first..steps.len())
-        .take_while(|&i| (steps[i].trigger_ns as i128) <= t + tolerance_ns as i128)
-        .collect();
-    match near.as_slice() {
-        [i] => Some(*i),
+/// The step a frame belongs to once its stamp is mapped back to the controller's clock
+/// (`controller_ns`): the index into `steps` of the one step in whose window (see
+/// [`pair`]) it falls; None when none or several are.
+pub fn step_for(steps: &[StepTime], controller_ns: i128, tolerance_ns: u64) -> Option<usize> {
+    let mut near = steps
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| within((controller_ns - s.trigger_ns as i128) as f64, tolerance_ns));
+    match (near.next(), near.next()) {
+        (Some((i, _)), None) => Some(i),
         _ => None,
     }
+}
+
+/// How many candidate clock offsets are fitted at most.
+const MAX_FITTED: usize = 21;
+
+/// The clock offsets worth fitting, best first: each alignment of a reference frame
+/// (the frames a quarter, half and three quarters through by stamp, in case one is a
+/// stray) with each step, and the densest cluster of frame-minus-step differences,
+/// scored by how many frames the offset alone gives exactly one step. Offsets under
+/// which most frames would have reached the host before their LED was lit are left
+/// out. The [`MAX_FITTED`] best are returned; None when more than that many tie for the
+/// best score, so that the true offset might not be among them (far more steps than
+/// frames): that is refused, not guessed.
+fn candidate_offsets(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    tolerance_ns: u64,
+    max_offset_ns: u64,
+    first: u64,
+    arrivals: Option<Arrivals<'_>>,
+) -> Option<Vec<f64>> {
+    let densest = estimate_offset(steps, frames, tolerance_ns, max_offset_ns) as f64;
+    let mut by_stamp: Vec<u64> = frames.iter().map(|f| f.timestamp_ns).collect();
+    by_stamp.sort_unstable();
+    let mut refs: Vec<u64> = [1, 2, 3]
+        .iter()
+        .filter_map(|q| by_stamp.get(by_stamp.len() * q / 4).copied())
+        .collect();
+    refs.dedup();
+    // The window's centre: a tolerance early to two late.
+    let centre = (LATE_TOLERANCES - 1.0) / 2.0 * tolerance_ns as f64;
+    let mut offsets: Vec<f64> = refs
+        .iter()
+        .flat_map(|&r| {
+            steps
+                .iter()
+                .map(move |s| r as f64 - s.trigger_ns as f64 - centre)
+        })
+        .filter(|o| o.abs() <= max_offset_ns as f64)
+        .chain(std::iter::once(densest))
+        .collect();
+    offsets.sort_by(f64::total_cmp);
+    offsets.dedup_by(|a, b| (*a - *b).abs() < tolerance_ns as f64 / 2.0);
+    let mut triggers: Vec<(u64, usize)> = steps
+        .iter()
+        .enumerate()
+        .map(|(i, s)| (s.trigger_ns, i))
+        .collect();
+    triggers.sort_unstable();
+    let mut scored: Vec<(usize, f64)> = offsets
+        .into_iter()
+        .filter_map(|offset_ns| {
+            let map = ClockMap {
+                t0_ns: first as i128,
+                offset_ns,
+                drift: 0.0,
+            };
+            let pairs = quick_pairs(&triggers, frames, &map, tolerance_ns);
+            let ruled_out = arrivals.is_some_and(|a| {
+                let p = Pairing {
+                    matched: pairs.clone(),
+                    ..Pairing::default()
+                };
+                arrives_before_lit(steps, first, a, &p)
+            });
+            (!ruled_out).then_some((pairs.len(), offset_ns))
+        })
+        .collect();
+    // Best first; among equals, nearest the densest cluster.
+    scored.sort_by(|a, b| {
+        b.0.cmp(&a.0)
+            .then((a.1 - densest).abs().total_cmp(&(b.1 - densest).abs()))
+    });
+    let best = scored.first().map_or(0, |s| s.0);
+    let tied = scored.iter().filter(|s| s.0 == best).count();
+    if best > 0 && tied > MAX_FITTED {
+        return None;
+    }
+    if scored.is_empty() {
+        // Everything ruled out: fit the densest, for the refusal that follows.
+        return Some(vec![densest]);
+    }
+    Some(scored.into_iter().take(MAX_FITTED).map(|s| s.1).collect())
+}
+
+/// (step, frame) for each frame with exactly one step in its window under `map`;
+/// `triggers` (trigger, step index) sorted by trigger.
+fn quick_pairs(
+    triggers: &[(u64, usize)],
+    frames: &[FrameTime],
+    map: &ClockMap,
+    tolerance_ns: u64,
+) -> Vec<(usize, usize)> {
+    let tol = tolerance_ns as f64;
+    frames
+        .iter()
+        .enumerate()
+        .filter_map(|(fi, f)| {
+            let t = f.timestamp_ns as f64 - map.offset_ns;
+            let lo = t - LATE_TOLERANCES * tol;
+            let from = triggers.partition_point(|&(x, _)| (x as f64) < lo);
+            let mut near = triggers[from..]
+                .iter()
+                .take_while(|&&(x, _)| x as f64 <= t + tol);
+            match (near.next(), near.next()) {
+                (Some(&(_, si)), None) => Some((si, fi)),
+                _ => None,
+            }
+        })
+        .collect()
 }
 
 /// The clock offset most frame/step pairs agree on: the centre of the densest window
@@ -517,18 +677,19 @@ mod tests {
     fn a_known_offset_gives_each_frame_its_one_step() {
         let s = steps(10);
         let f = frames_for(&s, 7_000_000, &[0, 1_000_000, -2_000_000]);
+        let mapped = |f: &FrameTime, offset: i64| f.timestamp_ns as i128 - offset as i128;
         for (k, frame) in f.iter().enumerate() {
-            assert_eq!(step_for(&s, frame, 7_000_000, TOL), Some(k));
+            assert_eq!(step_for(&s, mapped(frame, 7_000_000), TOL), Some(k));
         }
         // A wrong offset by a step period would label every frame with its neighbour:
         // only the right offset gives frame 0 a step before it is too late.
-        assert_eq!(step_for(&s, &f[0], 7_000_000 + PERIOD as i64, TOL), None);
+        assert_eq!(
+            step_for(&s, mapped(&f[0], 7_000_000 + PERIOD as i64), TOL),
+            None
+        );
         // Between two steps, nothing.
-        let between = FrameTime {
-            frame_number: 0,
-            timestamp_ns: s[3].trigger_ns + PERIOD / 2,
-        };
-        assert_eq!(step_for(&s, &between, 0, TOL), None);
+        let between = s[3].trigger_ns as i128 + PERIOD as i128 / 2;
+        assert_eq!(step_for(&s, between, TOL), None);
     }
 
     const PERIOD: u64 = 40_000_000; // 40 ms steps

@@ -6,7 +6,9 @@
 //!   serial port;
 //! * [`capture`]: one capture sequence — the controller steps through LEDs, the camera's
 //!   frames are taken off the iceoryx2 frame service (the one copy out of shared
-//!   memory) and every frame is labelled with the LED that lit it ([`label`]);
+//!   memory) and every frame is labelled with the LED that lit it: [`labeller`], the
+//!   sans-IO state machine the capture loop feeds (steps and frames in, labels out),
+//!   on [`label`], the pairing of camera stamps with controller triggers;
 //! * [`stage`]: how the focus stage moves (by hand, or a motorised or virtual stage);
 //! * [`board_geometry`]: the array geometry a board stores, from and to a calibration;
 //! * [`pipeline`]: the acquisition — calibrate (pdcFPM) → order nearest-first → capture
@@ -18,6 +20,7 @@ pub mod board_geometry;
 pub mod capture;
 pub mod controller;
 pub mod label;
+pub mod labeller;
 pub mod page;
 pub mod pipeline;
 pub mod stage;

@@ -57,13 +57,10 @@ fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
 /// The 0.5 % and 99.5 % points of `image` (the display window napari starts with).
 fn window(image: ArrayView2<'_, f32>) -> (f32, f32) {
     let mut v: Vec<f32> = image.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return (0.0, 1.0);
+    match fpm_physics::stats::quantiles(&mut v, [0.005, 0.995]) {
+        Some([lo, hi]) => (lo, hi),
+        None => (0.0, 1.0),
     }
-    let n = v.len() - 1;
-    let lo = *v.select_nth_unstable_by(n / 200, f32::total_cmp).1;
-    let hi = *v.select_nth_unstable_by(n - n / 200, f32::total_cmp).1;
-    (lo, hi)
 }
 
 /// Write `object` (sampled at `pixel_um`) as the OME-Zarr group `dir`: channel 0 the

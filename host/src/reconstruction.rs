@@ -632,18 +632,10 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
     Ok(())
 }
 
-/// The values at fractions `qs` of `a`'s sorted order (the element at ⌊(n − 1)·q⌋),
-/// selected from one copy.
+/// The values at fractions `qs` of `a`'s sorted order, selected from one copy.
 fn quantiles<const N: usize>(a: &Array2<f32>, qs: [f64; N]) -> [f32; N] {
     let mut v: Vec<f32> = a.iter().copied().collect();
-    if v.is_empty() {
-        return [0.0; N];
-    }
-    let last = v.len() - 1;
-    qs.map(|q| {
-        *v.select_nth_unstable_by((last as f64 * q) as usize, f32::total_cmp)
-            .1
-    })
+    fpm_physics::stats::quantiles(&mut v, qs).unwrap_or([0.0; N])
 }
 
 /// The object's PNG previews, each with a scale bar at `pixel_um`: the amplitude over

@@ -236,8 +236,7 @@ pub fn pair_with_arrivals(
             .iter()
             .filter_map(|&(si, fi)| Some(a.frames_ns.get(fi)? - a.steps_ns.get(si)?))
             .collect();
-        l.sort_unstable();
-        l.get(l.len() / 2).copied()
+        fpm_physics::stats::median(&mut l)
     };
     // Of the candidates labelling at least `at_least` frames, the one whose frames
     // arrive soonest after their steps without arriving before them.
@@ -460,12 +459,7 @@ fn fit(
         .iter()
         .map(|&(si, fi)| map.residual_ns(&steps[si], &frames[fi]))
         .collect();
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let m = median(&mut residuals.clone());
-    let mad = median(&mut residuals.iter().map(|r| (r - m).abs()).collect()) * 1.4826;
+    let (m, mad) = fpm_physics::stats::median_and_sigma(&residuals)?;
     let keep = (4.0 * mad).max(1_000.0);
     // x: controller time since t0 (s); y: camera minus controller (ns).
     let points: Vec<(f64, f64)> = matched

@@ -170,10 +170,7 @@ pub fn coverage(outcomes: &[Outcome]) -> Coverage {
             .filter(|s| s[p] <= k)
             .count()
     };
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(|a, b| a.total_cmp(b));
-        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-    };
+    let median = |mut v: Vec<f64>| crate::stats::median(&mut v).unwrap_or(f64::NAN);
     let column = |f: &dyn Fn(&Outcome) -> Option<f64>| -> Vec<f64> {
         answered.iter().filter_map(|o| f(o)).map(f64::abs).collect()
     };

@@ -44,7 +44,8 @@ pub fn median(values: impl IntoIterator<Item = f32>) -> f32 {
     if keys.is_empty() {
         return 0.0;
     }
-    let mid = keys.len() / 2;
+    // crate::stats' rank rule, on integer keys (twice as fast as comparing floats).
+    let mid = crate::stats::rank(keys.len(), 0.5);
     let (_, m, _) = keys.select_nth_unstable(mid);
     from_order_key(*m)
 }

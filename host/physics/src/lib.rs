@@ -27,6 +27,7 @@ pub mod metrics;
 pub mod optics;
 pub mod reconstruct;
 pub mod simulate;
+pub mod stats;
 pub mod study;
 pub mod tiles;
 

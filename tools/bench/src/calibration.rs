@@ -71,8 +71,7 @@ impl Floor {
 }
 
 fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    fpm_physics::stats::median(v).unwrap_or(f64::NAN)
 }
 
 pub(crate) fn run(

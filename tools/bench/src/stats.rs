@@ -22,11 +22,12 @@ impl Percentiles {
     pub fn of(samples: &mut [f64]) -> Self {
         samples.sort_by(|a, b| a.total_cmp(b));
         let n = samples.len();
+        // fpm_physics::stats' one rank rule, on the sorted samples.
         let at = |q: f64| -> f64 {
             if n == 0 {
                 return f64::NAN;
             }
-            samples[((q * n as f64).ceil() as usize).clamp(1, n) - 1]
+            samples[fpm_physics::stats::rank(n, q)]
         };
         Self {
             count: n,

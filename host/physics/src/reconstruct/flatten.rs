@@ -407,11 +407,7 @@ fn robust_fit(
 }
 
 fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    crate::stats::median(v).unwrap_or(0.0)
 }
 
 /// The amplitude of the clear background: the most common amplitude (clear glass is
@@ -419,9 +415,7 @@ fn median(v: &mut [f64]) -> f64 {
 fn clear_amplitude(field: ndarray::ArrayView2<'_, Complex32>) -> Option<f32> {
     const BINS: usize = 256;
     let mut amplitudes: Vec<f32> = field.iter().map(|v| v.norm()).collect();
-    let mid = amplitudes.len() / 2;
-    let (_, median, _) = amplitudes.select_nth_unstable_by(mid, f32::total_cmp);
-    let top = 2.0 * *median;
+    let top = 2.0 * crate::stats::median(&mut amplitudes)?;
     if !(top > 0.0 && top.is_finite()) {
         return None;
     }

@@ -116,7 +116,7 @@ pub fn run(a: AcquireArgs) -> Result<()> {
     Ok(())
 }
 
-/// The acquisition, returning its summary (used by `fpm demo` too).
+/// The acquisition, returning its summary.
 pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
     let timeout = Duration::from_secs(2);
     let port = match &a.port {
@@ -161,12 +161,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         tile: a.tile,
         flatten: a.flatten.flatten(),
     };
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(
-            "acquiring [{bar:40}] {pos}/{len} frames ({per_sec}, {eta} left)",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = crate::progress::frames("acquiring");
     let summary = run_pipeline(&dev, stage.as_mut(), &plan, |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);

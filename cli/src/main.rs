@@ -10,6 +10,7 @@ mod color;
 mod demo;
 mod device;
 mod flatten;
+mod progress;
 mod reconstruct;
 mod shell;
 mod simulate;

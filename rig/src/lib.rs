@@ -13,5 +13,6 @@
 //!   as children and stopped on drop, shared by the demo, the benchmarks and the tests.
 
 pub mod camera;
+pub mod demo;
 pub mod process;
 pub mod stage;

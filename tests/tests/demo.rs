@@ -112,3 +112,62 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
         assert!(out.join(f).is_file(), "{f} missing");
     }
 }
+
+/// The README's way to run the real firmware: `fpm demo --firmware` with the image
+/// users flash, in rp2040js. The emulated RP2040's clock runs at its own rate against
+/// this host's (a fraction of real time, with idle jumps): every frame is still
+/// labelled, and the result is as sharp as with the host-compiled controller.
+#[test]
+fn the_demo_runs_the_real_firmware_image() {
+    let dir = TempDir::new("demo-firmware");
+    let out = dir.0.join("run");
+    let uf2 = fpm_tests::firmware_uf2();
+    let run = Command::new(fpm_bin())
+        .args(["demo", "--json", "--step-ms", "20", "--seed", "4"])
+        .arg("--firmware")
+        .arg(uf2)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["controller"]["firmware_image"], true);
+    let capture = &report["acquisition"]["capture"];
+    assert_eq!(capture["labelled"], 441, "{capture}");
+    assert_eq!(capture["requested"], 441);
+    assert_eq!(capture["relabelled"], 0);
+    let calibrated = report["complex_nrmse"]["calibrated"].as_f64().unwrap();
+    let nominal = report["complex_nrmse"]["nominal"].as_f64().unwrap();
+    assert!(
+        calibrated <= 0.08 && calibrated < 0.5 * nominal,
+        "{calibrated} vs {nominal}"
+    );
+}
+
+/// A `--firmware` path that is not there is named as missing before anything starts.
+#[test]
+fn a_missing_firmware_image_is_named() {
+    let dir = TempDir::new("demo-no-firmware");
+    let missing = dir.0.join("nowhere.uf2");
+    let run = Command::new(fpm_bin())
+        .args(["demo", "--firmware"])
+        .arg(&missing)
+        .arg("--out")
+        .arg(dir.0.join("run"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("--firmware")
+            && stderr.contains("nowhere.uf2")
+            && stderr.contains("no such file"),
+        "{stderr}"
+    );
+    assert!(
+        !dir.0.join("run").exists(),
+        "nothing is written for a refused demo"
+    );
+}

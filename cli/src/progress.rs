@@ -1,0 +1,12 @@
+//! Progress bars on stderr (hidden when it is not a terminal).
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// A bar counting frames, `what` in front: "acquiring [====    ] 120/441 frames (…)".
+pub fn frames(what: &str) -> ProgressBar {
+    let template =
+        format!("{what} [{{bar:40}}] {{pos}}/{{len}} frames ({{per_sec}}, {{eta}} left)");
+    ProgressBar::new(0).with_style(
+        ProgressStyle::with_template(&template).unwrap_or_else(|_| ProgressStyle::default_bar()),
+    )
+}

@@ -10,6 +10,7 @@ use fpm_acquire::controller::discover;
 use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
 use fpm_acquire::{Controller, FocusStage, ManualStage};
 use fpm_frames::ServiceNames;
+use fpm_host::calibration::GeometrySource;
 use fpm_physics::System;
 use fpm_protocol::Rgb;
 use fpm_rig::stage::VirtualStage;
@@ -195,8 +196,8 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
     println!(
         "geometry used ({}): Δx {:.3} mm, Δy {:.3} mm, θ {:.3}°, h {:.2} mm",
         match s.geometry_source {
-            "board" => "stored on the board",
-            "calibration.json" => "calibrated now",
+            GeometrySource::Board => "stored on the board",
+            GeometrySource::CalibratedNow => "calibrated now",
             _ => "nominal: not calibrated",
         },
         g.dx_mm,

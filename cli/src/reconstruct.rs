@@ -6,15 +6,11 @@ use anyhow::{bail, Result};
 use clap::Args;
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{GammaScan, Refine, Settings};
-use fpm_physics::LedGeometry;
 
-use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
-use fpm_host::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 use fpm_host::reconstruction::{
-    reconstruct, reconstruct_on_disk, write_outputs_with, ImageFormat, OutputOptions, ZARR_NAME,
+    CameraGamma, GeometryChoice, ImageFormat, Job, JobEvent, OutputOptions, Report, ZARR_NAME,
 };
-use fpm_host::truth::score_reconstruction;
 
 use crate::flatten::FlattenArgs;
 use crate::units::positive_mm;
@@ -143,15 +139,6 @@ pub struct ReconstructArgs {
     json: bool,
 }
 
-/// `--camera-gamma`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum CameraGamma {
-    /// Read from the frames.
-    Auto,
-    /// This exponent.
-    Exponent(f64),
-}
-
 fn camera_gamma(text: &str) -> Result<CameraGamma, String> {
     if text.eq_ignore_ascii_case("auto") {
         return Ok(CameraGamma::Auto);
@@ -205,38 +192,6 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     }
 }
 
-/// `--camera-gamma auto`: scan the frames of `ds` and decode them with the gamma
-/// found (or as linear). Without a stated bit depth, the frames' sample type gives the
-/// full scale.
-fn scan_gamma(
-    ds: &mut DatasetOnDisk,
-    geometry: &LedGeometry,
-    settings: Settings,
-    passes: usize,
-) -> Result<GammaScan> {
-    let bar = indicatif::ProgressBar::new(1).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "reading the camera gamma of {} [{{bar:40}}] {{pos}}/{{len}} candidates ({{eta}} left)",
-            ds.dir.display()
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let progress = |done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    };
-    let system = ds.manifest.system();
-    let scan = fpm_host::camera_gamma::scan(ds, &system, geometry, settings, passes, &progress)?;
-    bar.finish_and_clear();
-    let bits = ds.sample_bits();
-    let camera = &mut ds.manifest.camera;
-    camera.gamma = scan.gamma();
-    if camera.gamma.is_some() && camera.bit_depth.is_none() {
-        camera.bit_depth = Some(bits);
-    }
-    Ok(scan)
-}
-
 /// One line on what `--camera-gamma auto` found.
 fn gamma_summary(scan: &GammaScan) -> String {
     let read = if scan.linear {
@@ -260,125 +215,97 @@ fn gamma_summary(scan: &GammaScan) -> String {
     )
 }
 
+impl ReconstructArgs {
+    /// The job these arguments describe.
+    fn job(&self) -> Job {
+        Job {
+            geometry: match (&self.calibration, self.led_height_mm) {
+                (Some(path), _) => GeometryChoice::File(path.clone()),
+                (None, Some(h)) => GeometryChoice::LedHeightMm(h),
+                (None, None) => GeometryChoice::Nominal,
+            },
+            entrance_pupil_mm: self.entrance_pupil_mm,
+            camera_gamma: self.camera_gamma,
+            settings: Settings {
+                upsample: self.upsample,
+                update_pupil: !self.fixed_pupil,
+                alpha: self.alpha,
+                beta: self.beta,
+                background: self.background(),
+                refine_leds: self.refine_leds.then(Refine::default),
+                flatten: self.flatten.flatten(),
+                defocus_um: self.refocus_um,
+            },
+            passes: self.passes,
+            tile: self.tile,
+            frame_memory_gb: self.frame_memory_gb,
+        }
+    }
+
+    fn output(&self) -> OutputOptions {
+        OutputOptions {
+            format: match self.format {
+                FormatArg::Tiff => ImageFormat::Tiff,
+                FormatArg::OmeZarr => ImageFormat::OmeZarr,
+            },
+            tiff: TiffOptions {
+                compress: self.compress,
+                ..TiffOptions::default()
+            },
+        }
+    }
+}
+
 /// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
 /// stay quiet but for warnings (a batch prints its own line per dataset).
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
-    let manifest_path = dir.join("dataset.toml");
-    let mut on_disk = DatasetOnDisk::open(dir)?;
-    on_disk.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
-    let nominal = on_disk.manifest.geometry();
-    let (geometry, source) = match (&a.calibration, a.led_height_mm) {
-        (Some(path), _) => (
-            Placement::read(path)?.geometry(&nominal),
-            path.display().to_string(),
-        ),
-        (None, Some(height_mm)) => (
-            LedGeometry {
-                height_mm,
-                ..nominal
-            },
-            format!("nominal (dataset.toml) at --led-height-mm {height_mm}"),
-        ),
-        (None, None) => (nominal, "nominal (dataset.toml)".to_string()),
-    };
-    let settings = Settings {
-        upsample: a.upsample.max(1),
-        update_pupil: !a.fixed_pupil,
-        alpha: a.alpha,
-        beta: a.beta,
-        background: a.background(),
-        refine_leds: a.refine_leds.then(Refine::default),
-        flatten: a.flatten.flatten(),
-        defocus_um: a.refocus_um,
-    };
-    let gamma_scan = match a.camera_gamma {
-        Some(CameraGamma::Exponent(gamma)) => {
-            on_disk.manifest.camera.set_gamma(gamma, &manifest_path)?;
-            None
-        }
-        Some(CameraGamma::Auto) => {
-            let scan = scan_gamma(&mut on_disk, &geometry, settings, a.passes)?;
-            if print {
-                println!("{}", gamma_summary(&scan));
-            }
-            Some(scan)
-        }
-        None => None,
-    };
-    let bytes = on_disk.in_focus_bytes();
-    let in_memory = if bytes as f64 <= a.frame_memory_gb * 1e9 {
-        let mut ds = Dataset::load(dir)?;
-        ds.manifest.entrance_pupil_mm = a.entrance_pupil_mm;
-        ds.manifest.camera = on_disk.manifest.camera;
-        Some(ds)
-    } else {
-        eprintln!(
+    let gamma_bar = crate::progress::counter(
+        &format!("reading the camera gamma of {}", dir.display()),
+        "candidates",
+    );
+    let bar = crate::progress::counter(
+        &format!("reconstructing {}", dir.display()),
+        "frame updates",
+    );
+    let finished = a.job().run(dir, &|event| match event {
+        JobEvent::GammaCandidates { done, total } => crate::progress::advance(&gamma_bar, done, total),
+        JobEvent::FromDisk { bytes } => eprintln!(
             "{}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",
             dir.display(),
             bytes as f64 / 1e9,
             a.frame_memory_gb
-        );
-        None
-    };
-    // The manifest and directory, whichever way the frames are read.
-    let ds: &dyn DatasetInfo = &on_disk;
-    let bar = indicatif::ProgressBar::new(1).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "reconstructing {} [{{bar:40}}] {{pos}}/{{len}} frame updates ({{eta}} left)",
-            dir.display()
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let progress = |done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    };
-    let mut r = match &in_memory {
-        Some(ds) => reconstruct(
-            ds, &geometry, &source, settings, a.passes, a.tile, &progress,
-        )?,
-        None => reconstruct_on_disk(
-            &on_disk, &geometry, &source, settings, a.passes, a.tile, &progress,
-        )?,
-    };
-    // The frames are not needed for the outputs.
-    drop(in_memory);
+        ),
+        JobEvent::Updates { done, total } => crate::progress::advance(&bar, done, total),
+    })?;
+    gamma_bar.finish_and_clear();
     bar.finish_and_clear();
-    r.report.camera_gamma_scan = gamma_scan;
-    r.report.versus_truth = score_reconstruction(ds, &r.object, r.report.upsample);
-    if let Some(refined) = r.report.refined_leds.as_mut() {
-        refined.versus_truth = fpm_host::truth::score_led_positions(ds, refined);
-    }
-    let format = match a.format {
-        FormatArg::Tiff => ImageFormat::Tiff,
-        FormatArg::OmeZarr => ImageFormat::OmeZarr,
-    };
-    let tiff = TiffOptions {
-        compress: a.compress,
-        ..TiffOptions::default()
-    };
-    write_outputs_with(&r, out, OutputOptions { format, tiff })?;
-    // The report is an extra: failing to write it is a warning, not a failed run.
-    let context = fpm_host::pages::reconstruction::Context {
-        system: &ds.manifest().system(),
-        nominal: &nominal,
-        reproduce: &fpm_host::html::command_line(),
-    };
-    let page = fpm_host::pages::reconstruction::write(&r, out, &context);
-    if let Err(e) = &page {
-        tracing::warn!("no HTML report: {e:#}");
-    }
-    for w in fpm_host::pages::reconstruction::warnings(&r.report) {
+    let written = finished.write(out, a.output(), &fpm_host::html::command_line())?;
+    for w in &written.warnings {
         eprintln!("warning: {w}");
     }
-    let rep = &r.report;
     if !print {
         return Ok(());
     }
+    let rep = &finished.reconstruction.report;
     if a.json {
         println!("{}", serde_json::to_string_pretty(rep)?);
         return Ok(());
     }
+    if let Some(scan) = &finished.gamma_scan {
+        println!("{}", gamma_summary(scan));
+    }
+    print_report(rep, out, a.output().format);
+    if let Ok(page) = &written.page {
+        println!(
+            "wrote {} (the report: open it in a browser)",
+            page.display()
+        );
+    }
+    Ok(())
+}
+
+/// The report of one reconstruction, as text.
+fn print_report(rep: &Report, out: &Path, format: ImageFormat) {
     println!(
         "{} frames ({}x{}, {} tile(s) of {} px), {} passes, {}x upsampling in {:.2} s ({:.0} ms per pass); amplitude error per pass: first {:.4}, last {:.4}",
         rep.frames,
@@ -405,23 +332,7 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         );
     }
     if let Some(r) = &rep.refined_leds {
-        println!(
-            "LEDs refined: moved {:.3} mm RMS from the geometry's places",
-            r.moved_rms_mm
-        );
-        if let Some(t) = &r.versus_truth {
-            println!(
-                "  versus the simulation's truth: LEDs off by {:.3} mm RMS as given, {:.3} mm refined",
-                t.given_rms_mm, t.refined_rms_mm
-            );
-        }
-        if let Some(b) = &r.board {
-            println!(
-                "  board fitted to them: {} ({})",
-                b.summary(),
-                out.join(fpm_host::refinement::BOARD_FILE).display()
-            );
-        }
+        print_refined(r, out);
     }
     if rep.background_phase.block_um.is_some() {
         println!(
@@ -443,11 +354,24 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
         },
         out.display()
     );
-    if page.is_ok() {
+}
+
+fn print_refined(r: &fpm_host::refinement::RefinedLedsReport, out: &Path) {
+    println!(
+        "LEDs refined: moved {:.3} mm RMS from the geometry's places",
+        r.moved_rms_mm
+    );
+    if let Some(t) = &r.versus_truth {
         println!(
-            "wrote {} (the report: open it in a browser)",
-            out.join("report.html").display()
+            "  versus the simulation's truth: LEDs off by {:.3} mm RMS as given, {:.3} mm refined",
+            t.given_rms_mm, t.refined_rms_mm
         );
     }
-    Ok(())
+    if let Some(b) = &r.board {
+        println!(
+            "  board fitted to them: {} ({})",
+            b.summary(),
+            out.join(fpm_host::refinement::BOARD_FILE).display()
+        );
+    }
 }

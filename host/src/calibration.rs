@@ -32,6 +32,71 @@ impl CalibrationFile {
     }
 }
 
+/// Where the LED geometry a reconstruction or acquisition used came from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum GeometrySource {
+    /// The dataset's nominal placement (dataset.toml).
+    Dataset,
+    /// The dataset's nominal placement at another LED height (`--led-height-mm`).
+    DatasetAtHeight(f64),
+    /// The controller's nominal array (an acquisition without calibration).
+    Controller,
+    /// The calibration stored on the controller board.
+    Board,
+    /// Calibrated by this acquisition (its calibration.json).
+    CalibratedNow,
+    /// A file: calibration.json, refined-board.json, a placement.
+    File(std::path::PathBuf),
+    /// Given by a caller, as it named it (Python: a Calibration, a dict).
+    Given(String),
+}
+
+impl GeometrySource {
+    /// Whether the geometry is a nominal one (nothing measured it).
+    pub fn is_nominal(&self) -> bool {
+        matches!(
+            self,
+            Self::Dataset | Self::DatasetAtHeight(_) | Self::Controller
+        )
+    }
+
+    /// The one-word name acquisition.json uses: "nominal", "board", "calibration.json".
+    pub fn short_name(&self) -> String {
+        match self {
+            Self::Dataset | Self::DatasetAtHeight(_) | Self::Controller => "nominal".into(),
+            Self::Board => "board".into(),
+            Self::CalibratedNow => "calibration.json".into(),
+            other => other.to_string(),
+        }
+    }
+}
+
+impl std::fmt::Display for GeometrySource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Dataset => write!(f, "nominal (dataset.toml)"),
+            Self::DatasetAtHeight(h) => write!(f, "nominal (dataset.toml) at --led-height-mm {h}"),
+            Self::Controller => write!(f, "nominal (controller)"),
+            Self::Board => write!(f, "stored on the board"),
+            Self::CalibratedNow => write!(f, "calibration.json"),
+            Self::File(path) => write!(f, "{}", path.display()),
+            Self::Given(name) => write!(f, "{name}"),
+        }
+    }
+}
+
+/// report.json states the source as the text a person reads.
+impl Serialize for GeometrySource {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+/// acquisition.json states it by its short name ([`GeometrySource::short_name`]).
+pub fn serialize_short<S: serde::Serializer>(g: &GeometrySource, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&g.short_name())
+}
+
 /// The four numbers that place an LED array (docs/dataset.md, "calibration.json").
 pub const GEOMETRY_KEYS: [&str; 4] = ["dx_mm", "dy_mm", "theta_deg", "height_mm"];
 

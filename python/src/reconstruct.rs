@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use fpm_host::calibration::Placement;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
-    reconstruct_with_system as run, write_outputs_with, ImageFormat, OutputOptions,
+    write_outputs_with, GeometryChoice, ImageFormat, Job, OutputOptions,
 };
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Flatten, Refine, Settings};
@@ -96,22 +96,28 @@ impl Reconstruction {
     }
 }
 
-/// The geometry a reconstruction uses and where it came from: the dataset's nominal
-/// one, a Calibration, a dict (a whole geometry, or a placement with dx_mm, dy_mm,
-/// theta_deg, height_mm), or the path of a calibration.json / refined-board.json.
+/// The geometry a reconstruction uses: the dataset's nominal one, a Calibration, a
+/// dict (a whole geometry, or a placement with dx_mm, dy_mm, theta_deg, height_mm), or
+/// the path of a calibration.json / refined-board.json.
 fn geometry_from(
     given: Option<&Bound<'_, PyAny>>,
     nominal: &LedGeometry,
-) -> PyResult<(LedGeometry, String)> {
+) -> PyResult<GeometryChoice> {
     let Some(given) = given.filter(|g| !g.is_none()) else {
-        return Ok((*nominal, "nominal (dataset.toml)".into()));
+        return Ok(GeometryChoice::Nominal);
     };
     if let Ok(c) = given.cast::<Calibration>() {
-        return Ok((c.get().file.geometry(), "fpm.calibrate".into()));
+        return Ok(GeometryChoice::Given(
+            c.get().file.geometry(),
+            "fpm.calibrate".into(),
+        ));
     }
     if let Ok(d) = given.cast::<PyDict>() {
         if d.contains("rows")? {
-            return Ok((from_py(given, "geometry")?, "a geometry dict".into()));
+            return Ok(GeometryChoice::Given(
+                from_py(given, "geometry")?,
+                "a geometry dict".into(),
+            ));
         }
         let text: String = given
             .py()
@@ -120,15 +126,17 @@ fn geometry_from(
             .extract()?;
         let placement = Placement::parse(&text)
             .map_err(|e| PyValueError::new_err(format!("geometry: {e:#}")))?;
-        return Ok((placement.geometry(nominal), "a placement dict".into()));
+        return Ok(GeometryChoice::Given(
+            placement.geometry(nominal),
+            "a placement dict".into(),
+        ));
     }
     let path: PathBuf = given.extract().map_err(|_| {
         PyValueError::new_err(
             "geometry: give a Calibration, a dict, or the path of a calibration.json",
         )
     })?;
-    let placement = Placement::read(&path).map_err(failed)?;
-    Ok((placement.geometry(nominal), path.display().to_string()))
+    Ok(GeometryChoice::File(path))
 }
 
 /// EPRY's settings from the keyword arguments that `reconstruct` and `Streaming` share.
@@ -212,49 +220,32 @@ pub fn reconstruct(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
     let ds = &dataset.get().inner;
-    let system = fpm_physics::System {
+    let geometry = geometry_from(geometry, &ds.manifest.geometry())?;
+    let job = Job {
+        geometry,
         entrance_pupil_mm: entrance_pupil(entrance_pupil_mm)?,
-        ..ds.manifest.system()
+        camera_gamma: None,
+        settings: Settings {
+            refine_leds: refine_leds.then(Refine::default),
+            defocus_um: refocus_um,
+            ..settings(
+                upsample,
+                fixed_pupil,
+                background,
+                floor_sigma,
+                flatten_background,
+                background_block_um,
+            )?
+        },
+        passes,
+        tile,
+        ..Job::default()
     };
-    let (geometry, source) = geometry_from(geometry, &ds.manifest.geometry())?;
-    if passes == 0 {
-        return Err(PyValueError::new_err("passes must be at least 1"));
-    }
-    if !refocus_um.is_finite() {
-        return Err(PyValueError::new_err(format!(
-            "refocus_um = {refocus_um}: give a finite distance in µm"
-        )));
-    }
-    let settings = Settings {
-        refine_leds: refine_leds.then(Refine::default),
-        defocus_um: refocus_um,
-        ..settings(
-            upsample,
-            fixed_pupil,
-            background,
-            floor_sigma,
-            flatten_background,
-            background_block_um,
-        )?
-    };
+    // The same checks, and the same words, as `fpm reconstruct`.
+    job.validate()
+        .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
     let progress = Progress::new(progress);
-    let result = py.detach(|| {
-        let mut r = run(
-            ds,
-            &system,
-            &geometry,
-            &source,
-            settings,
-            passes,
-            tile,
-            &|done, total| progress.report(done, total),
-        )?;
-        r.report.versus_truth = fpm_host::truth::score_reconstruction(ds, &r.object, upsample);
-        if let Some(refined) = r.report.refined_leds.as_mut() {
-            refined.versus_truth = fpm_host::truth::score_led_positions(ds, refined);
-        }
-        Ok::<_, anyhow::Error>(r)
-    });
+    let result = py.detach(|| job.run_in_memory(ds, &|done, total| progress.report(done, total)));
     progress.finish()?;
     Ok(Reconstruction {
         inner: result.map_err(failed)?,

@@ -199,7 +199,7 @@ impl Streaming {
             std::path::Path::new("(streamed)"),
             &self.system,
             &self.geometry,
-            "given to fpm.Streaming",
+            &fpm_host::calibration::GeometrySource::Given("given to fpm.Streaming".into()),
             self.settings,
             passes,
             lit.len(),

@@ -14,8 +14,8 @@ use fpm_acquire::controller::Controller;
 use fpm_acquire::pipeline::{acquire, AcquireSummary, Plan};
 use fpm_frames::ServiceNames;
 use fpm_host::dataset::Dataset;
-use fpm_host::reconstruction::reconstruct;
-use fpm_host::truth::{score_reconstruction, Truth};
+use fpm_host::reconstruction::{GeometryChoice, Job};
+use fpm_host::truth::Truth;
 use fpm_physics::reconstruct::{Flatten, Settings};
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{DeviceInfo, Half, LinkStats, Lit, Pattern, Rgb};
@@ -340,18 +340,28 @@ fn score(
         flatten,
         ..Settings::default()
     };
-    let run = |g: &LedGeometry| reconstruct(&ds, g, "demo", settings, 10, None, &|_, _| {});
-    let (with_nominal, with_calibrated) = (run(&nominal)?, run(calibrated)?);
-    let nrmse =
-        |object| score_reconstruction(&ds, object, settings.upsample).map(|s| s.complex_nrmse);
+    let run = |geometry: &LedGeometry, name: &str| {
+        let job = Job {
+            geometry: GeometryChoice::Given(*geometry, name.into()),
+            settings,
+            passes: 10,
+            ..Job::default()
+        };
+        job.run_in_memory(&ds, &|_, _| {})
+    };
+    let (with_nominal, with_calibrated) =
+        (run(&nominal, "nominal")?, run(calibrated, "calibrated")?);
+    let nrmse = |r: &fpm_host::reconstruction::Reconstruction| {
+        r.report.versus_truth.as_ref().map(|s| s.complex_nrmse)
+    };
     // The acquisition scored its streamed image already (report.json, versus_truth).
     let streamed = std::fs::read_to_string(out.join("reconstruction").join("report.json"))
         .ok()
         .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
         .and_then(|report| report["versus_truth"]["complex_nrmse"].as_f64());
     let quality = Quality {
-        nominal: nrmse(&with_nominal.object),
-        calibrated: nrmse(&with_calibrated.object),
+        nominal: nrmse(&with_nominal),
+        calibrated: nrmse(&with_calibrated),
         streamed,
     };
     // The picture is an extra: a failure to draw it is a warning.

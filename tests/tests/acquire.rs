@@ -338,7 +338,7 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     let offline = fpm_host::reconstruction::reconstruct(
         &ds,
         &ds.manifest.geometry(),
-        "test",
+        &fpm_host::calibration::GeometrySource::Given("test".into()),
         fpm_physics::reconstruct::Settings::default(),
         4,
         None,
@@ -543,7 +543,7 @@ fn a_live_acquisition_through_a_non_telecentric_objective_states_its_pupil() {
         let r = fpm_host::reconstruction::reconstruct(
             &ds,
             &geometry,
-            "test",
+            &fpm_host::calibration::GeometrySource::Given("test".into()),
             fpm_physics::reconstruct::Settings::default(),
             4,
             Some(192),

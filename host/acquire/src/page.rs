@@ -72,7 +72,7 @@ pub fn warnings(s: &AcquireSummary, failure: Option<&str>) -> Vec<String> {
                 .collect::<Vec<_>>()
         ));
     }
-    if s.geometry_source == "nominal" {
+    if s.geometry_source.is_nominal() {
         out.push(
             "the LED positions are nominal (no calibration given, none stored on the board): run with --calibrate"
                 .into(),
@@ -151,7 +151,11 @@ fn write_acquisition(
         "LED array used",
         format!(
             "{}: Δx {:+.4} mm, Δy {:+.4} mm, θ {:+.4}°, h {:.3} mm",
-            s.geometry_source, g.dx_mm, g.dy_mm, g.theta_deg, g.height_mm
+            s.geometry_source.short_name(),
+            g.dx_mm,
+            g.dy_mm,
+            g.theta_deg,
+            g.height_mm
         ),
     ));
     if let (Some(ms), Some(us)) = (s.last_frame_to_final_ms, s.update_us_mean) {

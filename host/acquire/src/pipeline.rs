@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_frames::ServiceNames;
-use fpm_host::calibration::calibrate_dataset;
+use fpm_host::calibration::{calibrate_dataset, GeometrySource};
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
 use fpm_physics::calibrate::Options;
@@ -76,9 +76,10 @@ pub struct AcquireSummary {
     /// dataset needs `--entrance-pupil-mm` again.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub entrance_pupil_mm: Option<f64>,
-    /// Where it came from: "calibration.json", "board" (the calibration stored on the
-    /// controller) or "nominal".
-    pub geometry_source: &'static str,
+    /// Where it came from: acquisition.json says "calibration.json", "board" (the
+    /// calibration stored on the controller) or "nominal".
+    #[serde(serialize_with = "fpm_host::calibration::serialize_short")]
+    pub geometry_source: GeometrySource,
     /// The calibration stored on the board, as read at the start (None: none, or the
     /// firmware predates stored geometry).
     pub board_calibration: Option<BoardCalibration>,
@@ -201,14 +202,14 @@ pub fn acquire(
     // 1. Calibration: a focused reference under the centre LED, then the 5×5 LEDs
     // around it with the calibration slide defocused.
     let mut geometry = nominal;
-    let mut geometry_source = "nominal";
+    let mut geometry_source = GeometrySource::Controller;
     let board_calibration = stored_calibration(dev);
     let mut calibration_reports = vec![];
     if !plan.calibrate {
         match &board_calibration {
             Some(c) => {
                 geometry = board_geometry::geometry(&nominal, c);
-                geometry_source = "board";
+                geometry_source = GeometrySource::Board;
                 tracing::info!(
                     "starting from the geometry stored on the board: {}",
                     board_geometry::describe(c)
@@ -263,7 +264,7 @@ pub fn acquire(
         )?;
         page::calibration(&cal, &system, &options, &plan.out);
         geometry = cal.geometry();
-        geometry_source = "calibration.json";
+        geometry_source = GeometrySource::CalibratedNow;
         if plan.store_geometry {
             let record = board_geometry::from_calibration_file(
                 &plan.out.join("calibration.json"),
@@ -385,16 +386,11 @@ pub fn acquire(
         };
         let ms = last_frame_at.elapsed().as_secs_f64() * 1e3;
         last_frame_to_final_ms = Some(ms);
-        let source = match geometry_source {
-            "board" => "stored on the board",
-            "nominal" => "nominal (controller)",
-            other => other,
-        };
         let mut report = Report::new(
             &ds.dir,
             &ds.manifest.system(),
             &geometry,
-            source,
+            &geometry_source,
             settings,
             plan.passes,
             frames.len(),

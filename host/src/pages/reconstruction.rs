@@ -25,7 +25,7 @@ pub struct Context<'a> {
 /// What a user must know before trusting the images of `report`.
 pub fn warnings(report: &Report) -> Vec<String> {
     let mut out = vec![];
-    if report.geometry_source.starts_with("nominal") {
+    if report.geometry_source.is_nominal() {
         out.push(
             "the LED positions are the nominal ones, not calibrated: an array off by a fraction of a millimetre blurs and distorts the image (fpm calibrate, or --calibration)"
                 .to_string(),
@@ -65,7 +65,7 @@ pub fn warnings(report: &Report) -> Vec<String> {
     if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
         // A calibrated h is only as good as the defocus it was told; a dataset's h
         // may simply be wrong, and the edge's own estimate can stand in for it.
-        let advice = if report.geometry_source.starts_with("nominal") {
+        let advice = if report.geometry_source.is_nominal() {
             format!(
                 "the dataset's height_mm (or its NA) may be off: --led-height-mm {:.1} reconstructs with the edge's height",
                 b.estimate.height_mm
@@ -89,7 +89,7 @@ pub fn warnings(report: &Report) -> Vec<String> {
                 format!("an objective whose entrance pupil is {mm:.0} mm above the sample"),
                 format!(
                     "if the objective is not telecentric (a camera lens, a simple low-power objective), reconstruct with --entrance-pupil-mm {mm:.0}{}",
-                    if report.geometry_source.starts_with("nominal") {
+                    if report.geometry_source.is_nominal() {
                         format!(" --led-height-mm {:.1}", p.height_mm)
                     } else {
                         String::new()
@@ -263,12 +263,13 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         "pupil",
         "The recovered pupil in NA units, with the objective's NA circle (green); phase white where the amplitude is under 5 %.",
     );
+    let source = rep.geometry_source.to_string();
     embed_chart(
         &mut page,
         &LedPositions {
             nominal: c.nominal,
             used: &rep.geometry,
-            source: &rep.geometry_source,
+            source: &source,
             system: c.system,
         },
         plots,

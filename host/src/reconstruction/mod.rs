@@ -1,6 +1,8 @@
 //! EPRY on a dataset: frame normalisation and order, the passes, and the outputs.
 //! The algorithm itself is `fpm_physics::reconstruct`.
 
+pub mod job;
+
 use std::path::Path;
 use std::time::Instant;
 
@@ -17,9 +19,11 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use serde::Serialize;
 
+use crate::calibration::GeometrySource;
 use crate::dataset::image_io::{self, TiffOptions};
 use crate::dataset::{Dataset, DatasetOnDisk, Pixels};
 use crate::refinement::RefinedLedsReport;
+pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent, Written};
 
 /// What a reconstruction produced.
 pub struct Reconstruction {
@@ -51,8 +55,8 @@ pub struct Report {
     pub system: System,
     /// Geometry used for the wave vectors.
     pub geometry: LedGeometry,
-    /// Where it came from: "nominal" or a calibration file.
-    pub geometry_source: String,
+    /// Where it came from.
+    pub geometry_source: GeometrySource,
     /// HR pixels per camera pixel.
     pub upsample: usize,
     /// The reconstruction's pixel in the sample plane, µm (the camera pixel over the
@@ -207,7 +211,7 @@ impl Report {
         dataset: &Path,
         system: &System,
         geometry: &LedGeometry,
-        source: &str,
+        source: &GeometrySource,
         settings: Settings,
         passes: usize,
         frames: usize,
@@ -240,7 +244,7 @@ impl Report {
             dataset: dataset.display().to_string(),
             system: *system,
             geometry: *geometry,
-            geometry_source: source.into(),
+            geometry_source: source.clone(),
             upsample: settings.upsample.max(1),
             pixel_um: system.sample_pixel_um() / settings.upsample.max(1) as f64,
             passes,
@@ -386,7 +390,7 @@ impl BackgroundPhaseReport {
 pub fn reconstruct(
     ds: &Dataset,
     geometry: &LedGeometry,
-    source: &str,
+    source: &GeometrySource,
     settings: Settings,
     passes: usize,
     tile: Option<usize>,
@@ -405,7 +409,7 @@ pub fn reconstruct_with_system(
     ds: &Dataset,
     system: &System,
     geometry: &LedGeometry,
-    source: &str,
+    source: &GeometrySource,
     settings: Settings,
     passes: usize,
     tile: Option<usize>,
@@ -454,7 +458,7 @@ fn lit<'a>(ds: &DatasetOnDisk, k: usize, pixels: &'a Pixels) -> LitFrame<'a> {
 pub fn reconstruct_on_disk(
     ds: &DatasetOnDisk,
     geometry: &LedGeometry,
-    source: &str,
+    source: &GeometrySource,
     settings: Settings,
     passes: usize,
     tile: Option<usize>,

@@ -1,0 +1,381 @@
+//! A reconstruction job: one dataset, how to reconstruct it, and where the result goes
+//! — what `fpm reconstruct`, its batch runner (`--out-root`) and Python all run. Its
+//! settings are checked up front, each against a stated range, and a value outside it
+//! is an error naming the setting.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use fpm_physics::reconstruct::{GammaScan, Settings};
+use fpm_physics::{LedGeometry, System};
+
+use super::{
+    reconstruct_on_disk, reconstruct_with_system, write_outputs_with, OutputOptions, Reconstruction,
+};
+use crate::calibration::{GeometrySource, Placement};
+use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
+
+/// Which LED geometry the job reconstructs with.
+#[derive(Debug, Clone, PartialEq)]
+pub enum GeometryChoice {
+    /// The dataset's nominal placement.
+    Nominal,
+    /// A calibration.json, refined-board.json or placement file.
+    File(PathBuf),
+    /// The nominal placement at this LED height, mm.
+    LedHeightMm(f64),
+    /// A geometry the caller made, and what to call its source.
+    Given(LedGeometry, String),
+}
+
+impl GeometryChoice {
+    /// The geometry and its source, for a dataset whose nominal geometry is `nominal`.
+    pub fn resolve(&self, nominal: &LedGeometry) -> Result<(LedGeometry, GeometrySource)> {
+        Ok(match self {
+            Self::Nominal => (*nominal, GeometrySource::Dataset),
+            Self::File(path) => (
+                Placement::read(path)?.geometry(nominal),
+                GeometrySource::File(path.clone()),
+            ),
+            Self::LedHeightMm(height_mm) => (
+                LedGeometry {
+                    height_mm: *height_mm,
+                    ..*nominal
+                },
+                GeometrySource::DatasetAtHeight(*height_mm),
+            ),
+            Self::Given(geometry, name) => (*geometry, GeometrySource::Given(name.clone())),
+        })
+    }
+}
+
+/// How the frames were encoded, when the dataset's `[camera] gamma` is not to be used.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraGamma {
+    /// Read it from the frames ([`crate::camera_gamma::scan`]).
+    Auto,
+    /// This display gamma.
+    Exponent(f64),
+}
+
+/// A reconstruction job; see the module's doc.
+#[derive(Debug, Clone)]
+pub struct Job {
+    /// The LED geometry.
+    pub geometry: GeometryChoice,
+    /// The objective's entrance pupil above the sample, mm (None: telecentric).
+    pub entrance_pupil_mm: Option<f64>,
+    /// Overrides the dataset's `[camera] gamma`.
+    pub camera_gamma: Option<CameraGamma>,
+    /// EPRY's settings.
+    pub settings: Settings,
+    /// Passes over all frames.
+    pub passes: usize,
+    /// Tile side, camera pixels (None: from the physics).
+    pub tile: Option<usize>,
+    /// In-focus frames up to this many GB are held in memory; more are read from disk
+    /// band by band (the same result).
+    pub frame_memory_gb: f64,
+}
+
+impl Default for Job {
+    fn default() -> Self {
+        Self {
+            geometry: GeometryChoice::Nominal,
+            entrance_pupil_mm: None,
+            camera_gamma: None,
+            settings: Settings::default(),
+            passes: 10,
+            tile: None,
+            frame_memory_gb: 8.0,
+        }
+    }
+}
+
+/// Ranges the job's settings are held to (named in the errors).
+pub mod limits {
+    /// HR pixels per camera pixel.
+    pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=16;
+    /// Passes over all frames.
+    pub const PASSES: std::ops::RangeInclusive<usize> = 1..=10_000;
+    /// Object and pupil step sizes (1 = the full ePIE step).
+    pub const STEP: std::ops::RangeInclusive<f32> = 0.0..=2.0;
+    /// Tile side, camera pixels.
+    pub const TILE: std::ops::RangeInclusive<usize> = 16..=16_384;
+    /// Refocus distance, µm.
+    pub const REFOCUS_UM: f64 = 10_000.0;
+    /// Display gamma.
+    pub const GAMMA: std::ops::RangeInclusive<f64> = 0.2..=5.0;
+}
+
+/// What a job reports as it goes.
+#[derive(Debug, Clone, Copy)]
+pub enum JobEvent {
+    /// `--camera-gamma auto`: candidates reconstructed so far.
+    GammaCandidates {
+        /// Done.
+        done: usize,
+        /// In all.
+        total: usize,
+    },
+    /// The frames are over the memory budget and are read from disk band by band.
+    FromDisk {
+        /// Bytes the in-focus frames take.
+        bytes: u64,
+    },
+    /// Frame updates so far, over all tiles.
+    Updates {
+        /// Done.
+        done: usize,
+        /// In all.
+        total: usize,
+    },
+}
+
+/// A finished job: the reconstruction (its report scored against a simulation's truth
+/// when the dataset has one) and what the outputs need of the dataset.
+pub struct Finished {
+    /// The images and report.
+    pub reconstruction: Reconstruction,
+    /// The gamma `--camera-gamma auto` found, with its scan.
+    pub gamma_scan: Option<GammaScan>,
+    /// The dataset's optics, as reconstructed.
+    pub system: System,
+    /// The dataset's nominal geometry.
+    pub nominal: LedGeometry,
+}
+
+/// What [`Finished::write`] wrote.
+pub struct Written {
+    /// `report.html`, or why it could not be written (an extra: never fails the job).
+    pub page: Result<PathBuf>,
+    /// What a user must know before trusting the images.
+    pub warnings: Vec<String>,
+}
+
+impl Job {
+    /// Every setting in its range, or an error naming the first that is not.
+    pub fn validate(&self) -> Result<()> {
+        let s = &self.settings;
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if !limits::UPSAMPLE.contains(&s.upsample) {
+            bail!(
+                "upsample {}: must be {}-{}",
+                s.upsample,
+                limits::UPSAMPLE.start(),
+                limits::UPSAMPLE.end()
+            );
+        }
+        if !limits::PASSES.contains(&self.passes) {
+            bail!(
+                "passes {}: must be {}-{}",
+                self.passes,
+                limits::PASSES.start(),
+                limits::PASSES.end()
+            );
+        }
+        for (name, step) in [("alpha", s.alpha), ("beta", s.beta)] {
+            if !(limits::STEP.contains(&step) && step > 0.0) {
+                bail!(
+                    "{name} {step}: must be above 0 and at most {}",
+                    limits::STEP.end()
+                );
+            }
+        }
+        if let Some(tile) = self.tile {
+            if !limits::TILE.contains(&tile) {
+                bail!(
+                    "tile {tile}: must be {}-{} camera pixels",
+                    limits::TILE.start(),
+                    limits::TILE.end()
+                );
+            }
+        }
+        if !(s.defocus_um.is_finite() && s.defocus_um.abs() <= limits::REFOCUS_UM) {
+            bail!(
+                "refocus_um {}: must be a distance within ±{} µm",
+                s.defocus_um,
+                limits::REFOCUS_UM
+            );
+        }
+        if let fpm_physics::background::Correction::PerFrame { floor_sigma } = s.background {
+            if !(floor_sigma.is_finite() && floor_sigma >= 0.0) {
+                bail!("floor_sigma {floor_sigma}: must be 0 or more");
+            }
+        }
+        if let fpm_physics::reconstruct::Flatten::BlockUm(um) = s.flatten {
+            if !positive(um) {
+                bail!("background_block_um {um}: must be a positive size in µm");
+            }
+        }
+        if let Some(p) = self.entrance_pupil_mm {
+            if !positive(p) {
+                bail!("entrance_pupil_mm {p}: must be a positive distance in mm");
+            }
+        }
+        if let GeometryChoice::LedHeightMm(h) = self.geometry {
+            if !positive(h) {
+                bail!("led_height_mm {h}: must be a positive distance in mm");
+            }
+        }
+        if let Some(CameraGamma::Exponent(g)) = self.camera_gamma {
+            if !(g.is_finite() && limits::GAMMA.contains(&g)) {
+                bail!(
+                    "camera_gamma {g}: must be {}-{} (2.2 for sRGB-like images), or auto",
+                    limits::GAMMA.start(),
+                    limits::GAMMA.end()
+                );
+            }
+        }
+        if !positive(self.frame_memory_gb) {
+            bail!(
+                "frame_memory_gb {}: must be a positive size in GB",
+                self.frame_memory_gb
+            );
+        }
+        Ok(())
+    }
+
+    /// Reconstruct the dataset in `dir`: the geometry resolved, the gamma applied or read
+    /// from the frames, the frames held in memory within the budget (else read from disk
+    /// band by band), and the result scored against the dataset's truth if it has one.
+    pub fn run(&self, dir: &Path, on: &(dyn Fn(JobEvent) + Sync)) -> Result<Finished> {
+        self.validate()?;
+        let mut on_disk = DatasetOnDisk::open(dir)?;
+        on_disk.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
+        let nominal = on_disk.manifest.geometry();
+        let (geometry, source) = self.geometry.resolve(&nominal)?;
+        let gamma_scan = match self.camera_gamma {
+            Some(CameraGamma::Exponent(gamma)) => {
+                on_disk
+                    .manifest
+                    .camera
+                    .set_gamma(gamma, &dir.join("dataset.toml"))?;
+                None
+            }
+            Some(CameraGamma::Auto) => Some(self.scan_gamma(&mut on_disk, &geometry, on)?),
+            None => None,
+        };
+        let progress = |done, total| on(JobEvent::Updates { done, total });
+        let bytes = on_disk.in_focus_bytes();
+        let system = on_disk.manifest.system();
+        let mut r = if bytes as f64 <= self.frame_memory_gb * 1e9 {
+            let mut ds = Dataset::load(dir)?;
+            ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
+            ds.manifest.camera = on_disk.manifest.camera;
+            let (settings, passes, tile) = (self.settings, self.passes, self.tile);
+            reconstruct_with_system(
+                &ds, &system, &geometry, &source, settings, passes, tile, &progress,
+            )?
+        } else {
+            on(JobEvent::FromDisk { bytes });
+            reconstruct_on_disk(
+                &on_disk,
+                &geometry,
+                &source,
+                self.settings,
+                self.passes,
+                self.tile,
+                &progress,
+            )?
+        };
+        score(&on_disk, &mut r);
+        r.report.camera_gamma_scan = gamma_scan.clone();
+        Ok(Finished {
+            reconstruction: r,
+            gamma_scan,
+            system,
+            nominal,
+        })
+    }
+
+    /// Reconstruct a dataset already in memory (Python's `Dataset`), through `system`
+    /// (the dataset's own, or one with an entrance pupil it cannot state); scored
+    /// against its truth if it has one.
+    pub fn run_in_memory(
+        &self,
+        ds: &Dataset,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<Reconstruction> {
+        self.validate()?;
+        if self.camera_gamma.is_some() {
+            bail!("camera_gamma: a dataset in memory states its gamma itself (Dataset.from_arrays(gamma=...))");
+        }
+        let system = System {
+            entrance_pupil_mm: self.entrance_pupil_mm,
+            ..ds.manifest.system()
+        };
+        let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
+        let mut r = reconstruct_with_system(
+            ds,
+            &system,
+            &geometry,
+            &source,
+            self.settings,
+            self.passes,
+            self.tile,
+            progress,
+        )?;
+        score(ds, &mut r);
+        Ok(r)
+    }
+
+    /// `--camera-gamma auto`: scan the frames and decode them with the gamma found (or
+    /// as linear). Without a stated bit depth, the frames' sample type gives the full
+    /// scale.
+    fn scan_gamma(
+        &self,
+        ds: &mut DatasetOnDisk,
+        geometry: &LedGeometry,
+        on: &(dyn Fn(JobEvent) + Sync),
+    ) -> Result<GammaScan> {
+        let system = ds.manifest.system();
+        let progress = |done, total| on(JobEvent::GammaCandidates { done, total });
+        let scan = crate::camera_gamma::scan(
+            ds,
+            &system,
+            geometry,
+            self.settings,
+            self.passes,
+            &progress,
+        )?;
+        let bits = ds.sample_bits();
+        let camera = &mut ds.manifest.camera;
+        camera.gamma = scan.gamma();
+        if camera.gamma.is_some() && camera.bit_depth.is_none() {
+            camera.bit_depth = Some(bits);
+        }
+        Ok(scan)
+    }
+}
+
+/// Scores against a simulation's truth, when the dataset has one.
+fn score(ds: &(impl DatasetInfo + ?Sized), r: &mut Reconstruction) {
+    r.report.versus_truth = crate::truth::score_reconstruction(ds, &r.object, r.report.upsample);
+    if let Some(refined) = r.report.refined_leds.as_mut() {
+        refined.versus_truth = crate::truth::score_led_positions(ds, refined);
+    }
+}
+
+impl Finished {
+    /// Write the images, the pupil, the previews, charts and report.json into `out`,
+    /// and the HTML report (`reproduce`: the command that makes it again).
+    pub fn write(&self, out: &Path, output: OutputOptions, reproduce: &str) -> Result<Written> {
+        let r = &self.reconstruction;
+        write_outputs_with(r, out, output)?;
+        let context = crate::pages::reconstruction::Context {
+            system: &self.system,
+            nominal: &self.nominal,
+            reproduce,
+        };
+        let page =
+            crate::pages::reconstruction::write(r, out, &context).map(|()| out.join("report.html"));
+        if let Err(e) = &page {
+            tracing::warn!("no HTML report: {e:#}");
+        }
+        Ok(Written {
+            page,
+            warnings: crate::pages::reconstruction::warnings(&r.report),
+        })
+    }
+}

@@ -42,7 +42,61 @@ pub struct Scene {
     pub stray_light: f64,
 }
 
+impl Default for Scene {
+    /// The paper's array at its nominal place, realistic noise, a 256² sensor.
+    fn default() -> Self {
+        Self {
+            truth: nominal(),
+            noise: Noise::Realistic,
+            size: 256,
+            seed: 1,
+            stray_light: 0.0,
+        }
+    }
+}
+
+/// Sensor sides the simulator renders (it holds the whole upsampled field and every
+/// frame in memory: 2048² at 2× is about 4 GB).
+pub const SIZE_PX: std::ops::RangeInclusive<usize> = 16..=2048;
+/// Simulation pixels per camera pixel.
+pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=8;
+
 impl Scene {
+    /// Every setting in its range, or an error naming it.
+    pub fn validate(&self) -> Result<()> {
+        if !SIZE_PX.contains(&self.size) {
+            anyhow::bail!(
+                "size {}: the simulated sensor must be {}-{} px (the whole upsampled field and every frame are held in memory)",
+                self.size,
+                SIZE_PX.start(),
+                SIZE_PX.end()
+            );
+        }
+        if !(self.stray_light.is_finite() && (0.0..=1.0).contains(&self.stray_light)) {
+            anyhow::bail!(
+                "stray_light {}: must be 0-1 (a fraction of a clear sample's brightness)",
+                self.stray_light
+            );
+        }
+        let g = &self.truth;
+        if !(g.height_mm.is_finite() && g.height_mm > 0.0) {
+            anyhow::bail!(
+                "height_mm {}: must be a positive distance in mm",
+                g.height_mm
+            );
+        }
+        for (name, v) in [
+            ("dx_mm", g.dx_mm),
+            ("dy_mm", g.dy_mm),
+            ("theta_deg", g.theta_deg),
+        ] {
+            if !v.is_finite() {
+                anyhow::bail!("{name} {v}: must be finite");
+            }
+        }
+        Ok(())
+    }
+
     /// The paper's array moved by (`dx_mm`, `dy_mm`), turned by `theta_deg`, at
     /// `height_mm` (flat: `.tilted(…)` tilts it).
     pub fn placed(dx_mm: f64, dy_mm: f64, theta_deg: f64, height_mm: f64) -> LedGeometry {
@@ -171,6 +225,14 @@ fn nominal() -> LedGeometry {
 
 /// Write `scene`'s calibration set into `out` (dataset.toml, frames/, truth.json).
 pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) -> Result<Written> {
+    scene.validate()?;
+    if !(set.defocus_um.is_finite() && set.feature_um.is_finite() && set.feature_um > 0.0) {
+        anyhow::bail!(
+            "defocus_um {} / feature_um {}: the defocus must be finite and the feature a positive size",
+            set.defocus_um,
+            set.feature_um
+        );
+    }
     let mut sim = CalibrationScene::paper(scene.truth, scene.seed);
     sim.defocus_um = set.defocus_um;
     sim.feature_um = set.feature_um;
@@ -196,6 +258,21 @@ pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) ->
 /// truth_amplitude.tif, truth_phase.tif). Frames are auto-exposed as a camera would:
 /// the brightest pixel at 80 % of full scale, from 2 ms (bright field) up to 1 s.
 pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Result<Written> {
+    scene.validate()?;
+    if !UPSAMPLE.contains(&set.upsample) {
+        anyhow::bail!(
+            "upsample {}: must be {}-{}",
+            set.upsample,
+            UPSAMPLE.start(),
+            UPSAMPLE.end()
+        );
+    }
+    if !(set.led_jitter_mm.is_finite() && set.led_jitter_mm >= 0.0) {
+        anyhow::bail!(
+            "led_jitter_mm {}: must be 0 or a positive distance in mm",
+            set.led_jitter_mm
+        );
+    }
     if let Some(gamma) = set
         .display_gamma
         .filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0))
@@ -210,7 +287,7 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         display_gamma: set.display_gamma,
         ..scene.camera()
     };
-    let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample.max(1), scene.seed);
+    let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample, scene.seed);
     let truth = scene.truth;
     let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
     let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;

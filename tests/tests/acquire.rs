@@ -462,6 +462,30 @@ fn clocks_that_cannot_be_reconciled_stop_the_acquisition_with_the_reason() {
     );
 }
 
+/// `--frames NAME` naming a camera that is not up: said within seconds, before any LED
+/// is lit or anything written (it used to run the 441-LED sequence twice over 47 s and
+/// end with "no [[frame]] entries").
+#[test]
+fn no_camera_on_the_frame_service_is_said_at_once() {
+    let dir = TempDir::new("acquire-nocamera");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &[]);
+    let id = format!("acq-nobody-{}", std::process::id());
+    let out = dir.0.join("data");
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
+    assert!(!run.status.success());
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("no camera publishes frames")
+            && stderr.contains(&id)
+            && stderr.contains("--frames"),
+        "{stderr}"
+    );
+    assert!(
+        !out.exists(),
+        "nothing written for an acquisition that did not start"
+    );
+}
+
 /// A rig whose objective is not telecentric (its entrance pupil 20 mm above the
 /// sample, as a camera lens has it), acquired live with `--entrance-pupil-mm`: the
 /// calibration through it finds the hidden array, acquisition.json and the report say

@@ -64,6 +64,64 @@ pub struct Plan {
     pub flatten: Flatten,
 }
 
+/// How long an acquisition waits for its camera to publish before saying none does.
+pub const CAMERA_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
+impl Plan {
+    /// Every setting in its range, or an error naming it.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.step_ms.is_finite() && (1.0..=60_000.0).contains(&self.step_ms)) {
+            bail!("step_ms {}: must be 1-60000 ms", self.step_ms);
+        }
+        if !(self.defocus_um.is_finite() && self.defocus_um.abs() <= 10_000.0) {
+            bail!("defocus_um {}: must be within ±10000 µm", self.defocus_um);
+        }
+        if !(self.defocus_sigma_um.is_finite() && self.defocus_sigma_um >= 0.0) {
+            bail!(
+                "defocus_sigma_um {}: must be 0 or more",
+                self.defocus_sigma_um
+            );
+        }
+        if !self.dark_level.is_finite() {
+            bail!("dark_level {}: must be finite", self.dark_level);
+        }
+        let s = &self.system;
+        if !(s.wavelength_um.is_finite() && (0.1..=20.0).contains(&s.wavelength_um)) {
+            bail!("wavelength_um {}: must be 0.1-20 µm", s.wavelength_um);
+        }
+        if !(s.na.is_finite() && s.na > 0.0 && s.na < 1.0) {
+            bail!("na {}: must be in (0, 1)", s.na);
+        }
+        if !(s.magnification.is_finite() && (0.01..=1000.0).contains(&s.magnification)) {
+            bail!("magnification {}: must be 0.01-1000", s.magnification);
+        }
+        if !(s.pixel_size_um.is_finite() && (0.05..=100.0).contains(&s.pixel_size_um)) {
+            bail!("pixel_um {}: must be 0.05-100 µm", s.pixel_size_um);
+        }
+        if !(1..=10_000).contains(&self.passes) {
+            bail!("passes {}: must be 1-10000", self.passes);
+        }
+        if let Some(tile) = self.tile.filter(|t| !(16..=16_384).contains(t)) {
+            bail!("tile {tile}: must be 16-16384 camera pixels");
+        }
+        Ok(())
+    }
+}
+
+/// Whether a camera publishes on `names`, waiting up to [`CAMERA_WAIT`] for one to come
+/// up: a sequence over every LED with no camera would take minutes to fail.
+fn wait_for_camera(names: &ServiceNames) -> Result<()> {
+    let subscriber = fpm_frames::FrameSubscriber::create(names)?;
+    if !subscriber.wait_for_publisher(CAMERA_WAIT) {
+        bail!(
+            "no camera publishes frames on {} (waited {} s): start the camera's driver (`fpm camera run`, or the virtual rig's camera) or give its name with --frames",
+            names.frames,
+            CAMERA_WAIT.as_secs()
+        );
+    }
+    Ok(())
+}
+
 /// What an acquisition did, also written as `acquisition.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct AcquireSummary {
@@ -185,6 +243,8 @@ pub fn acquire(
     plan: &Plan,
     mut on_frame: impl FnMut(usize, usize),
 ) -> Result<AcquireSummary> {
+    plan.validate()?;
+    wait_for_camera(&plan.camera)?;
     let nominal = nominal_geometry(dev);
     let system = plan.system;
     std::fs::create_dir_all(&plan.out)

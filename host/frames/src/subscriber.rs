@@ -57,6 +57,24 @@ impl FrameSubscriber {
         })
     }
 
+    /// How many cameras publish on this service now (0: none is up).
+    pub fn publishers(&self) -> usize {
+        use iceoryx2::service::port_factory::PortFactory;
+        self._services.0.dynamic_config().number_of_publishers()
+    }
+
+    /// Wait up to `timeout` for a camera to publish on this service; whether one does.
+    pub fn wait_for_publisher(&self, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        while self.publishers() == 0 {
+            if Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        true
+    }
+
     /// The next frame, waiting up to `timeout` for one (asleep, not polling). A frame
     /// whose header breaks the contract is an error naming the field.
     pub fn next(&self, timeout: Duration) -> Result<Option<Frame>, FrameError> {

@@ -61,7 +61,7 @@ pub fn fpm_bin() -> &'static Path {
             "build",
             "--quiet",
             "-p",
-            "fpm-cli",
+            "ptychoscope",
             "--bin",
             "fpm",
             "--message-format=json",

@@ -83,47 +83,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&file)?);
     } else {
-        let u = &c.uncertainty;
-        println!(
-            "LED array from {} frames at {} µm defocus ({:.1} ms):",
-            c.leds.len(),
-            c.defocus_um,
-            file.time_ms
-        );
-        println!("  Δx = {:+.4} ± {:.4} mm", c.dx_mm, u.dx_mm);
-        println!("  Δy = {:+.4} ± {:.4} mm", c.dy_mm, u.dy_mm);
-        println!("  θ  = {:+.4} ± {:.4} °", c.theta_deg, u.theta_deg);
-        println!(
-            "  h  = {:.3} ± {:.3} mm  (with the defocus known to ±{} µm; h moves {:.3} mm per µm of defocus error)",
-            c.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
-        );
-        if a.no_tilt {
-            println!("  tilt not fitted (--no-tilt): board taken as flat");
-        } else if c.tilt_observable {
-            println!(
-                "  tilt {:+.2} ± {:.2} ° about x, {:+.2} ± {:.2} ° about y",
-                c.tilt_x_deg, u.tilt_x_deg, c.tilt_y_deg, u.tilt_y_deg
-            );
-        } else {
-            println!(
-                "  tilt not observable (1σ {:.2}° / {:.2}°): board taken as flat",
-                u.tilt_x_deg, u.tilt_y_deg
-            );
-        }
-        println!(
-            "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
-            c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um
-        );
-        let count = |s: LedStatus| c.leds.iter().filter(|l| l.status == s).count();
-        println!(
-            "  LEDs: {} used, {} dark-field, {} near the pupil edge, {} lost the feature, {} saturated, {} outliers",
-            count(LedStatus::Used),
-            count(LedStatus::NotBrightField),
-            count(LedStatus::NearPupilEdge),
-            count(LedStatus::FeatureLost),
-            count(LedStatus::Saturated),
-            count(LedStatus::Outlier)
-        );
+        print_calibration(&file, a.no_tilt);
         println!("wrote {}", out.display());
     }
     if let Some(plot) = &a.plot {
@@ -135,28 +95,7 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
     }
     // The report is an extra: failing to write it is a warning, not a failed run.
     let page = out.with_extension("html");
-    let name = |p: &std::path::Path| {
-        p.file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
-    let mut outputs = vec![(name(&out), "the calibration, machine-readable".to_string())];
-    outputs.push(("plots/".into(), "the charts as PNG and SVG".into()));
-    if let Some(plot) = &a.plot {
-        let at = std::fs::canonicalize(plot).unwrap_or_else(|_| plot.clone());
-        outputs.push((
-            at.display().to_string(),
-            "the residual chart asked for with --plot".into(),
-        ));
-    }
-    let context = fpm_host::pages::calibration::Context {
-        file: &file,
-        system: &ds.manifest.system(),
-        bias_correction: options.bias_correction,
-        reproduce: &fpm_host::html::command_line(),
-        outputs,
-    };
-    match fpm_host::pages::calibration::write(&context, &page) {
+    match write_page(&file, &ds, &options, &out, a.plot.as_deref(), &page) {
         Ok(()) if !a.json => println!(
             "wrote {} (the report: open it in a browser)",
             page.display()
@@ -165,4 +104,83 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         Err(e) => tracing::warn!("no HTML report: {e:#}"),
     }
     Ok(())
+}
+
+/// The calibration as text.
+fn print_calibration(file: &fpm_host::calibration::CalibrationFile, no_tilt: bool) {
+    let c = &file.calibration;
+    let u = &c.uncertainty;
+    println!(
+        "LED array from {} frames at {} µm defocus ({:.1} ms):",
+        c.leds.len(),
+        c.defocus_um,
+        file.time_ms
+    );
+    println!("  Δx = {:+.4} ± {:.4} mm", c.dx_mm, u.dx_mm);
+    println!("  Δy = {:+.4} ± {:.4} mm", c.dy_mm, u.dy_mm);
+    println!("  θ  = {:+.4} ± {:.4} °", c.theta_deg, u.theta_deg);
+    println!(
+        "  h  = {:.3} ± {:.3} mm  (with the defocus known to ±{} µm; h moves {:.3} mm per µm of defocus error)",
+        c.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
+    );
+    if no_tilt {
+        println!("  tilt not fitted (--no-tilt): board taken as flat");
+    } else if c.tilt_observable {
+        println!(
+            "  tilt {:+.2} ± {:.2} ° about x, {:+.2} ± {:.2} ° about y",
+            c.tilt_x_deg, u.tilt_x_deg, c.tilt_y_deg, u.tilt_y_deg
+        );
+    } else {
+        println!(
+            "  tilt not observable (1σ {:.2}° / {:.2}°): board taken as flat",
+            u.tilt_x_deg, u.tilt_y_deg
+        );
+    }
+    println!(
+        "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
+        c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um
+    );
+    let count = |s: LedStatus| c.leds.iter().filter(|l| l.status == s).count();
+    println!(
+        "  LEDs: {} used, {} dark-field, {} near the pupil edge, {} lost the feature, {} saturated, {} outliers",
+        count(LedStatus::Used),
+        count(LedStatus::NotBrightField),
+        count(LedStatus::NearPupilEdge),
+        count(LedStatus::FeatureLost),
+        count(LedStatus::Saturated),
+        count(LedStatus::Outlier)
+    );
+}
+
+/// calibration.html beside `out`.
+fn write_page(
+    file: &fpm_host::calibration::CalibrationFile,
+    ds: &Dataset,
+    options: &Options,
+    out: &std::path::Path,
+    plot: Option<&std::path::Path>,
+    page: &std::path::Path,
+) -> Result<()> {
+    let name = |p: &std::path::Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let mut outputs = vec![(name(out), "the calibration, machine-readable".to_string())];
+    outputs.push(("plots/".into(), "the charts as PNG and SVG".into()));
+    if let Some(plot) = plot {
+        let at = std::fs::canonicalize(plot).unwrap_or_else(|_| plot.to_path_buf());
+        outputs.push((
+            at.display().to_string(),
+            "the residual chart asked for with --plot".into(),
+        ));
+    }
+    let context = fpm_host::pages::calibration::Context {
+        file,
+        system: &ds.manifest.system(),
+        bias_correction: options.bias_correction,
+        reproduce: &fpm_host::html::command_line(),
+        outputs,
+    };
+    fpm_host::pages::calibration::write(&context, page)
 }

@@ -108,8 +108,8 @@ fn print_controller(c: &ControllerReport) {
     );
 }
 
-fn print_result(r: &DemoReport) {
-    let (t, g) = (&r.hidden_array, &r.recovered_array);
+/// The hidden array beside the recovered one.
+fn print_arrays(t: &fpm_host::truth::Truth, g: &fpm_physics::LedGeometry) {
     println!("\nLED array       hidden truth                 recovered by pdcFPM");
     println!(
         "  Δx            {:>8.3} mm                 {:>8.3} mm",
@@ -127,6 +127,10 @@ fn print_result(r: &DemoReport) {
         "  h             {:>8.2} mm                 {:>8.2} mm",
         t.height_mm, g.height_mm
     );
+}
+
+fn print_result(r: &DemoReport) {
+    print_arrays(&r.hidden_array, &r.recovered_array);
     let s = &r.acquisition;
     let c = &s.capture;
     let cal_frames: usize = s.calibration.iter().map(|r| r.labelled).sum();

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use fpm_protocol::*;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -482,22 +482,9 @@ fn ping(dev: &Controller, count: u32, json: bool) -> Result<()> {
     Ok(())
 }
 
-fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> {
-    let g = dev.info().geometry;
-    let selection = match a.select {
-        SelectArg::All => Selection::All,
-        SelectArg::BrightField => Selection::Pattern(Pattern::BrightField { na: a.na }),
-        SelectArg::DarkField => Selection::Pattern(Pattern::DarkField { na: a.na }),
-    };
-    let steps = scan_steps(&g, selection, a.order, a.color);
-    if steps.is_empty() {
-        bail!(
-            "the selection lights no LED on this {}x{} board",
-            g.rows,
-            g.cols
-        );
-    }
-    let timing = SequenceTiming {
+/// The sequence timing `a` asks for.
+fn timing(a: &RunSequenceArgs) -> SequenceTiming {
+    SequenceTiming {
         settle_us: a.settle_us,
         exposure_us: a.exposure_us,
         trigger_out: (a.trigger_pulse_us > 0).then_some(TriggerOut {
@@ -516,17 +503,31 @@ fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> 
             timeout_us: a.trigger_timeout_ms.saturating_mul(1000),
         }),
         clear_at_end: !a.keep_lit,
+    }
+}
+
+fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> {
+    let g = dev.info().geometry;
+    let selection = match a.select {
+        SelectArg::All => Selection::All,
+        SelectArg::BrightField => Selection::Pattern(Pattern::BrightField { na: a.na }),
+        SelectArg::DarkField => Selection::Pattern(Pattern::DarkField { na: a.na }),
     };
+    let steps = scan_steps(&g, selection, a.order, a.color);
+    if steps.is_empty() {
+        bail!(
+            "the selection lights no LED on this {}x{} board",
+            g.rows,
+            g.cols
+        );
+    }
+    let timing = timing(&a);
     let id = a.id.unwrap_or_else(|| {
         std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs() as u32)
             .unwrap_or(1)
     });
-    dev.upload_sequence(id, &steps, timing)
-        .context("uploading the sequence")?;
-    let mut events = dev.subscribe()?;
-    let started = dev.start_sequence(id)?;
     let bar = if json {
         ProgressBar::hidden()
     } else {
@@ -538,67 +539,27 @@ fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> 
         )
     };
     bar.set_message(id.to_string());
-    // The longest a step can take before we call the device silent.
-    let per_step = Duration::from_micros(
-        (timing.settle_us as u64 + timing.exposure_us as u64)
-            + timing
-                .trigger_out
-                .map_or(0, |t| (t.delay_us + t.pulse_us) as u64)
-            + timing.trigger_in.map_or(0, |t| t.timeout_us as u64)
-            + 100_000,
-    ) + Duration::from_millis(500);
-    let mut expected = 0u16;
-    loop {
-        match events.next(per_step) {
-            Ok(SequenceEvent::Step(s)) => {
-                if s.sequence_id != id || s.step != expected {
-                    bar.abandon();
-                    bail!(
-                        "expected step {expected} of sequence {id}, got step {} of sequence {}: events were lost",
-                        s.step,
-                        s.sequence_id
-                    );
-                }
-                expected += 1;
-                if json {
-                    println!("{}", serde_json::to_string(&SequenceEvent::Step(s))?);
-                } else {
-                    bar.inc(1);
-                }
+    let run = dev
+        .run_sequence(id, &steps, timing, |event| {
+            if json {
+                println!("{}", serde_json::to_string(event).unwrap_or_default());
+            } else if matches!(event, SequenceEvent::Step(_)) {
+                bar.inc(1);
             }
-            Ok(SequenceEvent::End(end)) => {
-                bar.finish_and_clear();
-                if json {
-                    println!("{}", serde_json::to_string(&SequenceEvent::End(end))?);
-                } else {
-                    let secs = (end.end_us.saturating_sub(started.started_us)) as f64 * 1e-6;
-                    println!(
-                        "sequence {id}: {:?} after {}/{} steps, {:.3} s of device time ({:.2} ms per step)",
-                        end.outcome,
-                        end.completed,
-                        steps.len(),
-                        secs,
-                        if end.completed > 0 { secs * 1e3 / end.completed as f64 } else { 0.0 }
-                    );
-                }
-                if let SequenceOutcome::Failed(e) = end.outcome {
-                    bail!("the sequence failed at step {}: {e}", end.completed);
-                }
-                if end.completed as usize != steps.len() {
-                    bail!(
-                        "the sequence ended after {} of {} steps",
-                        end.completed,
-                        steps.len()
-                    );
-                }
-                return Ok(());
-            }
-            Err(e) => {
-                bar.abandon();
-                return Err(e.into());
-            }
-        }
+        })
+        .inspect_err(|_| bar.abandon())?;
+    bar.finish_and_clear();
+    if !json {
+        let secs = run.seconds();
+        println!(
+            "sequence {id}: {:?} after {}/{} steps, {secs:.3} s of device time ({:.2} ms per step)",
+            run.end.outcome,
+            run.end.completed,
+            run.steps,
+            secs * 1e3 / f64::from(run.end.completed.max(1))
+        );
     }
+    Ok(())
 }
 
 /// `fpm device list`.

@@ -86,6 +86,33 @@ fn main() -> ExitCode {
             );
         }
     }
+    init_logging(&cli);
+    let result = match cli.command {
+        Command::Demo(args) => demo::run(args),
+        Command::Device(args) => device::run(args),
+        Command::Emulator(args) => fpm_emulator::run(args),
+        Command::VirtualCamera(args) => fpm_rig::camera::run(args),
+        Command::Camera(cmd) => camera::run(cmd),
+        Command::Simulate(cmd) => simulate::run(cmd),
+        Command::Calibrate(args) => calibrate::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Acquire(args) => acquire::run(args),
+        Command::Bench(cmd) => fpm_bench::run(cmd),
+        Command::Completions(args) => shell::completions(args),
+        Command::Man(args) => shell::man(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Logs on stderr: warnings by default (info for the long-running services), more
+/// with -v/-vv, RUST_LOG over all; iceoryx2's own log at the matching level.
+fn init_logging(cli: &Cli) {
     let default_level = match (&cli.command, cli.verbose) {
         (
             Command::Emulator(_)
@@ -113,25 +140,4 @@ fn main() -> ExitCode {
         1 => fpm_frames::LogLevel::Warn,
         _ => fpm_frames::LogLevel::Debug,
     });
-    let result = match cli.command {
-        Command::Demo(args) => demo::run(args),
-        Command::Device(args) => device::run(args),
-        Command::Emulator(args) => fpm_emulator::run(args),
-        Command::VirtualCamera(args) => fpm_rig::camera::run(args),
-        Command::Camera(cmd) => camera::run(cmd),
-        Command::Simulate(cmd) => simulate::run(cmd),
-        Command::Calibrate(args) => calibrate::run(args),
-        Command::Reconstruct(args) => reconstruct::run(args),
-        Command::Acquire(args) => acquire::run(args),
-        Command::Bench(cmd) => fpm_bench::run(cmd),
-        Command::Completions(args) => shell::completions(args),
-        Command::Man(args) => shell::man(args),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
 }

@@ -181,7 +181,7 @@ impl ReconstructArgs {
 pub fn run(a: ReconstructArgs) -> Result<()> {
     match (&a.out, &a.out_root) {
         (Some(out), None) => match a.dirs.as_slice() {
-            [dir] => one(&a, dir, out, true),
+            [dir] => one(&a, dir, out),
             dirs => bail!(
                 "--out takes one dataset, not {}: use --out-root ROOT to give each its own directory",
                 dirs.len()
@@ -256,9 +256,8 @@ impl ReconstructArgs {
     }
 }
 
-/// Reconstruct the dataset in `dir` into `out`; `print` the summary (one dataset) or
-/// stay quiet but for warnings (a batch prints its own line per dataset).
-fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
+/// Reconstruct the dataset in `dir` into `out` and print what it did.
+fn one(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
     let gamma_bar = crate::progress::counter(
         &format!("reading the camera gamma of {}", dir.display()),
         "candidates",
@@ -282,9 +281,6 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path, print: bool) -> Result<()> {
     let written = finished.write(out, a.output(), &fpm_host::html::command_line())?;
     for w in &written.warnings {
         eprintln!("warning: {w}");
-    }
-    if !print {
-        return Ok(());
     }
     let rep = &finished.reconstruction.report;
     if a.json {

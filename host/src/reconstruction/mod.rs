@@ -1,6 +1,7 @@
 //! EPRY on a dataset: frame normalisation and order, the passes, and the outputs.
 //! The algorithm itself is `fpm_physics::reconstruct`.
 
+pub mod batch;
 pub mod job;
 
 use std::path::Path;

@@ -7,6 +7,7 @@
 pub mod discover;
 mod error;
 pub mod scan;
+mod sequence;
 mod transport;
 
 use std::sync::Arc;
@@ -21,6 +22,7 @@ use postcard_rpc::standard_icd::PingEndpoint;
 use postcard_rpc::Endpoint;
 
 pub use error::ControllerError;
+pub use sequence::{step_timeout, SequenceRun};
 
 /// Result of a controller call.
 pub type Result<T, E = ControllerError> = std::result::Result<T, E>;

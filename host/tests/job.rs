@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use fpm_host::reconstruction::{CameraGamma, GeometryChoice, Job};
+use fpm_host::reconstruction::{GeometryChoice, Job};
 use fpm_host::simulation::{AcquisitionSet, Scene};
 use fpm_physics::reconstruct::Settings;
 
@@ -87,13 +87,6 @@ fn a_job_names_the_setting_out_of_range() {
             ..Job::default()
         },
         "led_height_mm",
-    );
-    refused(
-        Job {
-            camera_gamma: Some(CameraGamma::Exponent(9.0)),
-            ..Job::default()
-        },
-        "camera_gamma 9",
     );
 }
 

@@ -1,7 +1,8 @@
 //! A reconstruction job: one dataset, how to reconstruct it, and where the result goes
 //! — what `fpm reconstruct`, its batch runner (`--out-root`) and Python all run. Its
 //! settings are checked up front, each against a stated range, and a value outside it
-//! is an error naming the setting.
+//! is an error naming the setting (a camera gamma is checked where the dataset's own
+//! `[camera] gamma` is, as the job applies it).
 
 use std::path::{Path, PathBuf};
 
@@ -104,8 +105,6 @@ pub mod limits {
     pub const TILE: std::ops::RangeInclusive<usize> = 16..=16_384;
     /// Refocus distance, µm.
     pub const REFOCUS_UM: f64 = 10_000.0;
-    /// Display gamma.
-    pub const GAMMA: std::ops::RangeInclusive<f64> = 0.2..=5.0;
 }
 
 /// What a job reports as it goes.
@@ -216,15 +215,6 @@ impl Job {
         if let GeometryChoice::LedHeightMm(h) = self.geometry {
             if !positive(h) {
                 bail!("led_height_mm {h}: must be a positive distance in mm");
-            }
-        }
-        if let Some(CameraGamma::Exponent(g)) = self.camera_gamma {
-            if !(g.is_finite() && limits::GAMMA.contains(&g)) {
-                bail!(
-                    "camera_gamma {g}: must be {}-{} (2.2 for sRGB-like images), or auto",
-                    limits::GAMMA.start(),
-                    limits::GAMMA.end()
-                );
             }
         }
         if !positive(self.frame_memory_gb) {

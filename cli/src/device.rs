@@ -213,8 +213,8 @@ struct RunSequenceArgs {
     #[arg(long, default_value_t = 0.1)]
     na: f32,
     /// Visiting order.
-    #[arg(long, value_enum, default_value_t = Order::Nearest)]
-    order: Order,
+    #[arg(long, value_enum, default_value_t = OrderArg::Nearest)]
+    order: OrderArg,
     /// Colour of every LED.
     #[arg(long, default_value = "white", value_parser = crate::color::parse)]
     color: Rgb,
@@ -482,6 +482,15 @@ fn ping(dev: &Controller, count: u32, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// `--order`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum OrderArg {
+    /// Increasing distance from the centre LED (the order EPRY updates in).
+    Nearest,
+    /// Row by row, left to right.
+    Raster,
+}
+
 /// The sequence timing `a` asks for.
 fn timing(a: &RunSequenceArgs) -> SequenceTiming {
     SequenceTiming {
@@ -513,7 +522,11 @@ fn run_sequence(dev: &Controller, a: RunSequenceArgs, json: bool) -> Result<()> 
         SelectArg::BrightField => Selection::Pattern(Pattern::BrightField { na: a.na }),
         SelectArg::DarkField => Selection::Pattern(Pattern::DarkField { na: a.na }),
     };
-    let steps = scan_steps(&g, selection, a.order, a.color);
+    let order = match a.order {
+        OrderArg::Nearest => Order::Nearest,
+        OrderArg::Raster => Order::Raster,
+    };
+    let steps = scan_steps(&g, selection, order, a.color);
     if steps.is_empty() {
         bail!(
             "the selection lights no LED on this {}x{} board",

@@ -27,7 +27,7 @@ pub struct RefinedLedsReport {
     pub board: Option<BoardReport>,
     /// Against the simulation's truth, when the dataset has one.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub versus_truth: Option<crate::truth::LedPositionScore>,
+    pub versus_truth: Option<LedPositionScore>,
 }
 
 /// One LED's place before and after.
@@ -181,4 +181,15 @@ pub fn write_board(board: &BoardReport, grid: &LedGeometry, dir: &Path) -> Resul
     };
     std::fs::write(&path, serde_json::to_string_pretty(&file)?)
         .with_context(|| format!("writing {}", path.display()))
+}
+
+/// How far the LED positions of a reconstruction are from a simulation's truth
+/// (scored by the truth module): RMS over the
+/// LEDs, mm, of the geometry's places and of the refined ones.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LedPositionScore {
+    /// The geometry's places.
+    pub given_rms_mm: f64,
+    /// The refined places.
+    pub refined_rms_mm: f64,
 }

@@ -12,6 +12,7 @@ use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{image_io, DatasetInfo};
+use crate::refinement::{LedPositionScore, RefinedLed, RefinedLedsReport};
 
 /// `truth.json`: the hidden array and what was simulated.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -109,21 +110,11 @@ impl Truth {
     }
 }
 
-/// How far the LED positions of a reconstruction are from the truth: RMS over the
-/// LEDs, mm, of the geometry's places and of the refined ones.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct LedPositionScore {
-    /// The geometry's places.
-    pub given_rms_mm: f64,
-    /// The refined places.
-    pub refined_rms_mm: f64,
-}
-
 /// Score refined LED positions against the truth beside dataset `ds`. An extra: `None`
 /// without a truth (a warning when it cannot be read).
 pub fn score_led_positions(
     ds: &(impl DatasetInfo + ?Sized),
-    refined: &crate::refinement::RefinedLedsReport,
+    refined: &RefinedLedsReport,
 ) -> Option<LedPositionScore> {
     let truth = match Truth::find(ds.dir()) {
         Ok(t) => t?,
@@ -134,7 +125,7 @@ pub fn score_led_positions(
     };
     let nominal = ds.manifest().geometry();
     let n = refined.leds.len().max(1) as f64;
-    let rms = |place: &dyn Fn(&crate::refinement::RefinedLed) -> [f64; 2]| {
+    let rms = |place: &dyn Fn(&RefinedLed) -> [f64; 2]| {
         let s: f64 = refined
             .leds
             .iter()

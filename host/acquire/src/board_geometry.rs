@@ -10,6 +10,23 @@ use fpm_host::calibration::Placement;
 use fpm_physics::LedGeometry;
 use fpm_protocol::{BoardCalibration, PlacementSigma, StoredCalibration};
 
+/// The array a board describes, at its nominal place (no offset, turn or tilt).
+pub fn nominal(g: &fpm_protocol::BoardGeometry) -> LedGeometry {
+    LedGeometry {
+        rows: g.rows as usize,
+        cols: g.cols as usize,
+        pitch_mm: g.pitch_um as f64 / 1e3,
+        height_mm: g.height_um as f64 / 1e3,
+        center: g.center,
+        dx_mm: 0.0,
+        dy_mm: 0.0,
+        theta_deg: 0.0,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
+        rings: None,
+    }
+}
+
 /// The calibration in `path` (a full `fpm calibrate` file or the minimal four-key
 /// form), checked against the board's own grid. The date stored is the file's
 /// modification time (when the calibration was written).

@@ -306,6 +306,30 @@ fn refused(steps: usize, frames: usize, why: String) -> Pairing {
     }
 }
 
+/// The sums of a least-squares line through points: means and centred moments.
+struct Line {
+    mx: f64,
+    my: f64,
+    sxx: f64,
+    sxy: f64,
+}
+
+impl Line {
+    /// None under 3 points (no line worth a slope).
+    fn fit(points: &[(f64, f64)]) -> Option<Self> {
+        if points.len() < 3 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let (mx, my) = points
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+        let sxx = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
+        let sxy = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+        Some(Self { mx, my, sxx, sxy })
+    }
+}
+
 /// Whether most of a candidate's frames would have reached the host before the
 /// earliest instant their LED can have been lit. Most, not any: a stray frame does not
 /// rule out the rest.
@@ -340,15 +364,7 @@ fn controller_rate_lower_bound(steps: &[StepTime], arrived_ns: &[i64]) -> Option
         .zip(arrived_ns)
         .map(|(s, &t)| (s.trigger_ns as f64, t as f64))
         .collect();
-    if points.len() < 3 {
-        return None;
-    }
-    let n = points.len() as f64;
-    let (mx, my) = points
-        .iter()
-        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
-    let sxx: f64 = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
-    let sxy: f64 = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    let Line { mx, my, sxx, sxy } = Line::fit(&points)?;
     let (lo, hi) = points
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
@@ -474,15 +490,7 @@ fn fit(
             )
         })
         .collect();
-    if points.len() < 3 {
-        return None;
-    }
-    let n = points.len() as f64;
-    let (mx, my) = points
-        .iter()
-        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
-    let sxx: f64 = points.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
-    let sxy: f64 = points.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    let Line { mx, my, sxx, sxy } = Line::fit(&points)?;
     // Over less than a millisecond of controller time drift is not observable; and no
     // working camera's clock drifts beyond MAX_DRIFT_PPM, however a short run's jitter
     // would have it (a fitted drift extrapolated beyond the frames fitted would move

@@ -24,6 +24,7 @@ pub mod labeller;
 pub mod page;
 pub mod pipeline;
 pub mod stage;
+pub mod summary;
 
 pub use capture::{capture, CaptureReport, Shot, ShotView};
 pub use controller::Controller;

@@ -12,7 +12,7 @@ use fpm_host::reconstruction::Reconstruction;
 use fpm_physics::calibrate::Options;
 use fpm_physics::{LedGeometry, System};
 
-use crate::pipeline::AcquireSummary;
+use crate::summary::AcquireSummary;
 
 /// `out/calibration.html` for the calibration the acquisition ran.
 pub fn calibration(cal: &CalibrationFile, system: &System, options: &Options, out: &Path) {

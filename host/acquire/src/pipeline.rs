@@ -21,13 +21,13 @@ use fpm_physics::calibrate::Options;
 use fpm_physics::reconstruct::{tiled, Flatten, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, LedIndex, Rgb, StoredCalibration};
-use serde::Serialize;
 
 use crate::board_geometry;
-use crate::capture::{capture, CaptureReport, Shot, ShotView};
+use crate::capture::{capture, Shot, ShotView};
 use crate::controller::Controller;
 use crate::page;
 use crate::stage::{FocusStage, Slide, StagePosition};
+pub use crate::summary::AcquireSummary;
 
 /// What to acquire and how.
 #[derive(Debug, Clone)]
@@ -122,50 +122,6 @@ fn wait_for_camera(names: &ServiceNames) -> Result<()> {
     Ok(())
 }
 
-/// What an acquisition did, also written as `acquisition.json`.
-#[derive(Debug, Clone, Serialize)]
-pub struct AcquireSummary {
-    /// The nominal array (from the controller).
-    pub nominal: LedGeometry,
-    /// The geometry used for the acquisition order and the reconstruction.
-    pub geometry: LedGeometry,
-    /// The objective's entrance pupil distance above the sample, mm, as given (None:
-    /// telecentric). dataset.toml has no key for it: a later `fpm reconstruct` of the
-    /// dataset needs `--entrance-pupil-mm` again.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub entrance_pupil_mm: Option<f64>,
-    /// Where it came from: acquisition.json says "calibration.json", "board" (the
-    /// calibration stored on the controller) or "nominal".
-    #[serde(serialize_with = "fpm_host::calibration::serialize_short")]
-    pub geometry_source: GeometrySource,
-    /// The calibration stored on the board, as read at the start (None: none, or the
-    /// firmware predates stored geometry).
-    pub board_calibration: Option<BoardCalibration>,
-    /// The settings the camera reported it applied (`fpm/camera/<id>/settings`: pixel
-    /// format and bit depth, region, binning, exposure, gain, trigger, pixel pitch), if
-    /// its driver publishes them.
-    pub camera_settings: Option<serde_json::Value>,
-    /// Calibration captures.
-    pub calibration: Vec<CaptureReport>,
-    /// The full capture.
-    pub capture: CaptureReport,
-    /// The second capture of the frames the first one missed, if any.
-    pub retake: Option<CaptureReport>,
-    /// Frames written to the dataset.
-    pub frames_in_dataset: usize,
-    /// LEDs without a frame after the retake.
-    pub still_missing: Vec<LedIndex>,
-    /// Last frame → final image, ms (with reconstruction).
-    pub last_frame_to_final_ms: Option<f64>,
-    /// Streaming updates per frame, µs (mean over frames; all tiles).
-    pub update_us_mean: Option<f64>,
-    /// Tiles the streaming reconstruction used.
-    pub tiles: Option<usize>,
-    /// How the final image was made: "streamed" (the stream, finished), or "dataset"
-    /// (the stream was not trusted: frames were relabelled after it got them).
-    pub reconstruction: Option<&'static str>,
-}
-
 /// What the camera's driver says it applied, if it says (an optional extra: never an
 /// error). A reported pixel pitch that disagrees with the system's is warned about.
 fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json::Value> {
@@ -202,20 +158,7 @@ fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json:
 
 /// The nominal array as the controller describes it.
 pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
-    let g = dev.info().geometry;
-    LedGeometry {
-        rows: g.rows as usize,
-        cols: g.cols as usize,
-        pitch_mm: g.pitch_um as f64 / 1e3,
-        height_mm: g.height_um as f64 / 1e3,
-        center: g.center,
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-        tilt_x_deg: 0.0,
-        tilt_y_deg: 0.0,
-        rings: None,
-    }
+    board_geometry::nominal(&dev.info().geometry)
 }
 
 /// The calibration stored on the board, if any. A board that cannot say (older
@@ -287,17 +230,8 @@ pub fn acquire(
             slide: Slide::CalibrationTarget,
             defocus_um: plan.defocus_um,
         })?;
-        let around = |centre: u8, d: i16| (centre as i16 + d).clamp(0, u8::MAX as i16) as u8;
-        let grid: Vec<LedIndex> = (-2i16..=2)
-            .flat_map(|dr| (-2i16..=2).map(move |dc| (dr, dc)))
-            .map(|(dr, dc)| {
-                LedIndex::new(
-                    around(nominal.center.row, dr),
-                    around(nominal.center.col, dc),
-                )
-            })
-            .filter(|&led| nominal.contains(led))
-            .collect();
+        let grid =
+            fpm_physics::calibrate::calibration_grid(&nominal, fpm_physics::calibrate::GRID_HALF);
         let (defocused, r2) = capture_leds(102, &grid, &mut |_| {})?;
         stage.move_to(StagePosition::in_focus(Slide::Sample))?;
         calibration_reports = vec![r1, r2];

@@ -850,7 +850,7 @@ impl CalibrationScene {
             feature_um: 50.0,
             feature_at_um: (0.0, 0.0),
             camera_px: 256,
-            half_grid: 2,
+            half_grid: crate::calibrate::GRID_HALF,
             camera: Camera::realistic(),
             peak_dn: None,
             seed,
@@ -860,22 +860,10 @@ impl CalibrationScene {
     /// The shots: the focused reference under the nominal centre LED, then every LED of
     /// the grid around it, defocused.
     pub fn shots(&self) -> Vec<(LedIndex, f64)> {
-        let (r0, c0) = (self.truth.center.r(), self.truth.center.c());
-        let k = self.half_grid as i64;
-        let mut shots = vec![(self.truth.center, 0.0)];
-        for dr in -k..=k {
-            for dc in -k..=k {
-                let (r, c) = (r0 as i64 + dr, c0 as i64 + dc);
-                if r >= 0
-                    && c >= 0
-                    && (r as usize) < self.truth.rows
-                    && (c as usize) < self.truth.cols
-                {
-                    shots.push((LedIndex::new(r as u8, c as u8), self.defocus_um));
-                }
-            }
-        }
-        shots
+        let grid = crate::calibrate::calibration_grid(&self.truth, self.half_grid);
+        std::iter::once((self.truth.center, 0.0))
+            .chain(grid.into_iter().map(|led| (led, self.defocus_um)))
+            .collect()
     }
 
     /// Render and record every shot, all at one exposure (as a user sets it once): a

@@ -17,9 +17,9 @@ use nix::poll::{PollFd, PollFlags, PollTimeout};
 
 use fpm_firmware::{LedStrip, RGB8};
 
+use crate::args::EmulatorArgs;
 use crate::hardware::EmulatedStrip;
 use crate::pty::{Link, Pty};
-use crate::run::EmulatorArgs;
 
 /// The harness directory (its `package.json`, `harness.mjs`, `bootrom/`), in this
 /// source tree; `FPM_RP2040_HARNESS` points elsewhere.

@@ -16,10 +16,12 @@
 //! With `--firmware FILE.uf2` it runs the real firmware binary in an emulated RP2040
 //! instead (see `firmware`), behind the same terminal.
 
+mod args;
 mod firmware;
 pub mod flash;
 pub mod hardware;
 mod pty;
 mod run;
 
-pub use run::{run, EmulatorArgs};
+pub use args::EmulatorArgs;
+pub use run::run;

@@ -13,7 +13,7 @@ pub enum Selection {
 }
 
 /// The order of a scan.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum Order {
     /// Increasing distance from the centre LED (the order EPRY updates in).
     Nearest,
@@ -31,11 +31,12 @@ pub fn scan_steps(g: &BoardGeometry, selection: Selection, order: Order, color: 
         })
         .collect();
     if order == Order::Nearest {
-        // Stable sort: ties keep raster order, so the order is reproducible.
-        leds.sort_by_key(|&led| {
-            let (p, q) = patterns::grid_offset(g, led);
-            p * p + q * q
-        });
+        // The one nearest-first rule (EPRY's, the acquisition's): by illumination
+        // frequency, which for a board at its nominal place grows with the distance
+        // from the centre LED whatever the optics; ties keep raster order.
+        let geometry = crate::board_geometry::nominal(g);
+        let order = geometry.nearest_first(&leds, (0.0, 0.0), &fpm_physics::System::paper());
+        leds = order.into_iter().map(|k| leds[k]).collect();
     }
     leds.into_iter()
         .map(|led| Step {

@@ -68,6 +68,24 @@ pub struct Options {
 /// (motorised stages do better; say so with `--defocus-sigma-um`).
 pub const DEFAULT_DEFOCUS_SIGMA_UM: f64 = 1.0;
 
+/// Half the side of the bright-field grid pdcFPM defocuses under: 5 × 5 LEDs.
+pub const GRID_HALF: usize = 2;
+
+/// The LEDs pdcFPM takes its defocused frames under: the (2·`half` + 1)² grid around
+/// the centre LED, row by row, those off the board left out (never repeated).
+pub fn calibration_grid(geometry: &LedGeometry, half: usize) -> Vec<LedIndex> {
+    let (r0, c0, k) = (
+        geometry.center.r() as i64,
+        geometry.center.c() as i64,
+        half as i64,
+    );
+    (-k..=k)
+        .flat_map(|dr| (-k..=k).map(move |dc| (r0 + dr, c0 + dc)))
+        .filter_map(|(r, c)| Some(LedIndex::new(u8::try_from(r).ok()?, u8::try_from(c).ok()?)))
+        .filter(|&led| geometry.contains(led))
+        .collect()
+}
+
 /// The tilt is fitted when the shifts determine it to this 1σ, degrees: a 1–2° tilt
 /// then stands out at 2–4σ.
 pub const TILT_OBSERVABLE_SIGMA_DEG: f64 = 0.5;

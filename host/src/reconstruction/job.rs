@@ -75,7 +75,7 @@ pub struct Job {
     /// Tile side, camera pixels (None: from the physics).
     pub tile: Option<usize>,
     /// In-focus frames up to this many GB are held in memory; more are read from disk
-    /// band by band (the same result).
+    /// band by band (the same result; 0: always from disk).
     pub frame_memory_gb: f64,
 }
 
@@ -95,8 +95,9 @@ impl Default for Job {
 
 /// Ranges the job's settings are held to (named in the errors).
 pub mod limits {
-    /// HR pixels per camera pixel.
-    pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=16;
+    /// HR pixels per camera pixel (a generous bound: at 64 a 1024² frame's object is
+    /// already 34 GB, and few synthetic apertures need more than 10).
+    pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=64;
     /// Passes over all frames.
     pub const PASSES: std::ops::RangeInclusive<usize> = 1..=10_000;
     /// Object and pupil step sizes (1 = the full ePIE step).
@@ -217,9 +218,9 @@ impl Job {
                 bail!("led_height_mm {h}: must be a positive distance in mm");
             }
         }
-        if !positive(self.frame_memory_gb) {
+        if !(self.frame_memory_gb.is_finite() && self.frame_memory_gb >= 0.0) {
             bail!(
-                "frame_memory_gb {}: must be a positive size in GB",
+                "frame_memory_gb {}: must be a size in GB, 0 or more (0: always read the frames from disk band by band)",
                 self.frame_memory_gb
             );
         }

@@ -15,6 +15,7 @@ mod reconstruct;
 mod shell;
 mod simulate;
 mod units;
+mod virtual_camera;
 
 use std::process::ExitCode;
 
@@ -42,7 +43,7 @@ enum Command {
     /// Run a simulated camera on a virtual rig (with `fpm emulator --rig`): renders
     /// each triggered exposure for a hidden, misplaced LED array and publishes frames
     /// on iceoryx2.
-    VirtualCamera(fpm_rig::camera::VirtualCameraArgs),
+    VirtualCamera(virtual_camera::VirtualCameraArgs),
     /// Real cameras: list GenICam cameras, run one into the frame contract.
     #[command(subcommand)]
     Camera(camera::CameraCommand),
@@ -91,7 +92,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => fpm_emulator::run(args),
-        Command::VirtualCamera(args) => fpm_rig::camera::run(args),
+        Command::VirtualCamera(args) => virtual_camera::run(args),
         Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),

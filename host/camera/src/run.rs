@@ -6,7 +6,6 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
 use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
 
 use crate::aravis::{Aravis, Camera, Stream, StreamStats};
@@ -14,74 +13,49 @@ use crate::pixels::{decode, decode_channel, Channel, PixelFormat};
 use crate::settings::{AppliedSettings, CameraSettings};
 
 /// Run a GenICam camera (through aravis) as an fpm camera.
-#[derive(Args, Debug, Clone)]
-pub struct RunArgs {
+#[derive(Debug, Clone)]
+pub struct RunOptions {
     /// The camera: its aravis device id, or its IP address (by address nothing is
     /// broadcast: aravis asks that address only).
-    #[arg(long, value_name = "DEVICE-ID-OR-IP")]
     pub aravis: String,
     /// Publish frames as this camera (`fpm/camera/<ID>/frames`).
-    #[arg(long, default_value = "0")]
     pub camera: String,
     /// Camera settings (TOML: pixel_format, exposure_us, gain, roi, binning, trigger,
     /// trigger_activation); flags override it.
-    #[arg(long)]
     pub config: Option<PathBuf>,
     /// PixelFormat (Mono8, Mono10/12/14/16, Mono10p/12p, Mono10Packed/12Packed).
-    #[arg(long)]
     pub pixel_format: Option<String>,
     /// ExposureTime, µs.
-    #[arg(long)]
     pub exposure_us: Option<f64>,
     /// Gain (the camera's unit, usually dB).
-    #[arg(long)]
     pub gain: Option<f64>,
     /// Region of interest: X,Y,WIDTH,HEIGHT.
-    #[arg(long, value_parser = parse_roi)]
     pub roi: Option<[i32; 4]>,
     /// Binning, both directions.
-    #[arg(long)]
     pub binning: Option<i32>,
     /// Trigger source for each frame: Line0 (the LED controller's trigger-out wired to
     /// the camera), Software, any source the camera offers, or Off (free running).
-    #[arg(long)]
     pub trigger: Option<String>,
     /// TriggerActivation (RisingEdge, FallingEdge, ...).
-    #[arg(long)]
     pub trigger_activation: Option<String>,
     /// Colour sensors (Bayer pixel formats): publish this channel (R, G or B), its own
     /// pixels, one per 2 × 2 cell (half the size, twice the pitch).
-    #[arg(long)]
     pub channel: Option<String>,
     /// Fire a software trigger on each trigger-out pulse of this virtual rig
     /// (`fpm emulator --rig NAME`): a stand-in for the trigger cable. Sets the trigger
     /// to Software.
-    #[arg(long)]
     pub rig: Option<String>,
     /// Buffers queued on the stream.
-    #[arg(long, default_value_t = 8)]
     pub buffers: usize,
     /// Stop after this many frames.
-    #[arg(long)]
     pub frames: Option<u64>,
     /// Write the settings in force (read back from the camera) here, as JSON.
-    #[arg(long)]
     pub settings_out: Option<PathBuf>,
     /// Seconds without a frame or an answer after which the camera counts as gone.
-    #[arg(long, default_value_t = 5.0)]
     pub lost_after_s: f64,
 }
 
-fn parse_roi(s: &str) -> Result<[i32; 4], String> {
-    let v: Vec<i32> = s
-        .split(',')
-        .map(|p| p.trim().parse::<i32>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("{s}: {e} (expected X,Y,WIDTH,HEIGHT)"))?;
-    <[i32; 4]>::try_from(v).map_err(|_| format!("{s}: expected X,Y,WIDTH,HEIGHT"))
-}
-
-impl RunArgs {
+impl RunOptions {
     /// The settings asked for: the file, then the flags.
     pub fn settings(&self) -> Result<CameraSettings> {
         let file = match &self.config {
@@ -151,7 +125,7 @@ fn cpu_seconds() -> Option<f64> {
 }
 
 /// Run until SIGINT/SIGTERM, `--frames`, or the camera is lost (an error).
-pub fn run(args: RunArgs) -> Result<RunSummary> {
+pub fn run(args: RunOptions) -> Result<RunSummary> {
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
     let settings = args.settings()?;
     let aravis = Aravis::load()?;
@@ -305,7 +279,7 @@ struct Ends<'a> {
 }
 
 fn stream_frames(
-    args: &RunArgs,
+    args: &RunOptions,
     channel: Option<Channel>,
     ends: &Ends<'_>,
     mut rig: Option<&mut fpm_rig_bus::RigListener>,

@@ -248,18 +248,18 @@ pub fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../data")
 }
 
-/// A scratch directory removed on drop.
+/// A scratch directory, made (uniquely, atomically) by the `tempfile` crate and
+/// removed on drop; `.0` is its path.
 pub struct TempDir(pub PathBuf);
 
 impl TempDir {
-    /// A new unique directory under the system temp dir.
+    /// A new unique directory under the system temp dir, named after `tag`.
     pub fn new(tag: &str) -> Self {
-        static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-        let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-        let dir = std::env::temp_dir().join(format!("fpm-test-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("creating a temp dir");
-        Self(dir)
+        let dir = tempfile::Builder::new()
+            .prefix(&format!("fpm-test-{tag}-"))
+            .tempdir()
+            .expect("creating a temp dir");
+        Self(dir.keep())
     }
 }
 

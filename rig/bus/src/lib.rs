@@ -286,26 +286,26 @@ impl StageControl {
 /// until told to stop, then leave iceoryx2 and their links cleanly.
 pub mod stop {
     use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::{Arc, OnceLock};
 
-    use nix::sys::signal::{SigHandler, Signal};
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
 
-    static STOP: AtomicBool = AtomicBool::new(false);
-
-    extern "C" fn on_signal(_: nix::libc::c_int) {
-        STOP.store(true, Ordering::SeqCst);
+    /// Set by the signals (signal-hook's handler only stores to it).
+    fn flag() -> &'static Arc<AtomicBool> {
+        static STOP: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+        STOP.get_or_init(Default::default)
     }
 
     /// Install the handlers.
-    pub fn install() -> Result<(), nix::Error> {
-        for sig in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
-            // SAFETY: the handler only stores to an atomic.
-            unsafe { nix::sys::signal::signal(sig, SigHandler::Handler(on_signal)) }?;
+    pub fn install() -> std::io::Result<()> {
+        for sig in [SIGINT, SIGTERM, SIGHUP] {
+            signal_hook::flag::register(sig, Arc::clone(flag()))?;
         }
         Ok(())
     }
 
     /// Whether a stop signal arrived.
     pub fn requested() -> bool {
-        STOP.load(Ordering::SeqCst)
+        flag().load(Ordering::SeqCst)
     }
 }

@@ -195,13 +195,18 @@ impl Streaming {
             py.detach(|| stream.finish(&lit, passes, &|done, total| progress.report(done, total)));
         progress.finish()?;
         let outcome = outcome.map_err(|e| FpmError::new_err(e.to_string()))?;
+        let source = fpm_host::calibration::GeometrySource::Given("given to fpm.Streaming".into());
+        let request = fpm_host::reconstruction::Request {
+            geometry: &self.geometry,
+            source: &source,
+            settings: self.settings,
+            passes,
+            tile: None,
+        };
         let report = Report::new(
             std::path::Path::new("(streamed)"),
             &self.system,
-            &self.geometry,
-            &fpm_host::calibration::GeometrySource::Given("given to fpm.Streaming".into()),
-            self.settings,
-            passes,
+            &request,
             lit.len(),
             &outcome,
             self.started.elapsed().as_secs_f64() * 1e3,

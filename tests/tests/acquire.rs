@@ -335,16 +335,14 @@ fn a_non_square_live_acquisition_streams_in_tiles() {
     assert_eq!(streamed.dim(), (384 * 4, 512 * 4));
     // The same dataset offline, same tiles, same geometry (nominal: no calibration).
     let ds = Dataset::load(&out).unwrap();
-    let offline = fpm_host::reconstruction::reconstruct(
-        &ds,
-        &ds.manifest.geometry(),
-        &fpm_host::calibration::GeometrySource::Given("test".into()),
-        fpm_physics::reconstruct::Settings::default(),
-        4,
-        None,
-        &|_, _| {},
-    )
-    .unwrap();
+    let request = fpm_host::reconstruction::Request {
+        geometry: &ds.manifest.geometry(),
+        source: &fpm_host::calibration::GeometrySource::Given("test".into()),
+        settings: fpm_physics::reconstruct::Settings::default(),
+        passes: 4,
+        tile: None,
+    };
+    let offline = fpm_host::reconstruction::reconstruct(&ds, &request, &|_, _| {}).unwrap();
     assert_eq!(offline.report.tiles.len(), tiles);
     // Both against the hidden sample under the sensor (the camera wrote it).
     for name in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
@@ -564,16 +562,14 @@ fn a_live_acquisition_through_a_non_telecentric_objective_states_its_pupil() {
     let streamed = score(&ds, &streamed);
     let mut offline = |pupil: Option<f64>| {
         ds.manifest.entrance_pupil_mm = pupil;
-        let r = fpm_host::reconstruction::reconstruct(
-            &ds,
-            &geometry,
-            &fpm_host::calibration::GeometrySource::Given("test".into()),
-            fpm_physics::reconstruct::Settings::default(),
-            4,
-            Some(192),
-            &|_, _| {},
-        )
-        .unwrap();
+        let request = fpm_host::reconstruction::Request {
+            geometry: &geometry,
+            source: &fpm_host::calibration::GeometrySource::Given("test".into()),
+            settings: fpm_physics::reconstruct::Settings::default(),
+            passes: 4,
+            tile: Some(192),
+        };
+        let r = fpm_host::reconstruction::reconstruct(&ds, &request, &|_, _| {}).unwrap();
         score(&ds, &r.object)
     };
     let (stated, telecentric) = (offline(Some(20.0)), offline(None));

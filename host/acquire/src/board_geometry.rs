@@ -12,19 +12,13 @@ use fpm_protocol::{BoardCalibration, PlacementSigma, StoredCalibration};
 
 /// The array a board describes, at its nominal place (no offset, turn or tilt).
 pub fn nominal(g: &fpm_protocol::BoardGeometry) -> LedGeometry {
-    LedGeometry {
-        rows: g.rows as usize,
-        cols: g.cols as usize,
-        pitch_mm: g.pitch_um as f64 / 1e3,
-        height_mm: g.height_um as f64 / 1e3,
-        center: g.center,
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-        tilt_x_deg: 0.0,
-        tilt_y_deg: 0.0,
-        rings: None,
-    }
+    LedGeometry::grid(
+        g.rows as usize,
+        g.cols as usize,
+        g.pitch_um as f64 / 1e3,
+        g.height_um as f64 / 1e3,
+        g.center,
+    )
 }
 
 /// The calibration in `path` (a full `fpm calibrate` file or the minimal four-key

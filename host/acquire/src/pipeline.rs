@@ -16,7 +16,7 @@ use anyhow::{bail, Context, Result};
 use fpm_frames::ServiceNames;
 use fpm_host::calibration::{calibrate_dataset, GeometrySource};
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
-use fpm_host::reconstruction::{write_outputs, Reconstruction, Report};
+use fpm_host::reconstruction::{write_outputs, Reconstruction, Report, Request};
 use fpm_physics::calibrate::Options;
 use fpm_physics::reconstruct::{tiled, Flatten, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
@@ -380,13 +380,17 @@ pub fn acquire(
         };
         let ms = last_frame_at.elapsed().as_secs_f64() * 1e3;
         last_frame_to_final_ms = Some(ms);
+        let request = Request {
+            geometry: &geometry,
+            source: &geometry_source,
+            settings,
+            passes: plan.passes,
+            tile: plan.tile,
+        };
         let mut report = Report::new(
             &ds.dir,
             &ds.manifest.system(),
-            &geometry,
-            &geometry_source,
-            settings,
-            plan.passes,
+            &request,
             frames.len(),
             &outcome,
             ms,

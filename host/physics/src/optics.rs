@@ -220,12 +220,24 @@ impl LedGeometry {
     /// The pdcFPM paper's array, nominally placed: 21×21 LEDs at 2.5 mm, 92 mm below the
     /// sample, centre LED (10, 10), no offset or rotation.
     pub const fn paper() -> Self {
+        Self::grid(21, 21, 2.5, 92.0, LedIndex::new(10, 10))
+    }
+
+    /// A `rows` × `cols` grid `pitch_mm` apart, `height_mm` below the sample, `center`
+    /// on the optical axis: nominally placed (no offset, turn or tilt).
+    pub const fn grid(
+        rows: usize,
+        cols: usize,
+        pitch_mm: f64,
+        height_mm: f64,
+        center: LedIndex,
+    ) -> Self {
         Self {
-            rows: 21,
-            cols: 21,
-            pitch_mm: 2.5,
-            height_mm: 92.0,
-            center: LedIndex::new(10, 10),
+            rows,
+            cols,
+            pitch_mm,
+            height_mm,
+            center,
             dx_mm: 0.0,
             dy_mm: 0.0,
             theta_deg: 0.0,

@@ -178,20 +178,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
     use fpm_physics::reconstruct::{tiled, TiledStreaming};
 
     let system = System::paper();
-    let geometry = LedGeometry {
-        rows: 15,
-        cols: 15,
-        pitch_mm: 2.5,
-        height_mm: 92.0,
-        center: LedIndex::new(7, 7),
-        dx_mm: 0.0,
-        dy_mm: 0.0,
-        theta_deg: 0.0,
-
-        tilt_x_deg: 0.0,
-        tilt_y_deg: 0.0,
-        rings: None,
-    };
+    let geometry = LedGeometry::grid(15, 15, 2.5, 92.0, LedIndex::new(7, 7));
     let w = 160;
     let tile = Some(80);
     let object = ObjectField::test_sample(&system, w, 32, 2, 7);

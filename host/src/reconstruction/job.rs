@@ -11,7 +11,8 @@ use fpm_physics::reconstruct::{GammaScan, Settings};
 use fpm_physics::{LedGeometry, System};
 
 use super::{
-    reconstruct_on_disk, reconstruct_with_system, write_outputs_with, OutputOptions, Reconstruction,
+    reconstruct_on_disk, reconstruct_with_system, write_outputs_with, OutputOptions,
+    Reconstruction, Request,
 };
 use crate::calibration::{GeometrySource, Placement};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
@@ -250,25 +251,15 @@ impl Job {
         let progress = |done, total| on(JobEvent::Updates { done, total });
         let bytes = on_disk.in_focus_bytes();
         let system = on_disk.manifest.system();
+        let request = self.request(&geometry, &source);
         let mut r = if bytes as f64 <= self.frame_memory_gb * 1e9 {
             let mut ds = Dataset::load(dir)?;
             ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
             ds.manifest.camera = on_disk.manifest.camera;
-            let (settings, passes, tile) = (self.settings, self.passes, self.tile);
-            reconstruct_with_system(
-                &ds, &system, &geometry, &source, settings, passes, tile, &progress,
-            )?
+            reconstruct_with_system(&ds, &system, &request, &progress)?
         } else {
             on(JobEvent::FromDisk { bytes });
-            reconstruct_on_disk(
-                &on_disk,
-                &geometry,
-                &source,
-                self.settings,
-                self.passes,
-                self.tile,
-                &progress,
-            )?
+            reconstruct_on_disk(&on_disk, &request, &progress)?
         };
         score(&on_disk, &mut r);
         r.report.camera_gamma_scan = gamma_scan.clone();
@@ -297,18 +288,21 @@ impl Job {
             ..ds.manifest.system()
         };
         let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
-        let mut r = reconstruct_with_system(
-            ds,
-            &system,
-            &geometry,
-            &source,
-            self.settings,
-            self.passes,
-            self.tile,
-            progress,
-        )?;
+        let request = self.request(&geometry, &source);
+        let mut r = reconstruct_with_system(ds, &system, &request, progress)?;
         score(ds, &mut r);
         Ok(r)
+    }
+
+    /// The request this job makes of one reconstruction with `geometry`.
+    fn request<'a>(&self, geometry: &'a LedGeometry, source: &'a GeometrySource) -> Request<'a> {
+        Request {
+            geometry,
+            source,
+            settings: self.settings,
+            passes: self.passes,
+            tile: self.tile,
+        }
     }
 
     /// `--camera-gamma auto`: scan the frames and decode them with the gamma found (or

@@ -7,7 +7,7 @@ pub mod job;
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use fpm_physics::background::{Correction, FrameBackground};
 use fpm_physics::calibrate::boundary::{BlockReader, BoundaryHeight, PupilFromBoundary};
 use fpm_physics::frame::LitFrame;
@@ -204,21 +204,41 @@ impl BoundaryCheck {
     }
 }
 
+/// What one reconstruction of a dataset is asked to do: the LED geometry and where it
+/// came from, EPRY's settings, the passes, and the tile side (None: from the physics).
+#[derive(Debug, Clone, Copy)]
+pub struct Request<'a> {
+    /// The LED geometry.
+    pub geometry: &'a LedGeometry,
+    /// Where it came from.
+    pub source: &'a GeometrySource,
+    /// EPRY's settings.
+    pub settings: Settings,
+    /// Passes over all frames.
+    pub passes: usize,
+    /// Tile side, camera pixels.
+    pub tile: Option<usize>,
+}
+
 impl Report {
     /// The report of `outcome`, a reconstruction of `frames` frames of the dataset in
-    /// `dataset` (offline or streamed: the same tiles, the same finish).
-    #[allow(clippy::too_many_arguments)]
+    /// `dataset` as `request` asked (offline or streamed: the same tiles, the same
+    /// finish), `total_ms` long.
     pub fn new(
         dataset: &Path,
         system: &System,
-        geometry: &LedGeometry,
-        source: &GeometrySource,
-        settings: Settings,
-        passes: usize,
+        request: &Request<'_>,
         frames: usize,
         outcome: &TiledOutcome,
         total_ms: f64,
     ) -> Self {
+        let Request {
+            geometry,
+            source,
+            settings,
+            passes,
+            ..
+        } = *request;
         let tiles: Vec<TileReport> = outcome
             .tiles
             .iter()
@@ -390,54 +410,44 @@ impl BackgroundPhaseReport {
 /// total)` counts frame updates over all tiles.
 pub fn reconstruct(
     ds: &Dataset,
-    geometry: &LedGeometry,
-    source: &GeometrySource,
-    settings: Settings,
-    passes: usize,
-    tile: Option<usize>,
+    request: &Request<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Reconstruction> {
-    let system = ds.manifest.system();
-    reconstruct_with_system(
-        ds, &system, geometry, source, settings, passes, tile, progress,
+    reconstruct_with_system(ds, &ds.manifest.system(), request, progress)
+}
+
+/// The error for a dataset in `dir` without in-focus frames.
+fn no_in_focus_frames(dir: &Path) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{}: no in-focus frames (defocus_um = 0) to reconstruct",
+        dir.display()
     )
 }
 
 /// [`reconstruct`] through `system` instead of the manifest's (an objective whose
 /// entrance pupil the dataset cannot state, for a dataset borrowed as it is).
-#[allow(clippy::too_many_arguments)]
 pub fn reconstruct_with_system(
     ds: &Dataset,
     system: &System,
-    geometry: &LedGeometry,
-    source: &GeometrySource,
-    settings: Settings,
-    passes: usize,
-    tile: Option<usize>,
+    request: &Request<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Reconstruction> {
     let frames = ds.in_focus();
     if frames.is_empty() {
-        bail!(
-            "{}: no in-focus frames (defocus_um = 0) to reconstruct",
-            ds.dir.display()
-        );
+        return Err(no_in_focus_frames(&ds.dir));
     }
+    let Request {
+        geometry,
+        settings,
+        passes,
+        tile,
+        ..
+    } = *request;
     let start = Instant::now();
     let outcome = tiled::reconstruct(system, geometry, &frames, settings, passes, tile, progress)
         .with_context(|| format!("reconstructing {}", ds.dir.display()))?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let mut report = Report::new(
-        &ds.dir,
-        system,
-        geometry,
-        source,
-        settings,
-        passes,
-        frames.len(),
-        &outcome,
-        total_ms,
-    );
+    let mut report = Report::new(&ds.dir, system, request, frames.len(), &outcome, total_ms);
     report.height_from_boundary = boundary_check(system, geometry, &frames);
     report.camera_gamma = ds.manifest.camera.gamma;
     Ok(Reconstruction::from_outcome(outcome, report))
@@ -458,21 +468,21 @@ fn lit<'a>(ds: &DatasetOnDisk, k: usize, pixels: &'a Pixels) -> LitFrame<'a> {
 /// result equals [`reconstruct`]'s bit for bit.
 pub fn reconstruct_on_disk(
     ds: &DatasetOnDisk,
-    geometry: &LedGeometry,
-    source: &GeometrySource,
-    settings: Settings,
-    passes: usize,
-    tile: Option<usize>,
+    request: &Request<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Reconstruction> {
     let system = ds.manifest.system();
     let indices = ds.in_focus();
     if indices.is_empty() {
-        bail!(
-            "{}: no in-focus frames (defocus_um = 0) to reconstruct",
-            ds.dir.display()
-        );
+        return Err(no_in_focus_frames(&ds.dir));
     }
+    let Request {
+        geometry,
+        settings,
+        passes,
+        tile,
+        ..
+    } = *request;
     let context = || format!("reconstructing {}", ds.dir.display());
     let start = Instant::now();
     let leds: Vec<LedIndex> = indices.iter().map(|&k| ds.manifest.frames[k].led).collect();
@@ -520,17 +530,7 @@ pub fn reconstruct_on_disk(
     }
     let outcome = run.finish().with_context(context)?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let mut report = Report::new(
-        &ds.dir,
-        &system,
-        geometry,
-        source,
-        settings,
-        passes,
-        indices.len(),
-        &outcome,
-        total_ms,
-    );
+    let mut report = Report::new(&ds.dir, &system, request, indices.len(), &outcome, total_ms);
     report.height_from_boundary = edges.and_then(|e| BoundaryCheck::read(&system, geometry, &e));
     report.camera_gamma = ds.manifest.camera.gamma;
     Ok(Reconstruction::from_outcome(outcome, report))

@@ -9,6 +9,7 @@ mod camera;
 mod color;
 mod demo;
 mod device;
+mod emulator;
 mod flatten;
 mod progress;
 mod reconstruct;
@@ -39,7 +40,7 @@ enum Command {
     /// Talk to an LED controller (board or emulator) over its serial port.
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
-    Emulator(fpm_emulator::EmulatorArgs),
+    Emulator(emulator::EmulatorArgs),
     /// Run a simulated camera on a virtual rig (with `fpm emulator --rig`): renders
     /// each triggered exposure for a hidden, misplaced LED array and publishes frames
     /// on iceoryx2.
@@ -91,7 +92,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
-        Command::Emulator(args) => fpm_emulator::run(args),
+        Command::Emulator(args) => emulator::run(args),
         Command::VirtualCamera(args) => virtual_camera::run(args),
         Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),

@@ -1,61 +1,42 @@
-//! The emulator's options (`fpm emulator`), shared by its event loop and the
-//! firmware-in-rp2040js runner.
+//! The emulator's options, shared by its event loop and the firmware-in-rp2040js
+//! runner (`fpm emulator` parses them).
 
 use std::path::PathBuf;
 
-use clap::Parser;
-
-/// Run the emulated LED controller behind a pseudo-terminal.
-#[derive(Parser, Debug, Clone)]
-#[command(
-    name = "fpm-emulator",
-    version,
-    about = "Emulated fpm LED controller on a pseudo-terminal"
-)]
-pub struct EmulatorArgs {
+/// How to run the emulated LED controller behind a pseudo-terminal (`fpm emulator`'s
+/// flags).
+#[derive(Debug, Clone)]
+pub struct EmulatorOptions {
     /// Make this path a symlink to the pseudo-terminal (open it like /dev/ttyACM0).
-    #[arg(long)]
     pub link: PathBuf,
     /// LED grid rows.
-    #[arg(long, default_value_t = 21)]
     pub rows: u8,
     /// LED grid columns.
-    #[arg(long, default_value_t = 21)]
     pub cols: u8,
     /// Parallel data lanes the chain is split into.
-    #[arg(long, default_value_t = 1)]
     pub lanes: u8,
     /// The LED supply's current rating, mA.
-    #[arg(long, default_value_t = 4000)]
     pub max_current_ma: u32,
     /// Serial number reported by the device.
-    #[arg(long, default_value_t = 0x0E30_1A7E)]
     pub serial: u64,
     /// Emulated camera: exposure time, µs.
-    #[arg(long, default_value_t = 10_000)]
     pub camera_exposure_us: u64,
     /// Emulated camera: trigger to exposure start, µs.
-    #[arg(long, default_value_t = 20)]
     pub camera_latency_us: u64,
     /// No camera on the trigger lines (trigger-in waits then time out).
-    #[arg(long)]
     pub no_camera: bool,
     /// Publish every trigger pulse, with the LEDs lit at that moment, on the iceoryx2
     /// virtual rig of this name (for `fpm virtual-camera --rig NAME`).
-    #[arg(long)]
     pub rig: Option<String>,
     /// Keep the controller's flash (the stored board calibration) in this file, so it
     /// survives restarts like a real board's; created if missing. Without it the
     /// flash starts erased and is forgotten at exit.
-    #[arg(long)]
     pub flash: Option<PathBuf>,
-    /// With --firmware: cut the emulated board's power after this many flash bytes
+    /// With `firmware`: cut the emulated board's power after this many flash bytes
     /// are erased or programmed (the flash image keeps what was written; for testing
     /// that a stored calibration survives a power cut).
-    #[arg(long, requires = "firmware")]
     pub power_cut_after: Option<u64>,
     /// Run this firmware image (the UF2 users flash) in an emulated RP2040 instead of
     /// the host-compiled controller logic (needs Node and `npm ci` in tools/rp2040).
-    #[arg(long)]
     pub firmware: Option<PathBuf>,
 }

@@ -17,7 +17,7 @@ use nix::poll::{PollFd, PollFlags, PollTimeout};
 
 use fpm_firmware::{LedStrip, RGB8};
 
-use crate::args::EmulatorArgs;
+use crate::args::EmulatorOptions;
 use crate::hardware::EmulatedStrip;
 use crate::pty::{Link, Pty};
 
@@ -44,7 +44,7 @@ impl Drop for Harness {
 }
 
 /// Run the firmware in `uf2` until SIGINT/SIGTERM/SIGHUP.
-pub fn run_firmware(args: &EmulatorArgs, uf2: &Path) -> Result<()> {
+pub fn run_firmware(args: &EmulatorOptions, uf2: &Path) -> Result<()> {
     let dir = harness_dir();
     let script = dir.join("harness.mjs");
     let bootrom = dir.join("bootrom/bootrom-b1.bin");

@@ -23,5 +23,5 @@ pub mod hardware;
 mod pty;
 mod run;
 
-pub use args::EmulatorArgs;
+pub use args::EmulatorOptions;
 pub use run::run;

@@ -8,7 +8,7 @@ use fpm_firmware::{BoardConfig, CalibrationStore, Device};
 use nix::poll::{PollFd, PollFlags};
 use nix::sys::time::TimeSpec;
 
-use crate::args::EmulatorArgs;
+use crate::args::EmulatorOptions;
 use crate::flash::{EmulatedFlash, FlashFile};
 use crate::hardware::{Camera, EmulatedStrip, EmulatedTrigger};
 use crate::pty::{Link, Pty};
@@ -17,7 +17,7 @@ use crate::pty::{Link, Pty};
 const MAX_SLEEP: Duration = Duration::from_millis(100);
 
 /// Run until SIGINT, SIGTERM or SIGHUP.
-pub fn run(args: EmulatorArgs) -> Result<()> {
+pub fn run(args: EmulatorOptions) -> Result<()> {
     if let Some(uf2) = &args.firmware {
         return crate::firmware::run_firmware(&args, uf2);
     }

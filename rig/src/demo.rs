@@ -21,7 +21,7 @@ use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{DeviceInfo, Half, LinkStats, Lit, Pattern, Rgb};
 use serde::Serialize;
 
-use crate::process::{ChildProcess, EmulatorProcess, Ready};
+use crate::process::{EmulatorProcess, VirtualCameraProcess};
 use crate::stage::VirtualStage;
 
 /// What the demo runs.
@@ -198,24 +198,9 @@ pub fn run(demo: &Demo, fpm: &Path, mut on_event: impl FnMut(DemoEvent<'_>)) -> 
     let emulator = start_emulator(demo, fpm, &rig)?;
     let controller = probe_controller(demo, &emulator)?;
     on_event(DemoEvent::Controller(&controller));
-    let camera = ChildProcess::fpm(
-        fpm,
-        &[
-            "virtual-camera",
-            "--rig",
-            &rig,
-            "--camera",
-            &rig,
-            "--seed",
-            &demo.seed.to_string(),
-            "--size",
-            &demo.size.to_string(),
-            "--truth-dir",
-            &out.to_string_lossy(),
-        ],
-        "virtual camera",
-        Ready::FileExists(&out.join("truth.json"), Duration::from_secs(30)),
-    )?;
+    let (seed, size) = (demo.seed.to_string(), demo.size.to_string());
+    let camera =
+        VirtualCameraProcess::start(fpm, &rig, &rig, &out, &["--seed", &seed, "--size", &size])?;
     on_event(DemoEvent::Camera { size: demo.size });
     let plan = plan(demo, &rig, &out);
     let dev = Controller::open(&controller.port, Duration::from_secs(2))?;

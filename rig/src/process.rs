@@ -165,3 +165,51 @@ impl EmulatorProcess {
         self.link.to_string_lossy().into_owned()
     }
 }
+
+/// `fpm virtual-camera` on a virtual rig as a child process, ready once it has written
+/// the hidden truth (it does so last, once it listens to the rig).
+pub struct VirtualCameraProcess {
+    /// The process.
+    pub process: ChildProcess,
+    /// Where its truth.json (and the truth images) are.
+    pub truth_dir: PathBuf,
+}
+
+impl VirtualCameraProcess {
+    /// Start the virtual camera of the executable `fpm` on rig `rig`, publishing as
+    /// camera `camera`, its truth written into `truth_dir`, with `extra` flags
+    /// (`--size`, `--seed`, fault injection, …).
+    pub fn start(
+        fpm: &Path,
+        rig: &str,
+        camera: &str,
+        truth_dir: &Path,
+        extra: &[&str],
+    ) -> Result<Self> {
+        let mut command = Command::new(fpm);
+        command
+            .args([
+                "virtual-camera",
+                "--rig",
+                rig,
+                "--camera",
+                camera,
+                "--truth-dir",
+            ])
+            .arg(truth_dir)
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null());
+        let ready = truth_dir.join("truth.json");
+        let process = ChildProcess::start(
+            command,
+            "virtual camera",
+            Ready::FileExists(&ready, Duration::from_secs(30)),
+        )?;
+        Ok(Self {
+            process,
+            truth_dir: truth_dir.to_path_buf(),
+        })
+    }
+}

@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
 use fpm_physics::{LedGeometry, System};
-use fpm_tests::{child, fpm_bin, ChildProcess, Emulator, Ready, TempDir};
+use fpm_rig::process::VirtualCameraProcess;
+use fpm_tests::{fpm_bin, Emulator, TempDir};
 
 /// `fpm acquire` against emulator `emu` and camera `id`, into `out`, 15 ms per LED.
 fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
@@ -28,31 +29,13 @@ const ON_AXIS_AT_92_MM: [&str; 8] = [
     "92",
 ];
 
-fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> ChildProcess {
-    let mut command = Command::new(fpm_bin());
-    command
-        .args([
-            "virtual-camera",
-            "--rig",
-            id,
-            "--camera",
-            id,
-            "--readout-ms",
-            "1",
-        ])
-        .args(["--truth-dir", &truth.to_string_lossy()])
-        .args(extra)
-        .stdout(Stdio::null());
+fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> VirtualCameraProcess {
+    let mut args = vec!["--readout-ms", "1"];
+    args.extend(extra);
     if !extra.contains(&"--size") {
-        command.args(["--size", "48"]);
+        args.extend(["--size", "48"]);
     }
-    // The camera writes truth.json last, once it listens.
-    let ready = truth.join("truth.json");
-    child(
-        command,
-        "virtual camera",
-        Ready::FileExists(&ready, Duration::from_secs(10)),
-    )
+    VirtualCameraProcess::start(fpm_bin(), id, id, truth, &args).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
 /// Every LED of the 21×21 array, one frame each, labelled: judged by physics, not by
@@ -173,7 +156,7 @@ fn a_camera_killed_mid_sequence_is_reported_and_nothing_is_mislabelled() {
         .spawn()
         .unwrap();
     std::thread::sleep(Duration::from_secs(3));
-    cam.kill();
+    cam.process.kill();
     let run = acquire.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success(), "{stderr}");

@@ -5,11 +5,13 @@
 //! perfect board, and the refined LED positions must be closer to the truth than the
 //! rigid ones.
 
+mod common;
+
 use fpm_physics::frame::Region;
 use fpm_physics::metrics::{central, complex_nrmse, resample};
 use fpm_physics::optics::direction_from;
 use fpm_physics::reconstruct::refine::FieldFrequencies;
-use fpm_physics::reconstruct::{run, Field, Refine, RefinedLeds, Settings, Shot};
+use fpm_physics::reconstruct::{Refine, RefinedLeds, Settings};
 use fpm_physics::simulate::{acquire_from, Camera, ObjectField, SimFrame};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rand::SeedableRng;
@@ -77,25 +79,12 @@ fn refined_leds_recover_a_misbuilt_board() {
                 measured.intensity(Region::whole(measured.dim()))
             })
             .collect();
-        let shots: Vec<Shot> = frames
-            .iter()
-            .zip(&images)
-            .map(|(f, image)| Shot { led: f.led, image })
-            .collect();
+        let shots = common::shots(frames, &images);
         let settings = Settings {
             refine_leds: refine,
             ..Settings::default()
         };
-        let mut out = run(
-            &system,
-            &rigid,
-            Field::default(),
-            &shots,
-            settings,
-            PASSES,
-            |_, _| {},
-        )
-        .expect("a bright-field frame");
+        let mut out = common::epry(&system, &rigid, &shots, settings, PASSES);
         let rec = out.sample();
         let pitch = system.sample_pixel_um() / settings.upsample as f64;
         let nrmse = complex_nrmse(

@@ -2,8 +2,10 @@
 //! reconstruction must be far closer to the (synthetic-aperture band-limited) truth
 //! than the up-sampled centre frame.
 
+mod common;
+
 use fpm_physics::metrics::{central, complex_nrmse, resample};
-use fpm_physics::reconstruct::{run, Field, Settings, Shot};
+use fpm_physics::reconstruct::Settings;
 use fpm_physics::simulate::{acquire, Camera, ObjectField};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rustfft::num_complex::Complex32;
@@ -56,21 +58,8 @@ fn epry_beats_the_centre_frame_by_far() {
         ..Settings::default()
     };
     let images: Vec<Image> = (0..frames.len()).map(norm).collect();
-    let shots: Vec<Shot> = frames
-        .iter()
-        .zip(&images)
-        .map(|(f, image)| Shot { led: f.led, image })
-        .collect();
-    let mut out = run(
-        &system,
-        &geometry,
-        Field::default(),
-        &shots,
-        settings,
-        12,
-        |_, _| {},
-    )
-    .expect("a bright-field frame");
+    let shots = common::shots(&frames, &images);
+    let mut out = common::epry(&system, &geometry, &shots, settings, 12);
     assert_eq!(
         shots[out.initial].led,
         LedIndex::new(7, 7),

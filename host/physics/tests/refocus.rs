@@ -4,8 +4,10 @@
 //! sample's own plane; not told, the learned pupil cannot follow a defocus of several
 //! waves and the result is far off (the real ring-array set in `data/` was taken so).
 
+mod common;
+
 use fpm_physics::metrics::{central, complex_nrmse, resample};
-use fpm_physics::reconstruct::{run, Field, Settings, Shot};
+use fpm_physics::reconstruct::Settings;
 use fpm_physics::simulate::{acquire, Camera, ObjectField};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 
@@ -43,11 +45,7 @@ fn a_defocused_sample_is_recovered_when_the_defocus_is_told() {
                 .mapv(|v| (v as f32 - camera.dark_level_dn as f32) / (f.exposure_ms * unit) as f32)
         })
         .collect();
-    let shots: Vec<Shot> = frames
-        .iter()
-        .zip(&images)
-        .map(|(f, image)| Shot { led: f.led, image })
-        .collect();
+    let shots = common::shots(&frames, &images);
     let truth = object.crop_to_camera();
     let m = truth.dim().0;
     let discs: Vec<(f64, f64)> = frames
@@ -66,16 +64,7 @@ fn a_defocused_sample_is_recovered_when_the_defocus_is_told() {
             defocus_um: told_um,
             ..Settings::default()
         };
-        let mut out = run(
-            &system,
-            &geometry,
-            Field::default(),
-            &shots,
-            settings,
-            12,
-            |_, _| {},
-        )
-        .expect("a bright-field frame");
+        let mut out = common::epry(&system, &geometry, &shots, settings, 12);
         let rec = resample(
             &out.sample(),
             system.sample_pixel_um() / 4.0,

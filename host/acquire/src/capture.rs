@@ -366,10 +366,7 @@ fn next_event(
                 },
                 since_start(),
             ),
-            Ok(SequenceEvent::End(e)) => {
-                labeller.end();
-                return Ok(Some(e));
-            }
+            Ok(SequenceEvent::End(e)) => return Ok(Some(e)),
             Err(ControllerError::Timeout { .. }) => return Ok(None),
             Err(e) => return Err(e),
         }

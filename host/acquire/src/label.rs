@@ -156,8 +156,9 @@ pub fn pair_with_arrivals(
     // promising are fitted, and the one that labels the most frames is kept. A tie
     // (e.g. the first frame lost) that the stamps' residuals do not decide either is
     // not guessed: nothing is labelled then.
+    let causality = arrivals.and_then(|a| Causality::new(steps, first, a));
     let Some(starts) =
-        candidate_offsets(steps, frames, tolerance_ns, max_offset_ns, first, arrivals)
+        candidate_offsets(steps, frames, tolerance_ns, max_offset_ns, first, causality)
     else {
         return refused(
             steps.len(),
@@ -182,9 +183,9 @@ pub fn pair_with_arrivals(
     // A frame cannot reach the host before its LED was lit: an offset that says most
     // frames did is impossible, however well it fits the stamps (frames one step
     // later than true, when they arrive within a step).
-    if let Some(a) = arrivals {
+    if arrivals.is_some() {
         let candidates = fits.len();
-        fits.retain(|(_, p)| !arrives_before_lit(steps, first, a, p));
+        fits.retain(|(_, p)| !causality.is_some_and(|c| c.rules_out(steps, &p.matched)));
         tracing::debug!(
             "{} of {candidates} clock offsets ruled out: most of their frames would have arrived before their LED was lit",
             candidates - fits.len()
@@ -330,22 +331,45 @@ impl Line {
     }
 }
 
-/// Whether most of a candidate's frames would have reached the host before the
-/// earliest instant their LED can have been lit. Most, not any: a stray frame does not
-/// rule out the rest.
-fn arrives_before_lit(steps: &[StepTime], first: u64, a: Arrivals<'_>, p: &Pairing) -> bool {
-    let Some(rate) = controller_rate_lower_bound(steps, a.steps_ns) else {
-        return false;
-    };
-    let early = p
-        .matched
-        .iter()
-        .filter(|&&(si, fi)| {
-            let earliest = (steps[si].trigger_ns - first) as f64 * rate;
-            a.frames_ns.get(fi).is_some_and(|&t| (t as f64) < earliest)
+/// When a frame can have reached this host at the earliest: after its step's LED was
+/// lit, which is no earlier than the first trigger (after the arrivals' zero) plus the
+/// step's controller time since then at the controller's slowest credible rate.
+#[derive(Clone, Copy)]
+struct Causality<'a> {
+    /// The first trigger, controller ns.
+    first: u64,
+    /// Host ns per controller ns, at least ([`controller_rate_lower_bound`]).
+    rate: f64,
+    /// When each frame reached the host, ns from the arrivals' zero.
+    frames_ns: &'a [i64],
+}
+
+impl Causality<'_> {
+    /// The rule for `steps` with `arrivals`; None when the step reports cannot bound the
+    /// controller's rate (then nothing is ruled out).
+    fn new<'a>(steps: &[StepTime], first: u64, arrivals: Arrivals<'a>) -> Option<Causality<'a>> {
+        Some(Causality {
+            first,
+            rate: controller_rate_lower_bound(steps, arrivals.steps_ns)?,
+            frames_ns: arrivals.frames_ns,
         })
-        .count();
-    early * 2 > p.matched.len()
+    }
+
+    /// Whether most of `matched`'s (step, frame) pairs would have the frame reach the
+    /// host before the earliest instant its LED can have been lit. Most, not any: a
+    /// stray frame does not rule out the rest.
+    fn rules_out(&self, steps: &[StepTime], matched: &[(usize, usize)]) -> bool {
+        let early = matched
+            .iter()
+            .filter(|&&(si, fi)| {
+                let earliest = (steps[si].trigger_ns - self.first) as f64 * self.rate;
+                self.frames_ns
+                    .get(fi)
+                    .is_some_and(|&t| (t as f64) < earliest)
+            })
+            .count();
+        early * 2 > matched.len()
+    }
 }
 
 /// How many host ns at least pass per controller ns, as the step reports show it.
@@ -509,15 +533,29 @@ fn fit(
 }
 
 /// The step a frame belongs to once its stamp is mapped back to the controller's clock
-/// (`controller_ns`): the index into `steps` of the one step in whose window (see
-/// [`pair`]) it falls; None when none or several are.
+/// (`controller_ns`): the index into `steps` (in trigger order, as the controller
+/// reports them) of the one step in whose window (see [`pair`]) it falls; None when
+/// none or several are.
 pub fn step_for(steps: &[StepTime], controller_ns: i128, tolerance_ns: u64) -> Option<usize> {
-    let mut near = steps
+    one_in_window(steps, |s| s.trigger_ns, controller_ns as f64, tolerance_ns)
+}
+
+/// The index of the one item of `sorted` (ascending `trigger_ns`) whose window holds
+/// the mapped time `t`: the trigger at most twice the tolerance before `t` and one
+/// after it ([`LATE_TOLERANCES`]); None when none or several do. A binary search.
+fn one_in_window<T>(
+    sorted: &[T],
+    trigger_ns: impl Fn(&T) -> u64,
+    t: f64,
+    tolerance_ns: u64,
+) -> Option<usize> {
+    let tol = tolerance_ns as f64;
+    let from = sorted.partition_point(|x| (trigger_ns(x) as f64) < t - LATE_TOLERANCES * tol);
+    let mut near = sorted[from..]
         .iter()
-        .enumerate()
-        .filter(|(_, s)| within((controller_ns - s.trigger_ns as i128) as f64, tolerance_ns));
+        .take_while(|x| trigger_ns(x) as f64 <= t + tol);
     match (near.next(), near.next()) {
-        (Some((i, _)), None) => Some(i),
+        (Some(_), None) => Some(from),
         _ => None,
     }
 }
@@ -539,7 +577,7 @@ fn candidate_offsets(
     tolerance_ns: u64,
     max_offset_ns: u64,
     first: u64,
-    arrivals: Option<Arrivals<'_>>,
+    causality: Option<Causality<'_>>,
 ) -> Option<Vec<f64>> {
     let densest = estimate_offset(steps, frames, tolerance_ns, max_offset_ns) as f64;
     let mut by_stamp: Vec<u64> = frames.iter().map(|f| f.timestamp_ns).collect();
@@ -578,13 +616,7 @@ fn candidate_offsets(
                 drift: 0.0,
             };
             let pairs = quick_pairs(&triggers, frames, &map, tolerance_ns);
-            let ruled_out = arrivals.is_some_and(|a| {
-                let p = Pairing {
-                    matched: pairs.clone(),
-                    ..Pairing::default()
-                };
-                arrives_before_lit(steps, first, a, &p)
-            });
+            let ruled_out = causality.is_some_and(|c| c.rules_out(steps, &pairs));
             (!ruled_out).then_some((pairs.len(), offset_ns))
         })
         .collect();
@@ -613,21 +645,13 @@ fn quick_pairs(
     map: &ClockMap,
     tolerance_ns: u64,
 ) -> Vec<(usize, usize)> {
-    let tol = tolerance_ns as f64;
     frames
         .iter()
         .enumerate()
         .filter_map(|(fi, f)| {
             let t = f.timestamp_ns as f64 - map.offset_ns;
-            let lo = t - LATE_TOLERANCES * tol;
-            let from = triggers.partition_point(|&(x, _)| (x as f64) < lo);
-            let mut near = triggers[from..]
-                .iter()
-                .take_while(|&&(x, _)| x as f64 <= t + tol);
-            match (near.next(), near.next()) {
-                (Some(&(_, si)), None) => Some((si, fi)),
-                _ => None,
-            }
+            let k = one_in_window(triggers, |&(x, _)| x, t, tolerance_ns)?;
+            Some((triggers[k].1, fi))
         })
         .collect()
 }

@@ -68,7 +68,8 @@ pub struct Labeller {
     pending: Vec<usize>,
     anchor: Option<Anchor>,
     anchored_at: usize,
-    ended: bool,
+    /// The latest camera stamp so far, ns.
+    newest_stamp_ns: u64,
     changed: bool,
 }
 
@@ -89,7 +90,7 @@ impl Labeller {
             pending: vec![],
             anchor: None,
             anchored_at: 0,
-            ended: false,
+            newest_stamp_ns: 0,
             changed: false,
         }
     }
@@ -107,6 +108,7 @@ impl Labeller {
     pub fn frame(&mut self, frame: FrameTime, arrived_ns: i64) -> usize {
         let k = self.frames.len();
         self.frames.push(frame);
+        self.newest_stamp_ns = self.newest_stamp_ns.max(frame.timestamp_ns);
         self.frame_arrival_ns.push(arrived_ns);
         self.online.push(None);
         self.pending.push(k);
@@ -114,28 +116,11 @@ impl Labeller {
         k
     }
 
-    /// The controller said the sequence ended: the last step can get no rival frame
-    /// from a later trigger, so its frame may be labelled too.
-    pub fn end(&mut self) {
-        self.ended = true;
-        self.changed = true;
-    }
-
-    /// Frames given so far.
-    pub fn frames(&self) -> usize {
-        self.frames.len()
-    }
-
-    /// Step reports given so far.
-    pub fn steps(&self) -> usize {
-        self.steps.len()
-    }
-
     /// Frames that can be labelled now, each once. The clock mapping is fitted on what
     /// has arrived (the same pairing as the final one, on fewer frames), from 8 frames on
     /// and again as the count doubles; until it is known, or while it is ambiguous,
-    /// frames wait. A frame of the newest step waits for the next step (or the end): a
-    /// rival frame may still come.
+    /// frames wait. A frame waits until a later frame closes its step's window (a rival
+    /// frame may still come until then), and two frames in one window both wait.
     pub fn labels(&mut self) -> Vec<Label> {
         if !std::mem::take(&mut self.changed) {
             return vec![];
@@ -175,27 +160,29 @@ impl Labeller {
         // A camera delivers its frames in the order it took them: once a frame stamped
         // after a step's window has arrived, no other frame of that step will (frames
         // delivered out of order are caught by the final pairing: `relabelled`).
+        // (The mapping is increasing, so the newest stamp maps to the latest time.)
         let tol = self.tolerance_ns as i128;
-        let newest_stamp = self
-            .frames
-            .iter()
-            .map(|f| anchor.controller_ns(f.timestamp_ns))
-            .max()
-            .unwrap_or(i128::MIN);
+        let newest_stamp = anchor.controller_ns(self.newest_stamp_ns);
         let closed = |s: &StepTime| newest_stamp > s.trigger_ns as i128 + 2 * tol;
         let candidates: Vec<(usize, usize)> = self
             .pending
             .iter()
             .filter_map(|&k| Some((k, self.step_of(&anchor, &self.frames[k])?)))
             .collect();
+        let mut waiting = vec![0u32; self.steps.len()];
+        for &(_, si) in &candidates {
+            waiting[si] += 1;
+        }
         let mut out = vec![];
         for &(k, si) in &candidates {
             let step = self.steps[si].step;
             // Two frames waiting for one step: neither is handed out (the final pairing
             // refuses both); a step index outside the sequence is the controller's
             // error, left to the final pairing too.
-            let rivals = candidates.iter().filter(|c| c.1 == si).count();
-            if rivals > 1 || !closed(&self.steps[si]) || self.given.get(step).is_none_or(|&g| g) {
+            if waiting[si] > 1
+                || !closed(&self.steps[si])
+                || self.given.get(step).is_none_or(|&g| g)
+            {
                 continue;
             }
             self.given[step] = true;

@@ -114,7 +114,6 @@ enum Event {
     Step(StepTime),
     /// A frame and the step that really lit it.
     Frame(FrameTime, Option<usize>),
-    End,
 }
 
 /// The capture as the host sees it: events with their host arrival times, sorted.
@@ -167,7 +166,6 @@ fn events(r: &Rig) -> (Vec<(i64, Event)>, u64) {
             out.push((arrival as i64 + 1, Event::Frame(frame, Some(step))));
         }
     }
-    out.push((last_step_arrival + 1, Event::End));
     out.sort_by_key(|e| e.0);
     (out, tolerance)
 }
@@ -186,7 +184,6 @@ fn check(r: &Rig) -> Result<(), TestCaseError> {
                 labeller.frame(f, *arrived);
                 truth.push(step);
             }
-            Event::End => labeller.end(),
         }
         if rng.gen::<f64>() < r.poll {
             online.extend(labeller.labels());

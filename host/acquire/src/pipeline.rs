@@ -85,18 +85,8 @@ impl Plan {
         if !self.dark_level.is_finite() {
             bail!("dark_level {}: must be finite", self.dark_level);
         }
-        let s = &self.system;
-        if !(s.wavelength_um.is_finite() && (0.1..=20.0).contains(&s.wavelength_um)) {
-            bail!("wavelength_um {}: must be 0.1-20 µm", s.wavelength_um);
-        }
-        if !(s.na.is_finite() && s.na > 0.0 && s.na < 1.0) {
-            bail!("na {}: must be in (0, 1)", s.na);
-        }
-        if !(s.magnification.is_finite() && (0.01..=1000.0).contains(&s.magnification)) {
-            bail!("magnification {}: must be 0.01-1000", s.magnification);
-        }
-        if !(s.pixel_size_um.is_finite() && (0.05..=100.0).contains(&s.pixel_size_um)) {
-            bail!("pixel_um {}: must be 0.05-100 µm", s.pixel_size_um);
+        if let Some((name, v, why)) = self.system.out_of_range() {
+            bail!("{name} {v}: {why}");
         }
         if !(1..=10_000).contains(&self.passes) {
             bail!("passes {}: must be 1-10000", self.passes);

@@ -25,6 +25,42 @@ pub struct System {
 }
 
 impl System {
+    /// The first value outside the range any microscope's falls in, as (its name, the
+    /// value, the range in words): a value outside is a typo or a unit slip (nm for µm)
+    /// that would otherwise reconstruct nonsense. None when all are in range.
+    pub fn out_of_range(&self) -> Option<(&'static str, f64, &'static str)> {
+        let within = |v: f64, lo: f64, hi: f64| v.is_finite() && (lo..=hi).contains(&v);
+        [
+            (
+                "wavelength_um",
+                self.wavelength_um,
+                within(self.wavelength_um, 0.1, 20.0),
+                "must be 0.1-20 µm (a wavelength in µm: 0.47 for blue)",
+            ),
+            (
+                "na",
+                self.na,
+                self.na.is_finite() && self.na > 0.0 && self.na < 1.0,
+                "must be in (0, 1)",
+            ),
+            (
+                "magnification",
+                self.magnification,
+                within(self.magnification, 0.01, 1000.0),
+                "must be 0.01-1000",
+            ),
+            (
+                "pixel_size_um",
+                self.pixel_size_um,
+                within(self.pixel_size_um, 0.05, 100.0),
+                "must be 0.05-100 µm (the camera's pixel pitch)",
+            ),
+        ]
+        .into_iter()
+        .find(|&(_, _, ok, _)| !ok)
+        .map(|(name, v, _, why)| (name, v, why))
+    }
+
     /// The pdcFPM paper's microscope: λ 0.47 µm, NA 0.1, 4×, 2.4 µm camera pixels.
     pub const fn paper() -> Self {
         Self {

@@ -682,39 +682,8 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             Err(value(key, v.to_string(), "must be a positive number"))
         }
     };
-    // Ranges any microscope's values fall in: a value outside is a typo or a unit
-    // slip (nm for µm), which would otherwise reconstruct nonsense.
-    let within = |key: &str, v: f64, range: std::ops::RangeInclusive<f64>, why: &'static str| {
-        if v.is_finite() && range.contains(&v) {
-            Ok(())
-        } else {
-            Err(value(key, v.to_string(), why))
-        }
-    };
-    within(
-        "system.wavelength_um",
-        m.system.wavelength_um,
-        0.1..=20.0,
-        "must be 0.1-20 µm (a wavelength in µm: 0.47 for blue)",
-    )?;
-    within(
-        "system.magnification",
-        m.system.magnification,
-        0.01..=1000.0,
-        "must be 0.01-1000",
-    )?;
-    within(
-        "system.pixel_size_um",
-        m.system.pixel_size_um,
-        0.05..=100.0,
-        "must be 0.05-100 µm (the camera's pixel pitch)",
-    )?;
-    if !(m.system.na.is_finite() && m.system.na > 0.0 && m.system.na < 1.0) {
-        return Err(value(
-            "system.na",
-            m.system.na.to_string(),
-            "must be in (0, 1)",
-        ));
+    if let Some((key, v, why)) = m.system().out_of_range() {
+        return Err(value(&format!("system.{key}"), v.to_string(), why));
     }
     positive("led.pitch_mm", m.led.pitch_mm)?;
     positive("led.height_mm", m.led.height_mm)?;

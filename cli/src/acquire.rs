@@ -2,13 +2,15 @@
 //! streaming reconstruction while the frames arrive (`fpm_acquire::pipeline`).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use fpm_acquire::controller::discover;
 use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
-use fpm_acquire::{Controller, FocusStage, ManualStage};
+use fpm_acquire::{Controller, FocusStage, ManualStage, Progress};
 use fpm_frames::ServiceNames;
 use fpm_host::calibration::GeometrySource;
 use fpm_physics::System;
@@ -162,13 +164,26 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         tile: a.tile,
         flatten: a.flatten.flatten(),
     };
+    let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");
-    let summary = run_pipeline(&dev, stage.as_mut(), &plan, |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    });
+    let on_progress = |p: &Progress| {
+        bar.set_length(p.of as u64);
+        bar.set_position(p.frames as u64);
+    };
+    let summary = run_pipeline(&dev, stage.as_mut(), &plan, on_progress, &cancel);
     bar.finish_and_clear();
     summary
+}
+
+/// A flag Ctrl-C (or SIGTERM) sets: the acquisition aborts its sequence and writes
+/// what it captured. A second Ctrl-C ends the process at once.
+fn cancel_on_signal() -> Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(signal, 130, Arc::clone(&flag))?;
+        signal_hook::flag::register(signal, Arc::clone(&flag))?;
+    }
+    Ok(flag)
 }
 
 fn print_summary(s: &AcquireSummary, out: &Path) {

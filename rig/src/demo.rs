@@ -7,11 +7,13 @@
 //! print the [`DemoEvent`]s as they come and the [`DemoReport`] at the end.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use fpm_acquire::controller::Controller;
 use fpm_acquire::pipeline::{acquire, AcquireSummary, Plan};
+use fpm_acquire::Progress;
 use fpm_frames::ServiceNames;
 use fpm_host::dataset::Dataset;
 use fpm_host::reconstruction::{GeometryChoice, Job};
@@ -206,9 +208,14 @@ pub fn run(demo: &Demo, fpm: &Path, mut on_event: impl FnMut(DemoEvent<'_>)) -> 
     let dev = Controller::open(&controller.port, Duration::from_secs(2))?;
     let mut stage = VirtualStage::open(&rig)?;
     let start = Instant::now();
-    let acquisition = acquire(&dev, &mut stage, &plan, |done, total| {
-        on_event(DemoEvent::Frames { done, total })
-    })?;
+    let on_progress = |p: &Progress| {
+        on_event(DemoEvent::Frames {
+            done: p.frames,
+            total: p.of,
+        })
+    };
+    let never = AtomicBool::new(false);
+    let acquisition = acquire(&dev, &mut stage, &plan, on_progress, &never)?;
     let acquisition_seconds = start.elapsed().as_secs_f64();
     drop((camera, dev, emulator));
     let hidden_array = Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;

@@ -107,6 +107,19 @@ pub struct CaptureReport {
     pub relabelled: usize,
 }
 
+/// One capture sequence: which LEDs in which order, lit how.
+#[derive(Debug, Clone, Copy)]
+pub struct Sequence<'a> {
+    /// The id it is uploaded under.
+    pub id: u32,
+    /// The LEDs, one frame each, in order.
+    pub leds: &'a [LedIndex],
+    /// Their colour.
+    pub color: Rgb,
+    /// How long each stays lit, µs.
+    pub exposure_us: u32,
+}
+
 /// Sequence timing for one frame per step: the camera is triggered once the LEDs have
 /// settled; `exposure_us` is how long each step stays lit.
 pub fn timing(exposure_us: u32) -> SequenceTiming {
@@ -204,16 +217,21 @@ impl Drop for FrameDrain {
 /// once; the final pairing over everything is authoritative and is what the returned
 /// shots follow. Every labelled frame reaches `on_frame` exactly once (those that could
 /// not be labelled while acquiring, right after the final pairing); a frame handed out
-/// early that the final pairing contradicts is counted in `relabelled`.
+/// early that the final pairing contradicts is counted in `relabelled`. Once `cancel`
+/// is set the sequence is aborted; the frames that came are labelled as ever.
 pub fn capture(
     dev: &Controller,
     camera: &ServiceNames,
-    sequence_id: u32,
-    leds: &[LedIndex],
-    color: Rgb,
-    exposure_us: u32,
+    sequence: &Sequence<'_>,
+    cancel: &AtomicBool,
     mut on_frame: impl FnMut(ShotView<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
+    let &Sequence {
+        id: sequence_id,
+        leds,
+        color,
+        exposure_us,
+    } = sequence;
     let steps: Vec<Step> = leds
         .iter()
         .map(|&led| Step {
@@ -239,7 +257,16 @@ pub fn capture(
     let mut last_frame = Instant::now();
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
     let mut failure: Option<String> = None;
+    let mut aborted = false;
     loop {
+        if !aborted && ended.is_none() && cancel.load(Ordering::SeqCst) {
+            aborted = true;
+            if let Err(e) = dev.abort_sequence() {
+                failure = Some(format!(
+                    "the LED controller did not abort the sequence: {e}"
+                ));
+            }
+        }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             labeller.frame(frame_time(&f.0), since_start());
             received.push(f);

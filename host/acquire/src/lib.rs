@@ -11,11 +11,14 @@
 //!   on [`label`], the pairing of camera stamps with controller triggers;
 //! * [`stage`]: how the focus stage moves (by hand, or a motorised or virtual stage);
 //! * [`board_geometry`]: the array geometry a board stores, from and to a calibration;
-//! * [`pipeline`]: the acquisition — calibrate (pdcFPM) → order nearest-first → capture
-//!   → retake what is missing → stream into the reconstruction → write the dataset.
+//! * [`acquisition`]: the acquisition as a sans-IO state machine — calibrate (pdcFPM)
+//!   → order nearest-first → capture → retake what is missing → stream into the
+//!   reconstruction → write the dataset — events in, actions out;
+//! * [`pipeline`]: the I/O loop that drives it on a live rig.
 //!
 //! Nothing here knows whether the rig is real or virtual.
 
+pub mod acquisition;
 pub mod board_geometry;
 pub mod capture;
 pub mod controller;
@@ -26,7 +29,8 @@ pub mod pipeline;
 pub mod stage;
 pub mod summary;
 
-pub use capture::{capture, CaptureReport, Shot, ShotView};
+pub use acquisition::{Acquisition, Action, Event, Phase, Progress};
+pub use capture::{capture, CaptureReport, Sequence, Shot, ShotView};
 pub use controller::Controller;
 pub use pipeline::{acquire, AcquireSummary, Plan};
 pub use stage::{FocusStage, ManualStage, Slide, StagePosition};

@@ -7,8 +7,9 @@ use clap::Args;
 use fpm_physics::calibrate::feature::Roi;
 use fpm_physics::calibrate::{LedStatus, Options};
 
-use fpm_host::calibration::{calibrate_dataset, warnings, write_residual_plot};
+use fpm_host::calibration::{calibrate_dataset, warnings};
 use fpm_host::dataset::Dataset;
+use fpm_report::charts::calibration::write_residual_plot;
 
 /// Calibrate the LED array (Δx, Δy, θ, h) from how a defocused feature moves.
 ///
@@ -175,12 +176,12 @@ fn write_page(
             "the residual chart asked for with --plot".into(),
         ));
     }
-    let context = fpm_host::pages::calibration::Context {
+    let context = fpm_report::pages::calibration::Context {
         file,
         system: &ds.manifest.system(),
         bias_correction: options.bias_correction,
-        reproduce: &fpm_host::html::command_line(),
+        reproduce: &fpm_report::html::command_line(),
         outputs,
     };
-    fpm_host::pages::calibration::write(&context, page)
+    fpm_report::pages::calibration::write(&context, page)
 }

@@ -278,7 +278,12 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
     })?;
     gamma_bar.finish_and_clear();
     bar.finish_and_clear();
-    let written = finished.write(out, a.output(), &fpm_host::html::command_line())?;
+    let written = fpm_report::reconstruction::write(
+        &finished,
+        out,
+        a.output(),
+        &fpm_report::html::command_line(),
+    )?;
     for w in &written.warnings {
         eprintln!("warning: {w}");
     }
@@ -333,7 +338,7 @@ fn print_report(rep: &Report, out: &Path, format: ImageFormat) {
     if rep.background_phase.block_um.is_some() {
         println!(
             "background phase: {}",
-            fpm_host::pages::reconstruction::background_phase(&rep.background_phase)
+            fpm_report::pages::reconstruction::background_phase(&rep.background_phase)
         );
     }
     if let Some(s) = &rep.versus_truth {

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::calibrate::{self, Calibration, LedStatus, Options};
-use fpm_physics::{LedGeometry, System};
+use fpm_physics::LedGeometry;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
@@ -248,14 +248,6 @@ pub fn calibrate_dataset(ds: &Dataset, options: &Options) -> Result<CalibrationF
         dataset: ds.dir.display().to_string(),
         time_ms: start.elapsed().as_secs_f64() * 1e3,
     })
-}
-
-/// Draw the residual chart to `path` (SVG for `.svg`, else PNG); returns how many
-/// times the residuals are magnified on it.
-pub fn write_residual_plot(cal: &Calibration, system: &System, path: &Path) -> Result<f64> {
-    let chart = crate::charts::calibration::Residuals { cal, system };
-    crate::charts::Figure::render(&chart)?.write_as(path)?;
-    Ok(chart.gain())
 }
 
 /// What a user must know before trusting `cal`.

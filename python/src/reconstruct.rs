@@ -79,8 +79,11 @@ impl Reconstruction {
             compress,
             ..TiffOptions::default()
         };
-        py.detach(|| write_outputs_with(&self.inner, &dir, OutputOptions { format, tiff }))
-            .map_err(failed)
+        py.detach(|| {
+            write_outputs_with(&self.inner, &dir, OutputOptions { format, tiff })?;
+            fpm_report::preview::reconstruction(&self.inner, &dir)
+        })
+        .map_err(failed)
     }
 
     fn __repr__(&self) -> String {

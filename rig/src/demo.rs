@@ -358,7 +358,7 @@ fn score(
     };
     // The picture is an extra: a failure to draw it is a warning.
     let picture = out.join("comparison.png");
-    let drawn = fpm_host::truth::write_comparison(
+    let drawn = fpm_report::comparison::write_comparison(
         &ds,
         &[
             ("NOMINAL", &with_nominal.object),

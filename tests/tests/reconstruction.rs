@@ -111,7 +111,7 @@ fn the_usaf_target_gains_resolution_beyond_what_the_camera_samples() {
         })
         .max()
         .unwrap();
-    let bar_um = fpm_host::scale_bar::bar_length_um(512.0 * pixel).unwrap();
+    let bar_um = fpm_report::scale_bar::bar_length_um(512.0 * pixel).unwrap();
     assert_eq!(longest_run, (bar_um / pixel).round() as usize);
     // Groups 8–9 (bars) against the interior of the flat square of group 7.
     let bars = band_energy(

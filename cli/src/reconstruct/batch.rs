@@ -5,18 +5,22 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 use fpm_host::reconstruction::batch::{expand, Batch, Field};
+use fpm_host::reconstruction::Finished;
 
 use super::ReconstructArgs;
 
 /// Run the batch, one line per field (or the summary as JSON).
 pub fn run(a: &ReconstructArgs, root: &Path) -> Result<()> {
+    let (output, reproduce) = (a.output(), fpm_report::html::command_line());
+    let write = |finished: &Finished, dir: &Path| {
+        fpm_report::reconstruction::write(finished, dir, output, &reproduce).map(|w| w.warnings)
+    };
     let batch = Batch {
         job: a.job(),
         datasets: expand(&a.dirs)?,
         root: root.to_path_buf(),
         redo: a.redo,
-        output: a.output(),
-        reproduce: fpm_host::html::command_line(),
+        write: &write,
     };
     let summary = batch.run(
         |k, n, field| {

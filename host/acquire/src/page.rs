@@ -5,12 +5,12 @@
 use std::path::Path;
 
 use fpm_host::calibration::CalibrationFile;
-use fpm_host::charts::acquisition::Coverage;
-use fpm_host::html::{command_line, Page, Row};
-use fpm_host::pages::{self, embed_chart};
 use fpm_host::reconstruction::Reconstruction;
 use fpm_physics::calibrate::Options;
 use fpm_physics::{LedGeometry, System};
+use fpm_report::charts::acquisition::Coverage;
+use fpm_report::html::{command_line, Page, Row};
+use fpm_report::pages::{self, embed_chart};
 
 use crate::summary::AcquireSummary;
 
@@ -22,8 +22,8 @@ pub fn calibration(cal: &CalibrationFile, system: &System, options: &Options, ou
         bias_correction: options.bias_correction,
         reproduce: &format!(
             "fpm calibrate {} --out {}",
-            fpm_host::html::shell_quote(&out.join("calibration").to_string_lossy()),
-            fpm_host::html::shell_quote(&out.join("calibration.json").to_string_lossy())
+            fpm_report::html::shell_quote(&out.join("calibration").to_string_lossy()),
+            fpm_report::html::shell_quote(&out.join("calibration.json").to_string_lossy())
         ),
         outputs: vec![
             (
@@ -46,8 +46,8 @@ pub fn reconstruction(r: &Reconstruction, system: &System, nominal: &LedGeometry
     let offline = format!(
         "{}\n# the same frames offline:\nfpm reconstruct {} --calibration {} --out rec",
         command_line(),
-        fpm_host::html::shell_quote(&out.to_string_lossy()),
-        fpm_host::html::shell_quote(&out.join("calibration.json").to_string_lossy())
+        fpm_report::html::shell_quote(&out.to_string_lossy()),
+        fpm_report::html::shell_quote(&out.join("calibration.json").to_string_lossy())
     );
     let context = pages::reconstruction::Context {
         system,

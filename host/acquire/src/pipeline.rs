@@ -173,7 +173,9 @@ pub fn acquire(
                 // A simulated rig's truth beside the dataset scores the image (an extra).
                 r.report.versus_truth =
                     fpm_host::truth::score_reconstruction(dataset, &r.object, upsample);
-                fpm_host::reconstruction::write_outputs(r, &out.join("reconstruction"))?;
+                let dir = out.join("reconstruction");
+                fpm_host::reconstruction::write_outputs(r, &dir)?;
+                fpm_report::preview::reconstruction(r, &dir)?;
                 page::reconstruction(r, system, &nominal, out);
                 Event::Done
             }

@@ -371,58 +371,6 @@ pub fn write_png_rgb(
     w.write_image_data(rgb).map_err(write_failed(path))
 }
 
-/// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white), with a scale bar
-/// when the image's pixel size in the sample plane (`pixel_um`) is given.
-pub fn write_png_preview(
-    path: &Path,
-    img: &Array2<f32>,
-    lo: f32,
-    hi: f32,
-    pixel_um: Option<f64>,
-) -> Result<(), ImageError> {
-    let (h, w) = img.dim();
-    let data = preview_bytes(img, (lo, hi), pixel_um);
-    write_png_grey(path, w, h, &data)
-}
-
-/// Like [`write_png_preview`], with a colour bar on the right giving the values of
-/// black (`lo`) and white (`hi`) in `unit` (a phase preview: radians).
-pub fn write_png_preview_with_bar(
-    path: &Path,
-    img: &Array2<f32>,
-    (lo, hi): (f32, f32),
-    pixel_um: Option<f64>,
-    unit: &str,
-) -> Result<(), ImageError> {
-    let (h, w) = img.dim();
-    let data = preview_bytes(img, (lo, hi), pixel_um);
-    let (data, w) = crate::colour_bar::append(&data, w, h, (lo, hi), unit);
-    write_png_grey(path, w, h, &data)
-}
-
-/// `img` scaled to 8-bit grey from `lo` (black) to `hi` (white), with a scale bar when
-/// its pixel size in the sample plane is given.
-fn preview_bytes(img: &Array2<f32>, (lo, hi): (f32, f32), pixel_um: Option<f64>) -> Vec<u8> {
-    let (h, w) = img.dim();
-    let span = (hi - lo).max(f32::EPSILON);
-    let mut data: Vec<u8> = img
-        .iter()
-        .map(|&v| (((v - lo) / span).clamp(0.0, 1.0) * 255.0).round() as u8)
-        .collect();
-    if let Some(pixel_um) = pixel_um {
-        crate::scale_bar::draw(&mut data, w, h, pixel_um);
-    }
-    data
-}
-
-fn write_png_grey(path: &Path, w: usize, h: usize, data: &[u8]) -> Result<(), ImageError> {
-    let mut enc = png::Encoder::new(create(path)?, w as u32, h as u32);
-    enc.set_color(png::ColorType::Grayscale);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut wr = enc.write_header().map_err(write_failed(path))?;
-    wr.write_image_data(data).map_err(write_failed(path))
-}
-
 /// Read an amplitude/phase pair of float32 TIFFs (a reconstruction's `amplitude.tif`
 /// and `phase.tif`, or a simulation's truth) as one complex field.
 pub fn read_complex(

@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 
-use super::{Job, JobEvent, OutputOptions};
+use super::{Finished, Job, JobEvent};
 
 /// The datasets `args` name: paths as given, patterns (with `*`, `?` or `[`)
 /// expanded to the matching directories that hold a dataset.toml, in order.
@@ -96,8 +96,12 @@ pub struct BatchSummary {
     pub fields: Vec<Field>,
 }
 
+/// How a batch writes one finished field into a directory, returning the warnings on
+/// its images (the CLI writes the images, previews and page: `fpm_report`).
+pub type WriteField<'w> = dyn Fn(&Finished, &Path) -> Result<Vec<String>> + Sync + 'w;
+
 /// A batch; see the module's doc.
-pub struct Batch {
+pub struct Batch<'w> {
     /// How each dataset is reconstructed.
     pub job: Job,
     /// The datasets ([`expand`] turns patterns into them).
@@ -106,10 +110,8 @@ pub struct Batch {
     pub root: PathBuf,
     /// Reconstruct fields already done again.
     pub redo: bool,
-    /// How the outputs are written.
-    pub output: OutputOptions,
-    /// The command that reproduces the run, for the reports.
-    pub reproduce: String,
+    /// How each field's outputs are written.
+    pub write: &'w WriteField<'w>,
 }
 
 /// Whether `dir` holds a finished reconstruction.
@@ -117,7 +119,7 @@ fn finished(dir: &Path) -> bool {
     dir.join("report.json").is_file()
 }
 
-impl Batch {
+impl Batch<'_> {
     /// Run it: `on_field(k, n, field)` after each field, `on_event` inside each job.
     /// A failed field does not stop the batch; the summary counts it.
     pub fn run(
@@ -182,7 +184,7 @@ impl Batch {
         let written = self
             .job
             .run(dataset, on_event)
-            .and_then(|f| f.write(&partial, self.output, &self.reproduce));
+            .and_then(|f| (self.write)(&f, &partial));
         let written = match written {
             Ok(w) => w,
             Err(e) => {
@@ -195,6 +197,6 @@ impl Batch {
         }
         std::fs::rename(&partial, out)
             .with_context(|| format!("moving {} to {}", partial.display(), out.display()))?;
-        Ok(written.warnings)
+        Ok(written)
     }
 }

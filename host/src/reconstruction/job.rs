@@ -10,10 +10,7 @@ use anyhow::{bail, Result};
 use fpm_physics::reconstruct::{GammaScan, Settings};
 use fpm_physics::{LedGeometry, System};
 
-use super::{
-    reconstruct_on_disk, reconstruct_with_system, write_outputs_with, OutputOptions,
-    Reconstruction, Request,
-};
+use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
 use crate::calibration::{GeometrySource, Placement};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 
@@ -144,14 +141,6 @@ pub struct Finished {
     pub system: System,
     /// The dataset's nominal geometry.
     pub nominal: LedGeometry,
-}
-
-/// What [`Finished::write`] wrote.
-pub struct Written {
-    /// `report.html`, or why it could not be written (an extra: never fails the job).
-    pub page: Result<PathBuf>,
-    /// What a user must know before trusting the images.
-    pub warnings: Vec<String>,
 }
 
 impl Job {
@@ -339,28 +328,5 @@ fn score(ds: &(impl DatasetInfo + ?Sized), r: &mut Reconstruction) {
     r.report.versus_truth = crate::truth::score_reconstruction(ds, &r.object, r.report.upsample);
     if let Some(refined) = r.report.refined_leds.as_mut() {
         refined.versus_truth = crate::truth::score_led_positions(ds, refined);
-    }
-}
-
-impl Finished {
-    /// Write the images, the pupil, the previews, charts and report.json into `out`,
-    /// and the HTML report (`reproduce`: the command that makes it again).
-    pub fn write(&self, out: &Path, output: OutputOptions, reproduce: &str) -> Result<Written> {
-        let r = &self.reconstruction;
-        write_outputs_with(r, out, output)?;
-        let context = crate::pages::reconstruction::Context {
-            system: &self.system,
-            nominal: &self.nominal,
-            reproduce,
-        };
-        let page =
-            crate::pages::reconstruction::write(r, out, &context).map(|()| out.join("report.html"));
-        if let Err(e) = &page {
-            tracing::warn!("no HTML report: {e:#}");
-        }
-        Ok(Written {
-            page,
-            warnings: crate::pages::reconstruction::warnings(&r.report),
-        })
     }
 }

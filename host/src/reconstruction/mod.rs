@@ -24,7 +24,7 @@ use crate::calibration::GeometrySource;
 use crate::dataset::image_io::{self, TiffOptions};
 use crate::dataset::{Dataset, DatasetOnDisk, Pixels};
 use crate::refinement::RefinedLedsReport;
-pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent, Written};
+pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent};
 
 /// What a reconstruction produced.
 pub struct Reconstruction {
@@ -558,7 +558,8 @@ pub struct OutputOptions {
     pub tiff: TiffOptions,
 }
 
-/// Write amplitude/phase TIFFs (float32), PNG previews and `report.json` into `out`.
+/// Write amplitude/phase TIFFs (float32), the pupil's and `report.json` into `out`
+/// (the PNG previews and the page are the report crate's, `fpm_report`).
 pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
     write_outputs_with(r, out, OutputOptions::default())
 }
@@ -607,21 +608,6 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
     let tif = |name: &str, a: &Array2<f32>| image_io::write_tiff_f32(&out.join(name), a);
     tif("pupil_amplitude.tif", &pamp)?;
     tif("pupil_phase.tif", &pphase)?;
-    // The object's previews carry a scale bar; the pupil's are in the Fourier plane.
-    write_object_previews(
-        &amp,
-        &phase,
-        r.report.pixel_um,
-        &out.join("amplitude.png"),
-        &out.join("phase.png"),
-    )?;
-    let png = |name: &str, a: &Array2<f32>, lo: f32, hi: f32| {
-        image_io::write_png_preview(&out.join(name), a, lo, hi, None)
-    };
-    let pi = std::f32::consts::PI;
-    let [pupil_max] = quantiles(&pamp, [1.0]);
-    png("pupil_amplitude.png", &pamp, 0.0, pupil_max)?;
-    png("pupil_phase.png", &pphase, -pi, pi)?;
     std::fs::write(
         out.join("report.json"),
         serde_json::to_string_pretty(&r.report)?,
@@ -635,27 +621,6 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
         crate::refinement::write_board(board, &r.report.geometry, out)?;
     }
     Ok(())
-}
-
-/// The values at fractions `qs` of `a`'s sorted order, selected from one copy.
-fn quantiles<const N: usize>(a: &Array2<f32>, qs: [f64; N]) -> [f32; N] {
-    let mut v: Vec<f32> = a.iter().copied().collect();
-    fpm_physics::stats::quantiles(&mut v, qs).unwrap_or([0.0; N])
-}
-
-/// The object's PNG previews, each with a scale bar at `pixel_um`: the amplitude over
-/// its 0.5–99.5 % range, the phase over ±π with a colour bar in radians.
-pub(crate) fn write_object_previews(
-    amplitude: &Array2<f32>,
-    phase: &Array2<f32>,
-    pixel_um: f64,
-    amplitude_png: &Path,
-    phase_png: &Path,
-) -> Result<(), image_io::ImageError> {
-    let [lo, hi] = quantiles(amplitude, [0.005, 0.995]);
-    image_io::write_png_preview(amplitude_png, amplitude, lo, hi, Some(pixel_um))?;
-    let pi = std::f32::consts::PI;
-    image_io::write_png_preview_with_bar(phase_png, phase, (-pi, pi), Some(pixel_um), "RAD")
 }
 
 /// Read a reconstruction's complex object back from `amplitude.tif` and `phase.tif`.

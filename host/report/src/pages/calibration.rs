@@ -7,9 +7,9 @@ use anyhow::Result;
 use fpm_physics::System;
 
 use super::{embed_chart, pm};
-use crate::calibration::{warnings, CalibrationFile};
 use crate::charts::calibration::{status_label, LedGrid, Residuals};
 use crate::html::{Page, Row};
+use fpm_host::calibration::{warnings, CalibrationFile};
 
 /// What the page is written from.
 pub struct Context<'a> {

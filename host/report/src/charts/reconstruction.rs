@@ -8,7 +8,7 @@ use plotters::prelude::*;
 use rustfft::num_complex::Complex32;
 
 use super::{grey, padded, palette, phase_colour, Chart, FONT};
-use crate::reconstruction::Report;
+use fpm_host::reconstruction::Report;
 
 /// Relative amplitude error of the frames after each pass: every tile thin, their mean
 /// bold.

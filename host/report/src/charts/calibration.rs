@@ -306,6 +306,18 @@ fn square((x, y): (f64, f64), half: f64) -> [(f64, f64); 2] {
     [(x - half, y - half), (x + half, y + half)]
 }
 
+/// Draw the residual chart to `path` (SVG for `.svg`, else PNG); returns how many
+/// times the residuals are magnified on it.
+pub fn write_residual_plot(
+    cal: &fpm_physics::calibrate::Calibration,
+    system: &fpm_physics::System,
+    path: &std::path::Path,
+) -> anyhow::Result<f64> {
+    let chart = Residuals { cal, system };
+    crate::charts::Figure::render(&chart)?.write_as(path)?;
+    Ok(chart.gain())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,7 +10,8 @@ use fpm_physics::{LedGeometry, System};
 use super::embed_chart;
 use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
 use crate::html::{Page, Row};
-use crate::reconstruction::{write_object_previews, Reconstruction, Report};
+use crate::preview::object as write_object_previews;
+use fpm_host::reconstruction::{Reconstruction, Report};
 
 /// What the page is written from.
 pub struct Context<'a> {
@@ -41,7 +42,7 @@ pub fn warnings(report: &Report) -> Vec<String> {
         }
     }
     if let Some(r) = &report.refined_leds {
-        out.extend(crate::refinement::warnings(r));
+        out.extend(fpm_host::refinement::warnings(r));
     }
     if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
         let cause = match (report.camera_gamma, &report.camera_gamma_scan) {
@@ -147,7 +148,7 @@ fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
             None
         }
     };
-    let Some((amplitude, complex, factor)) = crate::pyramid::shrunk(&r.object, PAGE_IMAGE_SIDE)
+    let Some((amplitude, complex, factor)) = fpm_host::pyramid::shrunk(&r.object, PAGE_IMAGE_SIDE)
     else {
         return [("amplitude.png", AMPLITUDE), ("phase.png", PHASE)]
             .into_iter()
@@ -163,13 +164,13 @@ fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
     let written = std::fs::create_dir_all(&plots)
         .map_err(anyhow::Error::from)
         .and_then(|_| {
-            Ok(write_object_previews(
+            write_object_previews(
                 &amplitude,
                 &complex.mapv(|z| z.arg()),
                 r.report.pixel_um * factor as f64,
                 &amplitude_file,
                 &phase_file,
-            )?)
+            )
         });
     if let Err(e) = written {
         tracing::warn!("no shrunk previews for the report: {e:#}");
@@ -185,7 +186,7 @@ fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
 }
 
 /// Write `dir/report.html` (charts into `dir/plots/`) for the reconstruction whose
-/// images `crate::reconstruction::write_outputs` wrote into `dir`.
+/// images `fpm_host::reconstruction::write_outputs` wrote into `dir`.
 pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     let rep = &r.report;
     let mut page = Page::new("fpm reconstruct: amplitude and phase (EPRY)");
@@ -397,7 +398,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         ),
         ("phase.tif", "phase in radians, float32 OME-TIFF"),
         (
-            crate::reconstruction::ZARR_NAME,
+            fpm_host::reconstruction::ZARR_NAME,
             "amplitude and phase, OME-Zarr pyramid (napari)",
         ),
     ];
@@ -429,7 +430,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
 
 /// The "background phase" row (and `fpm reconstruct`'s line): kept, or what the
 /// flattening took off.
-pub fn background_phase(b: &crate::reconstruction::BackgroundPhaseReport) -> String {
+pub fn background_phase(b: &fpm_host::reconstruction::BackgroundPhaseReport) -> String {
     match b.block_um {
         None => "kept as EPRY left it (--flatten-background takes the clear glass's low-order phase off)".into(),
         Some(block) if b.totals.fitted == 0 => format!(

@@ -361,8 +361,8 @@ fn score(
     let drawn = fpm_report::comparison::write_comparison(
         &ds,
         &[
-            ("NOMINAL", &with_nominal.object),
-            ("CALIBRATED", &with_calibrated.object),
+            ("Nominal", &with_nominal.object),
+            ("Calibrated", &with_calibrated.object),
         ],
         settings.upsample,
         &picture,

@@ -2,7 +2,7 @@
 //! grey ramp from `lo` (black, bottom) to `hi` (white, top), its end and middle values
 //! and the unit, so a phase preview can be read in radians.
 
-use crate::glyphs;
+use crate::text;
 
 /// The image `pixels` (`width × height`, row-major) with the colour bar appended on the
 /// right; returns the new pixels and width. Images too small for legible labels come
@@ -18,11 +18,11 @@ pub fn append(
     let labels = [hi, 0.5 * (lo + hi), lo].map(|v| format!("{v:.2}"));
     let text_w = labels
         .iter()
-        .map(|l| glyphs::text_width(l, s))
-        .chain([glyphs::text_width(unit, s)])
+        .map(|l| text::width(l, s))
+        .chain([text::width(unit, s)])
         .max()
         .unwrap_or(0);
-    let glyph_h = glyphs::HEIGHT * s;
+    let glyph_h = text::height(s);
     let margin = 3 * s;
     let bar_w = 6 * s;
     let strip = margin + bar_w + margin + text_w + margin;
@@ -41,7 +41,7 @@ pub fn append(
     let span = (bottom - top - 1).max(1) as f32;
     for row in top..bottom {
         let value = (255.0 * (1.0 - (row - top) as f32 / span)).round() as u8;
-        glyphs::fill(&mut out, new_w, height, (bar_x, row), (bar_w, 1), value);
+        text::fill(&mut out, new_w, height, (bar_x, row), (bar_w, 1), value);
     }
     for (at, size) in [
         ((bar_x - 1, top - 1), (bar_w + 2, 1)),
@@ -49,14 +49,14 @@ pub fn append(
         ((bar_x - 1, top - 1), (1, bottom - top + 2)),
         ((bar_x + bar_w, top - 1), (1, bottom - top + 2)),
     ] {
-        glyphs::fill(&mut out, new_w, height, at, size, 0);
+        text::fill(&mut out, new_w, height, at, size, 0);
     }
     // The unit above the bar, the values beside its top, middle and bottom.
-    glyphs::draw_text(&mut out, new_w, height, (bar_x, margin), unit, s, 0);
+    text::draw(&mut out, new_w, height, (bar_x, margin), unit, s, 0);
     let text_x = bar_x + bar_w + margin;
     let rows = [top, (top + bottom) / 2 - glyph_h / 2, bottom - glyph_h];
     for (label, y) in labels.iter().zip(rows) {
-        glyphs::draw_text(&mut out, new_w, height, (text_x, y), label, s, 0);
+        text::draw(&mut out, new_w, height, (text_x, y), label, s, 0);
     }
     (out, new_w)
 }
@@ -70,7 +70,7 @@ mod tests {
         let (w, h) = (256, 256);
         let img = vec![128u8; w * h];
         let pi = std::f32::consts::PI;
-        let (out, new_w) = append(&img, w, h, (-pi, pi), "RAD");
+        let (out, new_w) = append(&img, w, h, (-pi, pi), "rad");
         assert!(new_w > w + 20);
         // The image is kept as it was.
         assert!((0..h).all(|y| out[y * new_w..y * new_w + w].iter().all(|&v| v == 128)));
@@ -79,7 +79,7 @@ mod tests {
         let x = w + 3 * s + 3 * s;
         let column: Vec<u8> = (0..h).map(|y| out[y * new_w + x]).collect();
         // Below the black frame's top line (under the unit's label), down to the bottom.
-        let top = 3 * s + glyphs::HEIGHT * s + 3 * s - 1;
+        let top = 3 * s + text::height(s) + 3 * s - 1;
         assert_eq!(column[top], 0, "the frame's top line");
         let inside: Vec<u8> = column[top + 1..]
             .iter()
@@ -91,7 +91,7 @@ mod tests {
         assert!(inside.len() > h / 2, "ramp of {} rows", inside.len());
         assert!(inside.windows(2).all(|p| p[1] <= p[0]));
         // A tiny image is left alone.
-        let (same, same_w) = append(&[9u8; 16 * 16], 16, 16, (0.0, 1.0), "RAD");
+        let (same, same_w) = append(&[9u8; 16 * 16], 16, 16, (0.0, 1.0), "rad");
         assert_eq!((same_w, same.len()), (16, 256));
     }
 }

@@ -8,7 +8,7 @@ use fpm_host::truth::Truth;
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 
-use crate::glyphs;
+use crate::text;
 
 /// Write `path`, a PNG of the truth beside each of `panels` (a title and a
 /// reconstruction `upsample` × the camera grid of dataset `ds`): amplitude above phase,
@@ -33,7 +33,7 @@ pub fn write_comparison(
     )?;
     let (h, w) = t.dim();
     let rec_pitch = ds.manifest().system().sample_pixel_um() / upsample.max(1) as f64;
-    let mut fields = vec![("TRUTH", t.clone())];
+    let mut fields = vec![("Truth", t.clone())];
     for (title, r) in panels {
         let (rh, rw) = r.dim();
         if rh * w != rw * h {
@@ -71,7 +71,7 @@ pub fn write_comparison(
     let phase_range = range(t.iter().map(|c| c.arg()).collect(), 0.25);
     let s = (w.min(h) / 160).max(1);
     let gap = 4 * s;
-    let header = glyphs::HEIGHT * s + 2 * gap;
+    let header = text::height(s) + 2 * gap;
     let (cw, ch) = (
         fields.len() * w + (fields.len() + 1) * gap,
         header + 2 * h + 2 * gap,
@@ -82,8 +82,8 @@ pub fn write_comparison(
     };
     for (k, (title, f)) in fields.iter().enumerate() {
         let x0 = gap + k * (w + gap);
-        glyphs::draw_text(&mut canvas, cw, ch, (x0, gap), title, s, 255);
-        for (row, (name, part)) in [("AMPLITUDE", 0usize), ("PHASE", 1)]
+        text::draw(&mut canvas, cw, ch, (x0, gap), title, s, 255);
+        for (row, (name, part)) in [("Amplitude", 0usize), ("Phase", 1)]
             .into_iter()
             .enumerate()
         {
@@ -96,12 +96,9 @@ pub fn write_comparison(
                 .collect();
             if k == 0 {
                 crate::scale_bar::draw(&mut panel, w, h, pitch);
-                let plate = (
-                    glyphs::text_width(name, s) + 2 * s,
-                    (glyphs::HEIGHT + 2) * s,
-                );
-                glyphs::fill(&mut panel, w, h, (0, 0), plate, 0);
-                glyphs::draw_text(&mut panel, w, h, (s, s), name, s, 255);
+                let plate = (text::width(name, s) + 2 * s, text::height(s) + 2 * s);
+                text::fill(&mut panel, w, h, (0, 0), plate, 0);
+                text::draw(&mut panel, w, h, (s, s), name, s, 255);
             }
             let y0 = header + row * (h + gap);
             for r in 0..h {

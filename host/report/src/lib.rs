@@ -10,9 +10,9 @@
 pub mod charts;
 pub mod colour_bar;
 pub mod comparison;
-pub mod glyphs;
 pub mod html;
 pub mod pages;
 pub mod preview;
 pub mod reconstruction;
 pub mod scale_bar;
+pub mod text;

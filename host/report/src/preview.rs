@@ -51,7 +51,7 @@ pub fn object(
     let [lo, hi] = quantiles(amplitude, [0.005, 0.995]);
     write_png_preview(amplitude_png, amplitude, lo, hi, Some(pixel_um))?;
     let pi = std::f32::consts::PI;
-    write_png_preview_with_bar(phase_png, phase, (-pi, pi), Some(pixel_um), "RAD")
+    write_png_preview_with_bar(phase_png, phase, (-pi, pi), Some(pixel_um), "rad")
 }
 
 /// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white), with a scale bar

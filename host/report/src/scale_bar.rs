@@ -1,7 +1,7 @@
 //! A scale bar for image previews: a bar of a round length in µm with its label, drawn
 //! into the bottom-left corner on a dark plate so it reads on any image.
 
-use crate::glyphs;
+use crate::text;
 
 /// The bar's length, µm: the largest 1, 2 or 5 × 10ᵏ that is at most a fifth of
 /// `field_um` (None for a field that is not a positive length).
@@ -38,8 +38,8 @@ pub fn draw(pixels: &mut [u8], width: usize, height: usize, pixel_um: f64) {
     let text = label(length_um);
     // Glyph scale: about 1/60 of the shorter side per glyph height.
     let s = (width.min(height) / 120).max(1);
-    let glyph_h = glyphs::HEIGHT * s;
-    let text_w = glyphs::text_width(&text, s);
+    let glyph_h = text::height(s);
+    let text_w = text::width(&text, s);
     let margin = 2 * s;
     let plate_w = bar.max(text_w) + 2 * margin;
     let plate_h = glyph_h + 3 * margin + 2 * s;
@@ -47,12 +47,12 @@ pub fn draw(pixels: &mut [u8], width: usize, height: usize, pixel_um: f64) {
         return;
     }
     let (x0, y0) = (margin, height - margin - plate_h);
-    glyphs::fill(pixels, width, height, (x0, y0), (plate_w, plate_h), 0);
+    text::fill(pixels, width, height, (x0, y0), (plate_w, plate_h), 0);
     // The label, then the bar under it.
     let (tx, ty) = (x0 + margin, y0 + margin);
-    glyphs::draw_text(pixels, width, height, (tx, ty), &text, s, 255);
+    text::draw(pixels, width, height, (tx, ty), &text, s, 255);
     let by = ty + glyph_h + margin;
-    glyphs::fill(pixels, width, height, (tx, by), (bar, 2 * s), 255);
+    text::fill(pixels, width, height, (tx, by), (bar, 2 * s), 255);
 }
 
 #[cfg(test)]

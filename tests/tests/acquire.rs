@@ -274,6 +274,45 @@ fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
     assert_eq!(Dataset::load(&out).unwrap().frames.len(), kept);
 }
 
+/// Ctrl-C mid-sequence: the controller's sequence is aborted, nothing is retaken, the
+/// frames so far are written under their LEDs (judged by physics), and the run fails
+/// saying it was cancelled.
+#[test]
+fn ctrl_c_mid_sequence_aborts_it_and_keeps_what_was_acquired() {
+    let id = format!("acqint-{}", std::process::id());
+    let dir = TempDir::new("acquire-int");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let _cam = camera(&id, &dir.0.join("truth"), &ON_AXIS_AT_92_MM);
+    let out = dir.0.join("data");
+    let acquire = acquire_command(&emu, &id, &out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    let pid = nix::unistd::Pid::from_raw(acquire.id() as i32);
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+    let run = acquire.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{stderr}");
+    assert!(stderr.contains("cancelled by the user after"), "{stderr}");
+    let report = fpm_tests::acquisition_report(&out);
+    assert_eq!(report["capture"]["outcome"], "Aborted", "{report}");
+    assert!(report["retake"].is_null(), "retaken after a cancel: {report}");
+    let kept = report["frames_in_dataset"].as_u64().unwrap() as usize;
+    let missing = report["still_missing"].as_array().map_or(0, Vec::len);
+    assert!(kept > 20 && kept < 441, "{kept}");
+    assert_eq!(kept + missing, 441);
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.frames.len(), kept);
+    let hidden = LedGeometry::paper().placed(0.0, 0.0, 0.0, 92.0);
+    let wrong = contradicted_by_physics(&ds, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "frames whose brightness contradicts their LED: {wrong:?}"
+    );
+}
+
 /// A non-square sensor streams: a 512×384 live acquisition from the virtual camera is
 /// reconstructed while it arrives, in the same tiles an offline run uses, and the
 /// streamed result agrees with an offline reconstruction of the dataset it wrote.

@@ -3,14 +3,14 @@
 //! rendering each exposure with the wave-optics model and publishing frames, and the
 //! host receiving them from shared memory while driving a real capture sequence.
 
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use fpm_acquire::controller::{Controller, SequenceEvent};
 use fpm_frames::{FrameSubscriber, ServiceNames};
 use fpm_protocol::*;
 use fpm_rig_bus::{Stage, StageControl};
-use fpm_tests::{child, fpm_bin, Ready, TempDir};
+use fpm_rig::process::VirtualCameraProcess;
+use fpm_tests::{fpm_bin, TempDir};
 
 use crate::TARGET;
 
@@ -40,14 +40,13 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
     ready_rx.recv().unwrap();
     let stage = StageControl::create(&id).unwrap();
     stage.set(Stage::default()).unwrap();
-    let mut command = Command::new(fpm_bin());
-    command
-        .args([
-            "virtual-camera",
-            "--rig",
-            &id,
-            "--camera",
-            &id,
+    // Ready once it has written its truth, which it does once it listens to the rig.
+    let _camera = VirtualCameraProcess::start(
+        fpm_bin(),
+        &id,
+        &id,
+        &dir.0.join("truth"),
+        &[
             "--size",
             "64",
             "--dx-mm",
@@ -60,12 +59,9 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
             "92",
             "--readout-ms",
             "1",
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    let _camera = child(command, "virtual camera", Ready::Started);
-    // Let the camera subscribe to the rig before the first pulse.
-    std::thread::sleep(Duration::from_millis(1500));
+        ],
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
 
     let dev = Controller::open(&emu.port(), Duration::from_secs(2)).unwrap();
     // Centre, two bright-field neighbours, then one far dark-field LED.

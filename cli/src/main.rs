@@ -4,6 +4,7 @@
 //! lives in its own module and only formats what the library crates do.
 
 mod acquire;
+mod bench;
 mod calibrate;
 mod camera;
 mod color;
@@ -60,7 +61,7 @@ enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Measure performance.
     #[command(subcommand)]
-    Bench(fpm_bench::BenchCommand),
+    Bench(bench::BenchCommand),
     /// Print a shell completion script (e.g. `fpm completions bash >
     /// ~/.local/share/bash-completion/completions/fpm`).
     Completions(shell::CompletionsArgs),
@@ -99,7 +100,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
-        Command::Bench(cmd) => fpm_bench::run(cmd),
+        Command::Bench(cmd) => bench::run(cmd),
         Command::Completions(args) => shell::completions(args),
         Command::Man(args) => shell::man(args),
     };

@@ -298,7 +298,10 @@ fn ctrl_c_mid_sequence_aborts_it_and_keeps_what_was_acquired() {
     assert!(stderr.contains("cancelled by the user after"), "{stderr}");
     let report = fpm_tests::acquisition_report(&out);
     assert_eq!(report["capture"]["outcome"], "Aborted", "{report}");
-    assert!(report["retake"].is_null(), "retaken after a cancel: {report}");
+    assert!(
+        report["retake"].is_null(),
+        "retaken after a cancel: {report}"
+    );
     let kept = report["frames_in_dataset"].as_u64().unwrap() as usize;
     let missing = report["still_missing"].as_array().map_or(0, Vec::len);
     assert!(kept > 20 && kept < 441, "{kept}");

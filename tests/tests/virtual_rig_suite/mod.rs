@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use fpm_acquire::controller::{Controller, SequenceEvent};
 use fpm_frames::{FrameSubscriber, ServiceNames};
 use fpm_protocol::*;
-use fpm_rig_bus::{Stage, StageControl};
 use fpm_rig::process::VirtualCameraProcess;
+use fpm_rig_bus::{Stage, StageControl};
 use fpm_tests::{fpm_bin, TempDir};
 
 use crate::TARGET;

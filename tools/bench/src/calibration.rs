@@ -74,13 +74,7 @@ fn median(v: &mut [f64]) -> f64 {
     fpm_physics::stats::median(v).unwrap_or(f64::NAN)
 }
 
-pub(crate) fn run(
-    random: usize,
-    coverage: usize,
-    seed: u64,
-    repeat: usize,
-    json: bool,
-) -> Result<()> {
+pub fn run(random: usize, coverage: usize, seed: u64, repeat: usize, json: bool) -> Result<()> {
     use fpm_physics::calibrate::{LedStatus, Options};
     use fpm_physics::simulate::CalibrationScene;
     use fpm_physics::study::calibrate_simulated;

@@ -257,7 +257,7 @@ impl FloorFft {
     }
 }
 
-pub(crate) fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
+pub fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
     use fpm_physics::fft::Fft2;
     use rustfft::num_complex::Complex32;
     // One thread, as the report says, whatever the field size's default.

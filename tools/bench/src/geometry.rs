@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 
-pub(crate) fn run(size: usize, passes: usize, json: bool) -> Result<()> {
+pub fn run(size: usize, passes: usize, json: bool) -> Result<()> {
     use fpm_physics::study::geometry_case;
     use fpm_physics::{LedGeometry, System};
     let system = System::paper();

@@ -21,7 +21,7 @@ struct SwitchRow {
 
 /// Shift time of every step of a single-LED scan, computed with the firmware's own
 /// partial-shift rule (up to the furthest changed LED per lane).
-pub(crate) fn run(json: bool) -> Result<()> {
+pub fn run(json: bool) -> Result<()> {
     use fpm_firmware::chain::{chain_index, lane_len, shift_lengths, update_time_us};
     use fpm_protocol::Illumination;
     let board = fpm_firmware::BoardConfig::PICO_21X21;

@@ -8,7 +8,7 @@ use fpm_protocol::{Pattern, Rgb};
 use fpm_rig::process::EmulatorProcess;
 use serde::Serialize;
 
-use crate::{LinkArgs, Percentiles};
+use crate::{LinkOptions, Percentiles};
 
 #[derive(Serialize)]
 struct LinkReport {
@@ -19,7 +19,7 @@ struct LinkReport {
     pattern_leds_on: u16,
 }
 
-pub(crate) fn run(a: LinkArgs) -> Result<()> {
+pub fn run(a: LinkOptions) -> Result<()> {
     let emulator = match &a.port {
         Some(_) => None,
         None => Some(EmulatorProcess::start(&[])?),

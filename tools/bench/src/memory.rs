@@ -10,44 +10,34 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use clap::Args;
 use fpm_host::dataset::{image_io, Pixels};
 use fpm_host::simulation::{self, AcquisitionSet, Noise, Scene};
 use ndarray::Array2;
 use serde::Serialize;
 
 /// `fpm bench memory`.
-#[derive(Args, Debug)]
-pub struct MemoryArgs {
+#[derive(Debug, Clone)]
+pub struct MemoryOptions {
     /// Frame width, pixels (default: a 20 MP sensor).
-    #[arg(long, default_value_t = 5472)]
-    width: usize,
+    pub width: usize,
     /// Frame height, pixels.
-    #[arg(long, default_value_t = 3648)]
-    height: usize,
+    pub height: usize,
     /// Side of the simulated field that is repeated across the frame, pixels.
-    #[arg(long, default_value_t = 512)]
-    field: usize,
+    pub field: usize,
     /// Where the dataset and the reconstruction go (needs the frames' size on disk:
     /// 17.6 GB for 441 frames of 20 MP). Removed at the end unless --keep.
-    #[arg(long, default_value = "fpm-bench-memory")]
-    scratch: PathBuf,
+    pub scratch: PathBuf,
     /// EPRY passes (the peak does not depend on them).
-    #[arg(long, default_value_t = 1)]
-    passes: usize,
+    pub passes: usize,
     /// HR pixels per camera pixel.
-    #[arg(long, default_value_t = 4)]
-    upsample: usize,
+    pub upsample: usize,
     /// Passed to `fpm reconstruct` (frames above it are read from disk band by band);
     /// its default when not given.
-    #[arg(long)]
-    frame_memory_gb: Option<f64>,
+    pub frame_memory_gb: Option<f64>,
     /// Keep the dataset and the reconstruction.
-    #[arg(long)]
-    keep: bool,
+    pub keep: bool,
     /// Print JSON.
-    #[arg(long)]
-    json: bool,
+    pub json: bool,
 }
 
 #[derive(Serialize)]
@@ -74,7 +64,7 @@ struct MemoryResult {
     write_s: f64,
 }
 
-pub(crate) fn run(a: MemoryArgs) -> Result<()> {
+pub fn run(a: MemoryOptions) -> Result<()> {
     if a.width < a.field.min(64) || a.height < a.field.min(64) {
         bail!("frames of {}x{} are too small", a.width, a.height);
     }
@@ -175,7 +165,7 @@ pub(crate) fn run(a: MemoryArgs) -> Result<()> {
 
 /// A simulated `field`² acquisition repeated over `width × height`, written into
 /// `dir` as a dataset; the number of frames.
-fn write_dataset(a: &MemoryArgs, dir: &Path) -> Result<usize> {
+fn write_dataset(a: &MemoryOptions, dir: &Path) -> Result<usize> {
     let source = a.scratch.join("field");
     let scene = Scene {
         truth: Scene::placed(0.0, 0.0, 0.0, 92.0),

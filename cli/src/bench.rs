@@ -1,0 +1,168 @@
+//! `fpm bench …`: the flags of fpm's measurements; the measurements are `fpm-bench`'s.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use fpm_bench::{LinkOptions, MemoryOptions};
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Request round-trip over the serial link: ping and a 441-LED pattern.
+    Link(LinkArgs),
+    /// pdcFPM calibration accuracy and speed on simulated data: the paper's Table 1, an
+    /// off-axis feature, and a random sweep of the paper's range; then whether the
+    /// reported uncertainties cover the errors over random hard cases.
+    Calibration {
+        /// Random cases in the sweep.
+        #[arg(long, default_value_t = 30)]
+        random: usize,
+        /// Random hard cases for the uncertainty coverage (dim and bright exposures,
+        /// 15–60 µm features on and off axis, defocus ±100–300 µm); 0 skips it.
+        #[arg(long, default_value_t = 100)]
+        coverage: usize,
+        /// Seed of the sweep.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Calibrate each sweep case this many times and keep the median time (this
+        /// machine's noise is as large as the differences that matter).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Reconstruction quality with a misplaced LED array: nominal vs pdcFPM-calibrated vs
+    /// true geometry (the paper's Fig. 1 and 5 trends).
+    Geometry {
+        /// Camera field, pixels.
+        #[arg(long, default_value_t = 128)]
+        size: usize,
+        /// EPRY passes.
+        #[arg(long, default_value_t = 10)]
+        passes: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Camera-frame hand-off through iceoryx2 shared memory versus a Unix socket, for
+    /// 2048² and 5472×3648 (20 MP) frames.
+    Frames {
+        /// Frames per size.
+        #[arg(long, default_value_t = 200)]
+        rounds: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// EPRY speed: one frame update against the two FFTs it needs, one pass over 441
+    /// frames, and the streaming latency (last frame → final image), in the same run.
+    Epry {
+        /// Camera field, pixels.
+        #[arg(long, default_value_t = 256)]
+        size: usize,
+        /// HR pixels per camera pixel.
+        #[arg(long, default_value_t = 4)]
+        upsample: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Peak memory of a large reconstruction (441 frames of 20 MP by default): the
+    /// dataset is written to disk, `fpm reconstruct` runs on it in a child process, and
+    /// its peak resident set is read from the kernel.
+    Memory(MemoryArgs),
+    /// LED switch time of single-LED scans (the firmware's chain model): full chain
+    /// versus partial shifts, for 1, 2 and 4 data lanes.
+    LedSwitch {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args, Debug)]
+pub struct LinkArgs {
+    /// Controller port; without it an emulator is started on a pseudo-terminal.
+    #[arg(long)]
+    port: Option<String>,
+    /// Requests per measurement.
+    #[arg(long, default_value_t = 2000)]
+    count: usize,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `fpm bench memory`'s flags.
+#[derive(Args, Debug)]
+pub struct MemoryArgs {
+    /// Frame width, pixels (default: a 20 MP sensor).
+    #[arg(long, default_value_t = 5472)]
+    width: usize,
+    /// Frame height, pixels.
+    #[arg(long, default_value_t = 3648)]
+    height: usize,
+    /// Side of the simulated field that is repeated across the frame, pixels.
+    #[arg(long, default_value_t = 512)]
+    field: usize,
+    /// Where the dataset and the reconstruction go (needs the frames' size on disk:
+    /// 17.6 GB for 441 frames of 20 MP). Removed at the end unless --keep.
+    #[arg(long, default_value = "fpm-bench-memory")]
+    scratch: PathBuf,
+    /// EPRY passes (the peak does not depend on them).
+    #[arg(long, default_value_t = 1)]
+    passes: usize,
+    /// HR pixels per camera pixel.
+    #[arg(long, default_value_t = 4)]
+    upsample: usize,
+    /// Passed to `fpm reconstruct` (frames above it are read from disk band by band);
+    /// its default when not given.
+    #[arg(long)]
+    frame_memory_gb: Option<f64>,
+    /// Keep the dataset and the reconstruction.
+    #[arg(long)]
+    keep: bool,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Run one benchmark.
+pub fn run(cmd: BenchCommand) -> Result<()> {
+    match cmd {
+        BenchCommand::Link(a) => fpm_bench::link::run(LinkOptions {
+            port: a.port,
+            count: a.count,
+            json: a.json,
+        }),
+        BenchCommand::LedSwitch { json } => fpm_bench::led_switch::run(json),
+        BenchCommand::Calibration {
+            random,
+            coverage,
+            seed,
+            repeat,
+            json,
+        } => fpm_bench::calibration::run(random, coverage, seed, repeat, json),
+        BenchCommand::Geometry { size, passes, json } => {
+            fpm_bench::geometry::run(size, passes, json)
+        }
+        BenchCommand::Frames { rounds, json } => fpm_bench::frames::run(rounds, json),
+        BenchCommand::Memory(a) => fpm_bench::memory::run(MemoryOptions {
+            width: a.width,
+            height: a.height,
+            field: a.field,
+            scratch: a.scratch,
+            passes: a.passes,
+            upsample: a.upsample,
+            frame_memory_gb: a.frame_memory_gb,
+            keep: a.keep,
+            json: a.json,
+        }),
+        BenchCommand::Epry {
+            size,
+            upsample,
+            json,
+        } => fpm_bench::epry::run(size, upsample, json),
+    }
+}

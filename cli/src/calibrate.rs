@@ -117,19 +117,22 @@ fn print_calibration(file: &fpm_host::calibration::CalibrationFile, no_tilt: boo
         c.defocus_um,
         file.time_ms
     );
-    println!("  Δx = {:+.4} ± {:.4} mm", c.dx_mm, u.dx_mm);
-    println!("  Δy = {:+.4} ± {:.4} mm", c.dy_mm, u.dy_mm);
-    println!("  θ  = {:+.4} ± {:.4} °", c.theta_deg, u.theta_deg);
+    println!("  Δx = {:+.4} ± {:.4} mm", c.placement.dx_mm, u.dx_mm);
+    println!("  Δy = {:+.4} ± {:.4} mm", c.placement.dy_mm, u.dy_mm);
+    println!(
+        "  θ  = {:+.4} ± {:.4} °",
+        c.placement.theta_deg, u.theta_deg
+    );
     println!(
         "  h  = {:.3} ± {:.3} mm  (with the defocus known to ±{} µm; h moves {:.3} mm per µm of defocus error)",
-        c.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
+        c.placement.height_mm, u.height_mm, c.defocus_sigma_um, c.height_per_defocus_um
     );
     if no_tilt {
         println!("  tilt not fitted (--no-tilt): board taken as flat");
     } else if c.tilt_observable {
         println!(
             "  tilt {:+.2} ± {:.2} ° about x, {:+.2} ± {:.2} ° about y",
-            c.tilt_x_deg, u.tilt_x_deg, c.tilt_y_deg, u.tilt_y_deg
+            c.placement.tilt_x_deg, u.tilt_x_deg, c.placement.tilt_y_deg, u.tilt_y_deg
         );
     } else {
         println!(

@@ -113,19 +113,19 @@ fn print_arrays(t: &fpm_host::truth::Truth, g: &fpm_physics::LedGeometry) {
     println!("\nLED array       hidden truth                 recovered by pdcFPM");
     println!(
         "  Δx            {:>8.3} mm                 {:>8.3} mm",
-        t.dx_mm, g.dx_mm
+        t.placement.dx_mm, g.dx_mm
     );
     println!(
         "  Δy            {:>8.3} mm                 {:>8.3} mm",
-        t.dy_mm, g.dy_mm
+        t.placement.dy_mm, g.dy_mm
     );
     println!(
         "  θ             {:>8.3}°                   {:>8.3}°",
-        t.theta_deg, g.theta_deg
+        t.placement.theta_deg, g.theta_deg
     );
     println!(
         "  h             {:>8.2} mm                 {:>8.2} mm",
-        t.height_mm, g.height_mm
+        t.placement.height_mm, g.height_mm
     );
 }
 

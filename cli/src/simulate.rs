@@ -196,10 +196,10 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
         s.size,
         s.out.display(),
         start.elapsed().as_secs_f64(),
-        truth.dx_mm,
-        truth.dy_mm,
-        truth.theta_deg,
-        truth.height_mm
+        truth.placement.dx_mm,
+        truth.placement.dy_mm,
+        truth.placement.theta_deg,
+        truth.placement.height_mm
     );
     Ok(())
 }

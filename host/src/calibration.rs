@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::calibrate::{self, Calibration, LedStatus, Options};
-use fpm_physics::LedGeometry;
+use fpm_physics::{LedGeometry, Placement};
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
@@ -113,25 +113,18 @@ pub const TILT_KEYS: [&str; 2] = ["tilt_x_deg", "tilt_y_deg"];
 
 /// An LED array placement read from a `calibration.json`: either a full file written by
 /// `fpm calibrate`, or a hand-written one with only [`GEOMETRY_KEYS`] (an array measured
-/// by other means). The grid itself (rows, cols, pitch, centre LED) comes from the
-/// file's `nominal` block when it has one, else from the dataset.
+/// by other means), the tilt optional ([`TILT_KEYS`]). The grid itself (rows, cols,
+/// pitch, centre LED) comes from the file's `nominal` block when it has one, else from
+/// the dataset.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Placement {
-    /// Δx, mm.
-    pub dx_mm: f64,
-    /// Δy, mm.
-    pub dy_mm: f64,
-    /// θ, degrees.
-    pub theta_deg: f64,
-    /// LED-to-sample distance, mm.
-    pub height_mm: f64,
-    /// Board tilt about x and y, degrees (optional keys `tilt_x_deg`, `tilt_y_deg`).
-    pub tilt_deg: [f64; 2],
+pub struct PlacementFile {
+    /// The placement.
+    pub placement: Placement,
     /// The grid the file was computed for, if it says.
     pub nominal: Option<LedGeometry>,
 }
 
-impl Placement {
+impl PlacementFile {
     /// Read `path`. A missing or non-numeric key among [`GEOMETRY_KEYS`] is an error that
     /// names every such key.
     pub fn read(path: &Path) -> Result<Self> {
@@ -189,12 +182,16 @@ impl Placement {
                     .context("the `nominal` block is not an LED grid")?,
             ),
         };
+        let [tilt_x_deg, tilt_y_deg] = tilt_deg;
         Ok(Self {
-            dx_mm,
-            dy_mm,
-            theta_deg,
-            height_mm,
-            tilt_deg,
+            placement: Placement {
+                dx_mm,
+                dy_mm,
+                theta_deg,
+                height_mm,
+                tilt_x_deg,
+                tilt_y_deg,
+            },
             nominal,
         })
     }
@@ -216,8 +213,7 @@ impl Placement {
             }
             None => *dataset_nominal,
         };
-        grid.placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
-            .tilted(self.tilt_deg[0], self.tilt_deg[1])
+        grid.placed_at(self.placement)
     }
 }
 
@@ -298,10 +294,10 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
             "the shifts cannot pin down the board's tilt (1σ {:.2}° / {:.2}°, more than {}°): the board was taken as flat, and Δx, Δy carry what such a tilt could do; more LEDs or a larger defocus would show it",
             cal.uncertainty.tilt_x_deg, cal.uncertainty.tilt_y_deg, calibrate::TILT_OBSERVABLE_SIGMA_DEG
         ));
-    } else if cal.tilt_x_deg.hypot(cal.tilt_y_deg) > 3.0 {
+    } else if cal.placement.tilt_x_deg.hypot(cal.placement.tilt_y_deg) > 3.0 {
         out.push(format!(
             "the board is tilted by {:.1}° about x and {:.1}° about y: check that it is mounted parallel to the stage",
-            cal.tilt_x_deg, cal.tilt_y_deg
+            cal.placement.tilt_x_deg, cal.placement.tilt_y_deg
         ));
     }
     if outliers > 0 {

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use fpm_physics::reconstruct::RefinedLeds;
-use fpm_physics::{LedGeometry, LedIndex};
+use fpm_physics::{LedGeometry, LedIndex, Placement};
 use serde::Serialize;
 
 /// The placement file written beside the report when the refined LEDs fit a board.
@@ -48,9 +48,9 @@ pub struct RefinedLed {
 pub struct BoardReport {
     /// The fitted values.
     #[serde(flatten)]
-    pub value: BoardParams,
+    pub value: Placement,
     /// 1σ of each, same names and units.
-    pub uncertainty: BoardParams,
+    pub uncertainty: Placement,
     /// RMS distance of the refined positions from the fitted board's, mm: LEDs off
     /// their grid, or the refinement's own noise.
     pub residual_rms_mm: f64,
@@ -66,38 +66,6 @@ impl BoardReport {
             u.height_mm, b.tilt_x_deg, u.tilt_x_deg, b.tilt_y_deg, u.tilt_y_deg,
             self.residual_rms_mm
         )
-    }
-}
-
-/// A board's six numbers (or their 1σ).
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct BoardParams {
-    /// Δx, mm.
-    pub dx_mm: f64,
-    /// Δy, mm.
-    pub dy_mm: f64,
-    /// θ, degrees.
-    pub theta_deg: f64,
-    /// h, mm.
-    pub height_mm: f64,
-    /// Tilt about x, degrees.
-    pub tilt_x_deg: f64,
-    /// Tilt about y, degrees.
-    pub tilt_y_deg: f64,
-}
-
-impl BoardParams {
-    /// (Δx, Δy, θ, h, tilt x, tilt y), in the units above.
-    fn from_array(v: [f64; 6]) -> Self {
-        let [dx_mm, dy_mm, theta_deg, height_mm, tilt_x_deg, tilt_y_deg] = v;
-        Self {
-            dx_mm,
-            dy_mm,
-            theta_deg,
-            height_mm,
-            tilt_x_deg,
-            tilt_y_deg,
-        }
     }
 }
 
@@ -121,15 +89,8 @@ impl RefinedLedsReport {
         let board = refined.board.map(|b| {
             let g = b.geometry;
             BoardReport {
-                value: BoardParams::from_array([
-                    g.dx_mm,
-                    g.dy_mm,
-                    g.theta_deg,
-                    g.height_mm,
-                    g.tilt_x_deg,
-                    g.tilt_y_deg,
-                ]),
-                uncertainty: BoardParams::from_array(b.sigma),
+                value: g.placement(),
+                uncertainty: Placement::from_array(b.sigma),
                 residual_rms_mm: b.residual_rms_mm,
             }
         });

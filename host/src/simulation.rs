@@ -137,12 +137,7 @@ impl Scene {
     fn truth_file(&self) -> Truth {
         let t = &self.truth;
         Truth {
-            dx_mm: t.dx_mm,
-            dy_mm: t.dy_mm,
-            theta_deg: t.theta_deg,
-            height_mm: t.height_mm,
-            tilt_x_deg: t.tilt_x_deg,
-            tilt_y_deg: t.tilt_y_deg,
+            placement: t.placement(),
             defocus_um: None,
             feature_um: None,
             feature_at_um: None,

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use fpm_physics::metrics::{score, synthetic_aperture, Scores};
-use fpm_physics::{LedGeometry, LedIndex};
+use fpm_physics::{LedGeometry, LedIndex, Placement};
 use ndarray::Array2;
 use rustfft::num_complex::Complex32;
 use serde::{Deserialize, Serialize};
@@ -17,20 +17,9 @@ use crate::refinement::{LedPositionScore, RefinedLed, RefinedLedsReport};
 /// `truth.json`: the hidden array and what was simulated.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Truth {
-    /// True Δx, mm.
-    pub dx_mm: f64,
-    /// True Δy, mm.
-    pub dy_mm: f64,
-    /// True rotation, degrees.
-    pub theta_deg: f64,
-    /// True LED-to-sample distance, mm.
-    pub height_mm: f64,
-    /// True tilt of the board about its x axis, degrees.
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub tilt_x_deg: f64,
-    /// True tilt about its y axis, degrees.
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub tilt_y_deg: f64,
+    /// Where the array really was.
+    #[serde(flatten)]
+    pub placement: Placement,
     /// Defocus of a calibration set, µm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub defocus_um: Option<f64>,
@@ -83,8 +72,13 @@ impl Truth {
     /// The true geometry: the nominal one moved as recorded.
     pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
         nominal
-            .placed(self.dx_mm, self.dy_mm, self.theta_deg, self.height_mm)
-            .tilted(self.tilt_x_deg, self.tilt_y_deg)
+            .placed(
+                self.placement.dx_mm,
+                self.placement.dy_mm,
+                self.placement.theta_deg,
+                self.placement.height_mm,
+            )
+            .tilted(self.placement.tilt_x_deg, self.placement.tilt_y_deg)
     }
 
     /// Where `led` really was (x, y, distance below the sample), mm: its own place when
@@ -141,10 +135,6 @@ pub fn score_led_positions(
         given_rms_mm: rms(&|l| l.given_mm),
         refined_rms_mm: rms(&|l| l.refined_mm),
     })
-}
-
-fn is_zero(x: &f64) -> bool {
-    *x == 0.0
 }
 
 /// Write the sample's ground truth on the camera field (`truth_amplitude.tif`,

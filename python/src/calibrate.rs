@@ -25,28 +25,28 @@ impl Calibration {
     /// Δx of the array, mm.
     #[getter]
     fn dx_mm(&self) -> f64 {
-        self.file.calibration.dx_mm
+        self.file.calibration.placement.dx_mm
     }
     /// Δy of the array, mm.
     #[getter]
     fn dy_mm(&self) -> f64 {
-        self.file.calibration.dy_mm
+        self.file.calibration.placement.dy_mm
     }
     /// Rotation θ, degrees.
     #[getter]
     fn theta_deg(&self) -> f64 {
-        self.file.calibration.theta_deg
+        self.file.calibration.placement.theta_deg
     }
     /// LED-to-sample distance h, mm.
     #[getter]
     fn height_mm(&self) -> f64 {
-        self.file.calibration.height_mm
+        self.file.calibration.placement.height_mm
     }
     /// The board's tilt about x and y, degrees (0 where not observable).
     #[getter]
     fn tilt_deg(&self) -> (f64, f64) {
         let c = &self.file.calibration;
-        (c.tilt_x_deg, c.tilt_y_deg)
+        (c.placement.tilt_x_deg, c.placement.tilt_y_deg)
     }
     /// Whether the data determine the tilt.
     #[getter]
@@ -97,13 +97,13 @@ impl Calibration {
         let u = &c.uncertainty;
         format!(
             "Calibration(dx_mm={:.4}±{:.4}, dy_mm={:.4}±{:.4}, theta_deg={:.4}±{:.4}, height_mm={:.3}±{:.3}, warnings={})",
-            c.dx_mm,
+            c.placement.dx_mm,
             u.dx_mm,
-            c.dy_mm,
+            c.placement.dy_mm,
             u.dy_mm,
-            c.theta_deg,
+            c.placement.theta_deg,
             u.theta_deg,
-            c.height_mm,
+            c.placement.height_mm,
             u.height_mm,
             warnings(c).len()
         )

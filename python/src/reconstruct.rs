@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use fpm_host::calibration::Placement;
+use fpm_host::calibration::PlacementFile;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
     write_outputs_with, GeometryChoice, ImageFormat, Job, OutputOptions,
@@ -127,7 +127,7 @@ fn geometry_from(
             .import("json")?
             .call_method1("dumps", (given,))?
             .extract()?;
-        let placement = Placement::parse(&text)
+        let placement = PlacementFile::parse(&text)
             .map_err(|e| PyValueError::new_err(format!("geometry: {e:#}")))?;
         return Ok(GeometryChoice::Given(
             placement.geometry(nominal),

@@ -148,12 +148,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         std::fs::write(
             dir.join("truth.json"),
             serde_json::to_string_pretty(&Truth {
-                dx_mm: hidden.dx_mm,
-                dy_mm: hidden.dy_mm,
-                theta_deg: hidden.theta_deg,
-                height_mm: hidden.height_mm,
-                tilt_x_deg: hidden.tilt_x_deg,
-                tilt_y_deg: hidden.tilt_y_deg,
+                placement: hidden.placement(),
                 defocus_um: None,
                 feature_um: None,
                 feature_at_um: None,

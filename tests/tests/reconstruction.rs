@@ -717,8 +717,11 @@ fn refined_leds_come_closer_to_a_misbuilt_board() {
     assert!(score("refined_rms_mm") < 0.8 * score("given_rms_mm"));
     // The fitted board is a placement file: the next run reads it.
     let board = refined.0.join("refined-board.json");
-    let placement = fpm_host::calibration::Placement::read(&board).unwrap();
-    assert!((placement.tilt_deg[0] - leds["board"]["tilt_x_deg"].as_f64().unwrap()).abs() < 1e-9);
+    let placement = fpm_host::calibration::PlacementFile::read(&board).unwrap();
+    assert!(
+        (placement.placement.tilt_x_deg - leds["board"]["tilt_x_deg"].as_f64().unwrap()).abs()
+            < 1e-9
+    );
     let again = TempDir::new("refine-again");
     let mut args = vec![
         "reconstruct",

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context, Result};
-use fpm_host::calibration::Placement;
+use fpm_host::calibration::PlacementFile;
 use fpm_physics::LedGeometry;
 use fpm_protocol::{BoardCalibration, PlacementSigma, StoredCalibration};
 
@@ -27,8 +27,8 @@ pub fn nominal(g: &fpm_protocol::BoardGeometry) -> LedGeometry {
 pub fn from_calibration_file(path: &Path, board: &LedGeometry) -> Result<BoardCalibration> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let placement = Placement::parse(&text).with_context(|| format!("{}", path.display()))?;
-    if let Some(grid) = placement.nominal {
+    let file = PlacementFile::parse(&text).with_context(|| format!("{}", path.display()))?;
+    if let Some(grid) = file.nominal {
         if !grid.same_grid(board) {
             bail!(
                 "{}: computed for a {}x{} grid at {} mm pitch centred on {}, but this board is {}x{} at {} mm centred on {}: not its calibration",
@@ -44,7 +44,7 @@ pub fn from_calibration_file(path: &Path, board: &LedGeometry) -> Result<BoardCa
             );
         }
     }
-    // Placement::parse has checked that the text is a JSON object.
+    // PlacementFile::parse has checked that the text is a JSON object.
     let json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
     let number = |v: Option<&serde_json::Value>, key: &str| -> Result<f32> {
@@ -65,10 +65,10 @@ pub fn from_calibration_file(path: &Path, board: &LedGeometry) -> Result<BoardCa
         .and_then(|t| t.duration_since(UNIX_EPOCH).ok())
         .map_or(0, |d| d.as_secs());
     let calibration = BoardCalibration {
-        dx_mm: placement.dx_mm as f32,
-        dy_mm: placement.dy_mm as f32,
-        theta_deg: placement.theta_deg as f32,
-        height_mm: placement.height_mm as f32,
+        dx_mm: file.placement.dx_mm as f32,
+        dy_mm: file.placement.dy_mm as f32,
+        theta_deg: file.placement.theta_deg as f32,
+        height_mm: file.placement.height_mm as f32,
         sigma: PlacementSigma {
             dx_mm: sigma_of("dx_mm")?,
             dy_mm: sigma_of("dy_mm")?,

@@ -115,10 +115,10 @@ pub fn errors(c: &Calibration, t: &LedGeometry) -> ([f64; 4], [f64; 4]) {
     let u = &c.uncertainty;
     (
         [
-            (c.dx_mm - t.dx_mm) * 1e3,
-            (c.dy_mm - t.dy_mm) * 1e3,
-            c.theta_deg - t.theta_deg,
-            c.height_mm - t.height_mm,
+            (c.placement.dx_mm - t.dx_mm) * 1e3,
+            (c.placement.dy_mm - t.dy_mm) * 1e3,
+            c.placement.theta_deg - t.theta_deg,
+            c.placement.height_mm - t.height_mm,
         ],
         [u.dx_mm * 1e3, u.dy_mm * 1e3, u.theta_deg, u.height_mm],
     )

@@ -32,4 +32,4 @@ pub mod study;
 pub mod tiles;
 
 pub use image::Image;
-pub use optics::{LedGeometry, LedIndex, Rings, System};
+pub use optics::{LedGeometry, LedIndex, Placement, Rings, System};

@@ -218,6 +218,44 @@ impl From<Rings> for Vec<u16> {
     }
 }
 
+/// Where an LED array sits against its nominal place: offset, turn, height and tilt
+/// (the six numbers a calibration fits, a refinement's board carries and a simulation
+/// hides), or their 1σ. Files carry it flattened: `dx_mm`, `dy_mm`, `theta_deg`,
+/// `height_mm`, and `tilt_x_deg`, `tilt_y_deg` (0 when absent). [`LedGeometry`] holds
+/// the same numbers beside its grid ([`LedGeometry::placement`],
+/// [`LedGeometry::placed_at`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// Lateral offset Δx, mm.
+    pub dx_mm: f64,
+    /// Lateral offset Δy, mm.
+    pub dy_mm: f64,
+    /// Rotation θ about the optical axis, degrees (from +x toward +y).
+    pub theta_deg: f64,
+    /// Distance from the LED plane to the sample, mm.
+    pub height_mm: f64,
+    /// Tilt of the board about its x axis through the centre LED, degrees.
+    #[serde(default)]
+    pub tilt_x_deg: f64,
+    /// Tilt about its y axis, degrees.
+    #[serde(default)]
+    pub tilt_y_deg: f64,
+}
+
+impl Placement {
+    /// From (Δx, Δy, θ, h, tilt x, tilt y), in the units above.
+    pub const fn from_array(v: [f64; 6]) -> Self {
+        let [dx_mm, dy_mm, theta_deg, height_mm, tilt_x_deg, tilt_y_deg] = v;
+        Self {
+            dx_mm,
+            dy_mm,
+            theta_deg,
+            height_mm,
+            tilt_x_deg,
+            tilt_y_deg,
+        }
+    }
+}
 /// A regular LED grid below the sample (docs/dataset.md §1), or LEDs on rings
 /// ([`Rings`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -317,6 +355,31 @@ impl LedGeometry {
             dy_mm,
             theta_deg,
             height_mm,
+            ..self
+        }
+    }
+
+    /// Where the array sits: its offset, turn, height and tilt.
+    pub const fn placement(&self) -> Placement {
+        Placement {
+            dx_mm: self.dx_mm,
+            dy_mm: self.dy_mm,
+            theta_deg: self.theta_deg,
+            height_mm: self.height_mm,
+            tilt_x_deg: self.tilt_x_deg,
+            tilt_y_deg: self.tilt_y_deg,
+        }
+    }
+
+    /// The same grid placed as `p` says (tilt included).
+    pub const fn placed_at(self, p: Placement) -> Self {
+        Self {
+            dx_mm: p.dx_mm,
+            dy_mm: p.dy_mm,
+            theta_deg: p.theta_deg,
+            height_mm: p.height_mm,
+            tilt_x_deg: p.tilt_x_deg,
+            tilt_y_deg: p.tilt_y_deg,
             ..self
         }
     }

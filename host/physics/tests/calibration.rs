@@ -24,14 +24,14 @@ fn run(
     let (cal, took) =
         calibrate_simulated(&scene, &frames, &nominal(), &Options::default()).expect("calibrates");
     let errs = (
-        (cal.dx_mm - truth.dx_mm).abs() * 1e3,
-        (cal.dy_mm - truth.dy_mm).abs() * 1e3,
-        (cal.theta_deg - truth.theta_deg).abs(),
-        (cal.height_mm - truth.height_mm).abs(),
+        (cal.placement.dx_mm - truth.dx_mm).abs() * 1e3,
+        (cal.placement.dy_mm - truth.dy_mm).abs() * 1e3,
+        (cal.placement.theta_deg - truth.theta_deg).abs(),
+        (cal.placement.height_mm - truth.height_mm).abs(),
     );
     eprintln!(
         "truth ({:.3}, {:.3}, {:.2}°, {:.2}) → ({:.4}, {:.4}, {:.3}°, {:.3}) errors {:.2} µm {:.2} µm {:.4}° {:.3} mm, rms {:.4} µm, used {}, {:?}",
-        truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm, cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm,
+        truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm, cal.placement.dx_mm, cal.placement.dy_mm, cal.placement.theta_deg, cal.placement.height_mm,
         errs.0, errs.1, errs.2, errs.3, cal.rms_residual_um,
         cal.leds.iter().filter(|l| l.status == fpm_physics::calibrate::LedStatus::Used).count(),
         took

@@ -31,7 +31,7 @@ fn the_boundary_gives_h_when_the_defocus_is_misreported() {
             .collect();
         let (cal, _) =
             calibrate_simulated(&scene, &told, &nominal, &Options::default()).expect("calibrates");
-        let shift_error = cal.height_mm - truth.height_mm;
+        let shift_error = cal.placement.height_mm - truth.height_mm;
         assert!(
             shift_error > 5.0,
             "a 10 % defocus error moves h by ~9 mm: {shift_error:.2}"
@@ -55,7 +55,7 @@ fn the_boundary_gives_h_when_the_defocus_is_misreported() {
             77 + k as u64,
         );
         let lit: Vec<LitFrame> = acquisition.iter().map(|f| f.lit(&scene.camera)).collect();
-        let h = cal.height_mm;
+        let h = cal.placement.height_mm;
         let b = boundary::from_frames(
             &scene.system,
             &cal.geometry(&nominal),

@@ -36,11 +36,11 @@ fn a_tilted_board_no_longer_biases_the_array() {
         let scene = CalibrationScene::paper(truth, 300 + k as u64);
         let c = calibrate(&scene, &Options::default());
         let (e, s) = errors(&c, &truth);
-        let tilt_e = [c.tilt_x_deg - tx, c.tilt_y_deg - ty];
+        let tilt_e = [c.placement.tilt_x_deg - tx, c.placement.tilt_y_deg - ty];
         let tilt_s = [c.uncertainty.tilt_x_deg, c.uncertainty.tilt_y_deg];
         eprintln!(
             "tilt ({tx}, {ty})°: found ({:.2} ± {:.2}, {:.2} ± {:.2})°; errors {e:.3?} σ {s:.3?}",
-            c.tilt_x_deg, tilt_s[0], c.tilt_y_deg, tilt_s[1]
+            c.placement.tilt_x_deg, tilt_s[0], c.placement.tilt_y_deg, tilt_s[1]
         );
         assert!(c.tilt_observable, "a 25-LED calibration sees a 1–2° tilt");
         for p in 0..2 {
@@ -83,11 +83,11 @@ fn a_flat_board_is_found_flat() {
     let c = calibrate(&scene, &Options::default());
     assert!(c.tilt_observable);
     assert!(
-        c.tilt_x_deg.abs() <= 3.0 * c.uncertainty.tilt_x_deg,
+        c.placement.tilt_x_deg.abs() <= 3.0 * c.uncertainty.tilt_x_deg,
         "{c:?}"
     );
     assert!(
-        c.tilt_y_deg.abs() <= 3.0 * c.uncertainty.tilt_y_deg,
+        c.placement.tilt_y_deg.abs() <= 3.0 * c.uncertainty.tilt_y_deg,
         "{c:?}"
     );
     let cost = c

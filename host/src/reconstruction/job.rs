@@ -11,7 +11,7 @@ use fpm_physics::reconstruct::{GammaScan, Settings};
 use fpm_physics::{LedGeometry, System};
 
 use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
-use crate::calibration::{GeometrySource, Placement};
+use crate::calibration::{GeometrySource, PlacementFile};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 
 /// Which LED geometry the job reconstructs with.
@@ -33,7 +33,7 @@ impl GeometryChoice {
         Ok(match self {
             Self::Nominal => (*nominal, GeometrySource::Dataset),
             Self::File(path) => (
-                Placement::read(path)?.geometry(nominal),
+                PlacementFile::read(path)?.geometry(nominal),
                 GeometrySource::File(path.clone()),
             ),
             Self::LedHeightMm(height_mm) => (

@@ -155,7 +155,12 @@ pub fn run(random: usize, coverage: usize, seed: u64, repeat: usize, json: bool)
         };
         let ms = median(&mut times);
         let ratio = median(&mut ratios);
-        let found = [cal.dx_mm, cal.dy_mm, cal.theta_deg, cal.height_mm];
+        let found = [
+            cal.placement.dx_mm,
+            cal.placement.dy_mm,
+            cal.placement.theta_deg,
+            cal.placement.height_mm,
+        ];
         let tr = [truth.dx_mm, truth.dy_mm, truth.theta_deg, truth.height_mm];
         out.push(CalibrationCase {
             name: name.clone(),

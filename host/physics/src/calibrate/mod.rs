@@ -25,7 +25,7 @@ use crate::optics::LedIndex;
 use serde::{Deserialize, Serialize};
 
 use crate::image::{row_slice, row_sum};
-use crate::optics::{LedGeometry, System};
+use crate::optics::{LedGeometry, Placement, System};
 use crate::Image;
 use feature::{FeatureError, Polarity, Roi};
 use fit::{Observation, Params, Setup};
@@ -145,24 +145,9 @@ pub struct LedResult {
     pub residual_um: Option<f64>,
 }
 
-/// One standard deviation of each parameter.
-#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
-pub struct Uncertainty {
-    /// Δx, mm.
-    pub dx_mm: f64,
-    /// Δy, mm.
-    pub dy_mm: f64,
-    /// θ, degrees.
-    pub theta_deg: f64,
-    /// h, mm (from the shifts alone; the defocus error adds `height_per_defocus_um`).
-    pub height_mm: f64,
-    /// Board tilt about x, degrees.
-    #[serde(default)]
-    pub tilt_x_deg: f64,
-    /// Board tilt about y, degrees.
-    #[serde(default)]
-    pub tilt_y_deg: f64,
-}
+/// One standard deviation of each of the placement's numbers (h from the shifts
+/// alone; the defocus error adds `height_per_defocus_um`).
+pub type Uncertainty = crate::optics::Placement;
 
 /// Where the feature is.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
@@ -182,21 +167,10 @@ pub struct FeatureInfo {
 /// The calibrated LED array (the `calibration.json` that reconstruction takes).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Calibration {
-    /// Δx, mm.
-    pub dx_mm: f64,
-    /// Δy, mm.
-    pub dy_mm: f64,
-    /// θ, degrees.
-    pub theta_deg: f64,
-    /// h, mm.
-    pub height_mm: f64,
-    /// Board tilt about its x axis through the centre LED, degrees (0 when the data
-    /// cannot see the tilt: the board is then taken as flat).
-    #[serde(default)]
-    pub tilt_x_deg: f64,
-    /// Board tilt about its y axis, degrees.
-    #[serde(default)]
-    pub tilt_y_deg: f64,
+    /// The array's placement (its tilt 0 when the data cannot see it: the board is
+    /// then taken as flat).
+    #[serde(flatten)]
+    pub placement: Placement,
     /// Whether the shifts pin the tilt down (its 1σ at most
     /// [`TILT_OBSERVABLE_SIGMA_DEG`]); if not, the board is taken as flat and Δx, Δy
     /// carry what an unseen tilt could do to them.
@@ -264,15 +238,7 @@ impl Calibration {
 
     /// The calibrated geometry, on the nominal grid.
     pub fn geometry(&self, nominal: &LedGeometry) -> LedGeometry {
-        LedGeometry {
-            dx_mm: self.dx_mm,
-            dy_mm: self.dy_mm,
-            theta_deg: self.theta_deg,
-            height_mm: self.height_mm,
-            tilt_x_deg: self.tilt_x_deg,
-            tilt_y_deg: self.tilt_y_deg,
-            ..*nominal
-        }
+        nominal.placed_at(self.placement)
     }
 }
 

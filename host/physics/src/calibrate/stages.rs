@@ -10,7 +10,7 @@ use super::{
     tilt_observable, to_geometry, uncertainty, Calibration, CalibrationError, FeatureInfo, Frame,
     LedResult, LedStatus, Measured, Options,
 };
-use crate::optics::{LedGeometry, System};
+use crate::optics::{LedGeometry, Placement, System};
 
 /// The focused reference under the centre LED, the defocused frames, and their one
 /// defocus, µm.
@@ -406,12 +406,14 @@ pub(super) fn report(
     let ref_center = located.reference.center_px;
     let (xc, yc) = located.sample_um;
     Ok(Calibration {
-        dx_mm: p.dx * 1e-3,
-        dy_mm: p.dy * 1e-3,
-        theta_deg: p.theta.to_degrees(),
-        height_mm: p.h * 1e-3,
-        tilt_x_deg: tilt_rad.0.to_degrees(),
-        tilt_y_deg: tilt_rad.1.to_degrees(),
+        placement: Placement {
+            dx_mm: p.dx * 1e-3,
+            dy_mm: p.dy * 1e-3,
+            theta_deg: p.theta.to_degrees(),
+            height_mm: p.h * 1e-3,
+            tilt_x_deg: tilt_rad.0.to_degrees(),
+            tilt_y_deg: tilt_rad.1.to_degrees(),
+        },
         tilt_observable: observable,
         uncertainty,
         uncertainty_sources: Some(uncertainty::Budget::from(&sources)),

@@ -257,7 +257,10 @@ impl Chart for LedGrid<'_> {
             )?
             .label(format!(
                 "fitted: Δx {:+.3} mm, Δy {:+.3} mm, θ {:+.2}°, h {:.2} mm",
-                self.cal.dx_mm, self.cal.dy_mm, self.cal.theta_deg, self.cal.height_mm
+                self.cal.placement.dx_mm,
+                self.cal.placement.dy_mm,
+                self.cal.placement.theta_deg,
+                self.cal.placement.height_mm
             ))
             .legend(|(x, y)| Circle::new((x + 10, y), 3, palette::BLUE.filled()));
         super::draw_bright_field_disc(

@@ -35,15 +35,15 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
 
     page.heading("Result (1σ)");
     page.table(&[
-        Row::with_id("dx_mm", "Δx", pm(cal.dx_mm, u.dx_mm, 4, "mm")),
-        Row::with_id("dy_mm", "Δy", pm(cal.dy_mm, u.dy_mm, 4, "mm")),
-        Row::with_id("theta_deg", "θ", pm(cal.theta_deg, u.theta_deg, 4, "°")),
+        Row::with_id("dx_mm", "Δx", pm(cal.placement.dx_mm, u.dx_mm, 4, "mm")),
+        Row::with_id("dy_mm", "Δy", pm(cal.placement.dy_mm, u.dy_mm, 4, "mm")),
+        Row::with_id("theta_deg", "θ", pm(cal.placement.theta_deg, u.theta_deg, 4, "°")),
         Row::with_id(
             "height_mm",
             "h",
             format!(
                 "{:.3} ± {:.3} mm (with the defocus known to ±{} µm; h moves {:.4} mm per µm of defocus error)",
-                cal.height_mm, u.height_mm, cal.defocus_sigma_um, cal.height_per_defocus_um
+                cal.placement.height_mm, u.height_mm, cal.defocus_sigma_um, cal.height_per_defocus_um
             ),
         ),
         Row::with_id(
@@ -52,8 +52,8 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
             if cal.tilt_observable {
                 format!(
                     "{} about x, {} about y",
-                    pm(cal.tilt_x_deg, u.tilt_x_deg, 2, "°"),
-                    pm(cal.tilt_y_deg, u.tilt_y_deg, 2, "°")
+                    pm(cal.placement.tilt_x_deg, u.tilt_x_deg, 2, "°"),
+                    pm(cal.placement.tilt_y_deg, u.tilt_y_deg, 2, "°")
                 )
             } else {
                 format!(

@@ -61,8 +61,10 @@ pub fn scan(
         system,
         geometry,
         &frames,
-        full_scale,
-        camera.dark_level as f32,
+        gamma::Stored {
+            full_scale,
+            dark_counts: camera.dark_level as f32,
+        },
         settings,
         passes,
         progress,

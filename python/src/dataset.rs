@@ -83,7 +83,7 @@ impl Dataset {
     /// `gamma` for frames saved with a display gamma (needs `bit_depth`).
     #[staticmethod]
     #[pyo3(signature = (frames, leds, system, geometry, exposure_ms = None, defocus_um = None, dark_level = 0.0, bit_depth = None, dir = None, gamma = None))]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
     fn from_arrays(
         frames: &Bound<'_, PyAny>,
         leds: Vec<(u8, u8)>,

@@ -204,7 +204,7 @@ pub(crate) fn settings(
 /// Raises FpmError when it cannot run.
 #[pyfunction]
 #[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = 0.0, progress = None))]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(
     py: Python<'_>,
     dataset: &Bound<'_, Dataset>,

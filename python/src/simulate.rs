@@ -69,7 +69,7 @@ fn loaded<'py>(
 /// that is not telecentric (the dataset cannot state it; the truth does).
 #[pyfunction]
 #[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None))]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn simulate_acquisition<'py>(
     py: Python<'py>,
     out: PathBuf,
@@ -121,7 +121,7 @@ pub fn simulate_acquisition<'py>(
 /// returns (Dataset, truth dict).
 #[pyfunction]
 #[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, defocus_um = 200.0, feature_um = 50.0, feature_at_um = (0.0, 0.0)))]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn simulate_calibration<'py>(
     py: Python<'py>,
     out: PathBuf,

@@ -61,7 +61,7 @@ impl Streaming {
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]
     #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None))]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
     fn new(
         system: &Bound<'_, PyAny>,
         geometry: &Bound<'_, PyAny>,

@@ -527,16 +527,8 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
     }
 
     fn commit_output(&mut self, output: Output, budget: BudgetConfig, now: u64) -> LitResult {
-        let b = &self.board;
-        self.leds.commit(
-            &b.geometry,
-            output,
-            budget,
-            b.channel_current_ua,
-            (b.led_shift_ns, b.latch_us),
-            &mut self.strip,
-            now,
-        )
+        self.leds
+            .commit(&self.board, output, budget, &mut self.strip, now)
     }
 
     fn light_step(&mut self, step: u16, now: u64) -> LitResult {

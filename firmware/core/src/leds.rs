@@ -1,12 +1,11 @@
 //! The LED frame buffer: what was asked for, what is in the LEDs, and the one path by
 //! which a new state reaches the strip (budget check, dimming, partial shift).
 
-use fpm_protocol::{
-    limits::MAX_LEDS, BoardGeometry, BudgetConfig, BudgetPolicy, DeviceError, Lit, Rgb,
-};
+use fpm_protocol::{limits::MAX_LEDS, BudgetConfig, BudgetPolicy, DeviceError, Lit, Rgb};
 
 use smart_leds::RGB8;
 
+use crate::board::BoardConfig;
 use crate::budget::{current_at, current_ua, fit_brightness, ua_to_ma, Output};
 use crate::chain::{lane_len, update_time_us, MAX_LANES};
 use crate::hw::LedStrip;
@@ -65,19 +64,17 @@ impl LedState {
         current_at(&self.staged[..self.len], output, channel_current_ua)
     }
 
-    /// Make the staged state real through `output`, within `budget`, and shift it out.
-    /// On refusal nothing changes.
-    #[allow(clippy::too_many_arguments)]
+    /// Make the staged state real through `output`, within `budget`, and shift it out
+    /// on `board`'s chain. On refusal nothing changes.
     pub fn commit(
         &mut self,
-        geometry: &BoardGeometry,
+        board: &BoardConfig,
         output: Output,
         budget: BudgetConfig,
-        channel_current_ua: u32,
-        timing: (u32, u32),
         strip: &mut impl LedStrip,
         now_us: u64,
     ) -> Result<Lit, DeviceError> {
+        let (geometry, channel_current_ua) = (&board.geometry, board.channel_current_ua);
         let n = self.len;
         let limit_ua = budget.limit_ma as u64 * 1000;
         let brightness = output.brightness;
@@ -120,7 +117,7 @@ impl LedState {
         if shift.iter().any(|&s| s > 0) {
             strip.write(&self.shown[..n], per_lane, &shift[..lanes]);
         }
-        let (led_shift_ns, latch_us) = timing;
+        let (led_shift_ns, latch_us) = (board.led_shift_ns, board.latch_us);
         Ok(Lit {
             leds_on: self.leds_on(),
             current_ma: ua_to_ma(current_ua(&self.shown[..n], channel_current_ua)),

@@ -138,22 +138,32 @@ fn decoded<'a>(
         .collect()
 }
 
-/// Scan the display gamma of `frames` (their stored values of `full_scale`, the stored
-/// dark level `dark_counts`; their own response is ignored): [`COARSE`], then
-/// [`FINE_STEP`]s around the coarse minimum, each candidate reconstructed over the
-/// central square for `passes` with `settings` (candidates run in parallel).
-/// `progress(done, total)` counts candidates.
-#[allow(clippy::too_many_arguments)]
+/// How frames' values were stored: what a display gamma is applied over.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stored {
+    /// The stored values' full scale.
+    pub full_scale: f32,
+    /// The stored dark level, counts.
+    pub dark_counts: f32,
+}
+
+/// Scan the display gamma of `frames` (stored as `stored` says; their own response is
+/// ignored): [`COARSE`], then [`FINE_STEP`]s around the coarse minimum, each candidate
+/// reconstructed over the central square for `passes` with `settings` (candidates run
+/// in parallel). `progress(done, total)` counts candidates.
 pub fn scan(
     system: &System,
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
-    full_scale: f32,
-    dark_counts: f32,
+    stored: Stored,
     settings: Settings,
     passes: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<GammaScan, TiledError> {
+    let Stored {
+        full_scale,
+        dark_counts,
+    } = stored;
     let side = side(system, geometry, tiled::check_sizes(frames)?);
     let square = central_square(frames, side);
     let settings = Settings {

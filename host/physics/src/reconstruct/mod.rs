@@ -24,7 +24,7 @@ pub use contrast::{ContrastFit, ContrastSums};
 pub use epry::{amplitude, complex_nrmse, remove_illumination_curvature, Epry, Settings};
 pub use flatten::{flatten_background_phase, Flatten, Flattening};
 pub use gamma::{GammaCandidate, GammaScan};
-pub use offline::{run, run_amplitudes, Field, Outcome, Shot};
+pub use offline::{run, run_amplitudes, Amplitudes, Field, Outcome, Shot};
 pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;
 pub use streaming::Streaming;

@@ -110,31 +110,37 @@ pub fn run(
         .iter()
         .map(|s| amplitude(&(s.image / scale)))
         .collect();
-    run_amplitudes(
-        system,
-        geometry,
-        field,
-        &leds,
-        &amplitudes,
-        settings,
-        passes,
-        progress,
-    )
+    let frames = Amplitudes {
+        leds: &leds,
+        images: &amplitudes,
+    };
+    run_amplitudes(system, geometry, field, frames, settings, passes, progress)
 }
 
-/// [`run`] on amplitudes already normalised to the clear level (√(I / clear)), one per
-/// LED of `leds`: the form in which tiles hand over their share of each frame.
-#[allow(clippy::too_many_arguments)]
+/// Amplitudes already normalised to the clear level (√(I / clear)), one per LED: the
+/// form in which tiles hand over their share of each frame.
+#[derive(Debug, Clone, Copy)]
+pub struct Amplitudes<'a> {
+    /// The LEDs.
+    pub leds: &'a [LedIndex],
+    /// Their amplitudes, in the same order.
+    pub images: &'a [Image],
+}
+
+/// [`run`] on [`Amplitudes`].
 pub fn run_amplitudes(
     system: &System,
     geometry: &LedGeometry,
     field: Field,
-    leds: &[LedIndex],
-    amplitudes: &[Image],
+    frames: Amplitudes<'_>,
     settings: Settings,
     passes: usize,
     mut progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
+    let Amplitudes {
+        leds,
+        images: amplitudes,
+    } = frames;
     let order = geometry.nearest_first(leds, field.centre_um, system);
     let initial = *order.first()?;
     let mut epry = Epry::new(system, &amplitudes[initial].mapv(|a| a * a), settings);

@@ -27,7 +27,7 @@ use rustfft::num_complex::Complex32;
 
 use super::contrast::{ContrastFit, ContrastSums};
 use super::flatten::{flatten_background_phase, Flattening};
-use super::offline::{run_amplitudes, Field, Outcome};
+use super::offline::{run_amplitudes, Amplitudes, Field, Outcome};
 use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
 use super::Settings;
@@ -272,16 +272,22 @@ impl TileJob<'_> {
                 let field = self.layout.field(k, pixel_um, Some(self.clear_level));
                 let mut outcome = match start {
                     Some(s) => s.finish_amplitudes(self.leds, &amplitudes, self.passes, self.tick),
-                    None => run_amplitudes(
-                        self.system,
-                        self.geometry,
-                        field,
-                        self.leds,
-                        &amplitudes,
-                        self.settings,
-                        self.passes,
-                        self.tick,
-                    ),
+                    None => {
+                        let frames = Amplitudes {
+                            leds: self.leds,
+                            images: &amplitudes,
+                        };
+                        let (system, geometry) = (self.system, self.geometry);
+                        run_amplitudes(
+                            system,
+                            geometry,
+                            field,
+                            frames,
+                            self.settings,
+                            self.passes,
+                            self.tick,
+                        )
+                    }
                 }
                 .ok_or(TiledError::Tile { x0: t.x0, y0: t.y0 })?;
                 let (cx, cy) = field.centre_um;

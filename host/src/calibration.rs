@@ -182,16 +182,9 @@ impl PlacementFile {
                     .context("the `nominal` block is not an LED grid")?,
             ),
         };
-        let [tilt_x_deg, tilt_y_deg] = tilt_deg;
+        let [tilt_x, tilt_y] = tilt_deg;
         Ok(Self {
-            placement: Placement {
-                dx_mm,
-                dy_mm,
-                theta_deg,
-                height_mm,
-                tilt_x_deg,
-                tilt_y_deg,
-            },
+            placement: Placement::from_array([dx_mm, dy_mm, theta_deg, height_mm, tilt_x, tilt_y]),
             nominal,
         })
     }

@@ -219,6 +219,27 @@ enum Step {
     Finished,
 }
 
+impl Step {
+    /// The phase the step belongs to.
+    fn phase(self) -> Phase {
+        match self {
+            Step::FocusReference
+            | Step::Reference
+            | Step::Defocus
+            | Step::CalibrationGrid
+            | Step::BackToSample
+            | Step::WriteCalibrationFrames
+            | Step::WriteCalibration
+            | Step::StoreOnBoard => Phase::Calibrating,
+            Step::Capture => Phase::Capturing,
+            Step::Retake => Phase::Retaking,
+            Step::WriteDataset | Step::WriteSummary => Phase::Writing,
+            Step::WriteReconstruction => Phase::Reconstructing,
+            Step::Finished => Phase::Finished,
+        }
+    }
+}
+
 /// What a cancel cut short.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Cut {
@@ -327,21 +348,7 @@ impl Acquisition {
 
     /// How far the acquisition is.
     pub fn progress(&self) -> Progress {
-        let phase = match self.step {
-            Step::FocusReference
-            | Step::Reference
-            | Step::Defocus
-            | Step::CalibrationGrid
-            | Step::BackToSample
-            | Step::WriteCalibrationFrames
-            | Step::WriteCalibration
-            | Step::StoreOnBoard => Phase::Calibrating,
-            Step::Capture => Phase::Capturing,
-            Step::Retake => Phase::Retaking,
-            Step::WriteDataset | Step::WriteSummary => Phase::Writing,
-            Step::WriteReconstruction => Phase::Reconstructing,
-            Step::Finished => Phase::Finished,
-        };
+        let phase = self.step.phase();
         Progress {
             phase,
             frames: self.frames,
@@ -561,14 +568,7 @@ impl Acquisition {
     /// a capture's frames are written (no retake, no reconstruction).
     fn after_cancel(&mut self) {
         match self.step {
-            Step::FocusReference
-            | Step::Reference
-            | Step::Defocus
-            | Step::CalibrationGrid
-            | Step::BackToSample
-            | Step::WriteCalibrationFrames
-            | Step::WriteCalibration
-            | Step::StoreOnBoard => {
+            s if s.phase() == Phase::Calibrating => {
                 self.fail(anyhow!(
                     "cancelled during the calibration; no frame was acquired"
                 ));
@@ -580,10 +580,9 @@ impl Acquisition {
                 ));
             }
             Step::Retake => self.step = self.build_dataset(),
-            Step::WriteReconstruction => {
-                // Nothing to stop: the reconstruction is computed; writing it is quick.
-            }
-            Step::WriteDataset | Step::WriteSummary | Step::Finished => {}
+            // Later steps have nothing to stop: the reconstruction is computed (or was
+            // skipped, see `cut`) and writing is quick.
+            _ => {}
         }
     }
 

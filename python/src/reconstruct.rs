@@ -160,9 +160,6 @@ pub(crate) fn settings(
             )))
         }
     };
-    if upsample == 0 {
-        return Err(PyValueError::new_err("upsample must be at least 1"));
-    }
     let flatten = match (flatten_background, background_block_um) {
         (false, None) => Flatten::Keep,
         (false, Some(_)) => {
@@ -178,13 +175,15 @@ pub(crate) fn settings(
             )))
         }
     };
-    Ok(Settings {
+    let settings = Settings {
         upsample,
         update_pupil: !fixed_pupil,
         background,
         flatten,
         ..Settings::default()
-    })
+    };
+    settings.validate().map_err(PyValueError::new_err)?;
+    Ok(settings)
 }
 
 /// Reconstruct `dataset`'s in-focus frames with EPRY: the object and the pupil.

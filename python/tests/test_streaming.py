@@ -55,3 +55,14 @@ def test_an_entrance_pupil_that_is_no_distance_is_refused(acquisition):
             fpm.Streaming(dict(ds.system, entrance_pupil_mm=bad), ds.geometry, 64, 64)
     stream = fpm.Streaming(dict(ds.system, entrance_pupil_mm=40.0), ds.geometry, 64, 64)
     assert stream.received == 0
+
+
+def test_settings_out_of_range_are_refused_as_a_reconstruction_refuses_them(acquisition):
+    ds, _ = acquisition
+    for kwargs, name in (
+        (dict(upsample=0), r"upsample 0: must be 1-64"),
+        (dict(upsample=65), r"upsample 65: must be 1-64"),
+        (dict(floor_sigma=-1.0), r"floor_sigma -1: must be 0 or more"),
+    ):
+        with pytest.raises(ValueError, match=name):
+            fpm.Streaming(ds.system, ds.geometry, 64, 64, **kwargs)

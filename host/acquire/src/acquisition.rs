@@ -21,7 +21,7 @@ use fpm_host::calibration::{calibrate_dataset, CalibrationFile, GeometrySource};
 use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{Reconstruction, Report, Request};
 use fpm_physics::calibrate::{calibration_grid, Options, GRID_HALF};
-use fpm_physics::reconstruct::{tiled, Flatten, Settings, TiledStreaming};
+use fpm_physics::reconstruct::{limits, tiled, Flatten, Settings, TiledStreaming};
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, LedIndex, Rgb};
 use serde::Serialize;
@@ -87,13 +87,24 @@ impl Plan {
         if let Some((name, v, why)) = self.system.out_of_range() {
             bail!("{name} {v}: {why}");
         }
-        if !(1..=10_000).contains(&self.passes) {
-            bail!("passes {}: must be 1-10000", self.passes);
+        if !limits::PASSES.contains(&self.passes) {
+            bail!(
+                "passes {}: must be {}-{}",
+                self.passes,
+                limits::PASSES.start(),
+                limits::PASSES.end()
+            );
         }
-        if let Some(tile) = self.tile.filter(|t| !(16..=16_384).contains(t)) {
-            bail!("tile {tile}: must be 16-16384 camera pixels");
+        if let Some(tile) = self.tile.filter(|t| !limits::TILE.contains(t)) {
+            bail!(
+                "tile {tile}: must be {}-{} camera pixels",
+                limits::TILE.start(),
+                limits::TILE.end()
+            );
         }
-        Ok(())
+        streaming_settings(self)
+            .validate()
+            .map_err(anyhow::Error::msg)
     }
 
     /// How long each LED stays lit, µs, as the controller takes it.

@@ -92,19 +92,7 @@ impl Default for Job {
 }
 
 /// Ranges the job's settings are held to (named in the errors).
-pub mod limits {
-    /// HR pixels per camera pixel (a generous bound: at 64 a 1024² frame's object is
-    /// already 34 GB, and few synthetic apertures need more than 10).
-    pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=64;
-    /// Passes over all frames.
-    pub const PASSES: std::ops::RangeInclusive<usize> = 1..=10_000;
-    /// Object and pupil step sizes (1 = the full ePIE step).
-    pub const STEP: std::ops::RangeInclusive<f32> = 0.0..=2.0;
-    /// Tile side, camera pixels.
-    pub const TILE: std::ops::RangeInclusive<usize> = 16..=16_384;
-    /// Refocus distance, µm.
-    pub const REFOCUS_UM: f64 = 10_000.0;
-}
+pub use fpm_physics::reconstruct::limits;
 
 /// What a job reports as it goes.
 #[derive(Debug, Clone, Copy)]
@@ -146,16 +134,8 @@ pub struct Finished {
 impl Job {
     /// Every setting in its range, or an error naming the first that is not.
     pub fn validate(&self) -> Result<()> {
-        let s = &self.settings;
+        self.settings.validate().map_err(anyhow::Error::msg)?;
         let positive = |x: f64| x.is_finite() && x > 0.0;
-        if !limits::UPSAMPLE.contains(&s.upsample) {
-            bail!(
-                "upsample {}: must be {}-{}",
-                s.upsample,
-                limits::UPSAMPLE.start(),
-                limits::UPSAMPLE.end()
-            );
-        }
         if !limits::PASSES.contains(&self.passes) {
             bail!(
                 "passes {}: must be {}-{}",
@@ -164,14 +144,6 @@ impl Job {
                 limits::PASSES.end()
             );
         }
-        for (name, step) in [("alpha", s.alpha), ("beta", s.beta)] {
-            if !(limits::STEP.contains(&step) && step > 0.0) {
-                bail!(
-                    "{name} {step}: must be above 0 and at most {}",
-                    limits::STEP.end()
-                );
-            }
-        }
         if let Some(tile) = self.tile {
             if !limits::TILE.contains(&tile) {
                 bail!(
@@ -179,23 +151,6 @@ impl Job {
                     limits::TILE.start(),
                     limits::TILE.end()
                 );
-            }
-        }
-        if !(s.defocus_um.is_finite() && s.defocus_um.abs() <= limits::REFOCUS_UM) {
-            bail!(
-                "refocus_um {}: must be a distance within ±{} µm",
-                s.defocus_um,
-                limits::REFOCUS_UM
-            );
-        }
-        if let fpm_physics::background::Correction::PerFrame { floor_sigma } = s.background {
-            if !(floor_sigma.is_finite() && floor_sigma >= 0.0) {
-                bail!("floor_sigma {floor_sigma}: must be 0 or more");
-            }
-        }
-        if let fpm_physics::reconstruct::Flatten::BlockUm(um) = s.flatten {
-            if !positive(um) {
-                bail!("background_block_um {um}: must be a positive size in µm");
             }
         }
         if let Some(p) = self.entrance_pupil_mm {

@@ -87,6 +87,65 @@ impl Default for Settings {
     }
 }
 
+/// The ranges a reconstruction's settings must be in (a job's, a stream's, an
+/// acquisition's): beyond them a run is refused up front, naming the setting.
+pub mod limits {
+    /// HR pixels per camera pixel (a generous bound: at 64 a 1024² frame's object is
+    /// already 34 GB, and few synthetic apertures need more than 10).
+    pub const UPSAMPLE: std::ops::RangeInclusive<usize> = 1..=64;
+    /// Passes over all frames.
+    pub const PASSES: std::ops::RangeInclusive<usize> = 1..=10_000;
+    /// Object and pupil step sizes (1 = the full ePIE step).
+    pub const STEP: std::ops::RangeInclusive<f32> = 0.0..=2.0;
+    /// Tile side, camera pixels.
+    pub const TILE: std::ops::RangeInclusive<usize> = 16..=16_384;
+    /// Refocus distance, µm.
+    pub const REFOCUS_UM: f64 = 10_000.0;
+}
+
+impl Settings {
+    /// Every setting in its range ([`limits`]), or what is not, named as the CLI and
+    /// Python name it.
+    pub fn validate(&self) -> Result<(), String> {
+        if !limits::UPSAMPLE.contains(&self.upsample) {
+            return Err(format!(
+                "upsample {}: must be {}-{}",
+                self.upsample,
+                limits::UPSAMPLE.start(),
+                limits::UPSAMPLE.end()
+            ));
+        }
+        for (name, step) in [("alpha", self.alpha), ("beta", self.beta)] {
+            if !(limits::STEP.contains(&step) && step > 0.0) {
+                return Err(format!(
+                    "{name} {step}: must be above 0 and at most {}",
+                    limits::STEP.end()
+                ));
+            }
+        }
+        if !(self.defocus_um.is_finite() && self.defocus_um.abs() <= limits::REFOCUS_UM) {
+            return Err(format!(
+                "refocus_um {}: must be a distance within ±{} µm",
+                self.defocus_um,
+                limits::REFOCUS_UM
+            ));
+        }
+        if let Correction::PerFrame { floor_sigma } = self.background {
+            if !(floor_sigma.is_finite() && floor_sigma >= 0.0) {
+                return Err(format!("floor_sigma {floor_sigma}: must be 0 or more"));
+            }
+        }
+        if let Flatten::BlockUm(um) = self.flatten {
+            if !(um.is_finite() && um > 0.0) {
+                return Err(format!(
+                    "background_block_um {um}: must be a positive size in µm"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The reconstruction state.
 pub struct Epry {
     n: usize,

@@ -293,7 +293,13 @@ pub fn capture(
             last_frame = Instant::now();
         }
         let complete = received.len() >= leds.len();
-        if ended.is_some() && (complete || last_frame.elapsed() > idle_after_end) {
+        // Frames still on their way are waited for; after a cancel only briefly (the
+        // LEDs it lit last, a few periods), so that a cancel ends the capture at once.
+        let idle = match aborted {
+            false => idle_after_end,
+            true => Duration::from_millis(300) + Duration::from_nanos(period_ns * 4),
+        };
+        if ended.is_some() && (complete || last_frame.elapsed() > idle) {
             break;
         }
         if failure.is_some() {

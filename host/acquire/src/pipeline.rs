@@ -187,6 +187,11 @@ pub fn acquire(
             }
             Action::Finished(result) => return *result,
         };
+        // A cancel that came while the action ran is the machine's to know before the
+        // action's outcome: a sequence aborted by it is not then retaken.
+        if cancel.load(Ordering::SeqCst) && !acq.progress().cancelled {
+            acq.handle(Event::Cancel);
+        }
         acq.handle(event);
     }
 }

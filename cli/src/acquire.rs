@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use fpm_acquire::acquisition::defaults;
 use fpm_acquire::controller::discover;
 use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
 use fpm_acquire::{Controller, FocusStage, ManualStage, Progress};
@@ -64,32 +65,32 @@ pub struct AcquireArgs {
     #[arg(long)]
     pub rig: Option<String>,
     /// How long each LED stays lit, ms (the camera exposes within it).
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = defaults::STEP_MS)]
     pub step_ms: f64,
     /// Defocus for calibration, µm toward the LEDs.
-    #[arg(long, default_value_t = 200.0)]
+    #[arg(long, default_value_t = defaults::DEFOCUS_UM)]
     pub defocus_um: f64,
     /// 1σ of the defocus as the stage sets it, µm: h is proportional to the defocus, so
     /// its uncertainty carries this (`--stage virtual` is exact: give 0).
-    #[arg(long, default_value_t = fpm_physics::calibrate::DEFAULT_DEFOCUS_SIGMA_UM)]
+    #[arg(long, default_value_t = defaults::DEFOCUS_SIGMA_UM)]
     pub defocus_sigma_um: f64,
     /// LED colour: a name, `#rrggbb` or `r,g,b` (0–255).
     #[arg(long, default_value = "0,0,255", value_parser = crate::color::parse)]
     pub color: Rgb,
     /// The camera's dark level, counts.
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, default_value_t = defaults::DARK_LEVEL)]
     pub dark_level: f64,
     /// Illumination wavelength, µm.
-    #[arg(long, default_value_t = 0.47)]
+    #[arg(long, default_value_t = defaults::WAVELENGTH_UM)]
     pub wavelength_um: f64,
     /// Objective NA.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = defaults::NA)]
     pub na: f64,
     /// Objective magnification.
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = defaults::MAGNIFICATION)]
     pub magnification: f64,
     /// Camera pixel, µm.
-    #[arg(long, default_value_t = 2.4)]
+    #[arg(long, default_value_t = defaults::PIXEL_UM)]
     pub pixel_um: f64,
     /// The objective's entrance pupil distance above the sample, mm, for objectives
     /// that are not telecentric (see `fpm reconstruct --entrance-pupil-mm`): the
@@ -98,7 +99,7 @@ pub struct AcquireArgs {
     #[arg(long, value_parser = crate::units::positive_mm)]
     pub entrance_pupil_mm: Option<f64>,
     /// EPRY passes after the last frame.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = defaults::PASSES)]
     pub passes: usize,
     /// Tile side of the reconstruction, camera pixels (default: from the physics, the
     /// largest over which one illumination curvature holds; see `fpm reconstruct`).

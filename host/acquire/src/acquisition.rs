@@ -66,6 +66,33 @@ pub struct Plan {
     pub flatten: Flatten,
 }
 
+/// What an acquisition does when nothing else is said: `fpm acquire`'s flags and the
+/// service's requests both start from these.
+pub mod defaults {
+    use fpm_protocol::Rgb;
+
+    /// How long each LED stays lit, ms.
+    pub const STEP_MS: f64 = 40.0;
+    /// Defocus for calibration, µm toward the LEDs.
+    pub const DEFOCUS_UM: f64 = 200.0;
+    /// 1σ of that defocus, µm.
+    pub const DEFOCUS_SIGMA_UM: f64 = fpm_physics::calibrate::DEFAULT_DEFOCUS_SIGMA_UM;
+    /// LED colour.
+    pub const COLOR: Rgb = Rgb { r: 0, g: 0, b: 255 };
+    /// The camera's dark level, counts.
+    pub const DARK_LEVEL: f64 = 100.0;
+    /// Illumination wavelength, µm (blue).
+    pub const WAVELENGTH_UM: f64 = 0.47;
+    /// Objective NA.
+    pub const NA: f64 = 0.1;
+    /// Objective magnification.
+    pub const MAGNIFICATION: f64 = 4.0;
+    /// Camera pixel, µm.
+    pub const PIXEL_UM: f64 = 2.4;
+    /// EPRY passes after the last frame.
+    pub const PASSES: usize = 5;
+}
+
 impl Plan {
     /// Every setting in its range, or an error naming it.
     pub fn validate(&self) -> Result<()> {

@@ -30,6 +30,16 @@ pub struct ChildProcess {
 impl ChildProcess {
     /// Start `command` (named `what` in errors) and wait until it is `ready`.
     pub fn start(mut command: Command, what: &str, ready: Ready<'_>) -> Result<Self> {
+        // The child is told to stop when its parent dies, even by SIGKILL: a rig's
+        // processes never outlive what started them.
+        // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+        unsafe {
+            use std::os::unix::process::CommandExt;
+            command.pre_exec(|| {
+                nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM)
+                    .map_err(std::io::Error::from)
+            });
+        }
         let child = command
             .spawn()
             .with_context(|| format!("starting the {what}"))?;
@@ -210,6 +220,38 @@ impl VirtualCameraProcess {
         Ok(Self {
             process,
             truth_dir: truth_dir.to_path_buf(),
+        })
+    }
+}
+
+/// The whole virtual rig as children: the emulated controller and the virtual camera on
+/// one rig bus (its stage is moved through that bus by whoever opens a
+/// [`crate::stage::VirtualStage`] on it).
+pub struct VirtualRig {
+    /// The bus's name (the camera's too).
+    pub name: String,
+    /// The emulated controller.
+    pub emulator: EmulatorProcess,
+    /// The virtual camera.
+    pub camera: VirtualCameraProcess,
+}
+
+impl VirtualRig {
+    /// Start it from the executable `fpm`, its link and the camera's truth in `dir`, the
+    /// camera with `camera_args` (`--size`, `--seed`, …).
+    pub fn start(fpm: &Path, name: &str, dir: &Path, camera_args: &[&str]) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let emulator = EmulatorProcess::start_at(
+            fpm,
+            &dir.join("controller.tty"),
+            &["--rig", name, "--camera-exposure-us", "2000"],
+            Stdio::null(),
+        )?;
+        let camera = VirtualCameraProcess::start(fpm, name, name, &dir.join("truth"), camera_args)?;
+        Ok(Self {
+            name: name.into(),
+            emulator,
+            camera,
         })
     }
 }

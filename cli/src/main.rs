@@ -14,6 +14,7 @@ mod emulator;
 mod flatten;
 mod progress;
 mod reconstruct;
+mod serve;
 mod shell;
 mod simulate;
 mod units;
@@ -59,6 +60,8 @@ enum Command {
     Acquire(acquire::AcquireArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Run the acquisition service: a local HTTP/JSON API that queues jobs on the rig.
+    Serve(serve::ServeArgs),
     /// Measure performance.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -79,6 +82,7 @@ fn main() -> ExitCode {
         Command::Emulator(_)
             | Command::VirtualCamera(_)
             | Command::Demo(_)
+            | Command::Serve(_)
             | Command::Camera(camera::CameraCommand::Run(_))
     ) {
         // SAFETY: set before any thread exists; the default action only ends the process.
@@ -100,6 +104,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
+        Command::Serve(args) => serve::run(args),
         Command::Bench(cmd) => bench::run(cmd),
         Command::Completions(args) => shell::completions(args),
         Command::Man(args) => shell::man(args),
@@ -120,6 +125,7 @@ fn init_logging(cli: &Cli) {
         (
             Command::Emulator(_)
             | Command::VirtualCamera(_)
+            | Command::Serve(_)
             | Command::Camera(camera::CameraCommand::Run(_)),
             0,
         ) => "info",

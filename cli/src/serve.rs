@@ -1,0 +1,128 @@
+//! `fpm serve`: the acquisition service on this machine's rig, or on a virtual rig it
+//! starts itself (`--virtual`).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use fpm_acquire::controller::discover;
+use fpm_acquire::{FocusStage, ManualStage};
+use fpm_frames::ServiceNames;
+use fpm_rig::process::VirtualRig;
+use fpm_rig::stage::VirtualStage;
+use fpm_serve::{Config, Rig, StageFactory, DEFAULT_PORT};
+
+use crate::acquire::StageKind;
+
+/// Run the acquisition service: a local HTTP/JSON API (OpenAPI at /openapi.json) that
+/// queues jobs on the rig, with an event stream of their progress.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Where to listen (loopback unless --public; port 0 picks a free one).
+    #[arg(long, default_value_t = SocketAddr::from(([127, 0, 0, 1], DEFAULT_PORT)))]
+    pub listen: SocketAddr,
+    /// Allow a non-loopback --listen address (every request then needs the token as
+    /// well).
+    #[arg(long)]
+    pub public: bool,
+    /// Where the job database and the token live (default: $XDG_STATE_HOME/fpm, else
+    /// ~/.local/state/fpm).
+    #[arg(long)]
+    pub state_dir: Option<PathBuf>,
+    /// Start a virtual rig (emulated controller, virtual camera, virtual stage) as this
+    /// service's children, stopped with it.
+    #[arg(long, conflicts_with_all = ["port", "frames", "rig"])]
+    pub r#virtual: bool,
+    /// With --virtual: the virtual camera's sensor side, pixels.
+    #[arg(long, default_value_t = 256, requires = "virtual")]
+    pub virtual_size: usize,
+    /// The LED controller's serial port (omitted: the one board connected).
+    #[arg(long, env = "FPM_PORT")]
+    pub port: Option<String>,
+    /// The camera whose frames to take (`fpm/camera/<NAME>/frames` on iceoryx2).
+    #[arg(long, default_value = "0")]
+    pub frames: String,
+    /// How the focus stage moves for calibration.
+    #[arg(long, value_enum, default_value_t = StageKind::Manual)]
+    pub stage: StageKind,
+    /// The virtual rig whose stage to move (with `--stage virtual`).
+    #[arg(long)]
+    pub rig: Option<String>,
+}
+
+/// Run `fpm serve`.
+pub fn run(a: ServeArgs) -> Result<()> {
+    let state_dir = match &a.state_dir {
+        Some(d) => d.clone(),
+        None => default_state_dir()?,
+    };
+    // The virtual rig's processes live as long as this one (and die with it).
+    let mut virtual_rig = None;
+    let rig = if a.r#virtual {
+        let fpm = std::env::current_exe().context("locating the fpm executable")?;
+        let name = format!("serve-{}", std::process::id());
+        let size = a.virtual_size.to_string();
+        let started = VirtualRig::start(
+            &fpm,
+            &name,
+            &state_dir.join("virtual-rig"),
+            &["--size", &size],
+        )?;
+        let rig = Rig {
+            port: started.emulator.port(),
+            camera: ServiceNames::for_camera(&name),
+            stage: virtual_stage(name.clone()),
+            description: format!(
+                "virtual rig {name}: emulated controller, virtual {size}² camera, virtual stage"
+            ),
+        };
+        virtual_rig = Some(started);
+        rig
+    } else {
+        let port = match &a.port {
+            Some(p) => p.clone(),
+            None => discover::the_only_board(std::time::Duration::from_secs(2))
+                .map_err(anyhow::Error::msg)?,
+        };
+        let stage: StageFactory = match (a.stage, a.rig.clone()) {
+            (StageKind::Manual, _) => Box::new(|| Ok(Box::new(ManualStage) as Box<dyn FocusStage>)),
+            (StageKind::Virtual, Some(rig)) => virtual_stage(rig),
+            (StageKind::Virtual, None) => anyhow::bail!("--stage virtual needs --rig NAME"),
+        };
+        Rig {
+            description: format!("controller on {port}, camera {}", a.frames),
+            port,
+            camera: ServiceNames::for_camera(&a.frames),
+            stage,
+        }
+    };
+    let config = Config {
+        listen: a.listen,
+        state_dir,
+        public: a.public,
+    };
+    fpm_serve::serve(config, rig, |started| {
+        println!("fpm serve: listening on http://{}", started.address);
+        println!(
+            "token (for requests that change the rig): {}",
+            started.token_file.display()
+        );
+    })?;
+    drop(virtual_rig);
+    Ok(())
+}
+
+fn virtual_stage(rig: String) -> StageFactory {
+    Box::new(move || Ok(Box::new(VirtualStage::open(&rig)?) as Box<dyn FocusStage>))
+}
+
+/// $XDG_STATE_HOME/fpm, else ~/.local/state/fpm.
+fn default_state_dir() -> Result<PathBuf> {
+    if let Some(d) = std::env::var_os("XDG_STATE_HOME").filter(|d| !d.is_empty()) {
+        return Ok(PathBuf::from(d).join("fpm"));
+    }
+    let home = std::env::var_os("HOME")
+        .context("no HOME to keep the service's state in; give --state-dir")?;
+    Ok(PathBuf::from(home).join(".local/state/fpm"))
+}

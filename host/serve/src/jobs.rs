@@ -1,0 +1,209 @@
+//! What a client may ask the service to do: the job requests, with the same defaults
+//! and ranges as the CLI's flags (`fpm_acquire::acquisition::defaults`, `Plan::validate`).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+use fpm_acquire::acquisition::{defaults, Plan};
+use fpm_frames::ServiceNames;
+use fpm_physics::reconstruct::Flatten;
+use fpm_physics::System;
+use fpm_protocol::Rgb;
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+/// A job to queue.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum JobRequest {
+    /// Acquire a dataset (as `fpm acquire`): optionally calibrate first and
+    /// reconstruct while the frames arrive.
+    Acquire(AcquireRequest),
+}
+
+impl JobRequest {
+    /// Read a request from its JSON body; what is wrong is named by its field's path
+    /// (`passes: invalid type: string "five", expected usize`).
+    pub fn parse(body: &[u8]) -> Result<Self, String> {
+        let mut value: serde_json::Value =
+            serde_json::from_slice(body).map_err(|e| format!("not a JSON request: {e}"))?;
+        let fields = value
+            .as_object_mut()
+            .ok_or("a job request is a JSON object with a \"kind\"")?;
+        let kind = match fields.remove("kind") {
+            Some(serde_json::Value::String(k)) => k,
+            Some(other) => return Err(format!("kind {other}: give \"acquire\"")),
+            None => return Err("kind: missing; give \"acquire\"".into()),
+        };
+        let named = |e: serde_path_to_error::Error<serde_json::Error>| {
+            let path = e.path().to_string();
+            match path.as_str() {
+                "." => e.inner().to_string(),
+                _ => format!("{path}: {}", e.inner()),
+            }
+        };
+        match kind.as_str() {
+            "acquire" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Acquire)
+                .map_err(named),
+            other => Err(format!("kind \"{other}\": unknown; give \"acquire\"")),
+        }
+    }
+
+    /// The kind, as the job list shows it.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            JobRequest::Acquire(_) => "acquire",
+        }
+    }
+
+    /// Where the job writes.
+    pub fn out(&self) -> &std::path::Path {
+        match self {
+            JobRequest::Acquire(a) => &a.out,
+        }
+    }
+}
+
+/// `fpm acquire` as a request: every field but `out` may be left out (the CLI's
+/// defaults).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct AcquireRequest {
+    /// Output directory (absolute): dataset.toml + frames/, acquisition.json, the
+    /// calibration and the reconstruction. It must not already hold a dataset.
+    #[schema(value_type = String)]
+    pub out: PathBuf,
+    /// Calibrate the LED array first (pdcFPM).
+    #[serde(default)]
+    pub calibrate: bool,
+    /// Store the calibration on the controller.
+    #[serde(default)]
+    pub store_geometry: bool,
+    /// Reconstruct while the frames arrive.
+    #[serde(default)]
+    pub reconstruct: bool,
+    /// How long each LED stays lit, ms.
+    #[serde(default = "step_ms")]
+    pub step_ms: f64,
+    /// Defocus for calibration, µm toward the LEDs.
+    #[serde(default = "defocus_um")]
+    pub defocus_um: f64,
+    /// 1σ of that defocus, µm.
+    #[serde(default = "defocus_sigma_um")]
+    pub defocus_sigma_um: f64,
+    /// LED colour, [r, g, b] (0–255).
+    #[serde(default = "color")]
+    pub color: [u8; 3],
+    /// The camera's dark level, counts.
+    #[serde(default = "dark_level")]
+    pub dark_level: f64,
+    /// Illumination wavelength, µm.
+    #[serde(default = "wavelength_um")]
+    pub wavelength_um: f64,
+    /// Objective NA.
+    #[serde(default = "na")]
+    pub na: f64,
+    /// Objective magnification.
+    #[serde(default = "magnification")]
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    #[serde(default = "pixel_um")]
+    pub pixel_um: f64,
+    /// The objective's entrance pupil distance above the sample, mm (absent:
+    /// telecentric).
+    #[serde(default)]
+    pub entrance_pupil_mm: Option<f64>,
+    /// EPRY passes after the last frame.
+    #[serde(default = "passes")]
+    pub passes: usize,
+    /// Tile side, camera pixels (absent: from the physics).
+    #[serde(default)]
+    pub tile: Option<usize>,
+    /// Take the clear background's low-order phase off.
+    #[serde(default)]
+    pub flatten_background: bool,
+}
+
+fn step_ms() -> f64 {
+    defaults::STEP_MS
+}
+fn defocus_um() -> f64 {
+    defaults::DEFOCUS_UM
+}
+fn defocus_sigma_um() -> f64 {
+    defaults::DEFOCUS_SIGMA_UM
+}
+fn color() -> [u8; 3] {
+    let c = defaults::COLOR;
+    [c.r, c.g, c.b]
+}
+fn dark_level() -> f64 {
+    defaults::DARK_LEVEL
+}
+fn wavelength_um() -> f64 {
+    defaults::WAVELENGTH_UM
+}
+fn na() -> f64 {
+    defaults::NA
+}
+fn magnification() -> f64 {
+    defaults::MAGNIFICATION
+}
+fn pixel_um() -> f64 {
+    defaults::PIXEL_UM
+}
+fn passes() -> usize {
+    defaults::PASSES
+}
+
+impl AcquireRequest {
+    /// The acquisition's plan on camera `camera`, checked: a field out of its range is
+    /// named (as the CLI names its flag, without the dashes).
+    pub fn plan(&self, camera: &ServiceNames) -> Result<Plan> {
+        if !self.out.is_absolute() {
+            bail!(
+                "out {}: give an absolute path (the service's working directory is not the client's)",
+                self.out.display()
+            );
+        }
+        if self.store_geometry && !self.calibrate {
+            bail!("store_geometry needs calibrate");
+        }
+        if self.out.join("dataset.toml").exists() {
+            bail!(
+                "out {}: already holds a dataset; pick another directory",
+                self.out.display()
+            );
+        }
+        let [r, g, b] = self.color;
+        let plan = Plan {
+            camera: camera.clone(),
+            out: self.out.clone(),
+            calibrate: self.calibrate,
+            store_geometry: self.store_geometry,
+            reconstruct: self.reconstruct,
+            step_ms: self.step_ms,
+            defocus_um: self.defocus_um,
+            defocus_sigma_um: self.defocus_sigma_um,
+            color: Rgb { r, g, b },
+            dark_level: self.dark_level,
+            system: System {
+                wavelength_um: self.wavelength_um,
+                na: self.na,
+                magnification: self.magnification,
+                pixel_size_um: self.pixel_um,
+                entrance_pupil_mm: self.entrance_pupil_mm,
+            },
+            passes: self.passes,
+            tile: self.tile,
+            flatten: if self.flatten_background {
+                Flatten::Auto
+            } else {
+                Flatten::Keep
+            },
+        };
+        plan.validate()?;
+        Ok(plan)
+    }
+}

@@ -1,0 +1,124 @@
+//! # fpm-serve
+//!
+//! The acquisition service: one long-lived process owns the rig (controller, camera,
+//! focus stage), runs jobs from a queue one at a time, keeps their history in SQLite,
+//! and answers an HTTP/JSON API on 127.0.0.1 with its OpenAPI document and a
+//! server-sent event stream of progress. The acquisition itself is
+//! `fpm_acquire`'s sans-IO state machine, driven by its usual loop on the worker
+//! thread; this crate is only the edges around it:
+//!
+//! * [`store`]: the jobs and their state transitions in a SQLite file (WAL);
+//! * [`worker`]: the thread that owns the rig and runs one job at a time, with cancel;
+//! * [`api`]: the HTTP routes, their checks (token, Host, Origin) and the OpenAPI
+//!   document;
+//! * [`serve`]: all of it on a tokio runtime until SIGINT/SIGTERM.
+
+pub mod api;
+pub mod jobs;
+pub mod store;
+pub mod worker;
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Context, Result};
+use fpm_acquire::FocusStage;
+use fpm_frames::ServiceNames;
+
+/// The port `fpm serve` listens on unless told otherwise.
+pub const DEFAULT_PORT: u16 = 8737;
+
+/// Makes the focus stage on the worker thread (iceoryx2 ports stay on the thread that
+/// made them, so the stage is made where it is used).
+pub type StageFactory = Box<dyn Fn() -> Result<Box<dyn FocusStage>> + Send + Sync>;
+
+/// The rig the service owns.
+pub struct Rig {
+    /// The LED controller's serial port.
+    pub port: String,
+    /// The camera whose frames to take.
+    pub camera: ServiceNames,
+    /// How to make the focus stage.
+    pub stage: StageFactory,
+    /// What the rig is, in words, for `GET /api/status`.
+    pub description: String,
+}
+
+/// How the service runs.
+pub struct Config {
+    /// Where it listens (127.0.0.1 unless a user asks otherwise).
+    pub listen: SocketAddr,
+    /// Where the job database and the token live.
+    pub state_dir: PathBuf,
+    /// Allow an address other than loopback (`--public`).
+    pub public: bool,
+}
+
+/// What a started service tells its front end.
+pub struct Started<'a> {
+    /// The address it listens on (the port resolved when 0 was asked for).
+    pub address: SocketAddr,
+    /// The file holding the token that requests changing the rig must carry.
+    pub token_file: &'a Path,
+}
+
+/// Run the service until SIGINT or SIGTERM: `on_started` once it listens.
+pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> Result<()> {
+    if !config.listen.ip().is_loopback() && !config.public {
+        bail!(
+            "{}: not a loopback address; the service listens on 127.0.0.1 unless --public is given (then every request needs the token)",
+            config.listen
+        );
+    }
+    std::fs::create_dir_all(&config.state_dir)
+        .with_context(|| format!("creating {}", config.state_dir.display()))?;
+    let store = store::Store::open(&config.state_dir.join("jobs.sqlite"))?;
+    let token = api::Token::create(&config.state_dir.join("token"))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the service's runtime")?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(config.listen)
+            .await
+            .with_context(|| format!("listening on {}", config.listen))?;
+        let address = listener.local_addr()?;
+        let shared = Arc::new(worker::Shared::new(store, rig.description.clone()));
+        let worker = worker::Worker::start(shared.clone(), rig)?;
+        let state = api::State {
+            shared: shared.clone(),
+            worker: worker.handle(),
+            token: Arc::new(token),
+            address,
+        };
+        on_started(Started {
+            address,
+            token_file: &state.token.path,
+        });
+        let app = api::router(state);
+        axum::serve(listener, app)
+            .with_graceful_shutdown(shutdown_signal())
+            .await
+            .context("serving")?;
+        tracing::info!("stopping: the running job is cancelled, its frames so far written");
+        worker.stop();
+        Ok(())
+    })
+}
+
+/// SIGINT or SIGTERM.
+async fn shutdown_signal() {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (Ok(mut int), Ok(mut term)) = (
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::terminate()),
+    ) else {
+        return std::future::pending().await;
+    };
+    tokio::select! {
+        _ = int.recv() => {}
+        _ = term.recv() => {}
+    }
+}

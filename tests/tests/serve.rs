@@ -1,0 +1,350 @@
+//! `fpm serve --virtual` as a real process: the service starts its own virtual rig,
+//! listens on 127.0.0.1, queues acquisitions from HTTP requests and runs them one at a
+//! time, cancels one mid-sequence, refuses bad requests naming what is wrong, and keeps
+//! its job history in SQLite across a restart.
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use fpm_host::dataset::Dataset;
+use fpm_tests::http::{request, Response};
+use fpm_tests::{fpm_bin, TempDir};
+
+/// A running `fpm serve --virtual`, killed on drop.
+struct Service {
+    child: Child,
+    address: SocketAddr,
+    token: String,
+}
+
+impl Service {
+    fn start(state: &Path) -> Self {
+        let mut child = Command::new(fpm_bin())
+            .args([
+                "serve",
+                "--virtual",
+                "--virtual-size",
+                "64",
+                "--listen",
+                "127.0.0.1:0",
+            ])
+            .arg("--state-dir")
+            .arg(state)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+        let first = lines.next().expect("the service's first line").unwrap();
+        let address = first
+            .strip_prefix("fpm serve: listening on http://")
+            .unwrap_or_else(|| panic!("{first}"))
+            .parse()
+            .unwrap();
+        let token = std::fs::read_to_string(state.join("token")).unwrap();
+        Self {
+            child,
+            address,
+            token,
+        }
+    }
+
+    fn get(&self, path: &str) -> Response {
+        request(self.address, "GET", path, &[], None)
+    }
+
+    fn post(&self, path: &str, body: Option<&str>) -> Response {
+        let auth = format!("Bearer {}", self.token);
+        request(
+            self.address,
+            "POST",
+            path,
+            &[("Authorization", &auth)],
+            body,
+        )
+    }
+
+    /// Job `id` once it has ended (within `timeout`).
+    fn wait(&self, id: i64, timeout: Duration) -> serde_json::Value {
+        let start = Instant::now();
+        loop {
+            let job = self.get(&format!("/api/jobs/{id}")).json();
+            if !matches!(job["state"].as_str(), Some("queued" | "running")) {
+                return job;
+            }
+            assert!(start.elapsed() < timeout, "job {id} still {}", job["state"]);
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Service {
+    /// SIGKILL, as a crash or the OOM killer would.
+    fn kill(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let _ = self.child.wait();
+    }
+}
+
+fn acquire(out: &Path) -> String {
+    serde_json::json!({"kind": "acquire", "out": out, "step_ms": 15.0}).to_string()
+}
+
+#[test]
+fn jobs_queue_run_cancel_and_survive_a_restart() {
+    let dir = TempDir::new("serve");
+    let state = dir.0.join("state");
+    let service = Service::start(&state);
+    let status = service.get("/api/status").json();
+    assert!(
+        status["rig"].as_str().unwrap().contains("virtual rig"),
+        "{status}"
+    );
+
+    // Two acquisitions queued at once run one after the other; the second is
+    // cancelled while its sequence runs.
+    let first = service.post("/api/jobs", Some(&acquire(&dir.0.join("a"))));
+    assert_eq!(first.status, 202, "{}", first.body);
+    let second = service.post("/api/jobs", Some(&acquire(&dir.0.join("b"))));
+    assert_eq!(second.status, 202, "{}", second.body);
+    let (a, b) = (
+        first.json()["id"].as_i64().unwrap(),
+        second.json()["id"].as_i64().unwrap(),
+    );
+    let job = service.wait(a, Duration::from_secs(120));
+    assert_eq!(job["state"], "done", "{job}");
+    assert_eq!(job["summary"]["frames_in_dataset"], 441, "{job}");
+    assert_eq!(Dataset::load(&dir.0.join("a")).unwrap().frames.len(), 441);
+    // The second is on the rig now: cancel it a second into its sequence.
+    let start = Instant::now();
+    while service.get("/api/status").json()["running"].as_i64() != Some(b) {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "job {b} never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    let asked = Instant::now();
+    let cancelled = service.post(&format!("/api/jobs/{b}/cancel"), None);
+    assert_eq!(cancelled.status, 202, "{}", cancelled.body);
+    let job = service.wait(b, Duration::from_secs(30));
+    let took = asked.elapsed();
+    assert_eq!(job["state"], "cancelled", "{job}");
+    assert!(
+        job["error"]
+            .as_str()
+            .unwrap()
+            .contains("cancelled by the user"),
+        "{job}"
+    );
+    let kept = job["summary"]["frames_in_dataset"].as_u64().unwrap() as usize;
+    assert!(kept > 0 && kept < 441, "{job}");
+    assert_eq!(Dataset::load(&dir.0.join("b")).unwrap().frames.len(), kept);
+    eprintln!("cancel → job ended (frames written) in {took:?}");
+    // Cancelling an ended job is a conflict; an unknown one is not found.
+    assert_eq!(
+        service.post(&format!("/api/jobs/{a}/cancel"), None).status,
+        409
+    );
+    assert_eq!(service.post("/api/jobs/999/cancel", None).status, 404);
+
+    // Bad requests are refused naming what is wrong, and queue nothing.
+    let out = dir.0.join("c");
+    let bad = [
+        (r#"{"kind": "acquire""#.to_string(), "EOF"),
+        (r#"{"kind": "acquire"}"#.to_string(), "out"),
+        (r#"{"kind": "scan", "out": "/tmp/x"}"#.to_string(), "scan"),
+        (
+            serde_json::json!({"kind": "acquire", "out": out, "step_ms": 0.0}).to_string(),
+            "step_ms",
+        ),
+        (
+            serde_json::json!({"kind": "acquire", "out": out, "na": 2.0}).to_string(),
+            "na",
+        ),
+        (
+            serde_json::json!({"kind": "acquire", "out": out, "passes": "five"}).to_string(),
+            "passes",
+        ),
+        (
+            serde_json::json!({"kind": "acquire", "out": out, "stepms": 5}).to_string(),
+            "stepms",
+        ),
+        (
+            serde_json::json!({"kind": "acquire", "out": "relative/dir"}).to_string(),
+            "absolute",
+        ),
+        (
+            serde_json::json!({"kind": "acquire", "out": dir.0.join("a")}).to_string(),
+            "already holds a dataset",
+        ),
+    ];
+    for (body, names) in &bad {
+        let r = service.post("/api/jobs", Some(body));
+        assert_eq!(r.status, 400, "{body}: {}", r.body);
+        assert!(
+            r.body.contains(names),
+            "{body}: {} does not name {names}",
+            r.body
+        );
+    }
+    let huge = format!(r#"{{"kind": "acquire", "out": "{}"}}"#, "x".repeat(100_000));
+    assert_eq!(service.post("/api/jobs", Some(&huge)).status, 413);
+    // Without the token, from another site, or under another host name: refused.
+    let r = request(
+        service.address,
+        "POST",
+        "/api/jobs",
+        &[],
+        Some(&acquire(&out)),
+    );
+    assert_eq!(r.status, 401, "{}", r.body);
+    assert!(r.body.contains("token"), "{}", r.body);
+    let auth = format!("Bearer {}", service.token);
+    let evil = [
+        ("Authorization", auth.as_str()),
+        ("Origin", "http://evil.example"),
+    ];
+    assert_eq!(
+        request(
+            service.address,
+            "POST",
+            "/api/jobs",
+            &evil,
+            Some(&acquire(&out))
+        )
+        .status,
+        403
+    );
+    let rebound = request(
+        service.address,
+        "GET",
+        "/api/status",
+        &[("Host", "evil.example")],
+        None,
+    );
+    assert_eq!(rebound.status, 403, "{}", rebound.body);
+    assert_eq!(service.get("/api/jobs/999").status, 404);
+    let jobs = service.get("/api/jobs").json();
+    assert_eq!(jobs.as_array().unwrap().len(), 2, "{jobs}");
+
+    // The OpenAPI document describes the routes.
+    let doc = service.get("/openapi.json").json();
+    for path in [
+        "/api/status",
+        "/api/jobs",
+        "/api/jobs/{id}",
+        "/api/jobs/{id}/cancel",
+        "/api/events",
+    ] {
+        assert!(
+            doc["paths"][path].is_object(),
+            "{path} missing from the OpenAPI document"
+        );
+    }
+
+    // The event stream: a job queued now is seen moving through its states, its
+    // progress counting frames up to the whole array.
+    let events = events(service.address);
+    let c = service
+        .post("/api/jobs", Some(&acquire(&dir.0.join("c"))))
+        .json()["id"]
+        .as_i64()
+        .unwrap();
+    let (mut states, mut frames) = (vec![], vec![]);
+    for line in events {
+        let Some(data) = line.strip_prefix("data:") else {
+            continue;
+        };
+        let event: serde_json::Value = serde_json::from_str(data.trim()).unwrap();
+        if event["job"] != c {
+            continue;
+        }
+        match event["event"].as_str() {
+            Some("state") => states.push(event["state"].as_str().unwrap().to_string()),
+            Some("progress") => frames.push(event["progress"]["frames"].as_u64().unwrap()),
+            other => panic!("an event of no known kind: {other:?}"),
+        }
+        if states
+            .last()
+            .is_some_and(|s| s != "queued" && s != "running")
+        {
+            break;
+        }
+    }
+    assert_eq!(states, ["queued", "running", "done"]);
+    assert!(
+        frames.windows(2).all(|w| w[0] <= w[1]),
+        "frames counted down"
+    );
+    assert_eq!(frames.last(), Some(&441));
+
+    // Killed (SIGKILL) mid-acquisition: its virtual rig dies with it, and a new
+    // service on the same state directory knows every job, the one it was running
+    // marked interrupted.
+    let d = service
+        .post("/api/jobs", Some(&acquire(&dir.0.join("d"))))
+        .json()["id"]
+        .as_i64()
+        .unwrap();
+    let start = Instant::now();
+    while service.get("/api/status").json()["running"].as_i64() != Some(d) {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "job {d} never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let link = state.join("virtual-rig/controller.tty");
+    assert!(link.exists());
+    service.kill();
+    let start = Instant::now();
+    while link.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "the emulator outlived the service killed by SIGKILL"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let service = Service::start(&state);
+    let job = service.get(&format!("/api/jobs/{d}")).json();
+    assert_eq!(job["state"], "interrupted", "{job}");
+    assert!(
+        job["error"].as_str().unwrap().contains("queue it again"),
+        "{job}"
+    );
+    for (id, state) in [(a, "done"), (b, "cancelled"), (c, "done")] {
+        assert_eq!(
+            service.get(&format!("/api/jobs/{id}")).json()["state"],
+            state
+        );
+    }
+}
+
+/// The lines of `GET /api/events` as they come (the stream ends the test's way: by
+/// the caller stopping to read).
+fn events(address: SocketAddr) -> impl Iterator<Item = String> {
+    use std::io::Write;
+    let mut stream = std::net::TcpStream::connect(address).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    write!(
+        stream,
+        "GET /api/events HTTP/1.1\r\nHost: {address}\r\nAccept: text/event-stream\r\n\r\n"
+    )
+    .unwrap();
+    BufReader::new(stream).lines().map_while(Result::ok)
+}

@@ -118,7 +118,6 @@ pub fn acquire(
     };
     let nominal = rig.nominal;
     let mut acq = Acquisition::new(plan.clone(), rig)?;
-    let (out, system) = (&plan.out, &plan.system);
     loop {
         if cancel.load(Ordering::SeqCst) && !acq.progress().cancelled {
             acq.handle(Event::Cancel);
@@ -142,50 +141,11 @@ pub fn acquire(
                 };
                 Event::SequenceEnded(capture(dev, &plan.camera, &sequence, cancel, &mut on_frame))
             }
-            Action::WriteDataset(dataset) => {
-                dataset.save()?;
-                Event::Done
-            }
-            Action::WriteCalibration {
-                calibration,
-                options,
-            } => {
-                let json = serde_json::to_string_pretty(calibration)?;
-                std::fs::write(out.join("calibration.json"), json)?;
-                page::calibration(calibration, system, options, out);
-                Event::Done
-            }
-            Action::StoreOnBoard { nominal } => {
-                let file = out.join("calibration.json");
-                let record = board_geometry::from_calibration_file(&file, nominal)?;
-                let stored = dev
-                    .store_calibration(Some(record))
-                    .context("storing the calibration on the board")?;
-                let stored = board_geometry::describe_stored(&stored);
-                tracing::info!("stored on the board: {stored}");
-                Event::Done
-            }
-            Action::WriteReconstruction {
-                reconstruction: r,
-                dataset,
-                upsample,
-            } => {
-                // A simulated rig's truth beside the dataset scores the image (an extra).
-                r.report.versus_truth =
-                    fpm_host::truth::score_reconstruction(dataset, &r.object, upsample);
-                let dir = out.join("reconstruction");
-                fpm_host::reconstruction::write_outputs(r, &dir)?;
-                fpm_report::preview::reconstruction(r, &dir)?;
-                page::reconstruction(r, system, &nominal, out);
-                Event::Done
-            }
-            Action::WriteSummary { summary, failure } => {
-                let json = serde_json::to_string_pretty(summary)?;
-                std::fs::write(out.join("acquisition.json"), json)?;
-                page::acquisition(summary, system, failure, out);
-                Event::Done
-            }
             Action::Finished(result) => return *result,
+            write => {
+                write_out(write, dev, plan, &nominal)?;
+                Event::Done
+            }
         };
         // A cancel that came while the action ran is the machine's to know before the
         // action's outcome: a sequence aborted by it is not then retaken.
@@ -194,4 +154,56 @@ pub fn acquire(
         }
         acq.handle(event);
     }
+}
+
+/// Carry out one of the machine's writes (and its one board request) in `plan.out`.
+fn write_out(
+    action: Action<'_>,
+    dev: &Controller,
+    plan: &Plan,
+    nominal: &LedGeometry,
+) -> Result<()> {
+    let (out, system) = (&plan.out, &plan.system);
+    match action {
+        Action::WriteDataset(dataset) => dataset.save()?,
+        Action::WriteCalibration {
+            calibration,
+            options,
+        } => {
+            let json = serde_json::to_string_pretty(calibration)?;
+            std::fs::write(out.join("calibration.json"), json)?;
+            page::calibration(calibration, system, options, out);
+        }
+        Action::StoreOnBoard { nominal } => {
+            let file = out.join("calibration.json");
+            let record = board_geometry::from_calibration_file(&file, nominal)?;
+            let stored = dev
+                .store_calibration(Some(record))
+                .context("storing the calibration on the board")?;
+            let stored = board_geometry::describe_stored(&stored);
+            tracing::info!("stored on the board: {stored}");
+        }
+        Action::WriteReconstruction {
+            reconstruction: r,
+            dataset,
+            upsample,
+        } => {
+            // A simulated rig's truth beside the dataset scores the image (an extra).
+            r.report.versus_truth =
+                fpm_host::truth::score_reconstruction(dataset, &r.object, upsample);
+            let dir = out.join("reconstruction");
+            fpm_host::reconstruction::write_outputs(r, &dir)?;
+            fpm_report::preview::reconstruction(r, &dir)?;
+            page::reconstruction(r, system, nominal, out);
+        }
+        Action::WriteSummary { summary, failure } => {
+            let json = serde_json::to_string_pretty(summary)?;
+            std::fs::write(out.join("acquisition.json"), json)?;
+            page::acquisition(summary, system, failure, out);
+        }
+        Action::MoveStage(_) | Action::RunSequence { .. } | Action::Finished(_) => {
+            bail!("the acquisition asked for a write that is not one")
+        }
+    }
+    Ok(())
 }

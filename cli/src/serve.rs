@@ -1,6 +1,7 @@
 //! `fpm serve`: the acquisition service on this machine's rig, or on a virtual rig it
 //! starts itself (`--virtual`).
 
+use std::io::Write;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -103,11 +104,15 @@ pub fn run(a: ServeArgs) -> Result<()> {
         public: a.public,
     };
     fpm_serve::serve(config, rig, |started| {
-        println!("fpm serve: listening on http://{}", started.address);
-        println!(
-            "token (for requests that change the rig): {}",
+        // One write, and a closed stdout (a launcher that read the first line and
+        // went) is no reason for the service to stop.
+        let text = format!(
+            "fpm serve: listening on http://{}\ntoken (for requests that change the rig): {}\n",
+            started.address,
             started.token_file.display()
         );
+        let mut stdout = std::io::stdout();
+        let _ = stdout.write_all(text.as_bytes()).and_then(|()| stdout.flush());
     })?;
     drop(virtual_rig);
     Ok(())

@@ -348,3 +348,180 @@ fn events(address: SocketAddr) -> impl Iterator<Item = String> {
     .unwrap();
     BufReader::new(stream).lines().map_while(Result::ok)
 }
+
+/// 10⁴ generated bad requests from four clients while an acquisition runs: every one
+/// gets a 4xx and queues nothing, and the acquisition finishes with every LED's frame
+/// (the pairing relabelled none).
+#[test]
+fn bad_requests_during_an_acquisition_change_nothing() {
+    use rand::SeedableRng;
+    let dir = TempDir::new("serve-storm");
+    let service = Service::start(&dir.0.join("state"));
+    let out = dir.0.join("field");
+    let first = service.post("/api/jobs", Some(&acquire(&out)));
+    assert_eq!(first.status, 202, "{}", first.body);
+    let job = first.json()["id"].as_i64().unwrap();
+    let (address, token) = (service.address, service.token.clone());
+    let count = std::env::var("FPM_SERVE_BAD_REQUESTS")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(10_000usize);
+    let outcomes: Vec<Vec<(u16, String)>> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..4u64)
+            .map(|w| {
+                let (token, out) = (token.clone(), out.clone());
+                s.spawn(move || {
+                    let mut rng = rand::rngs::StdRng::seed_from_u64(w);
+                    (0..count / 4)
+                        .map(|_| bad_request(&mut rng, address, &token, &out))
+                        .collect()
+                })
+            })
+            .collect();
+        workers.into_iter().map(|w| w.join().unwrap()).collect()
+    });
+    let all: Vec<&(u16, String)> = outcomes.iter().flatten().collect();
+    let accepted: Vec<_> = all
+        .iter()
+        .filter(|(s, _)| !(400..500).contains(s))
+        .collect();
+    assert!(
+        accepted.is_empty(),
+        "not refused: {:?}",
+        &accepted[..accepted.len().min(5)]
+    );
+    let record = service.wait(job, Duration::from_secs(180));
+    assert_eq!(record["state"], "done", "{record}");
+    assert_eq!(record["summary"]["frames_in_dataset"], 441, "{record}");
+    assert_eq!(record["summary"]["capture"]["relabelled"], 0, "{record}");
+    assert_eq!(service.get("/api/jobs").json().as_array().unwrap().len(), 1);
+    let mut statuses: Vec<u16> = all.iter().map(|(s, _)| *s).collect();
+    statuses.sort();
+    statuses.dedup();
+    eprintln!("{} bad requests refused with {statuses:?}", all.len());
+}
+
+/// One generated bad request (status, what was sent, for the failure message).
+fn bad_request(
+    rng: &mut impl rand::Rng,
+    address: SocketAddr,
+    token: &str,
+    out: &Path,
+) -> (u16, String) {
+    let auth = format!("Bearer {token}");
+    let good = serde_json::json!({"kind": "acquire", "out": out.join("x"), "step_ms": 15.0});
+    // Per field, values wrong for it: of another type, or out of its range.
+    let wrong_types = [
+        serde_json::json!("text"),
+        serde_json::json!([1, 2]),
+        serde_json::json!({"a": 1}),
+        serde_json::json!(true),
+    ];
+    let out_of_range: [(&str, &[f64]); 11] = [
+        ("step_ms", &[0.0, -1.0, 1e300]),
+        ("defocus_um", &[1e300, -2e4]),
+        ("defocus_sigma_um", &[-1.0]),
+        ("dark_level", &[]),
+        ("wavelength_um", &[0.0, -1.0, 1e300]),
+        ("na", &[0.0, -1.0, 2.0]),
+        ("magnification", &[0.0, -1.0]),
+        ("pixel_um", &[0.0, -1.0]),
+        ("passes", &[0.0, -5.0, 1e300]),
+        ("tile", &[0.0, 5.0, 1e300]),
+        ("entrance_pupil_mm", &[0.0, -1.0]),
+    ];
+    let mut body = good.clone();
+    let (path, headers, text): (String, Vec<(&str, String)>, String) = match rng.gen_range(0..10) {
+        // A field of the wrong type or out of its range.
+        0..=3 => {
+            let (field, numbers) = out_of_range[rng.gen_range(0..out_of_range.len())];
+            body[field] = match numbers.len() {
+                n if n > 0 && rng.gen_bool(0.5) => serde_json::json!(numbers[rng.gen_range(0..n)]),
+                _ => wrong_types[rng.gen_range(0..wrong_types.len())].clone(),
+            };
+            (
+                "/api/jobs".into(),
+                vec![("Authorization", auth)],
+                body.to_string(),
+            )
+        }
+        // Unknown fields, kinds, missing or relative `out`.
+        4 => {
+            match rng.gen_range(0..4) {
+                0 => body["unknown_field"] = serde_json::json!(1),
+                1 => body["kind"] = serde_json::json!("scan"),
+                2 => {
+                    body.as_object_mut().unwrap().remove("out");
+                }
+                _ => body["out"] = serde_json::json!("relative/dir"),
+            }
+            (
+                "/api/jobs".into(),
+                vec![("Authorization", auth)],
+                body.to_string(),
+            )
+        }
+        // Broken JSON: truncated, or random bytes.
+        5 => {
+            let text = body.to_string();
+            let cut = rng.gen_range(0..text.len());
+            let text = if rng.gen_bool(0.5) {
+                text[..cut].to_string()
+            } else {
+                (0..rng.gen_range(1..200))
+                    .map(|_| rng.gen_range(32u8..127) as char)
+                    .collect()
+            };
+            ("/api/jobs".into(), vec![("Authorization", auth)], text)
+        }
+        // The good request without the token, with a wrong one, from another site,
+        // under another host name.
+        6 => {
+            let headers = match rng.gen_range(0..4) {
+                0 => vec![],
+                1 => vec![("Authorization", "Bearer 0000".to_string())],
+                2 => vec![
+                    ("Authorization", auth),
+                    ("Origin", "http://evil.example".into()),
+                ],
+                _ => vec![("Authorization", auth), ("Host", "evil.example".into())],
+            };
+            ("/api/jobs".into(), headers, good.to_string())
+        }
+        // Jobs that do not exist or are not numbers.
+        7 => {
+            let id = match rng.gen_range(0..3) {
+                0 => "999999".to_string(),
+                1 => "abc".to_string(),
+                _ => "-3".to_string(),
+            };
+            (
+                format!("/api/jobs/{id}/cancel"),
+                vec![("Authorization", auth)],
+                String::new(),
+            )
+        }
+        // Too big.
+        8 => {
+            let text = format!(r#"{{"kind": "acquire", "out": "{}"}}"#, "y".repeat(70_000));
+            ("/api/jobs".into(), vec![("Authorization", auth)], text)
+        }
+        // Routes and methods that do not exist.
+        _ => {
+            let path = [
+                "/api/nothing",
+                "/api/jobs/1/pause",
+                "/../etc/passwd",
+                "/api",
+            ][rng.gen_range(0..4)];
+            (path.into(), vec![("Authorization", auth)], String::new())
+        }
+    };
+    let headers: Vec<(&str, &str)> = headers.iter().map(|(k, v)| (*k, v.as_str())).collect();
+    let body = (!text.is_empty()).then_some(text.as_str());
+    let r = request(address, "POST", &path, &headers, body);
+    (
+        r.status,
+        format!("POST {path} {headers:?} {text:.200} → {}", r.body),
+    )
+}

@@ -55,6 +55,13 @@ impl System {
                 within(self.pixel_size_um, 0.05, 100.0),
                 "must be 0.05-100 µm (the camera's pixel pitch)",
             ),
+            (
+                "entrance_pupil_mm",
+                self.entrance_pupil_mm.unwrap_or(1.0),
+                self.entrance_pupil_mm
+                    .is_none_or(|p| p.is_finite() && p > 0.0),
+                "must be a positive distance in mm (absent: telecentric)",
+            ),
         ]
         .into_iter()
         .find(|&(_, _, ok, _)| !ok)

@@ -203,7 +203,10 @@ impl AcquireRequest {
                 Flatten::Keep
             },
         };
-        plan.validate()?;
+        // The system's own names, as the request names them.
+        plan.validate().map_err(|e| {
+            anyhow::anyhow!("{}", e.to_string().replace("pixel_size_um", "pixel_um"))
+        })?;
         Ok(plan)
     }
 }

@@ -26,13 +26,16 @@ from ._fpm import (
     simulate_acquisition,
     simulate_calibration,
 )
+from .client import Client, ServiceError
 
 __all__ = [
     "Calibration",
+    "Client",
     "Dataset",
     "DatasetError",
     "FpmError",
     "Result",
+    "ServiceError",
     "Streaming",
     "__version__",
     "calibrate",

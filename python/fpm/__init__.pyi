@@ -11,3 +11,4 @@ from ._fpm import (
     simulate_acquisition as simulate_acquisition,
     simulate_calibration as simulate_calibration,
 )
+from .client import Client as Client, ServiceError as ServiceError

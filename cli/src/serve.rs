@@ -112,7 +112,9 @@ pub fn run(a: ServeArgs) -> Result<()> {
             started.token_file.display()
         );
         let mut stdout = std::io::stdout();
-        let _ = stdout.write_all(text.as_bytes()).and_then(|()| stdout.flush());
+        let _ = stdout
+            .write_all(text.as_bytes())
+            .and_then(|()| stdout.flush());
     })?;
     drop(virtual_rig);
     Ok(())

@@ -114,21 +114,7 @@ impl Plan {
         if let Some((name, v, why)) = self.system.out_of_range() {
             bail!("{name} {v}: {why}");
         }
-        if !limits::PASSES.contains(&self.passes) {
-            bail!(
-                "passes {}: must be {}-{}",
-                self.passes,
-                limits::PASSES.start(),
-                limits::PASSES.end()
-            );
-        }
-        if let Some(tile) = self.tile.filter(|t| !limits::TILE.contains(t)) {
-            bail!(
-                "tile {tile}: must be {}-{} camera pixels",
-                limits::TILE.start(),
-                limits::TILE.end()
-            );
-        }
+        limits::check_run(self.passes, self.tile).map_err(anyhow::Error::msg)?;
         streaming_settings(self)
             .validate()
             .map_err(anyhow::Error::msg)

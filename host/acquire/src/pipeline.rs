@@ -118,10 +118,15 @@ pub fn acquire(
     };
     let nominal = rig.nominal;
     let mut acq = Acquisition::new(plan.clone(), rig)?;
-    loop {
+    // A cancel reaches the machine before the next action, and before the outcome of
+    // the action it interrupted (a sequence aborted by it is not then retaken).
+    let deliver_cancel = |acq: &mut Acquisition| {
         if cancel.load(Ordering::SeqCst) && !acq.progress().cancelled {
             acq.handle(Event::Cancel);
         }
+    };
+    loop {
+        deliver_cancel(&mut acq);
         on_progress(&acq.progress());
         let event = match acq.next_action() {
             Action::MoveStage(to) => {
@@ -147,11 +152,7 @@ pub fn acquire(
                 Event::Done
             }
         };
-        // A cancel that came while the action ran is the machine's to know before the
-        // action's outcome: a sequence aborted by it is not then retaken.
-        if cancel.load(Ordering::SeqCst) && !acq.progress().cancelled {
-            acq.handle(Event::Cancel);
-        }
+        deliver_cancel(&mut acq);
         acq.handle(event);
     }
 }

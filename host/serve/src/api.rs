@@ -254,7 +254,7 @@ async fn submit(
     // Checked now, not when the rig gets to it: a bad value is said to the one who sent it.
     match &request {
         JobRequest::Acquire(a) => {
-            a.plan(&fpm_frames::ServiceNames::for_camera("check"))
+            a.plan(&state.shared.camera)
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
         }
     }

@@ -85,7 +85,11 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             .await
             .with_context(|| format!("listening on {}", config.listen))?;
         let address = listener.local_addr()?;
-        let shared = Arc::new(worker::Shared::new(store, rig.description.clone()));
+        let shared = Arc::new(worker::Shared::new(
+            store,
+            rig.description.clone(),
+            rig.camera.clone(),
+        ));
         let worker = worker::Worker::start(shared.clone(), rig)?;
         let state = api::State {
             shared: shared.clone(),

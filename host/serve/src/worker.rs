@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Result};
 use fpm_acquire::{Controller, Progress};
+use fpm_frames::ServiceNames;
 use serde::Serialize;
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
@@ -52,16 +53,19 @@ pub struct Shared {
     pub events: broadcast::Sender<Event>,
     /// The rig, in words.
     pub rig: String,
+    /// The rig's camera (a request's plan is checked against it when it comes in).
+    pub camera: ServiceNames,
     running: Mutex<Option<Running>>,
 }
 
 impl Shared {
     /// Nothing running yet.
-    pub fn new(store: Store, rig: String) -> Self {
+    pub fn new(store: Store, rig: String, camera: ServiceNames) -> Self {
         Self {
             store,
             events: broadcast::channel(1024).0,
             rig,
+            camera,
             running: Mutex::new(None),
         }
     }

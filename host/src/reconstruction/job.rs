@@ -136,23 +136,7 @@ impl Job {
     pub fn validate(&self) -> Result<()> {
         self.settings.validate().map_err(anyhow::Error::msg)?;
         let positive = |x: f64| x.is_finite() && x > 0.0;
-        if !limits::PASSES.contains(&self.passes) {
-            bail!(
-                "passes {}: must be {}-{}",
-                self.passes,
-                limits::PASSES.start(),
-                limits::PASSES.end()
-            );
-        }
-        if let Some(tile) = self.tile {
-            if !limits::TILE.contains(&tile) {
-                bail!(
-                    "tile {tile}: must be {}-{} camera pixels",
-                    limits::TILE.start(),
-                    limits::TILE.end()
-                );
-            }
-        }
+        limits::check_run(self.passes, self.tile).map_err(anyhow::Error::msg)?;
         if let Some(p) = self.entrance_pupil_mm {
             if !positive(p) {
                 bail!("entrance_pupil_mm {p}: must be a positive distance in mm");

@@ -101,6 +101,25 @@ pub mod limits {
     pub const TILE: std::ops::RangeInclusive<usize> = 16..=16_384;
     /// Refocus distance, µm.
     pub const REFOCUS_UM: f64 = 10_000.0;
+
+    /// `passes` and `tile` (None: from the physics) in their ranges, or what is not.
+    pub fn check_run(passes: usize, tile: Option<usize>) -> Result<(), String> {
+        if !PASSES.contains(&passes) {
+            return Err(format!(
+                "passes {passes}: must be {}-{}",
+                PASSES.start(),
+                PASSES.end()
+            ));
+        }
+        match tile.filter(|t| !TILE.contains(t)) {
+            Some(t) => Err(format!(
+                "tile {t}: must be {}-{} camera pixels",
+                TILE.start(),
+                TILE.end()
+            )),
+            None => Ok(()),
+        }
+    }
 }
 
 impl Settings {

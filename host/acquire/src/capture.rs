@@ -392,12 +392,14 @@ fn next_event(
 ) -> Result<Option<SequenceEnd>, ControllerError> {
     loop {
         match events.next(Duration::from_millis(1)) {
+            // The report is sent when the step ends: its trigger was that much earlier
+            // (device time), and that is what a frame's arrival is compared with.
             Ok(SequenceEvent::Step(s)) => labeller.step(
                 StepTime {
                     step: s.step as usize,
                     trigger_ns: s.trigger_us * 1000,
                 },
-                since_start(),
+                since_start() - (s.end_us.saturating_sub(s.trigger_us) * 1000) as i64,
             ),
             Ok(SequenceEvent::End(e)) => return Ok(Some(e)),
             Err(ControllerError::Timeout { .. }) => return Ok(None),

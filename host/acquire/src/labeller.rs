@@ -95,8 +95,11 @@ impl Labeller {
         }
     }
 
-    /// The controller reported a step; `arrived_ns` is when the report reached this
-    /// host, ns from an instant taken before the sequence was started.
+    /// The controller reported a step; `arrived_ns` is when its trigger happened on
+    /// this host's clock (ns from an instant taken before the sequence was started):
+    /// the report's arrival less the device time from the trigger to the report (a
+    /// report sent when the step ends would otherwise arrive after the step's frame,
+    /// and the true labels would look acausal).
     pub fn step(&mut self, step: StepTime, arrived_ns: i64) {
         self.steps.push(step);
         self.step_arrival_ns.push(arrived_ns);
@@ -144,6 +147,14 @@ impl Labeller {
             );
             let trusted =
                 p.clock_problem.is_none() && p.arrivals_agree && p.matched.len() * 4 >= n * 3;
+            if !trusted {
+                tracing::debug!(
+                    "labelling waits after {received} frames: clock problem {:?}, arrivals agree {}, {} of {n} matched",
+                    p.clock_problem,
+                    p.arrivals_agree,
+                    p.matched.len()
+                );
+            }
             self.anchor = trusted.then(|| Anchor {
                 t0_ns: self.steps[..n]
                     .iter()

@@ -164,6 +164,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         passes: a.passes,
         tile: a.tile,
         flatten: a.flatten.flatten(),
+        snapshot_every: 0,
     };
     let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");

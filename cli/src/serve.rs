@@ -107,9 +107,10 @@ pub fn run(a: ServeArgs) -> Result<()> {
         // One write, and a closed stdout (a launcher that read the first line and
         // went) is no reason for the service to stop.
         let text = format!(
-            "fpm serve: listening on http://{}\ntoken (for requests that change the rig): {}\n",
+            "fpm serve: listening on http://{}\ntoken (for requests that change the rig): {}\nthe page: {}\n",
             started.address,
-            started.token_file.display()
+            started.token_file.display(),
+            started.page
         );
         let mut stdout = std::io::stdout();
         let _ = stdout

@@ -316,6 +316,7 @@ fn plan(demo: &Demo, rig: &str, out: &Path) -> Plan {
         tile: None,
         // The hidden sample is cells and bars on clear glass.
         flatten: Flatten::Auto,
+        snapshot_every: 0,
     }
 }
 

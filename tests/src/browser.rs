@@ -127,3 +127,51 @@ pub fn ink(png_path: &Path) -> (f64, f64, (u32, u32)) {
         (info.width, info.height),
     )
 }
+
+/// Drive `fpm serve`'s page at `page_url` (the address the service printed, token
+/// included) in headless Chromium through `tools/browser/serve-page.mjs` (Playwright's
+/// driver, `npm ci` in tools/browser: `.ci/run` does): what the script saw, as JSON.
+pub fn drive_service_page(page_url: &str, screenshot: &Path) -> serde_json::Value {
+    let tools = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/browser");
+    assert!(
+        tools.join("node_modules/playwright-core").exists(),
+        "playwright-core is not installed: (cd tools/browser && npm ci) — .ci/run does"
+    );
+    let out = Command::new("node")
+        .arg(tools.join("serve-page.mjs"))
+        .arg(page_url)
+        .arg(screenshot)
+        .env("CHROMIUM", CHROMIUM)
+        .output()
+        .expect("running node");
+    assert!(
+        out.status.success(),
+        "the page's driver failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "the page's driver said no JSON ({e}): {}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    })
+}
+
+/// The mean and standard deviation of a grey PNG's pixels (a page's image, compared
+/// with what the browser drew).
+pub fn grey_stats(png: &[u8]) -> (f64, f64) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(png))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size().expect("PNG size")];
+    let info = reader.next_frame(&mut buf).expect("PNG pixels");
+    let channels = info.color_type.samples();
+    let grey: Vec<f64> = buf[..info.buffer_size()]
+        .chunks(channels)
+        .map(|p| f64::from(p[0]))
+        .collect();
+    let n = grey.len() as f64;
+    let mean = grey.iter().sum::<f64>() / n;
+    let var = grey.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}

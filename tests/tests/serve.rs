@@ -18,6 +18,8 @@ struct Service {
     child: Child,
     address: SocketAddr,
     token: String,
+    /// The page's address with the token, as printed for a person.
+    page: String,
 }
 
 impl Service {
@@ -45,10 +47,15 @@ impl Service {
             .parse()
             .unwrap();
         let token = std::fs::read_to_string(state.join("token")).unwrap();
+        let page = lines
+            .find_map(|l| l.ok()?.strip_prefix("the page: ").map(String::from))
+            .expect("the page's address");
+        assert!(page.contains(&token), "{page}");
         Self {
             child,
             address,
             token,
+            page,
         }
     }
 
@@ -164,7 +171,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let out = dir.0.join("c");
     let bad = [
         (r#"{"kind": "acquire""#.to_string(), "EOF"),
-        (r#"{"kind": "acquire"}"#.to_string(), "out"),
+        (r#"{"kind": "acquire", "out": 5}"#.to_string(), "out"),
         (r#"{"kind": "scan", "out": "/tmp/x"}"#.to_string(), "scan"),
         (
             serde_json::json!({"kind": "acquire", "out": out, "step_ms": 0.0}).to_string(),
@@ -247,6 +254,9 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         "/api/jobs",
         "/api/jobs/{id}",
         "/api/jobs/{id}/cancel",
+        "/api/jobs/{id}/snapshot/{part}",
+        "/api/jobs/{id}/files/{path}",
+        "/api/camera/frame",
         "/api/events",
     ] {
         assert!(
@@ -255,15 +265,19 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         );
     }
 
-    // The event stream: a job queued now is seen moving through its states, its
-    // progress counting frames up to the whole array.
+    // The event stream: a job queued now, sent without an output directory and
+    // reconstructing, is seen moving through its states, its progress counting frames
+    // up to the whole array while they arrive, each frame announced, and snapshots of
+    // its reconstruction every 100 frames and at the end.
     let events = events(service.address);
-    let c = service
-        .post("/api/jobs", Some(&acquire(&dir.0.join("c"))))
-        .json()["id"]
+    let live = serde_json::json!({"kind": "acquire", "step_ms": 40.0, "reconstruct": true,
+        "flatten_background": true, "snapshot_every": 100});
+    let c = service.post("/api/jobs", Some(&live.to_string())).json()["id"]
         .as_i64()
         .unwrap();
-    let (mut states, mut frames) = (vec![], vec![]);
+    let (mut states, mut frames, mut announced, mut snapshots) = (vec![], vec![], 0, vec![]);
+    // When (on the test's clock) the capture started, its first frame came, its last.
+    let (mut capture_start, mut first_frame, mut last_frame) = (None, None, None);
     for line in events {
         let Some(data) = line.strip_prefix("data:") else {
             continue;
@@ -274,7 +288,23 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         }
         match event["event"].as_str() {
             Some("state") => states.push(event["state"].as_str().unwrap().to_string()),
-            Some("progress") => frames.push(event["progress"]["frames"].as_u64().unwrap()),
+            Some("progress") => {
+                let p = &event["progress"];
+                let n = p["frames"].as_u64().unwrap();
+                if p["phase"] == "capturing" {
+                    capture_start.get_or_insert_with(Instant::now);
+                    if n >= 1 {
+                        first_frame.get_or_insert_with(Instant::now);
+                    }
+                    if n == 441 {
+                        last_frame.get_or_insert_with(Instant::now);
+                    }
+                }
+                frames.push(n);
+            }
+            Some("frame") => announced += 1,
+            Some("snapshot") => snapshots.push(event),
+            Some("camera_frame") => {}
             other => panic!("an event of no known kind: {other:?}"),
         }
         if states
@@ -290,6 +320,120 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         "frames counted down"
     );
     assert_eq!(frames.last(), Some(&441));
+    assert_eq!(announced, 441, "frames announced");
+    // Frames are labelled as they arrive, not at the end of the sequence (the step
+    // reports come when a step ends, after its frame): the first one comes early in a
+    // capture of about 20 s.
+    let (start, first, last) = (
+        capture_start.unwrap(),
+        first_frame.unwrap(),
+        last_frame.unwrap(),
+    );
+    let early = (first - start).as_secs_f64() / (last - start).as_secs_f64();
+    assert!(
+        early < 0.25,
+        "the first frame was labelled {:.0} % into the capture",
+        early * 100.0
+    );
+    let counts: Vec<(u64, bool)> = snapshots
+        .iter()
+        .map(|e| (e["frames"].as_u64().unwrap(), e["finished"] == true))
+        .collect();
+    assert_eq!(
+        counts,
+        [
+            (100, false),
+            (200, false),
+            (300, false),
+            (400, false),
+            (441, true)
+        ]
+    );
+    // The finished snapshot over HTTP is the reconstruction the job wrote.
+    let job = service.get(&format!("/api/jobs/{c}")).json();
+    let out = std::path::PathBuf::from(job["out"].as_str().unwrap());
+    assert!(out.starts_with(state.join("runs")), "{job}");
+    assert!(job["reports"]
+        .as_array()
+        .unwrap()
+        .contains(&"reconstruction/report.html".into()));
+    let raw = service.get(&format!("/api/jobs/{c}/snapshot/amplitude?format=f32"));
+    assert_eq!(raw.status, 200, "{}", raw.body);
+    let shape: Vec<usize> = raw
+        .header("x-fpm-shape")
+        .unwrap()
+        .split(',')
+        .map(|n| n.parse().unwrap())
+        .collect();
+    let live: Vec<f32> = raw
+        .bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let written = match fpm_host::dataset::image_io::read(&out.join("reconstruction/amplitude.tif"))
+        .unwrap()
+    {
+        fpm_host::dataset::Pixels::F32(a) => a,
+        _ => panic!("amplitude.tif is not float"),
+    };
+    assert_eq!(shape, [written.nrows(), written.ncols()]);
+    assert!(
+        written
+            .iter()
+            .zip(&live)
+            .all(|(w, l)| (w - l).abs() <= 1e-6 * w.abs().max(1.0)),
+        "the snapshot differs from amplitude.tif"
+    );
+    let png = service.get(&format!("/api/jobs/{c}/snapshot/phase"));
+    assert_eq!(
+        (png.status, png.header("content-type")),
+        (200, Some("image/png"))
+    );
+    assert!(png.bytes.starts_with(b"\x89PNG"));
+    let frame = service.get("/api/camera/frame?format=u16");
+    assert_eq!(frame.status, 200, "{}", frame.body);
+    assert_eq!(frame.bytes.len(), 64 * 64 * 2);
+    // Files of the job only: its report, not a path out of its directory.
+    let report = service.get(&format!("/api/jobs/{c}/files/acquisition.html"));
+    assert_eq!(report.status, 200);
+    assert!(report.body.contains("<html"));
+    for bad in [
+        "../token",
+        "%2e%2e/token",
+        "%2Fetc%2Fpasswd",
+        "frames/..%2F..%2F..%2Ftoken",
+    ] {
+        let r = service.get(&format!("/api/jobs/{c}/files/{bad}"));
+        assert!(
+            (400..500).contains(&r.status),
+            "{bad}: {} {}",
+            r.status,
+            r.body
+        );
+        assert!(
+            !r.body.contains(service.token.trim()),
+            "{bad} leaked the token"
+        );
+    }
+    for (path, names) in [
+        (format!("/api/jobs/{c}/snapshot/pupil"), "part"),
+        (
+            format!("/api/jobs/{c}/snapshot/phase?format=jpeg"),
+            "format",
+        ),
+        (format!("/api/jobs/{a}/snapshot/phase"), "no snapshot"),
+    ] {
+        let r = service.get(&path);
+        assert!(
+            (400..500).contains(&r.status) && r.body.contains(names),
+            "{path}: {}",
+            r.body
+        );
+    }
+    // The page, embedded in the binary.
+    let page = service.get("/");
+    assert_eq!(page.status, 200);
+    assert!(page.body.contains("EventSource"));
 
     // Killed (SIGKILL) mid-acquisition: its virtual rig dies with it, and a new
     // service on the same state directory knows every job, the one it was running
@@ -445,14 +589,12 @@ fn bad_request(
                 body.to_string(),
             )
         }
-        // Unknown fields, kinds, missing or relative `out`.
+        // Unknown fields, kinds, `out` not a path or relative.
         4 => {
             match rng.gen_range(0..4) {
                 0 => body["unknown_field"] = serde_json::json!(1),
                 1 => body["kind"] = serde_json::json!("scan"),
-                2 => {
-                    body.as_object_mut().unwrap().remove("out");
-                }
+                2 => body["out"] = serde_json::json!(5),
                 _ => body["out"] = serde_json::json!("relative/dir"),
             }
             (
@@ -524,4 +666,80 @@ fn bad_request(
         r.status,
         format!("POST {path} {headers:?} {text:.200} → {}", r.body),
     )
+}
+
+/// The page in a real browser (Debian's headless Chromium, driven by Playwright as a
+/// person would use it): an acquisition started from its form shows its progress
+/// advancing and then the final image the job wrote; a second, cancelled from the page
+/// mid-capture, ends cancelled with the frames it took written.
+#[test]
+fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
+    let dir = TempDir::new("serve-page");
+    let service = Service::start(&dir.0.join("state"));
+    let seen = fpm_tests::browser::drive_service_page(&service.page, &dir.0.join("page.png"));
+    assert_eq!(seen["errors"], serde_json::json!([]), "{seen}");
+    let address = seen["address_after_load"].as_str().unwrap();
+    assert!(
+        !address.contains("token"),
+        "the token stayed in the address bar: {address}"
+    );
+    assert!(
+        seen["rig"].as_str().unwrap().contains("virtual rig"),
+        "{seen}"
+    );
+
+    // The first: done, its progress bar rising through the capture to every LED.
+    assert_eq!(seen["first_state"], "done", "{seen}");
+    let progress: Vec<f64> = seen["progress"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(progress.windows(2).all(|w| w[0] <= w[1]), "{progress:?}");
+    assert!(
+        progress.len() >= 10,
+        "the bar moved {} times",
+        progress.len()
+    );
+    assert_eq!(progress.last(), Some(&441.0));
+    // The image the page shows at the end is the one the job wrote.
+    let first = seen["first"].as_i64().unwrap();
+    let job = service.get(&format!("/api/jobs/{first}")).json();
+    let written = std::fs::read(
+        std::path::Path::new(job["out"].as_str().unwrap()).join("reconstruction/amplitude.png"),
+    )
+    .unwrap();
+    let (mean, std) = fpm_tests::browser::grey_stats(&written);
+    let shown = &seen["final_image"];
+    assert!(std > 10.0, "the written amplitude is blank (σ {std:.1})");
+    assert!(
+        (shown["mean"].as_f64().unwrap() - mean).abs() < 0.5
+            && (shown["std"].as_f64().unwrap() - std).abs() < 0.5,
+        "the page shows {shown}, the job wrote mean {mean:.2} σ {std:.2}"
+    );
+    assert!(
+        seen["caption"]
+            .as_str()
+            .unwrap()
+            .contains("finished reconstruction"),
+        "{seen}"
+    );
+    // Its report is a link away.
+    let link = seen["report_links"][0].as_str().unwrap();
+    assert!(link.contains("acquisition.html"), "{seen}");
+    let report = service.get(link);
+    assert_eq!(report.status, 200, "{link}: {}", report.body);
+
+    // The second: cancelled from the page after 20 frames or more, before the last,
+    // and what it took written as a dataset.
+    let second = seen["second"].as_i64().unwrap();
+    assert_eq!(seen["second_state"], "cancelled", "{seen}");
+    let at_cancel = seen["frames_at_cancel"].as_u64().unwrap();
+    assert!((20..441).contains(&at_cancel), "{seen}");
+    let job = service.get(&format!("/api/jobs/{second}")).json();
+    let kept = job["summary"]["frames_in_dataset"].as_u64().unwrap() as usize;
+    assert!(kept >= at_cancel as usize && kept < 441, "{job}");
+    let out = std::path::Path::new(job["out"].as_str().unwrap());
+    assert_eq!(Dataset::load(out).unwrap().frames.len(), kept);
 }

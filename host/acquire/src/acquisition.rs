@@ -64,6 +64,9 @@ pub struct Plan {
     pub tile: Option<usize>,
     /// Whether the clear background's low-order phase is taken off the result.
     pub flatten: Flatten,
+    /// Frames between live [`Snapshot`]s of the streaming reconstruction (0: none but
+    /// the finished reconstruction's, which a reconstructing run always has).
+    pub snapshot_every: usize,
 }
 
 /// What an acquisition does when nothing else is said: `fpm acquire`'s flags and the
@@ -91,6 +94,8 @@ pub mod defaults {
     pub const PIXEL_UM: f64 = 2.4;
     /// EPRY passes after the last frame.
     pub const PASSES: usize = 5;
+    /// Frames between live snapshots, where something shows them (the service).
+    pub const SNAPSHOT_EVERY: usize = 25;
 }
 
 impl Plan {
@@ -224,6 +229,29 @@ pub struct Progress {
     pub cancelled: bool,
 }
 
+/// The reconstruction as it stands, for a live view: taken from the stream every
+/// [`Plan::snapshot_every`] frames, and the finished reconstruction once.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// Frames streamed into it.
+    pub frames: usize,
+    /// LEDs in the full capture.
+    pub of: usize,
+    /// The finished reconstruction, not the stream's state.
+    pub finished: bool,
+    /// The sample's complex field.
+    pub object: ndarray::Array2<fpm_physics::Complex32>,
+    /// Its pixel in the sample plane, µm.
+    pub pixel_um: f64,
+}
+
+/// Which snapshot is due.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SnapshotDue {
+    Stream,
+    Finished,
+}
+
 /// The step the machine is in; each waits for the one event that ends it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Step {
@@ -295,6 +323,7 @@ pub struct Acquisition {
     retake_problem: Option<String>,
     streaming: Option<TiledStreaming>,
     stream_error: Option<String>,
+    snapshot_due: Option<SnapshotDue>,
     update_us: Vec<f64>,
     tiles: Option<usize>,
     frames: usize,
@@ -348,6 +377,7 @@ impl Acquisition {
             retake_problem: None,
             streaming: None,
             stream_error: None,
+            snapshot_due: None,
             update_us: vec![],
             tiles: None,
             frames: 0,
@@ -378,6 +408,34 @@ impl Acquisition {
             frames: self.frames,
             of: self.order.len(),
             cancelled: self.cancelled,
+        }
+    }
+
+    /// The snapshot due now, if one is (taking it blends the stream's tiles: the
+    /// driver asks after each event, when it has a viewer to give it to).
+    pub fn snapshot(&mut self) -> Option<Snapshot> {
+        let due = self.snapshot_due.take()?;
+        let (frames, of) = (self.frames, self.order.len());
+        match due {
+            SnapshotDue::Finished => self.reconstruction.as_ref().map(|r| Snapshot {
+                frames,
+                of,
+                finished: true,
+                object: r.object.clone(),
+                pixel_um: r.report.pixel_um,
+            }),
+            SnapshotDue::Stream => {
+                let upsample = streaming_settings(&self.plan).upsample.max(1) as f64;
+                let system = self.plan.system;
+                let object = self.streaming.as_mut()?.snapshot()?;
+                Some(Snapshot {
+                    frames,
+                    of,
+                    finished: false,
+                    object,
+                    pixel_um: system.pixel_size_um / system.magnification / upsample,
+                })
+            }
         }
     }
 
@@ -678,6 +736,10 @@ impl Acquisition {
         if let Err(e) = s.push(&frame) {
             tracing::warn!("streaming reconstruction stopped: {e}");
             self.stream_error = Some(e.to_string());
+        } else if self.plan.snapshot_every > 0
+            && s.received().is_multiple_of(self.plan.snapshot_every)
+        {
+            self.snapshot_due = Some(SnapshotDue::Stream);
         }
         self.update_us.push(t.elapsed().as_secs_f64() * 1e6);
     }
@@ -773,6 +835,7 @@ impl Acquisition {
         report.height_from_boundary =
             fpm_host::reconstruction::boundary_check(&self.plan.system, &self.geometry, &frames);
         self.reconstruction = Some(Reconstruction::from_outcome(outcome, report));
+        self.snapshot_due = Some(SnapshotDue::Finished);
         Step::WriteReconstruction
     }
 

@@ -29,8 +29,8 @@ pub mod pipeline;
 pub mod stage;
 pub mod summary;
 
-pub use acquisition::{Acquisition, Action, Event, Phase, Progress};
+pub use acquisition::{Acquisition, Action, Event, Phase, Progress, Snapshot};
 pub use capture::{capture, CaptureReport, Sequence, Shot, ShotView};
 pub use controller::Controller;
-pub use pipeline::{acquire, AcquireSummary, Plan};
+pub use pipeline::{acquire, AcquireSummary, Plan, Watcher};
 pub use stage::{FocusStage, ManualStage, Slide, StagePosition};

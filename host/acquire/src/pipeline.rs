@@ -16,7 +16,7 @@ use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, StoredCalibration};
 
 pub use crate::acquisition::Plan;
-use crate::acquisition::{Acquisition, Action, Event, Progress, Rig};
+use crate::acquisition::{Acquisition, Action, Event, Progress, Rig, Snapshot};
 use crate::board_geometry;
 use crate::capture::{capture, Sequence, ShotView};
 use crate::controller::Controller;
@@ -96,15 +96,35 @@ fn stored_calibration(dev: &Controller) -> Option<BoardCalibration> {
     }
 }
 
+/// Whoever watches an acquisition: its progress after every event, and, if it wants
+/// them, the live snapshots of the reconstruction and each labelled frame as it
+/// arrives. A closure over `&Progress` is a watcher of progress alone.
+pub trait Watcher {
+    /// How far the acquisition is (after every event).
+    fn progress(&mut self, progress: &Progress);
+    /// A snapshot of the reconstruction ([`Plan::snapshot_every`], and the finished one).
+    fn snapshot(&mut self, _snapshot: Snapshot) {}
+    /// A labelled frame as it arrives, lent: copy what you keep (on the capture's
+    /// thread, between two frames: keep it short).
+    fn frame(&mut self, _shot: &ShotView<'_>) {}
+}
+
+impl<F: FnMut(&Progress)> Watcher for F {
+    fn progress(&mut self, progress: &Progress) {
+        self(progress)
+    }
+}
+
 /// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
-/// `on_progress` after every event; setting `cancel` aborts the running sequence and
-/// writes what was captured (the run then fails, saying so). Frames that arrived are
-/// labelled and written even when the controller is lost; the error then says so.
+/// `watcher` sees its progress after every event; setting `cancel` aborts the running
+/// sequence and writes what was captured (the run then fails, saying so). Frames that
+/// arrived are labelled and written even when the controller is lost; the error then
+/// says so.
 pub fn acquire(
     dev: &Controller,
     stage: &mut dyn FocusStage,
     plan: &Plan,
-    mut on_progress: impl FnMut(&Progress),
+    mut watcher: impl Watcher,
     cancel: &AtomicBool,
 ) -> Result<AcquireSummary> {
     plan.validate()?;
@@ -125,9 +145,15 @@ pub fn acquire(
             acq.handle(Event::Cancel);
         }
     };
+    let watch = |acq: &mut Acquisition, watcher: &mut dyn Watcher| {
+        watcher.progress(&acq.progress());
+        if let Some(snapshot) = acq.snapshot() {
+            watcher.snapshot(snapshot);
+        }
+    };
     loop {
         deliver_cancel(&mut acq);
-        on_progress(&acq.progress());
+        watch(&mut acq, &mut watcher);
         let event = match acq.next_action() {
             Action::MoveStage(to) => {
                 stage.move_to(to)?;
@@ -135,8 +161,9 @@ pub fn acquire(
             }
             Action::RunSequence { id, leds } => {
                 let mut on_frame = |shot: ShotView<'_>| {
+                    watcher.frame(&shot);
                     acq.handle(Event::Frame(shot));
-                    on_progress(&acq.progress());
+                    watch(&mut acq, &mut watcher);
                 };
                 let sequence = Sequence {
                     id,

@@ -201,6 +201,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         passes: 2,
         tile: None,
         flatten: Flatten::Keep,
+        snapshot_every: 0,
     };
     match slide {
         Some(s) => Plan {

@@ -33,3 +33,5 @@ pub mod tiles;
 
 pub use image::Image;
 pub use optics::{LedGeometry, LedIndex, Placement, Rings, System};
+/// The complex type of every field (object, pupil, exit wave).
+pub use rustfft::num_complex::Complex32;

@@ -48,10 +48,38 @@ pub fn object(
     amplitude_png: &Path,
     phase_png: &Path,
 ) -> Result<()> {
+    write(amplitude_png, &amplitude_png_bytes(amplitude, pixel_um)?)?;
+    write(phase_png, &phase_png_bytes(phase, pixel_um)?)
+}
+
+fn write(path: &Path, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
+}
+
+/// The amplitude's PNG preview (as [`object`] writes it): its 0.5–99.5 % range, with a
+/// scale bar at `pixel_um`.
+pub fn amplitude_png_bytes(amplitude: &Array2<f32>, pixel_um: f64) -> Result<Vec<u8>> {
     let [lo, hi] = quantiles(amplitude, [0.005, 0.995]);
-    write_png_preview(amplitude_png, amplitude, lo, hi, Some(pixel_um))?;
+    let (h, w) = amplitude.dim();
+    encode_png_grey(w, h, &preview_bytes(amplitude, (lo, hi), Some(pixel_um)))
+}
+
+/// The phase's PNG preview (as [`object`] writes it): ±π with a colour bar in
+/// radians, and a scale bar at `pixel_um`.
+pub fn phase_png_bytes(phase: &Array2<f32>, pixel_um: f64) -> Result<Vec<u8>> {
     let pi = std::f32::consts::PI;
-    write_png_preview_with_bar(phase_png, phase, (-pi, pi), Some(pixel_um), "rad")
+    let (h, w) = phase.dim();
+    let data = preview_bytes(phase, (-pi, pi), Some(pixel_um));
+    let (data, w) = crate::colour_bar::append(&data, w, h, (-pi, pi), "rad");
+    encode_png_grey(w, h, &data)
+}
+
+/// 16-bit counts (a camera frame) as an 8-bit PNG over their 0.1–99.9 % range.
+pub fn counts_png_bytes(counts: &ndarray::ArrayView2<u16>) -> Result<Vec<u8>> {
+    let as_f32 = counts.mapv(f32::from);
+    let [lo, hi] = quantiles(&as_f32, [0.001, 0.999]);
+    let (h, w) = counts.dim();
+    encode_png_grey(w, h, &preview_bytes(&as_f32, (lo, hi), None))
 }
 
 /// Write an 8-bit grey PNG scaled from `lo` (black) to `hi` (white), with a scale bar
@@ -99,14 +127,17 @@ fn preview_bytes(img: &Array2<f32>, (lo, hi): (f32, f32), pixel_um: Option<f64>)
 }
 
 fn write_png_grey(path: &Path, w: usize, h: usize, data: &[u8]) -> Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+    write(path, &encode_png_grey(w, h, data)?)
+}
+
+/// 8-bit grey pixels, row-major, as a PNG file's bytes.
+fn encode_png_grey(w: usize, h: usize, data: &[u8]) -> Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    let mut enc = png::Encoder::new(&mut bytes, w as u32, h as u32);
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);
-    let mut wr = enc
-        .write_header()
-        .with_context(|| format!("writing {}", path.display()))?;
-    wr.write_image_data(data)
-        .with_context(|| format!("writing {}", path.display()))
+    let mut wr = enc.write_header().context("encoding a PNG")?;
+    wr.write_image_data(data).context("encoding a PNG")?;
+    wr.finish().context("encoding a PNG")?;
+    Ok(bytes)
 }

@@ -62,12 +62,27 @@ impl Token {
         })
     }
 
-    fn accepts(&self, headers: &HeaderMap) -> bool {
-        headers
+    /// The token itself (for the page's address `fpm serve` prints).
+    pub fn value(&self) -> &str {
+        &self.value
+    }
+
+    /// Whether the request carries the token: `Authorization: Bearer …`, or `token=…`
+    /// in its query (what a browser's `<img>` and `EventSource` can send; the page
+    /// takes it from the address `fpm serve` prints, as Jupyter's does).
+    fn accepts(&self, headers: &HeaderMap, query: Option<&str>) -> bool {
+        let ours = |t: &str| constant_time_eq(t.trim().as_bytes(), self.value.as_bytes());
+        let in_header = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
             .and_then(|v| v.strip_prefix("Bearer "))
-            .is_some_and(|t| constant_time_eq(t.trim().as_bytes(), self.value.as_bytes()))
+            .is_some_and(ours);
+        in_header
+            || query.is_some_and(|q| {
+                q.split('&')
+                    .filter_map(|kv| kv.strip_prefix("token="))
+                    .any(ours)
+            })
     }
 }
 
@@ -86,6 +101,8 @@ pub struct State {
     pub token: Arc<Token>,
     /// Where the service listens.
     pub address: SocketAddr,
+    /// It listens beyond loopback (`--public`): every request needs the token.
+    pub public: bool,
 }
 
 /// An error as the API answers it: a status and a message naming what is wrong.
@@ -119,7 +136,17 @@ impl IntoResponse for ApiError {
         title = "fpm acquisition service",
         description = "The rig's jobs over HTTP/JSON on 127.0.0.1; see docs/service.md."
     ),
-    paths(status, list_jobs, submit, get_job, cancel, events),
+    paths(
+        status,
+        list_jobs,
+        submit,
+        get_job,
+        cancel,
+        events,
+        snapshot,
+        camera_frame,
+        job_file
+    ),
     components(schemas(
         Status,
         Submitted,
@@ -140,8 +167,12 @@ pub fn router(state: State) -> Router {
         .route("/api/jobs", get(list_jobs).post(submit))
         .route("/api/jobs/{id}", get(get_job))
         .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/snapshot/{part}", get(snapshot))
+        .route("/api/jobs/{id}/files/{*path}", get(job_file))
+        .route("/api/camera/frame", get(camera_frame))
         .route("/api/events", get(events))
         .route("/openapi.json", get(openapi))
+        .route("/", get(page))
         .layer(middleware::from_fn_with_state(state.clone(), guard))
         .layer(DefaultBodyLimit::max(MAX_BODY))
         .with_state(state)
@@ -186,11 +217,16 @@ async fn guard(Extract(state): Extract<State>, request: Request, next: Next) -> 
         }
     }
     let reads = request.method() == axum::http::Method::GET;
-    if !reads && !state.token.accepts(headers) {
+    if (state.public || !reads) && !state.token.accepts(headers, request.uri().query()) {
+        let why = if reads {
+            "this service listens beyond loopback (--public): every request"
+        } else {
+            "this request changes the rig and"
+        };
         return ApiError::new(
             StatusCode::UNAUTHORIZED,
             format!(
-                "Authorization: this request changes the rig and needs `Bearer <token>` (the token is in {})",
+                "Authorization: {why} needs `Bearer <token>` (the token is in {})",
                 state.token.path.display()
             ),
         )
@@ -211,6 +247,10 @@ pub struct Status {
     /// Its progress.
     #[schema(value_type = Option<Object>)]
     pub progress: Option<fpm_acquire::Progress>,
+    /// Its capture's time left, s (while it captures).
+    pub eta_s: Option<f64>,
+    /// Where jobs sent without `out` write.
+    pub runs: String,
 }
 
 #[utoipa::path(get, path = "/api/status", responses((status = 200, body = Status)))]
@@ -221,6 +261,8 @@ async fn status(Extract(state): Extract<State>) -> Json<Status> {
         rig: state.shared.rig.clone(),
         running: current.map(|c| c.0),
         progress: current.and_then(|c| c.1),
+        eta_s: current.and_then(|c| c.2),
+        runs: state.shared.runs.display().to_string(),
     })
 }
 
@@ -249,8 +291,9 @@ async fn submit(
     body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<(StatusCode, Json<Submitted>), ApiError> {
     let body = body.map_err(|e| ApiError::new(e.status(), e.body_text()))?;
-    let request =
+    let mut request =
         JobRequest::parse(&body).map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e))?;
+    request.place(&state.shared.runs);
     // Checked now, not when the rig gets to it: a bad value is said to the one who sent it.
     match &request {
         JobRequest::Acquire(a) => {
@@ -326,5 +369,230 @@ async fn openapi() -> impl IntoResponse {
     (
         [(header::CONTENT_TYPE, "application/json")],
         ApiDoc::openapi().to_pretty_json().unwrap_or_default(),
+    )
+}
+
+fn bad_request(e: impl std::fmt::Display) -> ApiError {
+    ApiError::new(StatusCode::BAD_REQUEST, e.to_string())
+}
+
+/// How a live image is sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum ImageFormat {
+    /// 8-bit grey PNG for people (the object's with a scale bar; the phase ±π with a
+    /// colour bar).
+    Png,
+    /// Little-endian float32, row-major, its shape in `X-Fpm-Shape: rows,cols`.
+    F32,
+    /// Little-endian uint16 counts, row-major (a camera frame), shape as for f32.
+    U16,
+}
+
+/// `?format=`.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Format {
+    #[serde(default)]
+    format: Option<ImageFormat>,
+    /// The token may ride in the query (see the guard); nothing else may.
+    #[serde(default, rename = "token")]
+    _token: Option<String>,
+    /// A page's cache-buster.
+    #[serde(default, rename = "seq")]
+    _seq: Option<u64>,
+}
+
+/// An image response: the bytes, their type, and what they are in `X-Fpm-*` headers.
+fn image(bytes: Vec<u8>, content_type: &'static str, meta: &[(&'static str, String)]) -> Response {
+    let mut response = (
+        [
+            (header::CONTENT_TYPE, content_type),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        bytes,
+    )
+        .into_response();
+    for (name, value) in meta {
+        if let Ok(v) = axum::http::HeaderValue::from_str(value) {
+            response.headers_mut().insert(*name, v);
+        }
+    }
+    response
+}
+
+fn le_bytes<T: Copy, const N: usize>(a: &ndarray::Array2<T>, to: fn(T) -> [u8; N]) -> Vec<u8> {
+    a.iter().flat_map(|&v| to(v)).collect()
+}
+
+#[utoipa::path(get, path = "/api/jobs/{id}/snapshot/{part}",
+    params(("id" = i64, Path, description = "The job's id"),
+        ("part" = String, Path, description = "amplitude or phase"),
+        ("format" = Option<ImageFormat>, Query, description = "png (default) or f32")),
+    responses((status = 200, description = "The job's newest snapshot; X-Fpm-Shape (rows,cols), X-Fpm-Pixel-Um, X-Fpm-Frames, X-Fpm-Of, X-Fpm-Seq, X-Fpm-Finished",
+            content_type = "image/png"),
+        (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+async fn snapshot(
+    Extract(state): Extract<State>,
+    path: Result<UrlPath<(i64, String)>, axum::extract::rejection::PathRejection>,
+    query: Result<axum::extract::Query<Format>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let UrlPath((id, part)) = path.map_err(|e| bad_request(e.body_text()))?;
+    let format = query.map_err(|e| bad_request(e.body_text()))?.0.format;
+    let phase = match part.as_str() {
+        "amplitude" => false,
+        "phase" => true,
+        other => {
+            return Err(bad_request(format!(
+                "part \"{other}\": give amplitude or phase"
+            )))
+        }
+    };
+    let s = state.shared.live.snapshot(id).ok_or_else(|| {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("job {id} has no snapshot (yet, or no longer in memory: its images are in its output directory)"),
+        )
+    })?;
+    let (rows, cols) = s.amplitude.dim();
+    let meta = [
+        ("x-fpm-shape", format!("{rows},{cols}")),
+        ("x-fpm-pixel-um", s.pixel_um.to_string()),
+        ("x-fpm-frames", s.frames.to_string()),
+        ("x-fpm-of", s.of.to_string()),
+        ("x-fpm-seq", s.seq.to_string()),
+        ("x-fpm-finished", s.finished.to_string()),
+    ];
+    let image_of = if phase { &s.phase } else { &s.amplitude };
+    match format.unwrap_or(ImageFormat::Png) {
+        ImageFormat::F32 => Ok(image(
+            le_bytes(image_of, f32::to_le_bytes),
+            "application/octet-stream",
+            &meta,
+        )),
+        ImageFormat::Png => {
+            let s = s.clone();
+            let png = tokio::task::spawn_blocking(move || {
+                if phase {
+                    fpm_report::preview::phase_png_bytes(&s.phase, s.pixel_um)
+                } else {
+                    fpm_report::preview::amplitude_png_bytes(&s.amplitude, s.pixel_um)
+                }
+            })
+            .await
+            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
+            Ok(image(png, "image/png", &meta))
+        }
+        ImageFormat::U16 => Err(bad_request(
+            "format u16: a snapshot is float; give png or f32",
+        )),
+    }
+}
+
+#[utoipa::path(get, path = "/api/camera/frame",
+    params(("format" = Option<ImageFormat>, Query, description = "png (default) or u16")),
+    responses((status = 200, description = "The newest camera frame kept (a few a second while a job runs); X-Fpm-Shape, X-Fpm-Led (row,col), X-Fpm-Exposure-Us, X-Fpm-Job, X-Fpm-Seq",
+            content_type = "image/png"),
+        (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+async fn camera_frame(
+    Extract(state): Extract<State>,
+    query: Result<axum::extract::Query<Format>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let format = query.map_err(|e| bad_request(e.body_text()))?.0.format;
+    let f = state.shared.live.frame().ok_or_else(|| {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            "no camera frame yet: one is kept while a job captures",
+        )
+    })?;
+    let (rows, cols) = f.pixels.dim();
+    let meta = [
+        ("x-fpm-shape", format!("{rows},{cols}")),
+        ("x-fpm-led", format!("{},{}", f.led[0], f.led[1])),
+        ("x-fpm-exposure-us", f.exposure_us.to_string()),
+        ("x-fpm-job", f.job.to_string()),
+        ("x-fpm-seq", f.seq.to_string()),
+    ];
+    match format.unwrap_or(ImageFormat::Png) {
+        ImageFormat::U16 => Ok(image(
+            le_bytes(&f.pixels, u16::to_le_bytes),
+            "application/octet-stream",
+            &meta,
+        )),
+        ImageFormat::Png => {
+            let png = tokio::task::spawn_blocking(move || {
+                fpm_report::preview::counts_png_bytes(&f.pixels.view())
+            })
+            .await
+            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
+            Ok(image(png, "image/png", &meta))
+        }
+        ImageFormat::F32 => Err(bad_request(
+            "format f32: a camera frame is counts; give png or u16",
+        )),
+    }
+}
+
+#[utoipa::path(get, path = "/api/jobs/{id}/files/{path}",
+    params(("id" = i64, Path, description = "The job's id"),
+        ("path" = String, Path, description = "A file in the job's output directory, e.g. acquisition.html")),
+    responses((status = 200, description = "The file"), (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+async fn job_file(
+    Extract(state): Extract<State>,
+    path: Result<UrlPath<(i64, String)>, axum::extract::rejection::PathRejection>,
+) -> Result<Response, ApiError> {
+    let UrlPath((id, relative)) = path.map_err(|e| bad_request(e.body_text()))?;
+    let job = state
+        .shared
+        .store
+        .get(id)
+        .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?
+        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id}")))?;
+    // Only plain names below the job's directory: no `..`, no absolute paths, no links
+    // out of it.
+    let rel = Path::new(&relative);
+    if !rel
+        .components()
+        .all(|c| matches!(c, std::path::Component::Normal(_)))
+    {
+        return Err(bad_request(format!(
+            "path {relative:?}: give a file inside the job's output directory"
+        )));
+    }
+    let root = Path::new(&job.out);
+    let not_found = || {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("job {id} has no file {relative:?} (yet)"),
+        )
+    };
+    let (Ok(root), Ok(file)) = (root.canonicalize(), root.join(rel).canonicalize()) else {
+        return Err(not_found());
+    };
+    if !file.starts_with(&root) || !file.is_file() {
+        return Err(not_found());
+    }
+    let bytes = tokio::fs::read(&file).await.map_err(|_| not_found())?;
+    let content_type = match file.extension().and_then(|e| e.to_str()) {
+        Some("html") => "text/html; charset=utf-8",
+        Some("png") => "image/png",
+        Some("json") => "application/json",
+        Some("tif" | "tiff") => "image/tiff",
+        Some("toml" | "txt" | "csv" | "md") => "text/plain; charset=utf-8",
+        _ => "application/octet-stream",
+    };
+    Ok(([(header::CONTENT_TYPE, content_type)], bytes).into_response())
+}
+
+/// The page: rig status, jobs, the live reconstruction (assets embedded in the binary).
+async fn page() -> impl IntoResponse {
+    (
+        [
+            (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        include_str!("../assets/index.html"),
     )
 }

@@ -57,23 +57,46 @@ impl JobRequest {
         }
     }
 
-    /// Where the job writes.
-    pub fn out(&self) -> &std::path::Path {
+    /// Where the job writes (set by [`JobRequest::place`] when the client left it out).
+    pub fn out(&self) -> Option<&std::path::Path> {
         match self {
-            JobRequest::Acquire(a) => &a.out,
+            JobRequest::Acquire(a) => a.out.as_deref(),
         }
+    }
+
+    /// Give a job sent without `out` a new directory of its own under `runs` (named by
+    /// the time it was queued, to the microsecond; a clash takes the next name).
+    pub fn place(&mut self, runs: &std::path::Path) {
+        let JobRequest::Acquire(a) = self;
+        if a.out.is_some() {
+            return;
+        }
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default();
+        let stamp = format!("run-{}-{:06}", now.as_secs(), now.subsec_micros());
+        let mut dir = runs.join(&stamp);
+        for n in 1.. {
+            if !dir.exists() {
+                break;
+            }
+            dir = runs.join(format!("{stamp}-{n}"));
+        }
+        a.out = Some(dir);
     }
 }
 
-/// `fpm acquire` as a request: every field but `out` may be left out (the CLI's
-/// defaults).
+/// `fpm acquire` as a request: every field may be left out (the CLI's defaults; `out`
+/// a new directory under the service's runs directory).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct AcquireRequest {
     /// Output directory (absolute): dataset.toml + frames/, acquisition.json, the
-    /// calibration and the reconstruction. It must not already hold a dataset.
-    #[schema(value_type = String)]
-    pub out: PathBuf,
+    /// calibration and the reconstruction. It must not already hold a dataset. Absent:
+    /// a new directory under the service's runs directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
     /// Calibrate the LED array first (pdcFPM).
     #[serde(default)]
     pub calibrate: bool,
@@ -123,6 +146,9 @@ pub struct AcquireRequest {
     /// Take the clear background's low-order phase off.
     #[serde(default)]
     pub flatten_background: bool,
+    /// Frames between live snapshots of the reconstruction (0: only the finished one).
+    #[serde(default = "snapshot_every")]
+    pub snapshot_every: usize,
 }
 
 fn step_ms() -> f64 {
@@ -156,30 +182,36 @@ fn pixel_um() -> f64 {
 fn passes() -> usize {
     defaults::PASSES
 }
+fn snapshot_every() -> usize {
+    defaults::SNAPSHOT_EVERY
+}
 
 impl AcquireRequest {
     /// The acquisition's plan on camera `camera`, checked: a field out of its range is
     /// named (as the CLI names its flag, without the dashes).
     pub fn plan(&self, camera: &ServiceNames) -> Result<Plan> {
-        if !self.out.is_absolute() {
+        let Some(out) = &self.out else {
+            bail!("out: missing (the service places a job without one under its runs directory)");
+        };
+        if !out.is_absolute() {
             bail!(
                 "out {}: give an absolute path (the service's working directory is not the client's)",
-                self.out.display()
+                out.display()
             );
         }
         if self.store_geometry && !self.calibrate {
             bail!("store_geometry needs calibrate");
         }
-        if self.out.join("dataset.toml").exists() {
+        if out.join("dataset.toml").exists() {
             bail!(
                 "out {}: already holds a dataset; pick another directory",
-                self.out.display()
+                out.display()
             );
         }
         let [r, g, b] = self.color;
         let plan = Plan {
             camera: camera.clone(),
-            out: self.out.clone(),
+            out: out.clone(),
             calibrate: self.calibrate,
             store_geometry: self.store_geometry,
             reconstruct: self.reconstruct,
@@ -202,6 +234,7 @@ impl AcquireRequest {
             } else {
                 Flatten::Keep
             },
+            snapshot_every: self.snapshot_every,
         };
         // The system's own names, as the request names them.
         plan.validate().map_err(|e| {

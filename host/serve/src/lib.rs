@@ -9,12 +9,14 @@
 //!
 //! * [`store`]: the jobs and their state transitions in a SQLite file (WAL);
 //! * [`worker`]: the thread that owns the rig and runs one job at a time, with cancel;
+//! * [`live`]: the newest snapshots of the reconstructions and camera frames, for viewers;
 //! * [`api`]: the HTTP routes, their checks (token, Host, Origin) and the OpenAPI
 //!   document;
 //! * [`serve`]: all of it on a tokio runtime until SIGINT/SIGTERM.
 
 pub mod api;
 pub mod jobs;
+pub mod live;
 pub mod store;
 pub mod worker;
 
@@ -61,6 +63,8 @@ pub struct Started<'a> {
     pub address: SocketAddr,
     /// The file holding the token that requests changing the rig must carry.
     pub token_file: &'a Path,
+    /// The page's address with the token in it, for a person to open (as Jupyter's).
+    pub page: String,
 }
 
 /// Run the service until SIGINT or SIGTERM: `on_started` once it listens.
@@ -89,6 +93,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             store,
             rig.description.clone(),
             rig.camera.clone(),
+            config.state_dir.join("runs"),
         ));
         let worker = worker::Worker::start(shared.clone(), rig)?;
         let state = api::State {
@@ -96,10 +101,12 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             worker: worker.handle(),
             token: Arc::new(token),
             address,
+            public: config.public,
         };
         on_started(Started {
             address,
             token_file: &state.token.path,
+            page: format!("http://{address}/?token={}", state.token.value()),
         });
         let app = api::router(state);
         axum::serve(listener, app)

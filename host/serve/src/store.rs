@@ -83,6 +83,29 @@ pub struct Job {
     /// What it did (an acquisition's `acquisition.json`).
     #[schema(value_type = Option<Object>)]
     pub summary: Option<serde_json::Value>,
+    /// Its report pages present now, relative to `out` (fetch them from
+    /// `/api/jobs/{id}/files/…`).
+    pub reports: Vec<String>,
+}
+
+impl Job {
+    /// The report pages an acquisition writes, in the order a person reads them.
+    pub const REPORTS: [&'static str; 3] = [
+        "acquisition.html",
+        "reconstruction/report.html",
+        "calibration.html",
+    ];
+
+    /// With `reports` listing the pages that exist in `out`.
+    pub fn with_reports(mut self) -> Self {
+        let out = std::path::Path::new(&self.out);
+        self.reports = Self::REPORTS
+            .iter()
+            .filter(|r| out.join(r).is_file())
+            .map(|r| r.to_string())
+            .collect();
+        self
+    }
 }
 
 /// The job database.
@@ -213,7 +236,7 @@ fn row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Job> {
         Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
     };
     let state: String = r.get(2)?;
-    Ok(Job {
+    Ok(Job::with_reports(Job {
         id: r.get(0)?,
         kind: r.get(1)?,
         state: JobState::parse(&state).unwrap_or(JobState::Failed),
@@ -224,7 +247,8 @@ fn row(r: &rusqlite::Row<'_>) -> rusqlite::Result<Job> {
         finished_s: r.get(7)?,
         error: r.get(8)?,
         summary: json(9)?,
-    })
+        reports: vec![],
+    }))
 }
 
 #[cfg(test)]

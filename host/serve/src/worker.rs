@@ -7,7 +7,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
 use fpm_acquire::{Controller, Progress};
@@ -17,10 +17,12 @@ use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
 use crate::jobs::JobRequest;
+use crate::live::Live;
 use crate::store::{JobState, Store};
 use crate::Rig;
 
-/// What the event stream carries: a job's state or progress.
+/// What the event stream carries: a job's state, its progress, each frame it
+/// labelled, and the live images that are new.
 #[derive(Debug, Clone, Serialize, ToSchema)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum Event {
@@ -30,12 +32,29 @@ pub enum Event {
         state: JobState,
         error: Option<String>,
     },
-    /// How far the running job is.
+    /// How far the running job is; `eta_s` is the capture's time left at its rate so
+    /// far (while it captures).
     Progress {
         job: i64,
         #[schema(value_type = Object)]
         progress: Progress,
+        eta_s: Option<f64>,
     },
+    /// A frame was labelled with its LED, (row, col).
+    Frame { job: i64, led: [u8; 2] },
+    /// A new snapshot of the job's reconstruction: `GET /api/jobs/{job}/snapshot/…`.
+    Snapshot {
+        job: i64,
+        seq: u64,
+        frames: usize,
+        of: usize,
+        finished: bool,
+        width: usize,
+        height: usize,
+        pixel_um: f64,
+    },
+    /// A new camera frame for viewers (a few a second at most): `GET /api/camera/frame`.
+    CameraFrame { job: i64, seq: u64, led: [u8; 2] },
 }
 
 /// The running job.
@@ -43,6 +62,7 @@ struct Running {
     id: i64,
     cancel: Arc<AtomicBool>,
     progress: Option<Progress>,
+    eta_s: Option<f64>,
 }
 
 /// What the API and the worker share.
@@ -55,17 +75,23 @@ pub struct Shared {
     pub rig: String,
     /// The rig's camera (a request's plan is checked against it when it comes in).
     pub camera: ServiceNames,
+    /// Where jobs sent without an output directory write, each in one of its own.
+    pub runs: std::path::PathBuf,
+    /// The live images.
+    pub live: Live,
     running: Mutex<Option<Running>>,
 }
 
 impl Shared {
     /// Nothing running yet.
-    pub fn new(store: Store, rig: String, camera: ServiceNames) -> Self {
+    pub fn new(store: Store, rig: String, camera: ServiceNames, runs: std::path::PathBuf) -> Self {
         Self {
             store,
-            events: broadcast::channel(1024).0,
+            events: broadcast::channel(4096).0,
             rig,
             camera,
+            runs,
+            live: Live::default(),
             running: Mutex::new(None),
         }
     }
@@ -74,9 +100,9 @@ impl Shared {
         self.running.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// The running job's id and progress.
-    pub fn current(&self) -> Option<(i64, Option<Progress>)> {
-        self.running().as_ref().map(|r| (r.id, r.progress))
+    /// The running job's id, progress and ETA.
+    pub fn current(&self) -> Option<(i64, Option<Progress>, Option<f64>)> {
+        self.running().as_ref().map(|r| (r.id, r.progress, r.eta_s))
     }
 
     fn publish(&self, event: Event) {
@@ -127,10 +153,15 @@ pub struct Handle {
 }
 
 impl Handle {
-    /// Queue `request`; its job id.
+    /// Queue `request` (placed under the runs directory when it names no output); its
+    /// job id.
     pub fn submit(&self, request: &JobRequest) -> Result<i64> {
         let json = serde_json::to_value(request)?;
-        let out = request.out().display().to_string();
+        let out = request
+            .out()
+            .ok_or_else(|| anyhow!("the request has no output directory"))?
+            .display()
+            .to_string();
         let id = self.shared.store.insert(request.kind(), &json, &out)?;
         self.shared.publish(Event::State {
             job: id,
@@ -239,6 +270,7 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
         id,
         cancel: cancel.clone(),
         progress: None,
+        eta_s: None,
     });
     shared.set_state(id, JobState::Running, None, None);
     let request: Result<JobRequest> = serde_json::from_value(job.request).map_err(Into::into);
@@ -248,16 +280,13 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
             let dev = Controller::open(&rig.port, Duration::from_secs(2))
                 .map_err(|e| anyhow!("the LED controller on {}: {e:#}", rig.port))?;
             let mut stage = (rig.stage)()?;
-            let on_progress = |p: &Progress| {
-                if let Some(r) = shared.running().as_mut() {
-                    r.progress = Some(*p);
-                }
-                shared.publish(Event::Progress {
-                    job: id,
-                    progress: *p,
-                });
+            let watcher = JobWatcher {
+                shared,
+                job: id,
+                last: None,
+                capture_start: None,
             };
-            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, on_progress, &cancel)
+            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &cancel)
                 .map(|summary| serde_json::to_value(summary).unwrap_or_default())
         }
     });
@@ -275,4 +304,80 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
         Err(e) => shared.set_state(id, JobState::Failed, Some(format!("{e:#}")), written()),
     }
     *shared.running() = None;
+}
+
+/// The service's view of its running acquisition: progress (with an ETA) into the
+/// running job's record and the event stream; snapshots and a few camera frames a
+/// second into [`Live`], announced.
+struct JobWatcher<'a> {
+    shared: &'a Shared,
+    job: i64,
+    /// The progress last published (the machine reports after every event; an
+    /// unchanged one is not sent again).
+    last: Option<Progress>,
+    /// When the capture's first frame came, and how many frames there were by then.
+    capture_start: Option<(Instant, usize)>,
+}
+
+impl JobWatcher<'_> {
+    /// The capture's time left at its rate so far, s.
+    fn eta_s(&mut self, p: &Progress) -> Option<f64> {
+        use fpm_acquire::Phase;
+        if !matches!(p.phase, Phase::Capturing | Phase::Retaking) || p.of == 0 {
+            return None;
+        }
+        let (t0, f0) = *self.capture_start.get_or_insert((Instant::now(), p.frames));
+        let done = p.frames.saturating_sub(f0);
+        if done < 2 {
+            return None;
+        }
+        let rate = done as f64 / t0.elapsed().as_secs_f64().max(1e-6);
+        Some(p.of.saturating_sub(p.frames) as f64 / rate)
+    }
+}
+
+impl fpm_acquire::pipeline::Watcher for JobWatcher<'_> {
+    fn progress(&mut self, p: &Progress) {
+        if self.last == Some(*p) {
+            return;
+        }
+        self.last = Some(*p);
+        let eta_s = self.eta_s(p);
+        if let Some(r) = self.shared.running().as_mut() {
+            r.progress = Some(*p);
+            r.eta_s = eta_s;
+        }
+        self.shared.publish(Event::Progress {
+            job: self.job,
+            progress: *p,
+            eta_s,
+        });
+    }
+
+    fn snapshot(&mut self, snapshot: fpm_acquire::acquisition::Snapshot) {
+        let s = self.shared.live.put_snapshot(self.job, &snapshot);
+        let (height, width) = s.amplitude.dim();
+        self.shared.publish(Event::Snapshot {
+            job: self.job,
+            seq: s.seq,
+            frames: s.frames,
+            of: s.of,
+            finished: s.finished,
+            width,
+            height,
+            pixel_um: s.pixel_um,
+        });
+    }
+
+    fn frame(&mut self, shot: &fpm_acquire::ShotView<'_>) {
+        let led = [shot.led.row, shot.led.col];
+        self.shared.publish(Event::Frame { job: self.job, led });
+        if let Some(f) = self.shared.live.offer_frame(self.job, shot) {
+            self.shared.publish(Event::CameraFrame {
+                job: self.job,
+                seq: f.seq,
+                led,
+            });
+        }
+    }
 }

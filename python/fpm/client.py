@@ -9,6 +9,9 @@
 ...         break
 >>> c.job(job)["summary"]["frames_in_dataset"]
 441
+>>> live = c.snapshot(job)                # the reconstruction as NumPy arrays
+>>> live.amplitude.shape, live.pixel_um
+((256, 256), 0.15)
 
 Requests that change the rig carry the token the service wrote (0600) into its state
 directory; a refused request raises ``ServiceError`` with the service's message, which
@@ -17,6 +20,7 @@ names the field, header or job at fault.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -36,6 +40,34 @@ class ServiceError(RuntimeError):
     def __init__(self, status: int, message: str):
         super().__init__(f"{status}: {message}")
         self.status = status
+
+
+@dataclasses.dataclass
+class Snapshot:
+    """A job's reconstruction as it stood: ``amplitude`` and ``phase`` (radians)
+    float32 arrays whose pixel is ``pixel_um`` µm in the sample plane, after
+    ``frames`` of ``of`` frames; ``finished`` for the final reconstruction."""
+
+    job: int
+    seq: int
+    frames: int
+    of: int
+    finished: bool
+    pixel_um: float
+    amplitude: Any
+    phase: Any
+
+
+@dataclasses.dataclass
+class CameraFrame:
+    """A raw camera frame as the service kept it while a job captured: ``pixels``
+    (uint16 counts), lit by LED ``led`` (row, col) for ``exposure_us``."""
+
+    job: int
+    seq: int
+    led: tuple
+    exposure_us: int
+    pixels: Any
 
 
 def default_state_dir() -> Path:
@@ -66,26 +98,31 @@ class Client:
                 token = None  # reads still work; changes are refused, saying why
         self._token = token
 
-    def _request(self, method: str, path: str, body: Any = None) -> Any:
+    def _raw(self, method: str, path: str, body: Any = None):
+        """The response's bytes and headers (a refusal raises ``ServiceError``)."""
         data = None if body is None else json.dumps(body).encode()
         request = urllib.request.Request(
             f"http://{self.address}{path}", data=data, method=method
         )
         if data is not None:
             request.add_header("Content-Type", "application/json")
-        if method != "GET" and self._token:
+        if self._token:
+            # Reads need it too when the service listens beyond loopback (--public).
             request.add_header("Authorization", f"Bearer {self._token}")
         try:
             with urllib.request.urlopen(request, timeout=self.timeout) as response:
-                text = response.read().decode()
+                return response.read(), response.headers
         except urllib.error.HTTPError as e:
-            text = e.read().decode()
+            text = e.read().decode(errors="replace")
             try:
                 message = json.loads(text).get("error", text)
             except ValueError:
                 message = text
             raise ServiceError(e.code, message) from None
-        return json.loads(text) if text else None
+
+    def _request(self, method: str, path: str, body: Any = None) -> Any:
+        data, _ = self._raw(method, path, body)
+        return json.loads(data) if data else None
 
     def status(self) -> dict:
         """The service's version, its rig, the running job and its progress."""
@@ -99,12 +136,65 @@ class Client:
         """One job: its state, request, times, error and summary."""
         return self._request("GET", f"/api/jobs/{int(job)}")
 
-    def acquire(self, out: os.PathLike, **fields: Any) -> int:
-        """Queue an acquisition into ``out`` (absolute; made absolute here); ``fields``
-        are ``fpm acquire``'s flags without the dashes (``calibrate=True``,
-        ``reconstruct=True``, ``step_ms=30``, …). Its job id."""
-        body = {"kind": "acquire", "out": str(Path(out).absolute()), **fields}
+    def acquire(self, out: Optional[os.PathLike] = None, **fields: Any) -> int:
+        """Queue an acquisition into ``out`` (made absolute here; None: a new directory
+        under the service's runs, named in ``job(id)["out"]``); ``fields`` are ``fpm
+        acquire``'s flags without the dashes (``calibrate=True``, ``reconstruct=True``,
+        ``step_ms=30``, …) and ``snapshot_every`` (frames between live snapshots). Its
+        job id."""
+        body = {"kind": "acquire", **fields}
+        if out is not None:
+            body["out"] = str(Path(out).absolute())
         return self._request("POST", "/api/jobs", body)["id"]
+
+    def snapshot(self, job: int) -> Snapshot:
+        """``job``'s newest snapshot of its reconstruction (``ServiceError`` 404 when it
+        has none yet, or it is no longer in the service's memory: the images are then
+        in its output directory)."""
+        import numpy as np
+
+        parts = {}
+        for part in ("amplitude", "phase"):
+            data, headers = self._raw(
+                "GET", f"/api/jobs/{int(job)}/snapshot/{part}?format=f32"
+            )
+            shape = tuple(int(n) for n in headers["X-Fpm-Shape"].split(","))
+            parts[part] = (np.frombuffer(data, dtype="<f4").reshape(shape), headers)
+        headers = parts["amplitude"][1]
+        if parts["phase"][1]["X-Fpm-Seq"] != headers["X-Fpm-Seq"]:
+            return self.snapshot(job)  # a newer one came between the two requests
+        return Snapshot(
+            job=int(job),
+            seq=int(headers["X-Fpm-Seq"]),
+            frames=int(headers["X-Fpm-Frames"]),
+            of=int(headers["X-Fpm-Of"]),
+            finished=headers["X-Fpm-Finished"] == "true",
+            pixel_um=float(headers["X-Fpm-Pixel-Um"]),
+            amplitude=parts["amplitude"][0],
+            phase=parts["phase"][0],
+        )
+
+    def camera_frame(self) -> CameraFrame:
+        """The newest raw camera frame the service kept (a few a second while a job
+        captures)."""
+        import numpy as np
+
+        data, headers = self._raw("GET", "/api/camera/frame?format=u16")
+        shape = tuple(int(n) for n in headers["X-Fpm-Shape"].split(","))
+        row, col = (int(n) for n in headers["X-Fpm-Led"].split(","))
+        return CameraFrame(
+            job=int(headers["X-Fpm-Job"]),
+            seq=int(headers["X-Fpm-Seq"]),
+            led=(row, col),
+            exposure_us=int(headers["X-Fpm-Exposure-Us"]),
+            pixels=np.frombuffer(data, dtype="<u2").reshape(shape),
+        )
+
+    def file(self, job: int, path: str) -> bytes:
+        """A file of ``job``'s output directory (``"acquisition.html"``,
+        ``"reconstruction/amplitude.tif"``, …), as bytes."""
+        data, _ = self._raw("GET", f"/api/jobs/{int(job)}/files/{path}")
+        return data
 
     def cancel(self, job: int) -> None:
         """Cancel ``job``: a queued one never starts, a running one stops and keeps
@@ -123,13 +213,17 @@ class Client:
             time.sleep(poll)
 
     def events(self) -> Iterator[dict]:
-        """The service's events from now on, as they come (``{"event": "state", "job",
-        "state", "error"}`` or ``{"event": "progress", "job", "progress"}``): the
-        stream is open when this returns, so a job queued next is seen from its start.
-        Stop iterating (or close the iterator) to disconnect."""
-        request = urllib.request.Request(
-            f"http://{self.address}/api/events", headers={"Accept": "text/event-stream"}
-        )
+        """The service's events from now on, as they come: ``{"event": "state", "job",
+        "state", "error"}``, ``{"event": "progress", "job", "progress", "eta_s"}``,
+        ``{"event": "frame", "job", "led"}``, ``{"event": "snapshot", "job", "seq",
+        "frames", "of", "finished", …}`` (fetch it with :meth:`snapshot`) and
+        ``{"event": "camera_frame", …}`` (:meth:`camera_frame`). The stream is open
+        when this returns, so a job queued next is seen from its start. Stop
+        iterating (or close the iterator) to disconnect."""
+        headers = {"Accept": "text/event-stream"}
+        if self._token:
+            headers["Authorization"] = f"Bearer {self._token}"
+        request = urllib.request.Request(f"http://{self.address}/api/events", headers=headers)
         stream = urllib.request.urlopen(request, timeout=self.timeout)
 
         def read() -> Iterator[dict]:

@@ -79,6 +79,33 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The acquisition service as its clients see it, on virtual rigs started for the
+    /// run: API round trips (1 and 50 clients), event and snapshot latency, cancel, and
+    /// its overhead on a 441-LED acquisition against `fpm acquire`.
+    Serve(ServeArgs),
+}
+
+/// `fpm bench serve`'s flags.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Requests per round-trip measurement.
+    #[arg(long, default_value_t = 2000)]
+    requests: usize,
+    /// Concurrent clients in the loaded round-trip measurement.
+    #[arg(long, default_value_t = 50)]
+    clients: usize,
+    /// The virtual camera's side, pixels.
+    #[arg(long, default_value_t = 64)]
+    size: usize,
+    /// How long each LED is lit, ms.
+    #[arg(long, default_value_t = 15.0)]
+    step_ms: f64,
+    /// Acquisitions per side in the overhead comparison (alternating).
+    #[arg(long, default_value_t = 3)]
+    rounds: usize,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -164,5 +191,13 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             upsample,
             json,
         } => fpm_bench::epry::run(size, upsample, json),
+        BenchCommand::Serve(a) => fpm_bench::serve::run(fpm_bench::serve::ServeOptions {
+            requests: a.requests,
+            clients: a.clients,
+            size: a.size,
+            step_ms: a.step_ms,
+            rounds: a.rounds,
+            json: a.json,
+        }),
     }
 }

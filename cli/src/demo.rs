@@ -36,10 +36,19 @@ pub struct DemoArgs {
     /// arrays, the acquisition summary, the quality, the output paths) instead of text.
     #[arg(long)]
     json: bool,
+    /// Run the demo through the acquisition service: start `fpm serve --virtual`, print
+    /// its page's address to watch the reconstruction grow, queue the demo's job
+    /// (calibrate, acquire, reconstruct) and follow it; the service stays up until
+    /// Ctrl-C (with --json it stops when the job ends and the job's record is printed).
+    #[arg(long, conflicts_with_all = ["firmware", "lanes", "exposure_us", "seed"])]
+    serve: bool,
 }
 
 /// Run the demo.
 pub fn run(a: DemoArgs) -> Result<()> {
+    if a.serve {
+        return through_the_service(&a);
+    }
     let demo = Demo {
         out: a.out,
         seed: a.seed,
@@ -172,4 +181,162 @@ fn print_result(r: &DemoReport) {
     println!(
         "re-run offline: fpm reconstruct {out} --out /tmp/rec --calibration {out}/calibration.json --flatten-background"
     );
+}
+
+/// `fpm demo --serve`: the demo's acquisition as a job of a service started for it.
+fn through_the_service(a: &DemoArgs) -> Result<()> {
+    use std::io::BufRead;
+    if !(192..=4096).contains(&a.size) {
+        anyhow::bail!("--size {}: give 192-4096 pixels", a.size);
+    }
+    let root = match &a.out {
+        Some(out) => out.clone(),
+        None => tempfile::Builder::new()
+            .prefix("fpm-demo-serve-")
+            .tempdir()?
+            .keep(),
+    };
+    let state = root.join("service");
+    let fpm = std::env::current_exe().context("locating the fpm executable")?;
+    let mut service = std::process::Command::new(&fpm)
+        .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
+        .args(["--virtual-size", &a.size.to_string()])
+        .arg("--state-dir")
+        .arg(&state)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .context("starting fpm serve --virtual")?;
+    let stop = |service: &mut std::process::Child| {
+        let pid = nix::unistd::Pid::from_raw(service.id() as i32);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let _ = service.wait();
+    };
+    let lines: Vec<String> = std::io::BufReader::new(service.stdout.take().context("stdout")?)
+        .lines()
+        .take(3)
+        .collect::<std::io::Result<_>>()?;
+    let field = |prefix: &str| {
+        lines
+            .iter()
+            .find_map(|l| l.strip_prefix(prefix))
+            .map(str::to_string)
+            .with_context(|| format!("fpm serve did not say {prefix:?}: {lines:?}"))
+    };
+    let (address, page) = match (
+        field("fpm serve: listening on http://"),
+        field("the page: "),
+    ) {
+        (Ok(a), Ok(p)) => (a, p),
+        (a, p) => {
+            stop(&mut service);
+            return Err(a.and(p).unwrap_err());
+        }
+    };
+    let outcome = follow_the_job(a, &address, &state, &root, &page);
+    if outcome.is_ok() && !a.json {
+        println!("\nthe service keeps running so you can look: {page}\nCtrl-C stops it");
+        let stopped = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            signal_hook::flag::register(signal, stopped.clone())?;
+        }
+        while !stopped.load(std::sync::atomic::Ordering::SeqCst) && service.try_wait()?.is_none() {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+    }
+    stop(&mut service);
+    outcome
+}
+
+/// Queue the demo's job on the service at `address`, follow it to its end, print it.
+fn follow_the_job(
+    a: &DemoArgs,
+    address: &str,
+    state: &std::path::Path,
+    root: &std::path::Path,
+    page: &str,
+) -> Result<()> {
+    use fpm_serve::client::{event_lines, send};
+    let address: std::net::SocketAddr = address.parse()?;
+    let token = std::fs::read_to_string(state.join("token"))?;
+    let auth = format!("Bearer {}", token.trim());
+    if !a.json {
+        println!(
+            "fpm demo --serve: the virtual microscope driven through the acquisition service\n"
+        );
+        println!("watch it         {page}");
+    }
+    let events = event_lines(address, None)?;
+    let out = root.join("acquisition");
+    let request = serde_json::json!({"kind": "acquire", "out": out, "calibrate": true,
+        "reconstruct": true, "flatten_background": true, "defocus_sigma_um": 0.0,
+        "step_ms": a.step_ms, "snapshot_every": 25});
+    let r = send(
+        address,
+        "POST",
+        "/api/jobs",
+        &[("Authorization", &auth)],
+        Some(&request.to_string()),
+    )?;
+    if r.status != 202 {
+        anyhow::bail!("the service refused the demo's job: {}", r.body);
+    }
+    let job = r.json()?["id"].as_i64().context("no job id")?;
+    let bar = (!a.json).then(|| crate::progress::frames("acquiring"));
+    for line in events {
+        let Some(data) = line.strip_prefix("data:") else {
+            continue;
+        };
+        let event: serde_json::Value = serde_json::from_str(data.trim())?;
+        if event["job"] != job {
+            continue;
+        }
+        match event["event"].as_str() {
+            Some("progress") => {
+                if let Some(bar) = &bar {
+                    let p = &event["progress"];
+                    bar.set_message(p["phase"].as_str().unwrap_or("").to_string());
+                    bar.set_length(p["of"].as_u64().unwrap_or(0));
+                    bar.set_position(p["frames"].as_u64().unwrap_or(0));
+                }
+            }
+            Some("state") if !matches!(event["state"].as_str(), Some("queued" | "running")) => {
+                break
+            }
+            _ => {}
+        }
+    }
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let record = send(address, "GET", &format!("/api/jobs/{job}"), &[], None)?.json()?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&record)?);
+    } else {
+        let s = &record["summary"];
+        println!(
+            "{:<17}{}{}",
+            format!("job {job}"),
+            record["state"].as_str().unwrap_or("?"),
+            record["error"]
+                .as_str()
+                .map(|e| format!(": {e}"))
+                .unwrap_or_default()
+        );
+        println!(
+            "acquisition      {} of {} LEDs in the dataset, in {}",
+            s["frames_in_dataset"],
+            s["capture"]["requested"],
+            out.display()
+        );
+        for report in record["reports"].as_array().into_iter().flatten() {
+            if let Some(r) = report.as_str() {
+                println!("report           {}", out.join(r).display());
+            }
+        }
+    }
+    match record["state"].as_str() {
+        Some("done") => Ok(()),
+        state => anyhow::bail!("the demo's job ended {}", state.unwrap_or("?")),
+    }
 }

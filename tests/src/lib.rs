@@ -3,7 +3,22 @@
 //! them.
 
 pub mod browser;
-pub mod http;
+/// The service's own blocking client, failing the test on a failed request.
+pub mod http {
+    pub use fpm_serve::client::Response;
+
+    /// [`fpm_serve::client::send`], the test failing if the request cannot be made.
+    pub fn request(
+        address: std::net::SocketAddr,
+        method: &str,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: Option<&str>,
+    ) -> Response {
+        fpm_serve::client::send(address, method, path, headers, body)
+            .unwrap_or_else(|e| panic!("{e:#}"))
+    }
+}
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

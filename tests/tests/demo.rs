@@ -171,3 +171,46 @@ fn a_missing_firmware_image_is_named() {
         "nothing is written for a refused demo"
     );
 }
+
+/// `fpm demo --serve`: the demo's acquisition as a job of a service it starts (its
+/// virtual rig included), followed to the end; the service and its rig stop with it.
+#[test]
+fn the_demo_runs_through_the_service() {
+    let dir = TempDir::new("demo-serve");
+    let run = Command::new(fpm_bin())
+        .args([
+            "demo",
+            "--serve",
+            "--json",
+            "--size",
+            "192",
+            "--step-ms",
+            "20",
+        ])
+        .args(["--out", &dir.0.to_string_lossy()])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let job: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(job["state"], "done", "{job}");
+    assert_eq!(job["summary"]["frames_in_dataset"], 441, "{job}");
+    assert_eq!(job["request"]["calibrate"], true, "{job}");
+    assert_eq!(
+        job["reports"],
+        serde_json::json!([
+            "acquisition.html",
+            "reconstruction/report.html",
+            "calibration.html"
+        ])
+    );
+    let out = dir.0.join("acquisition");
+    assert!(out.join("reconstruction/amplitude.tif").is_file());
+    assert!(
+        !dir.0.join("service/virtual-rig/controller.tty").exists(),
+        "the service's virtual rig outlived the demo"
+    );
+}

@@ -78,7 +78,7 @@ impl Service {
     fn wait(&self, id: i64, timeout: Duration) -> serde_json::Value {
         let start = Instant::now();
         loop {
-            let job = self.get(&format!("/api/jobs/{id}")).json();
+            let job = self.get(&format!("/api/jobs/{id}")).json().unwrap();
             if !matches!(job["state"].as_str(), Some("queued" | "running")) {
                 return job;
             }
@@ -113,7 +113,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let dir = TempDir::new("serve");
     let state = dir.0.join("state");
     let service = Service::start(&state);
-    let status = service.get("/api/status").json();
+    let status = service.get("/api/status").json().unwrap();
     assert!(
         status["rig"].as_str().unwrap().contains("virtual rig"),
         "{status}"
@@ -126,8 +126,8 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let second = service.post("/api/jobs", Some(&acquire(&dir.0.join("b"))));
     assert_eq!(second.status, 202, "{}", second.body);
     let (a, b) = (
-        first.json()["id"].as_i64().unwrap(),
-        second.json()["id"].as_i64().unwrap(),
+        first.json().unwrap()["id"].as_i64().unwrap(),
+        second.json().unwrap()["id"].as_i64().unwrap(),
     );
     let job = service.wait(a, Duration::from_secs(120));
     assert_eq!(job["state"], "done", "{job}");
@@ -135,7 +135,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     assert_eq!(Dataset::load(&dir.0.join("a")).unwrap().frames.len(), 441);
     // The second is on the rig now: cancel it a second into its sequence.
     let start = Instant::now();
-    while service.get("/api/status").json()["running"].as_i64() != Some(b) {
+    while service.get("/api/status").json().unwrap()["running"].as_i64() != Some(b) {
         assert!(
             start.elapsed() < Duration::from_secs(30),
             "job {b} never started"
@@ -244,11 +244,11 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     );
     assert_eq!(rebound.status, 403, "{}", rebound.body);
     assert_eq!(service.get("/api/jobs/999").status, 404);
-    let jobs = service.get("/api/jobs").json();
+    let jobs = service.get("/api/jobs").json().unwrap();
     assert_eq!(jobs.as_array().unwrap().len(), 2, "{jobs}");
 
     // The OpenAPI document describes the routes.
-    let doc = service.get("/openapi.json").json();
+    let doc = service.get("/openapi.json").json().unwrap();
     for path in [
         "/api/status",
         "/api/jobs",
@@ -272,7 +272,10 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let events = events(service.address);
     let live = serde_json::json!({"kind": "acquire", "step_ms": 40.0, "reconstruct": true,
         "flatten_background": true, "snapshot_every": 100});
-    let c = service.post("/api/jobs", Some(&live.to_string())).json()["id"]
+    let c = service
+        .post("/api/jobs", Some(&live.to_string()))
+        .json()
+        .unwrap()["id"]
         .as_i64()
         .unwrap();
     let (mut states, mut frames, mut announced, mut snapshots) = (vec![], vec![], 0, vec![]);
@@ -350,7 +353,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         ]
     );
     // The finished snapshot over HTTP is the reconstruction the job wrote.
-    let job = service.get(&format!("/api/jobs/{c}")).json();
+    let job = service.get(&format!("/api/jobs/{c}")).json().unwrap();
     let out = std::path::PathBuf::from(job["out"].as_str().unwrap());
     assert!(out.starts_with(state.join("runs")), "{job}");
     assert!(job["reports"]
@@ -440,11 +443,12 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     // marked interrupted.
     let d = service
         .post("/api/jobs", Some(&acquire(&dir.0.join("d"))))
-        .json()["id"]
+        .json()
+        .unwrap()["id"]
         .as_i64()
         .unwrap();
     let start = Instant::now();
-    while service.get("/api/status").json()["running"].as_i64() != Some(d) {
+    while service.get("/api/status").json().unwrap()["running"].as_i64() != Some(d) {
         assert!(
             start.elapsed() < Duration::from_secs(30),
             "job {d} never started"
@@ -463,7 +467,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         std::thread::sleep(Duration::from_millis(50));
     }
     let service = Service::start(&state);
-    let job = service.get(&format!("/api/jobs/{d}")).json();
+    let job = service.get(&format!("/api/jobs/{d}")).json().unwrap();
     assert_eq!(job["state"], "interrupted", "{job}");
     assert!(
         job["error"].as_str().unwrap().contains("queue it again"),
@@ -471,26 +475,15 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     );
     for (id, state) in [(a, "done"), (b, "cancelled"), (c, "done")] {
         assert_eq!(
-            service.get(&format!("/api/jobs/{id}")).json()["state"],
+            service.get(&format!("/api/jobs/{id}")).json().unwrap()["state"],
             state
         );
     }
 }
 
-/// The lines of `GET /api/events` as they come (the stream ends the test's way: by
-/// the caller stopping to read).
+/// The lines of `GET /api/events` as they come.
 fn events(address: SocketAddr) -> impl Iterator<Item = String> {
-    use std::io::Write;
-    let mut stream = std::net::TcpStream::connect(address).unwrap();
-    stream
-        .set_read_timeout(Some(Duration::from_secs(60)))
-        .unwrap();
-    write!(
-        stream,
-        "GET /api/events HTTP/1.1\r\nHost: {address}\r\nAccept: text/event-stream\r\n\r\n"
-    )
-    .unwrap();
-    BufReader::new(stream).lines().map_while(Result::ok)
+    fpm_serve::client::event_lines(address, None).unwrap()
 }
 
 /// 10⁴ generated bad requests from four clients while an acquisition runs: every one
@@ -504,7 +497,7 @@ fn bad_requests_during_an_acquisition_change_nothing() {
     let out = dir.0.join("field");
     let first = service.post("/api/jobs", Some(&acquire(&out)));
     assert_eq!(first.status, 202, "{}", first.body);
-    let job = first.json()["id"].as_i64().unwrap();
+    let job = first.json().unwrap()["id"].as_i64().unwrap();
     let (address, token) = (service.address, service.token.clone());
     let count = std::env::var("FPM_SERVE_BAD_REQUESTS")
         .ok()
@@ -538,7 +531,16 @@ fn bad_requests_during_an_acquisition_change_nothing() {
     assert_eq!(record["state"], "done", "{record}");
     assert_eq!(record["summary"]["frames_in_dataset"], 441, "{record}");
     assert_eq!(record["summary"]["capture"]["relabelled"], 0, "{record}");
-    assert_eq!(service.get("/api/jobs").json().as_array().unwrap().len(), 1);
+    assert_eq!(
+        service
+            .get("/api/jobs")
+            .json()
+            .unwrap()
+            .as_array()
+            .unwrap()
+            .len(),
+        1
+    );
     let mut statuses: Vec<u16> = all.iter().map(|(s, _)| *s).collect();
     statuses.sort();
     statuses.dedup();
@@ -705,7 +707,7 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     assert_eq!(progress.last(), Some(&441.0));
     // The image the page shows at the end is the one the job wrote.
     let first = seen["first"].as_i64().unwrap();
-    let job = service.get(&format!("/api/jobs/{first}")).json();
+    let job = service.get(&format!("/api/jobs/{first}")).json().unwrap();
     let written = std::fs::read(
         std::path::Path::new(job["out"].as_str().unwrap()).join("reconstruction/amplitude.png"),
     )
@@ -737,7 +739,7 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     assert_eq!(seen["second_state"], "cancelled", "{seen}");
     let at_cancel = seen["frames_at_cancel"].as_u64().unwrap();
     assert!((20..441).contains(&at_cancel), "{seen}");
-    let job = service.get(&format!("/api/jobs/{second}")).json();
+    let job = service.get(&format!("/api/jobs/{second}")).json().unwrap();
     let kept = job["summary"]["frames_in_dataset"].as_u64().unwrap() as usize;
     assert!(kept >= at_cancel as usize && kept < 441, "{job}");
     let out = std::path::Path::new(job["out"].as_str().unwrap());

@@ -294,12 +294,19 @@ pub fn capture(
         }
         let complete = received.len() >= leds.len();
         // Frames still on their way are waited for; after a cancel only briefly (the
-        // LEDs it lit last, a few periods), so that a cancel ends the capture at once.
+        // LEDs it lit last, a few periods), and not at all once a frame has come for
+        // every step the controller finished and a period has passed without another:
+        // a cancel ends the capture at once.
         let idle = match aborted {
             false => idle_after_end,
             true => Duration::from_millis(300) + Duration::from_nanos(period_ns * 4),
         };
-        if ended.is_some() && (complete || last_frame.elapsed() > idle) {
+        let all_in = ended.as_ref().is_some_and(|e| {
+            aborted
+                && received.len() >= usize::from(e.completed)
+                && last_frame.elapsed() > Duration::from_nanos(period_ns)
+        });
+        if ended.is_some() && (complete || all_in || last_frame.elapsed() > idle) {
             break;
         }
         if failure.is_some() {

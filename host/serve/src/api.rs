@@ -348,7 +348,7 @@ async fn cancel(
 }
 
 #[utoipa::path(get, path = "/api/events",
-    responses((status = 200, description = "Server-sent events, each a JSON Event", content_type = "text/event-stream")))]
+    responses((status = 200, description = "Server-sent events, each a JSON Event with `at_s`, when the service published it (Unix seconds); a slow client is sent `event: lagged` with how many it missed", content_type = "text/event-stream")))]
 async fn events(
     Extract(state): Extract<State>,
 ) -> Sse<impl Stream<Item = Result<SseEvent, Infallible>>> {

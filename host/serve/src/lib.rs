@@ -12,9 +12,11 @@
 //! * [`live`]: the newest snapshots of the reconstructions and camera frames, for viewers;
 //! * [`api`]: the HTTP routes, their checks (token, Host, Origin) and the OpenAPI
 //!   document;
-//! * [`serve`]: all of it on a tokio runtime until SIGINT/SIGTERM.
+//! * [`serve`]: all of it on a tokio runtime until SIGINT/SIGTERM;
+//! * [`client`]: a minimal blocking client of the API (tests, benchmarks, the demo).
 
 pub mod api;
+pub mod client;
 pub mod jobs;
 pub mod live;
 pub mod store;

@@ -57,6 +57,15 @@ pub enum Event {
     CameraFrame { job: i64, seq: u64, led: [u8; 2] },
 }
 
+/// An event as the stream sends it: with `at_s`, when the service published it (Unix
+/// seconds), so a client can tell how late it got it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stamped {
+    #[serde(flatten)]
+    pub event: Event,
+    pub at_s: f64,
+}
+
 /// The running job.
 struct Running {
     id: i64,
@@ -70,7 +79,7 @@ pub struct Shared {
     /// The job database.
     pub store: Store,
     /// Events for every subscriber (a slow one misses some and is told so).
-    pub events: broadcast::Sender<Event>,
+    pub events: broadcast::Sender<Stamped>,
     /// The rig, in words.
     pub rig: String,
     /// The rig's camera (a request's plan is checked against it when it comes in).
@@ -107,7 +116,10 @@ impl Shared {
 
     fn publish(&self, event: Event) {
         // No subscriber is not an error.
-        let _ = self.events.send(event);
+        let at_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let _ = self.events.send(Stamped { event, at_s });
     }
 
     fn set_state(

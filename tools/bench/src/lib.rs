@@ -14,6 +14,7 @@ pub mod geometry;
 pub mod led_switch;
 pub mod link;
 pub mod memory;
+pub mod serve;
 mod stats;
 
 pub use memory::MemoryOptions;

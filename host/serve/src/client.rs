@@ -1,5 +1,7 @@
-//! A minimal HTTP/1.1 client over a real TCP socket on 127.0.0.1, enough for the
-//! service's tests (one request per connection, the body read to the end).
+//! A minimal blocking client of the service's API: HTTP/1.1 over TCP, one request per
+//! connection, the body read to the end (as a script's `urllib` does). The tests, `fpm
+//! bench serve` and `fpm demo --serve` drive the service with it; every failure is an error
+//! naming the request.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -23,25 +25,29 @@ impl Response {
             .map(|(_, v)| v.as_str())
     }
 
-    /// The body as JSON (panics with the body when it is not).
-    pub fn json(&self) -> serde_json::Value {
-        serde_json::from_str(&self.body).unwrap_or_else(|e| panic!("{e}: {}", self.body))
+    /// The body as JSON.
+    pub fn json(&self) -> anyhow::Result<serde_json::Value> {
+        serde_json::from_str(&self.body).map_err(|e| {
+            anyhow::anyhow!("the service's answer is not JSON ({e}): {:.200}", self.body)
+        })
     }
 }
 
 /// `method path` on `address`, with these extra header lines (a `Host` among them
-/// replaces the address) and `body`.
-pub fn request(
+/// replaces the address) and `body` (JSON).
+pub fn send(
     address: SocketAddr,
     method: &str,
     path: &str,
     headers: &[(&str, &str)],
     body: Option<&str>,
-) -> Response {
-    let mut stream = TcpStream::connect(address).expect("connecting to the service");
+) -> anyhow::Result<Response> {
+    use anyhow::Context;
+    let what = || format!("{method} http://{address}{path}");
+    let mut stream = TcpStream::connect(address).with_context(what)?;
     stream
         .set_read_timeout(Some(Duration::from_secs(30)))
-        .unwrap();
+        .with_context(what)?;
     let mut text = format!("{method} {path} HTTP/1.1\r\nConnection: close\r\n");
     if !headers.iter().any(|(k, _)| k.eq_ignore_ascii_case("host")) {
         text.push_str(&format!("Host: {address}\r\n"));
@@ -59,19 +65,19 @@ pub fn request(
     if let Some(b) = body {
         text.push_str(b);
     }
-    stream.write_all(text.as_bytes()).unwrap();
+    stream.write_all(text.as_bytes()).with_context(what)?;
     let mut reader = BufReader::new(stream);
     let mut status_line = String::new();
-    reader.read_line(&mut status_line).unwrap();
+    reader.read_line(&mut status_line).with_context(what)?;
     let status = status_line
         .split_whitespace()
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("not an HTTP status line: {status_line:?}"));
+        .with_context(|| format!("{}: not an HTTP status line: {status_line:?}", what()))?;
     let mut headers = vec![];
     loop {
         let mut line = String::new();
-        reader.read_line(&mut line).unwrap();
+        reader.read_line(&mut line).with_context(what)?;
         if line.trim().is_empty() {
             break;
         }
@@ -83,26 +89,44 @@ pub fn request(
         .iter()
         .any(|(k, v)| k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked"));
     let mut raw = Vec::new();
-    reader.read_to_end(&mut raw).unwrap();
+    reader.read_to_end(&mut raw).with_context(what)?;
     let body = if chunked { dechunk(&raw) } else { raw };
-    Response {
+    Ok(Response {
         status,
         headers,
         body: String::from_utf8_lossy(&body).into_owned(),
         bytes: body,
-    }
+    })
 }
 
+/// A chunked body's data (a malformed one is cut where it breaks).
 fn dechunk(mut raw: &[u8]) -> Vec<u8> {
     let mut out = vec![];
     while let Some(end) = raw.windows(2).position(|w| w == b"\r\n") {
         let size =
             usize::from_str_radix(String::from_utf8_lossy(&raw[..end]).trim(), 16).unwrap_or(0);
-        if size == 0 {
+        let Some(chunk) = raw.get(end + 2..end + 2 + size).filter(|_| size > 0) else {
             break;
-        }
-        out.extend_from_slice(&raw[end + 2..end + 2 + size]);
-        raw = &raw[end + 2 + size + 2..];
+        };
+        out.extend_from_slice(chunk);
+        raw = raw.get(end + 2 + size + 2..).unwrap_or_default();
     }
     out
+}
+
+/// `GET /api/events` as lines, as they come (the stream ends when the caller stops
+/// reading or the service goes).
+pub fn event_lines(
+    address: SocketAddr,
+    token: Option<&str>,
+) -> anyhow::Result<impl Iterator<Item = String>> {
+    use anyhow::Context;
+    let mut stream = TcpStream::connect(address).context("GET /api/events")?;
+    stream.set_read_timeout(Some(Duration::from_secs(60)))?;
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    write!(
+        stream,
+        "GET /api/events HTTP/1.1\r\nHost: {address}\r\nAccept: text/event-stream\r\n{auth}\r\n"
+    )?;
+    Ok(BufReader::new(stream).lines().map_while(Result::ok))
 }

@@ -383,3 +383,33 @@ pub mod wire {
             .collect()
     }
 }
+
+/// LEDs whose frame's brightness contradicts the hidden array's bright-field disc
+/// (LEDs right at the pupil edge, whose brightness is in between, are skipped).
+pub fn contradicted_by_physics(
+    ds: &fpm_host::dataset::Dataset,
+    hidden: &fpm_physics::LedGeometry,
+) -> Vec<(fpm_physics::LedIndex, f32)> {
+    let system = fpm_physics::System::paper();
+    let mut wrong = vec![];
+    for (k, f) in ds.frames.iter().enumerate() {
+        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
+        let led = f.entry.led;
+        let fr = hidden.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
+        if (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs() < 0.08 {
+            continue;
+        }
+        let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
+        // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
+        if bright != (rate > 0.3 * rate_of_clear_field()) {
+            wrong.push((led, rate));
+        }
+    }
+    wrong
+}
+
+/// The counts per ms of a clear field on the virtual camera.
+pub fn rate_of_clear_field() -> f32 {
+    let c = fpm_physics::simulate::Camera::realistic();
+    (c.electrons_per_ms * c.gain_dn_per_e) as f32
+}

@@ -9,7 +9,7 @@ use std::time::Duration;
 use fpm_host::dataset::Dataset;
 use fpm_physics::{LedGeometry, System};
 use fpm_rig::process::VirtualCameraProcess;
-use fpm_tests::{fpm_bin, Emulator, TempDir};
+use fpm_tests::{contradicted_by_physics, fpm_bin, rate_of_clear_field, Emulator, TempDir};
 
 /// `fpm acquire` against emulator `emu` and camera `id`, into `out`, 15 ms per LED.
 fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
@@ -128,11 +128,6 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
             "{key}: {got} used, {value} stored"
         );
     }
-}
-
-fn rate_of_clear_field() -> f32 {
-    let c = fpm_physics::simulate::Camera::realistic();
-    (c.electrons_per_ms * c.gain_dn_per_e) as f32
 }
 
 /// The camera dies mid-sequence. Its frames cover the first part of the run: by
@@ -387,30 +382,6 @@ fn score(ds: &Dataset, object: &ndarray::Array2<rustfft::num_complex::Complex32>
     fpm_host::truth::score_reconstruction(ds, object, 4)
         .expect("a truth of the sensor's field")
         .complex_nrmse
-}
-
-/// LEDs whose frame's brightness contradicts the hidden array's bright-field disc
-/// (LEDs right at the pupil edge, whose brightness is in between, are skipped).
-fn contradicted_by_physics(
-    ds: &Dataset,
-    hidden: &LedGeometry,
-) -> Vec<(fpm_physics::LedIndex, f32)> {
-    let system = System::paper();
-    let mut wrong = vec![];
-    for (k, f) in ds.frames.iter().enumerate() {
-        let rate = ds.corrected(k).mean().unwrap() / f.entry.exposure_ms as f32;
-        let led = f.entry.led;
-        let fr = hidden.illumination_frequency(led, 0.0, 0.0, system.wavelength_um);
-        if (fr.0.hypot(fr.1) / system.cutoff() - 1.0).abs() < 0.08 {
-            continue;
-        }
-        let bright = hidden.is_bright_field(led, 0.0, 0.0, &system);
-        // A clear field gives ~electrons_per_ms · gain per ms; dark-field frames a few %.
-        if bright != (rate > 0.3 * rate_of_clear_field()) {
-            wrong.push((led, rate));
-        }
-    }
-    wrong
 }
 
 /// A camera whose clock is 3.7 s ahead of the controller's, runs 100 ppm fast and

@@ -438,23 +438,29 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     assert_eq!(page.status, 200);
     assert!(page.body.contains("EventSource"));
 
-    // Killed (SIGKILL) mid-acquisition: its virtual rig dies with it, and a new
-    // service on the same state directory knows every job, the one it was running
-    // marked interrupted.
+    // Killed (SIGKILL) mid-capture: its virtual rig dies with it, and a new service on
+    // the same state directory knows every job, the one it was running marked
+    // interrupted, and the frames that job had labelled a valid partial dataset.
+    let d_out = dir.0.join("d");
     let d = service
-        .post("/api/jobs", Some(&acquire(&dir.0.join("d"))))
+        .post("/api/jobs", Some(&acquire(&d_out)))
         .json()
         .unwrap()["id"]
         .as_i64()
         .unwrap();
     let start = Instant::now();
-    while service.get("/api/status").json().unwrap()["running"].as_i64() != Some(d) {
+    let labelled_before_kill = loop {
+        let status = service.get("/api/status").json().unwrap();
+        let frames = status["progress"]["frames"].as_u64().unwrap_or(0);
+        if status["running"].as_i64() == Some(d) && frames >= 30 {
+            break frames;
+        }
         assert!(
             start.elapsed() < Duration::from_secs(30),
-            "job {d} never started"
+            "job {d} never got 30 frames: {status}"
         );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+        std::thread::sleep(Duration::from_millis(20));
+    };
     let link = state.join("virtual-rig/controller.tty");
     assert!(link.exists());
     service.kill();
@@ -469,10 +475,31 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let service = Service::start(&state);
     let job = service.get(&format!("/api/jobs/{d}")).json().unwrap();
     assert_eq!(job["state"], "interrupted", "{job}");
+    let error = job["error"].as_str().unwrap();
     assert!(
-        job["error"].as_str().unwrap().contains("queue it again"),
+        error.contains("partial dataset") && error.contains("queue it again"),
         "{job}"
     );
+    let recovered = Dataset::load(&d_out).unwrap();
+    let n = recovered.frames.len();
+    assert!(
+        n as u64 >= labelled_before_kill && n < 441,
+        "{n} frames recovered, {labelled_before_kill} labelled before the kill"
+    );
+    let mut leds: Vec<_> = recovered.frames.iter().map(|f| f.entry.led).collect();
+    leds.sort();
+    leds.dedup();
+    assert_eq!(leds.len(), n, "an LED twice");
+    let truth = fpm_host::truth::Truth::find(&state.join("virtual-rig/truth"))
+        .unwrap()
+        .expect("the virtual rig's truth");
+    let hidden = truth.geometry(&fpm_physics::LedGeometry::paper());
+    let wrong = fpm_tests::contradicted_by_physics(&recovered, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "recovered frames contradict their LED: {wrong:?}"
+    );
+    eprintln!("kill -9 after {labelled_before_kill} frames labelled: {n} recovered, 0 contradict their LED");
     for (id, state) in [(a, "done"), (b, "cancelled"), (c, "done")] {
         assert_eq!(
             service.get(&format!("/api/jobs/{id}")).json().unwrap()["state"],

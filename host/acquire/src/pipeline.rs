@@ -15,11 +15,13 @@ use fpm_frames::ServiceNames;
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, StoredCalibration};
 
+use crate::acquisition::sequence_id;
 pub use crate::acquisition::Plan;
 use crate::acquisition::{Acquisition, Action, Event, Progress, Rig, Snapshot};
 use crate::board_geometry;
 use crate::capture::{capture, Sequence, ShotView};
 use crate::controller::Controller;
+use crate::journal::Journal;
 use crate::page;
 use crate::stage::FocusStage;
 pub use crate::summary::AcquireSummary;
@@ -138,6 +140,8 @@ pub fn acquire(
     };
     let nominal = rig.nominal;
     let mut acq = Acquisition::new(plan.clone(), rig)?;
+    // The capture's frames go to disk as they are labelled (what a kill leaves).
+    let mut journal: Option<Journal> = None;
     // A cancel reaches the machine before the next action, and before the outcome of
     // the action it interrupted (a sequence aborted by it is not then retaken).
     let deliver_cancel = |acq: &mut Acquisition| {
@@ -160,7 +164,17 @@ pub fn acquire(
                 Event::StageArrived
             }
             Action::RunSequence { id, leds } => {
+                let captures = matches!(id, sequence_id::CAPTURE | sequence_id::RETAKE);
+                if captures && journal.is_none() {
+                    journal = start_journal(plan, &nominal);
+                }
                 let mut on_frame = |shot: ShotView<'_>| {
+                    if let Some(j) = journal.as_mut().filter(|_| captures) {
+                        if let Err(e) = j.frame(&shot) {
+                            tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
+                            journal = None;
+                        }
+                    }
                     watcher.frame(&shot);
                     acq.handle(Event::Frame(shot));
                     watch(&mut acq, &mut watcher);
@@ -175,7 +189,7 @@ pub fn acquire(
             }
             Action::Finished(result) => return *result,
             write => {
-                write_out(write, dev, plan, &nominal)?;
+                write_out(write, dev, plan, &nominal, &mut journal)?;
                 Event::Done
             }
         };
@@ -190,9 +204,18 @@ fn write_out(
     dev: &Controller,
     plan: &Plan,
     nominal: &LedGeometry,
+    journal: &mut Option<Journal>,
 ) -> Result<()> {
     let (out, system) = (&plan.out, &plan.system);
     match action {
+        // The capture's dataset: frames the journal wrote with these pixels stay.
+        Action::WriteDataset(dataset) if dataset.dir == *out => match journal.take() {
+            Some(j) => {
+                dataset.save_reusing(|path, pixels| j.holds(path, pixels))?;
+                j.finish();
+            }
+            None => dataset.save()?,
+        },
         Action::WriteDataset(dataset) => dataset.save()?,
         Action::WriteCalibration {
             calibration,
@@ -234,4 +257,21 @@ fn write_out(
         }
     }
     Ok(())
+}
+
+/// The capture's journal in `plan.out` (an optional extra: without it the frames are
+/// written when the capture ends, as ever).
+fn start_journal(plan: &Plan, nominal: &LedGeometry) -> Option<Journal> {
+    let camera = fpm_host::dataset::CameraSection {
+        dark_level: plan.dark_level,
+        ..Default::default()
+    };
+    let manifest = fpm_host::dataset::Manifest::new(&plan.system, nominal, camera, vec![]);
+    Journal::start(&plan.out, &manifest)
+        .map_err(|e| {
+            tracing::warn!(
+                "frames will be written when the capture ends, not as they arrive: {e:#}"
+            )
+        })
+        .ok()
 }

@@ -80,6 +80,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
     std::fs::create_dir_all(&config.state_dir)
         .with_context(|| format!("creating {}", config.state_dir.display()))?;
     let store = store::Store::open(&config.state_dir.join("jobs.sqlite"))?;
+    recover_interrupted(&store);
     let token = api::Token::create(&config.state_dir.join("token"))?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -119,6 +120,32 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
         worker.stop();
         Ok(())
     })
+}
+
+/// The frames of jobs a killed service left mid-capture, made partial datasets (see
+/// `fpm_acquire::journal`); each job's error says what was recovered.
+fn recover_interrupted(store: &store::Store) {
+    for &id in store.interrupted_at_open() {
+        let Ok(Some(job)) = store.get(id) else {
+            continue;
+        };
+        let out = Path::new(&job.out);
+        let said = match fpm_acquire::journal::recover(out) {
+            Ok(Some(n)) if n > 0 => format!(
+                "the service stopped while the job ran; the {n} frames it had labelled are a partial dataset in {} (the LEDs without a frame are missing from it); queue it again for a whole one",
+                out.display()
+            ),
+            Ok(_) => "the service stopped while the job ran, before any frame of its capture was labelled; queue it again".into(),
+            Err(e) => format!(
+                "the service stopped while the job ran, and its frames in {} could not be recovered ({e:#}); queue it again",
+                out.display()
+            ),
+        };
+        tracing::warn!("job {id}: {said}");
+        if let Err(e) = store.set_error(id, &said) {
+            tracing::error!("job {id}: {e:#}");
+        }
+    }
 }
 
 /// SIGINT or SIGTERM.

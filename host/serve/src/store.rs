@@ -1,7 +1,8 @@
 //! The jobs and their state in a SQLite file (WAL): what was asked, when it moved
 //! from queued to running to its end, where it wrote, its summary or error. A service
 //! killed mid-job finds the job `running` when it starts again and marks it
-//! `interrupted`: its frames so far are on disk, written as they were labelled.
+//! `interrupted` (the service then recovers the frames it had written as they were
+//! labelled as a partial dataset: `fpm_acquire::journal`).
 
 use std::path::Path;
 use std::sync::Mutex;
@@ -111,6 +112,7 @@ impl Job {
 /// The job database.
 pub struct Store {
     conn: Mutex<Connection>,
+    interrupted: Vec<i64>,
 }
 
 fn now_s() -> f64 {
@@ -141,18 +143,40 @@ impl Store {
             );",
         )
         .with_context(|| format!("{}: the jobs table", path.display()))?;
-        let interrupted = conn.execute(
+        let interrupted: Vec<i64> = conn
+            .prepare("SELECT id FROM jobs WHERE state = 'running'")?
+            .query_map([], |r| r.get(0))?
+            .collect::<rusqlite::Result<_>>()?;
+        conn.execute(
             "UPDATE jobs SET state = 'interrupted', finished_s = ?1,
-                error = 'the service stopped while the job ran: its frames were not written (a capture writes them when it ends); queue it again'
+                error = 'the service stopped while the job ran; queue it again'
              WHERE state = 'running'",
             params![now_s()],
         )?;
-        if interrupted > 0 {
-            tracing::warn!("{interrupted} job(s) were running when the service last stopped: marked interrupted");
+        if !interrupted.is_empty() {
+            tracing::warn!(
+                "{} job(s) were running when the service last stopped: marked interrupted",
+                interrupted.len()
+            );
         }
         Ok(Self {
             conn: Mutex::new(conn),
+            interrupted,
         })
+    }
+
+    /// The jobs this opening found running and marked interrupted.
+    pub fn interrupted_at_open(&self) -> &[i64] {
+        &self.interrupted
+    }
+
+    /// Say why job `id` ended as it did (its state and times stay).
+    pub fn set_error(&self, id: i64, error: &str) -> Result<()> {
+        self.conn().execute(
+            "UPDATE jobs SET error = ?2 WHERE id = ?1",
+            params![id, error],
+        )?;
+        Ok(())
     }
 
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {

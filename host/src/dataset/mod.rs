@@ -224,6 +224,17 @@ pub struct Manifest {
 }
 
 impl Manifest {
+    /// Write it as `dir/dataset.toml` (the frames' files are the caller's).
+    pub fn write(&self, dir: &Path) -> Result<(), DatasetError> {
+        let path = dir.join("dataset.toml");
+        let werr = |reason: String| DatasetError::Write {
+            path: path.clone(),
+            reason,
+        };
+        let text = toml::to_string_pretty(self).map_err(|e| werr(e.to_string()))?;
+        std::fs::write(&path, text).map_err(|e| werr(e.to_string()))
+    }
+
     /// A manifest for `frames` taken with `system`, the array described by `geometry`
     /// (the inverse of [`Self::system`] and [`Self::geometry`]) and `camera`.
     pub fn new(
@@ -477,6 +488,16 @@ impl Dataset {
     /// here, `[camera]` flips cleared: frames are kept in sample-plane orientation),
     /// then `dataset.toml`.
     pub fn save(&mut self) -> Result<(), DatasetError> {
+        self.save_reusing(|_, _| false)
+    }
+
+    /// [`Dataset::save`], except that a frame whose file `on_disk(path, pixels)` says
+    /// already holds these pixels is not written again (an acquisition's frames,
+    /// written as they arrived).
+    pub fn save_reusing(
+        &mut self,
+        on_disk: impl Fn(&Path, &Pixels) -> bool,
+    ) -> Result<(), DatasetError> {
         let werr = |path: &Path, reason: String| DatasetError::Write {
             path: path.to_path_buf(),
             reason,
@@ -489,19 +510,18 @@ impl Dataset {
         for (k, frame) in self.frames.iter_mut().enumerate() {
             let name = frame_file_name(&frame.entry);
             let path = dir.join(&name);
-            match &frame.raw {
-                Pixels::U16(a) => image_io::write_tiff_u16(&path, a.view()),
-                Pixels::U8(a) => image_io::write_tiff_u16(&path, a.mapv(u16::from).view()),
-                Pixels::F32(a) => image_io::write_tiff_f32(&path, a),
+            if !on_disk(&path, &frame.raw) {
+                match &frame.raw {
+                    Pixels::U16(a) => image_io::write_tiff_u16(&path, a.view()),
+                    Pixels::U8(a) => image_io::write_tiff_u16(&path, a.mapv(u16::from).view()),
+                    Pixels::F32(a) => image_io::write_tiff_f32(&path, a),
+                }
+                .map_err(|e| werr(&path, e.reason()))?;
             }
-            .map_err(|e| werr(&path, e.reason()))?;
             frame.entry.file = name.clone();
             self.manifest.frames[k].file = name;
         }
-        let path = dir.join("dataset.toml");
-        let text =
-            toml::to_string_pretty(&self.manifest).map_err(|e| werr(&path, e.to_string()))?;
-        std::fs::write(&path, text).map_err(|e| werr(&path, e.to_string()))
+        self.manifest.write(&dir)
     }
 
     /// Write a dataset: 16-bit TIFF frames under `frames/` and `dataset.toml`. The
@@ -532,7 +552,7 @@ impl Dataset {
 }
 
 /// A frame's file name: `frames/rRR_cCC.tif`, with `_z±Z` for defocused frames.
-fn frame_file_name(entry: &FrameEntry) -> String {
+pub fn frame_file_name(entry: &FrameEntry) -> String {
     if entry.defocus_um == 0.0 {
         format!("frames/r{:02}_c{:02}.tif", entry.led.row, entry.led.col)
     } else {

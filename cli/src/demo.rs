@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use fpm_rig::demo::{ControllerReport, Demo, DemoEvent, DemoReport};
+use fpm_serve::client::VirtualService;
 
 /// Run the virtual microscope.
 #[derive(Args, Debug)]
@@ -185,7 +186,6 @@ fn print_result(r: &DemoReport) {
 
 /// `fpm demo --serve`: the demo's acquisition as a job of a service started for it.
 fn through_the_service(a: &DemoArgs) -> Result<()> {
-    use std::io::BufRead;
     if !(192..=4096).contains(&a.size) {
         anyhow::bail!("--size {}: give 192-4096 pixels", a.size);
     }
@@ -196,92 +196,42 @@ fn through_the_service(a: &DemoArgs) -> Result<()> {
             .tempdir()?
             .keep(),
     };
-    let state = root.join("service");
     let fpm = std::env::current_exe().context("locating the fpm executable")?;
-    let mut service = std::process::Command::new(&fpm)
-        .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
-        .args(["--virtual-size", &a.size.to_string()])
-        .arg("--state-dir")
-        .arg(&state)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .context("starting fpm serve --virtual")?;
-    let stop = |service: &mut std::process::Child| {
-        let pid = nix::unistd::Pid::from_raw(service.id() as i32);
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let _ = service.wait();
-    };
-    let lines: Vec<String> = std::io::BufReader::new(service.stdout.take().context("stdout")?)
-        .lines()
-        .take(3)
-        .collect::<std::io::Result<_>>()?;
-    let field = |prefix: &str| {
-        lines
-            .iter()
-            .find_map(|l| l.strip_prefix(prefix))
-            .map(str::to_string)
-            .with_context(|| format!("fpm serve did not say {prefix:?}: {lines:?}"))
-    };
-    let (address, page) = match (
-        field("fpm serve: listening on http://"),
-        field("the page: "),
-    ) {
-        (Ok(a), Ok(p)) => (a, p),
-        (a, p) => {
-            stop(&mut service);
-            return Err(a.and(p).unwrap_err());
-        }
-    };
-    let outcome = follow_the_job(a, &address, &state, &root, &page);
+    let mut service = VirtualService::start(
+        &fpm,
+        &root.join("service"),
+        a.size,
+        std::process::Stdio::null(),
+    )?;
+    let outcome = follow_the_job(a, &service, &root);
     if outcome.is_ok() && !a.json {
+        let page = &service.page;
         println!("\nthe service keeps running so you can look: {page}\nCtrl-C stops it");
         let stopped = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
         for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
             signal_hook::flag::register(signal, stopped.clone())?;
         }
-        while !stopped.load(std::sync::atomic::Ordering::SeqCst) && service.try_wait()?.is_none() {
+        while !stopped.load(std::sync::atomic::Ordering::SeqCst) && service.running() {
             std::thread::sleep(std::time::Duration::from_millis(100));
         }
     }
-    stop(&mut service);
+    // Dropping the service stops it.
     outcome
 }
 
-/// Queue the demo's job on the service at `address`, follow it to its end, print it.
-fn follow_the_job(
-    a: &DemoArgs,
-    address: &str,
-    state: &std::path::Path,
-    root: &std::path::Path,
-    page: &str,
-) -> Result<()> {
-    use fpm_serve::client::{event_lines, send};
-    let address: std::net::SocketAddr = address.parse()?;
-    let token = std::fs::read_to_string(state.join("token"))?;
-    let auth = format!("Bearer {}", token.trim());
+/// Queue the demo's job on `service`, follow it to its end, print it.
+fn follow_the_job(a: &DemoArgs, service: &VirtualService, root: &std::path::Path) -> Result<()> {
     if !a.json {
         println!(
             "fpm demo --serve: the virtual microscope driven through the acquisition service\n"
         );
-        println!("watch it         {page}");
+        println!("watch it         {}", service.page);
     }
-    let events = event_lines(address, None)?;
+    let events = fpm_serve::client::event_lines(service.address, None)?;
     let out = root.join("acquisition");
-    let request = serde_json::json!({"kind": "acquire", "out": out, "calibrate": true,
-        "reconstruct": true, "flatten_background": true, "defocus_sigma_um": 0.0,
-        "step_ms": a.step_ms, "snapshot_every": 25});
-    let r = send(
-        address,
-        "POST",
-        "/api/jobs",
-        &[("Authorization", &auth)],
-        Some(&request.to_string()),
-    )?;
-    if r.status != 202 {
-        anyhow::bail!("the service refused the demo's job: {}", r.body);
-    }
-    let job = r.json()?["id"].as_i64().context("no job id")?;
+    let job = service.submit(&serde_json::json!({"kind": "acquire", "out": out,
+        "calibrate": true, "reconstruct": true, "flatten_background": true,
+        "defocus_sigma_um": 0.0, "step_ms": a.step_ms, "snapshot_every": 25}))?;
     let bar = (!a.json).then(|| crate::progress::frames("acquiring"));
     for line in events {
         let Some(data) = line.strip_prefix("data:") else {
@@ -309,7 +259,7 @@ fn follow_the_job(
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
-    let record = send(address, "GET", &format!("/api/jobs/{job}"), &[], None)?.json()?;
+    let record = service.get(&format!("/api/jobs/{job}"))?.json()?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&record)?);
     } else {

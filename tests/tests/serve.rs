@@ -3,104 +3,50 @@
 //! time, cancels one mid-sequence, refuses bad requests naming what is wrong, and keeps
 //! its job history in SQLite across a restart.
 
-use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use fpm_host::dataset::Dataset;
+use fpm_serve::client::VirtualService;
 use fpm_tests::http::{request, Response};
 use fpm_tests::{fpm_bin, TempDir};
 
-/// A running `fpm serve --virtual`, killed on drop.
-struct Service {
-    child: Child,
-    address: SocketAddr,
-    token: String,
-    /// The page's address with the token, as printed for a person.
-    page: String,
+/// A running `fpm serve --virtual` (64² camera), stopped on drop; a failed request
+/// fails the test.
+struct Service(VirtualService);
+
+impl std::ops::Deref for Service {
+    type Target = VirtualService;
+    fn deref(&self) -> &VirtualService {
+        &self.0
+    }
 }
 
 impl Service {
     fn start(state: &Path) -> Self {
-        let mut child = Command::new(fpm_bin())
-            .args([
-                "serve",
-                "--virtual",
-                "--virtual-size",
-                "64",
-                "--listen",
-                "127.0.0.1:0",
-            ])
-            .arg("--state-dir")
-            .arg(state)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        let first = lines.next().expect("the service's first line").unwrap();
-        let address = first
-            .strip_prefix("fpm serve: listening on http://")
-            .unwrap_or_else(|| panic!("{first}"))
-            .parse()
-            .unwrap();
-        let token = std::fs::read_to_string(state.join("token")).unwrap();
-        let page = lines
-            .find_map(|l| l.ok()?.strip_prefix("the page: ").map(String::from))
-            .expect("the page's address");
-        assert!(page.contains(&token), "{page}");
-        Self {
-            child,
-            address,
-            token,
-            page,
-        }
+        let service = VirtualService::start(fpm_bin(), state, 64, Stdio::inherit()).unwrap();
+        assert!(service.page.contains(&service.token), "{}", service.page);
+        Self(service)
     }
 
     fn get(&self, path: &str) -> Response {
-        request(self.address, "GET", path, &[], None)
+        self.0.get(path).unwrap()
     }
 
     fn post(&self, path: &str, body: Option<&str>) -> Response {
-        let auth = format!("Bearer {}", self.token);
-        request(
-            self.address,
-            "POST",
-            path,
-            &[("Authorization", &auth)],
-            body,
-        )
+        self.0.post(path, body).unwrap()
     }
 
     /// Job `id` once it has ended (within `timeout`).
     fn wait(&self, id: i64, timeout: Duration) -> serde_json::Value {
-        let start = Instant::now();
-        loop {
-            let job = self.get(&format!("/api/jobs/{id}")).json().unwrap();
-            if !matches!(job["state"].as_str(), Some("queued" | "running")) {
-                return job;
-            }
-            assert!(start.elapsed() < timeout, "job {id} still {}", job["state"]);
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        self.0.wait(id, timeout).unwrap()
     }
-}
 
-impl Service {
     /// SIGKILL, as a crash or the OOM killer would.
-    fn kill(mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let _ = self.child.wait();
+    fn kill(self) {
+        self.0.kill()
     }
 }
 

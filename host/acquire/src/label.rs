@@ -249,14 +249,6 @@ pub fn pair_with_arrivals(
             .min_by_key(|&(_, l)| l)
     };
     let nearly = soonest(best.saturating_sub(1));
-    tracing::debug!(
-        "arrival lags (ms) of the candidates labelling ≥ {} frames: {:?}",
-        best.saturating_sub(1),
-        (0..fits.len())
-            .filter(|&k| fits[k].1.matched.len() + 1 >= best)
-            .map(|k| (k, fits[k].1.matched.len(), lag(k).map(|l| l as f64 / 1e6)))
-            .collect::<Vec<_>>()
-    );
     // Whether the arrivals agree with the choice even among offsets one frame short of
     // it (a shifted offset always is: it loses one frame at an end).
     let arrivals_agree = match (arrivals, nearly) {

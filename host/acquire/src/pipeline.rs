@@ -104,6 +104,11 @@ fn stored_calibration(dev: &Controller) -> Option<BoardCalibration> {
 pub trait Watcher {
     /// How far the acquisition is (after every event).
     fn progress(&mut self, progress: &Progress);
+    /// Whether it shows snapshots: only then are they taken (a stream's blend, or a
+    /// copy of the finished object, is not made for nobody).
+    fn wants_snapshots(&self) -> bool {
+        false
+    }
     /// A snapshot of the reconstruction ([`Plan::snapshot_every`], and the finished one).
     fn snapshot(&mut self, _snapshot: Snapshot) {}
     /// A labelled frame as it arrives, lent: copy what you keep (on the capture's
@@ -151,8 +156,10 @@ pub fn acquire(
     };
     let watch = |acq: &mut Acquisition, watcher: &mut dyn Watcher| {
         watcher.progress(&acq.progress());
-        if let Some(snapshot) = acq.snapshot() {
-            watcher.snapshot(snapshot);
+        if watcher.wants_snapshots() {
+            if let Some(snapshot) = acq.snapshot() {
+                watcher.snapshot(snapshot);
+            }
         }
     };
     loop {

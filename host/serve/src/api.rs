@@ -421,6 +421,17 @@ fn image(bytes: Vec<u8>, content_type: &'static str, meta: &[(&'static str, Stri
     response
 }
 
+/// A PNG encoded off the async threads.
+async fn encoded(
+    encode: impl FnOnce() -> anyhow::Result<Vec<u8>> + Send + 'static,
+) -> Result<Vec<u8>, ApiError> {
+    let internal = |e: String| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e);
+    tokio::task::spawn_blocking(encode)
+        .await
+        .map_err(|e| internal(e.to_string()))?
+        .map_err(|e| internal(format!("{e:#}")))
+}
+
 fn le_bytes<T: Copy, const N: usize>(a: &ndarray::Array2<T>, to: fn(T) -> [u8; N]) -> Vec<u8> {
     a.iter().flat_map(|&v| to(v)).collect()
 }
@@ -472,16 +483,11 @@ async fn snapshot(
         )),
         ImageFormat::Png => {
             let s = s.clone();
-            let png = tokio::task::spawn_blocking(move || {
-                if phase {
-                    fpm_report::preview::phase_png_bytes(&s.phase, s.pixel_um)
-                } else {
-                    fpm_report::preview::amplitude_png_bytes(&s.amplitude, s.pixel_um)
-                }
+            let png = encoded(move || match phase {
+                true => fpm_report::preview::phase_png_bytes(&s.phase, s.pixel_um),
+                false => fpm_report::preview::amplitude_png_bytes(&s.amplitude, s.pixel_um),
             })
-            .await
-            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
-            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
+            .await?;
             Ok(image(png, "image/png", &meta))
         }
         ImageFormat::U16 => Err(bad_request(
@@ -521,12 +527,8 @@ async fn camera_frame(
             &meta,
         )),
         ImageFormat::Png => {
-            let png = tokio::task::spawn_blocking(move || {
-                fpm_report::preview::counts_png_bytes(&f.pixels.view())
-            })
-            .await
-            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
-            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
+            let png =
+                encoded(move || fpm_report::preview::counts_png_bytes(&f.pixels.view())).await?;
             Ok(image(png, "image/png", &meta))
         }
         ImageFormat::F32 => Err(bad_request(

@@ -130,3 +130,139 @@ pub fn event_lines(
     )?;
     Ok(BufReader::new(stream).lines().map_while(Result::ok))
 }
+
+/// `fpm serve --virtual` started as a child process by a tool or test that wants a
+/// service of its own (on 127.0.0.1, a free port, a virtual `size`² camera); stopped
+/// with SIGTERM on drop, as a user's Ctrl-C would.
+pub struct VirtualService {
+    child: std::process::Child,
+    /// Where it listens.
+    pub address: SocketAddr,
+    /// The token requests that change the rig carry.
+    pub token: String,
+    /// The page's address with the token, as the service printed it.
+    pub page: String,
+    /// Killed and reaped already: nothing to stop on drop.
+    reaped: bool,
+}
+
+impl VirtualService {
+    /// Start the executable `fpm` as `fpm serve --virtual` with its state in `state`,
+    /// its log to `stderr`; returns once it listens.
+    pub fn start(
+        fpm: &std::path::Path,
+        state: &std::path::Path,
+        size: usize,
+        stderr: std::process::Stdio,
+    ) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        let mut child = std::process::Command::new(fpm)
+            .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
+            .args(["--virtual-size", &size.to_string()])
+            .arg("--state-dir")
+            .arg(state)
+            .stdout(std::process::Stdio::piped())
+            .stderr(stderr)
+            .spawn()
+            .context("starting fpm serve --virtual")?;
+        let said: std::io::Result<Vec<String>> = child
+            .stdout
+            .take()
+            .map(|out| BufReader::new(out).lines().take(3).collect())
+            .unwrap_or_else(|| Ok(vec![]));
+        let started = said.map_err(anyhow::Error::from).and_then(|lines| {
+            let field = |prefix: &str| {
+                lines
+                    .iter()
+                    .find_map(|l| l.strip_prefix(prefix))
+                    .map(str::to_string)
+                    .with_context(|| format!("fpm serve did not say {prefix:?}: {lines:?}"))
+            };
+            let address = field("fpm serve: listening on http://")?.parse()?;
+            let page = field("the page: ")?;
+            let token = std::fs::read_to_string(state.join("token"))
+                .with_context(|| format!("reading {}", state.join("token").display()))?;
+            Ok((address, page, token.trim().to_string()))
+        });
+        match started {
+            Ok((address, page, token)) => Ok(Self {
+                child,
+                address,
+                token,
+                page,
+                reaped: false,
+            }),
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                Err(e)
+            }
+        }
+    }
+
+    /// `GET path`.
+    pub fn get(&self, path: &str) -> anyhow::Result<Response> {
+        send(self.address, "GET", path, &[], None)
+    }
+
+    /// `POST path` with the token and `body`.
+    pub fn post(&self, path: &str, body: Option<&str>) -> anyhow::Result<Response> {
+        let auth = format!("Bearer {}", self.token);
+        send(
+            self.address,
+            "POST",
+            path,
+            &[("Authorization", &auth)],
+            body,
+        )
+    }
+
+    /// Queue `request`; its job id.
+    pub fn submit(&self, request: &serde_json::Value) -> anyhow::Result<i64> {
+        let r = self.post("/api/jobs", Some(&request.to_string()))?;
+        if r.status != 202 {
+            anyhow::bail!("the service refused the job ({}): {}", r.status, r.body);
+        }
+        r.json()?["id"]
+            .as_i64()
+            .ok_or_else(|| anyhow::anyhow!("no job id in {}", r.body))
+    }
+
+    /// Job `id` once it has ended (an error if not within `timeout`).
+    pub fn wait(&self, id: i64, timeout: Duration) -> anyhow::Result<serde_json::Value> {
+        let start = std::time::Instant::now();
+        loop {
+            let job = self.get(&format!("/api/jobs/{id}"))?.json()?;
+            if !matches!(job["state"].as_str(), Some("queued" | "running")) {
+                return Ok(job);
+            }
+            if start.elapsed() > timeout {
+                anyhow::bail!("job {id} still {} after {timeout:?}", job["state"]);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// SIGKILL, as a crash or the OOM killer would.
+    pub fn kill(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        self.reaped = true;
+    }
+
+    /// Whether it is still running.
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+}
+
+impl Drop for VirtualService {
+    fn drop(&mut self) {
+        if self.reaped {
+            return;
+        }
+        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let _ = self.child.wait();
+    }
+}

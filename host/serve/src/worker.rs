@@ -366,6 +366,10 @@ impl fpm_acquire::pipeline::Watcher for JobWatcher<'_> {
         });
     }
 
+    fn wants_snapshots(&self) -> bool {
+        true
+    }
+
     fn snapshot(&mut self, snapshot: fpm_acquire::acquisition::Snapshot) {
         let s = self.shared.live.put_snapshot(self.job, &snapshot);
         let (height, width) = s.amplitude.dim();

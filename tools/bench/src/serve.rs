@@ -14,14 +14,13 @@
 //!   alternately, each on a virtual rig of its own: the capture's seconds (from
 //!   `acquisition.json`) and the whole run's, as ratios service / CLI.
 
-use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{anyhow, bail, Context, Result};
-use fpm_serve::client::{event_lines, send, Response};
+use fpm_serve::client::{event_lines, send, VirtualService};
 use serde::Serialize;
 
 use crate::stats::Percentiles;
@@ -75,109 +74,19 @@ fn now_s() -> f64 {
 }
 
 fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => f64::NAN,
-        n => v[n / 2],
-    }
+    fpm_physics::stats::median(&mut v.to_vec()).unwrap_or(f64::NAN)
 }
 
-/// A `fpm serve --virtual` started for the run, stopped on drop.
-struct Service {
-    child: Child,
-    address: SocketAddr,
-    token: String,
-}
-
-impl Service {
-    fn start(fpm: &Path, state: &Path, size: usize) -> Result<Self> {
-        let mut child = Command::new(fpm)
-            .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
-            .args(["--virtual-size", &size.to_string()])
-            .arg("--state-dir")
-            .arg(state)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .context("starting fpm serve --virtual")?;
-        let stdout = child.stdout.take().context("the service's stdout")?;
-        let first = BufReader::new(stdout)
-            .lines()
-            .next()
-            .transpose()?
-            .unwrap_or_default();
-        let address = first
-            .strip_prefix("fpm serve: listening on http://")
-            .ok_or_else(|| anyhow!("fpm serve said {first:?}"))?
-            .parse()?;
-        let token = std::fs::read_to_string(state.join("token"))?;
-        Ok(Self {
-            child,
-            address,
-            token,
-        })
-    }
-
-    fn get(&self, path: &str) -> Result<Response> {
-        send(self.address, "GET", path, &[], None)
-    }
-
-    fn post(&self, path: &str, body: Option<&str>) -> Result<Response> {
-        let auth = format!("Bearer {}", self.token.trim());
-        send(
-            self.address,
-            "POST",
-            path,
-            &[("Authorization", &auth)],
-            body,
-        )
-    }
-
-    fn submit(&self, request: serde_json::Value) -> Result<i64> {
-        let r = self.post("/api/jobs", Some(&request.to_string()))?;
-        if r.status != 202 {
-            bail!("the service refused the job: {}", r.body);
+/// Until job `id` is the one running.
+fn wait_running(service: &VirtualService, id: i64) -> Result<()> {
+    let start = Instant::now();
+    while service.get("/api/status")?.json()?["running"].as_i64() != Some(id) {
+        if start.elapsed() > Duration::from_secs(30) {
+            bail!("job {id} never started");
         }
-        r.json()?["id"]
-            .as_i64()
-            .ok_or_else(|| anyhow!("no job id in {}", r.body))
+        std::thread::sleep(Duration::from_millis(10));
     }
-
-    fn wait(&self, id: i64, timeout: Duration) -> Result<serde_json::Value> {
-        let start = Instant::now();
-        loop {
-            let job = self.get(&format!("/api/jobs/{id}"))?.json()?;
-            if !matches!(job["state"].as_str(), Some("queued" | "running")) {
-                return Ok(job);
-            }
-            if start.elapsed() > timeout {
-                bail!("job {id} still {} after {timeout:?}", job["state"]);
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    fn wait_running(&self, id: i64) -> Result<()> {
-        let start = Instant::now();
-        while self.get("/api/status")?.json()?["running"].as_i64() != Some(id) {
-            if start.elapsed() > Duration::from_secs(30) {
-                bail!("job {id} never started");
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        Ok(())
-    }
-}
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(self.child.id() as i32),
-            nix::sys::signal::Signal::SIGTERM,
-        );
-        let _ = self.child.wait();
-    }
+    Ok(())
 }
 
 /// `GET /api/status` from `clients` threads at once, `per_client` each: µs per request.
@@ -216,9 +125,9 @@ fn round_trips(address: SocketAddr, clients: usize, per_client: usize) -> Result
 
 /// A reconstructing acquisition followed on the event stream: frame-event latencies
 /// and snapshot latencies, µs.
-fn live_latencies(service: &Service, step_ms: f64) -> Result<(Percentiles, Percentiles)> {
+fn live_latencies(service: &VirtualService, step_ms: f64) -> Result<(Percentiles, Percentiles)> {
     let lines = event_lines(service.address, None)?;
-    let job = service.submit(serde_json::json!({"kind": "acquire", "step_ms": step_ms,
+    let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms,
         "reconstruct": true, "snapshot_every": 25}))?;
     let (mut frame_us, mut snapshot_us) = (vec![], vec![]);
     // Publication time of the job's n-th capture frame (1-based).
@@ -268,12 +177,12 @@ fn live_latencies(service: &Service, step_ms: f64) -> Result<(Percentiles, Perce
 
 /// Acquisitions cancelled a second into their capture: µs from the request to the
 /// job's `cancelled`.
-fn cancels(service: &Service, step_ms: f64, count: usize) -> Result<Percentiles> {
+fn cancels(service: &VirtualService, step_ms: f64, count: usize) -> Result<Percentiles> {
     let mut samples = vec![];
     for _ in 0..count {
         let lines = event_lines(service.address, None)?;
-        let job = service.submit(serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
-        service.wait_running(job)?;
+        let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
+        wait_running(service, job)?;
         std::thread::sleep(Duration::from_secs(1));
         let asked = now_s();
         let r = service.post(&format!("/api/jobs/{job}/cancel"), None)?;
@@ -335,8 +244,8 @@ fn capture_seconds(summary: &serde_json::Value) -> Result<f64> {
 }
 
 /// The service's acquisition: (capture s, run s from running to its end).
-fn service_acquisition(service: &Service, step_ms: f64) -> Result<(f64, f64)> {
-    let job = service.submit(serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
+fn service_acquisition(service: &VirtualService, step_ms: f64) -> Result<(f64, f64)> {
+    let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
     let record = service.wait(job, Duration::from_secs(600))?;
     if record["state"] != "done" {
         bail!(
@@ -363,7 +272,7 @@ pub fn run(o: ServeOptions) -> Result<()> {
         }
     };
     say("starting fpm serve --virtual …");
-    let service = Service::start(&fpm, &dir.join("state"), o.size)?;
+    let service = VirtualService::start(&fpm, &dir.join("state"), o.size, Stdio::null())?;
     say("API round trips …");
     let one = round_trips(service.address, 1, o.requests)?;
     let many = round_trips(service.address, o.clients, o.requests.div_ceil(o.clients))?;

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use fpm_acquire::acquisition::defaults;
 use fpm_acquire::controller::discover;
-use fpm_acquire::pipeline::{acquire as run_pipeline, AcquireSummary, Plan};
+use fpm_acquire::pipeline::{self, AcquireSummary, Control, Plan};
 use fpm_acquire::{Controller, FocusStage, ManualStage, Progress};
 use fpm_frames::ServiceNames;
 use fpm_host::calibration::GeometrySource;
@@ -55,6 +55,11 @@ pub struct AcquireArgs {
     /// later acquisitions without --calibrate start from it.
     #[arg(long, requires = "calibrate")]
     pub store_geometry: bool,
+    /// Complete the acquisition an earlier run left in --out (interrupted, cancelled,
+    /// failed part-way): its frames are kept and only the LEDs they lack are lit, with
+    /// the geometry it used. Give the optics it was acquired with.
+    #[arg(long, conflicts_with = "calibrate")]
+    pub resume: bool,
     /// Reconstruct while the frames arrive (streaming EPRY).
     #[arg(long)]
     pub reconstruct: bool,
@@ -147,6 +152,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         camera: ServiceNames::for_camera(&a.frames),
         out: a.out.clone(),
         calibrate: a.calibrate,
+        capture: true,
         store_geometry: a.store_geometry,
         reconstruct: a.reconstruct,
         step_ms: a.step_ms,
@@ -172,7 +178,11 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         bar.set_length(p.of as u64);
         bar.set_position(p.frames as u64);
     };
-    let summary = run_pipeline(&dev, stage.as_mut(), &plan, on_progress, &cancel);
+    let control = Control::cancelled_by(cancel);
+    let summary = match a.resume {
+        false => pipeline::acquire(&dev, stage.as_mut(), &plan, on_progress, &control),
+        true => pipeline::resume(&dev, stage.as_mut(), &plan, on_progress, &control),
+    };
     bar.finish_and_clear();
     summary
 }

@@ -7,12 +7,11 @@
 //! print the [`DemoEvent`]s as they come and the [`DemoReport`] at the end.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use fpm_acquire::controller::Controller;
-use fpm_acquire::pipeline::{acquire, AcquireSummary, Plan};
+use fpm_acquire::pipeline::{acquire, AcquireSummary, Control, Plan};
 use fpm_acquire::Progress;
 use fpm_frames::ServiceNames;
 use fpm_host::dataset::Dataset;
@@ -214,8 +213,7 @@ pub fn run(demo: &Demo, fpm: &Path, mut on_event: impl FnMut(DemoEvent<'_>)) -> 
             total: p.of,
         })
     };
-    let never = AtomicBool::new(false);
-    let acquisition = acquire(&dev, &mut stage, &plan, on_progress, &never)?;
+    let acquisition = acquire(&dev, &mut stage, &plan, on_progress, &Control::new())?;
     let acquisition_seconds = start.elapsed().as_secs_f64();
     drop((camera, dev, emulator));
     let hidden_array = Truth::find(&out)?.context("the virtual camera wrote no truth.json")?;
@@ -296,6 +294,7 @@ fn plan(demo: &Demo, rig: &str, out: &Path) -> Plan {
     Plan {
         camera: ServiceNames::for_camera(rig),
         out: out.to_path_buf(),
+        capture: true,
         calibrate: true,
         store_geometry: false,
         reconstruct: true,

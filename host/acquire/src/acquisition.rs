@@ -10,7 +10,11 @@
 //! use → capture one labelled frame per LED, streaming each into the reconstruction →
 //! retake what is missing, once → write the dataset → finish the reconstruction → write
 //! the summary. Cancelling stops before the next sequence (the driver aborts the one
-//! running); what was captured is still written, and the run ends as failed.
+//! running); what was captured is still written, and the run ends as failed. Pausing
+//! holds the rig between LEDs (the driver aborts the capture sequence running; the LEDs
+//! it had not lit wait, and are lit when the run resumes). [`Acquisition::resume`]
+//! starts from the frames an earlier run of the same plan left, and lights only the
+//! LEDs they lack.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -41,6 +45,9 @@ pub struct Plan {
     pub out: PathBuf,
     /// Calibrate the LED array first.
     pub calibrate: bool,
+    /// Capture the dataset (false: calibrate only, and store the result on the board
+    /// with `store_geometry`).
+    pub capture: bool,
     /// Store the calibration on the board (protocol ≥ 1.1), so later acquisitions
     /// without `calibrate` start from it.
     pub store_geometry: bool,
@@ -101,6 +108,14 @@ pub mod defaults {
 impl Plan {
     /// Every setting in its range, or an error naming it.
     pub fn validate(&self) -> Result<()> {
+        if !self.capture && !self.calibrate {
+            bail!("a plan that neither calibrates nor captures has nothing to do");
+        }
+        if !self.capture && self.reconstruct {
+            bail!(
+                "reconstruct needs a capture (a calibration alone has no dataset to reconstruct)"
+            );
+        }
         if !(self.step_ms.is_finite() && (1.0..=60_000.0).contains(&self.step_ms)) {
             bail!("step_ms {}: must be 1-60000 ms", self.step_ms);
         }
@@ -168,6 +183,12 @@ pub enum Event<'a> {
     Done,
     /// The user asked to stop: no new sequence starts.
     Cancel,
+    /// The user asked to pause: the rig holds before its next sequence or stage move
+    /// (a capture sequence running is to be aborted by the driver, the LEDs it did not
+    /// reach are lit after [`Event::Resume`]).
+    Pause,
+    /// The user asked to go on after a pause.
+    Resume,
 }
 
 /// What the driver must do next, from [`Acquisition::next_action`]. Each action but
@@ -200,6 +221,9 @@ pub enum Action<'a> {
         summary: &'a AcquireSummary,
         failure: Option<&'a str>,
     },
+    /// Hold: the user paused (no LED lit, the stage where it is). Answered by
+    /// [`Event::Resume`] or [`Event::Cancel`].
+    Paused,
     /// Over: the summary, or why the acquisition failed. Asked again, the error says the
     /// acquisition has finished.
     Finished(Box<Result<AcquireSummary>>),
@@ -214,6 +238,8 @@ pub enum Phase {
     Retaking,
     Writing,
     Reconstructing,
+    /// Holding between LEDs until the user resumes.
+    Paused,
     Finished,
 }
 
@@ -227,6 +253,8 @@ pub struct Progress {
     pub of: usize,
     /// The user asked to stop.
     pub cancelled: bool,
+    /// The user asked to pause (the phase is `paused` once the rig holds).
+    pub paused: bool,
 }
 
 /// The reconstruction as it stands, for a live view: taken from the stream every
@@ -290,6 +318,20 @@ impl Step {
             Step::Finished => Phase::Finished,
         }
     }
+
+    /// Whether the step moves the stage or lights LEDs (a pause holds before it).
+    fn uses_rig(self) -> bool {
+        matches!(
+            self,
+            Step::FocusReference
+                | Step::Reference
+                | Step::Defocus
+                | Step::CalibrationGrid
+                | Step::BackToSample
+                | Step::Capture
+                | Step::Retake
+        )
+    }
 }
 
 /// What a cancel cut short.
@@ -307,6 +349,10 @@ pub struct Acquisition {
     /// The action for `step` was handed out; its event has not come yet.
     waiting: bool,
     cancelled: bool,
+    /// The user asked to pause.
+    pause: bool,
+    /// Holding for the pause now (the last action handed out was `Paused`).
+    holding: bool,
     /// What the cancel cut short (None: nothing, it came after the last sequence and
     /// with no reconstruction to skip; the run then succeeds).
     cut: Option<Cut>,
@@ -317,6 +363,11 @@ pub struct Acquisition {
     calibration_frames: Option<Dataset>,
     calibration: Option<(CalibrationFile, Options)>,
     order: Vec<LedIndex>,
+    /// The LEDs of `order` the capture has still to light (all of them at first; after a
+    /// pause those it did not reach; on resuming a run, those its frames lack).
+    pending: Vec<LedIndex>,
+    /// Frames an earlier run left, taken over by [`Acquisition::resume`].
+    frames_before: usize,
     shots: Vec<Shot>,
     capture: Option<CaptureReport>,
     retake: Option<CaptureReport>,
@@ -363,6 +414,8 @@ impl Acquisition {
             step: Step::FocusReference,
             waiting: false,
             cancelled: false,
+            pause: false,
+            holding: false,
             cut: None,
             geometry,
             geometry_source,
@@ -371,6 +424,8 @@ impl Acquisition {
             calibration_frames: None,
             calibration: None,
             order: vec![],
+            pending: vec![],
+            frames_before: 0,
             shots: vec![],
             capture: None,
             retake: None,
@@ -402,13 +457,64 @@ impl Acquisition {
 
     /// How far the acquisition is.
     pub fn progress(&self) -> Progress {
-        let phase = self.step.phase();
+        let phase = match self.holding {
+            true => Phase::Paused,
+            false => self.step.phase(),
+        };
         Progress {
             phase,
             frames: self.frames,
             of: self.order.len(),
             cancelled: self.cancelled,
+            paused: self.pause,
         }
+    }
+
+    /// The acquisition of `plan` (which must not calibrate) continued from `before`,
+    /// the labelled frames an earlier run of it left (an interrupted or cancelled one):
+    /// they are kept, streamed into the reconstruction first, and only the LEDs they
+    /// lack are lit. `geometry` is the placement that run used, when it was not the
+    /// rig's (its own calibration).
+    pub fn resume(
+        plan: Plan,
+        rig: Rig,
+        before: Vec<Shot>,
+        geometry: Option<(LedGeometry, GeometrySource)>,
+    ) -> Result<Self> {
+        if plan.calibrate {
+            bail!("a resumed acquisition does not calibrate again (its first run did)");
+        }
+        let mut machine = Self::new(plan, rig)?;
+        if let Some((g, source)) = geometry {
+            machine.geometry = g;
+            machine.geometry_source = source;
+            machine.start_capture();
+        }
+        let (known, unknown): (Vec<Shot>, Vec<Shot>) = before
+            .into_iter()
+            .partition(|s| machine.order.contains(&s.led));
+        if let Some(s) = unknown.first() {
+            bail!(
+                "{} of the frames to resume from are lit by LEDs this board does not have (LED {:?} first): is it the same rig?",
+                unknown.len(),
+                (s.led.row, s.led.col)
+            );
+        }
+        machine
+            .pending
+            .retain(|led| !known.iter().any(|s| s.led == *led));
+        if machine.pending.is_empty() {
+            bail!(
+                "nothing to resume: every LED already has its frame ({} frames); reconstruct the dataset instead",
+                known.len()
+            );
+        }
+        machine.frames_before = known.len();
+        for shot in &known {
+            machine.stream(shot.view());
+        }
+        machine.shots = known;
+        Ok(machine)
     }
 
     /// The snapshot due now, if one is (taking it blends the stream's tiles: the
@@ -442,6 +548,10 @@ impl Acquisition {
     /// The action to carry out now. Calling it again before the action's event was
     /// handled hands out the same action again (a sequence's LEDs and the like anew).
     pub fn next_action(&mut self) -> Action<'_> {
+        self.holding = self.pause && !self.cancelled && self.step.uses_rig();
+        if self.holding {
+            return Action::Paused;
+        }
         self.waiting = true;
         let plan = &self.plan;
         match self.step {
@@ -477,7 +587,7 @@ impl Acquisition {
             },
             Step::Capture => Action::RunSequence {
                 id: sequence_id::CAPTURE,
-                leds: self.order.clone(),
+                leds: self.pending.clone(),
             },
             Step::Retake => Action::RunSequence {
                 id: sequence_id::RETAKE,
@@ -535,6 +645,19 @@ impl Acquisition {
                     self.after_cancel();
                 }
             }
+            Event::Pause => {
+                if !self.pause && self.step != Step::Finished {
+                    tracing::info!("paused: the rig holds before its next LED");
+                }
+                self.pause = true;
+            }
+            Event::Resume => {
+                if self.pause && self.step != Step::Finished {
+                    tracing::info!("resumed");
+                }
+                self.pause = false;
+                self.holding = false;
+            }
             Event::Frame(shot) => {
                 if matches!(self.step, Step::Capture | Step::Retake) && self.waiting {
                     self.stream(shot);
@@ -581,16 +704,34 @@ impl Acquisition {
                 Ok(if self.plan.store_geometry {
                     Step::StoreOnBoard
                 } else {
-                    self.start_capture();
-                    Step::Capture
+                    self.after_calibration()
                 })
             }
-            Step::StoreOnBoard => {
-                self.start_capture();
-                Ok(Step::Capture)
+            Step::StoreOnBoard => Ok(self.after_calibration()),
+            // The capture went on after a pause and could not: what came first is kept.
+            Step::Capture if self.capture.is_some() && matches!(sequence, Some(Err(_))) => {
+                if let (Some(Err(e)), Some(c)) = (sequence, self.capture.as_mut()) {
+                    c.outcome = format!("the capture could not go on after the pause: {e:#}");
+                    c.failed = true;
+                    c.sequences += 1;
+                }
+                Ok(self.build_dataset())
             }
             Step::Capture => ended(sequence).map(|(shots, report)| {
-                self.shots = shots;
+                self.shots.extend(shots);
+                let report = match self.capture.take() {
+                    Some(mut before) => {
+                        before.then(report);
+                        before
+                    }
+                    None => report,
+                };
+                // Paused part-way: the LEDs it did not reach wait for the resume.
+                if self.pause && !self.cancelled && !report.failed && !report.missing.is_empty() {
+                    self.pending = report.missing.clone();
+                    self.capture = Some(report);
+                    return Step::Capture;
+                }
                 let retake = !report.failed && !report.missing.is_empty() && !self.cancelled;
                 if retake {
                     tracing::warn!("re-acquiring {} missing frame(s)", report.missing.len());
@@ -655,6 +796,11 @@ impl Acquisition {
                     "cancelled during the calibration; no frame was acquired"
                 ));
             }
+            // Cancelled while paused part-way: what was captured is written.
+            Step::Capture if self.capture.is_some() || !self.shots.is_empty() => {
+                self.cut = Some(Cut::Capture);
+                self.step = self.build_dataset();
+            }
             Step::Capture => {
                 // Cancelled before the capture started: an empty dataset is no use.
                 self.fail(anyhow!(
@@ -703,6 +849,37 @@ impl Acquisition {
         Ok(())
     }
 
+    /// Calibrated: on to the capture, or, for a plan that only calibrates, finished.
+    fn after_calibration(&mut self) -> Step {
+        if self.plan.capture {
+            self.start_capture();
+            return Step::Capture;
+        }
+        self.result = Some(Ok(AcquireSummary {
+            nominal: self.rig.nominal,
+            geometry: self.geometry,
+            entrance_pupil_mm: self.plan.system.entrance_pupil_mm,
+            geometry_source: self.geometry_source.clone(),
+            board_calibration: self.rig.stored,
+            camera_settings: self.rig.camera_settings.clone(),
+            calibration: std::mem::take(&mut self.calibration_reports),
+            capture: CaptureReport {
+                outcome: "none: the plan only calibrates".into(),
+                sequences: 0,
+                ..CaptureReport::default()
+            },
+            retake: None,
+            frames_in_dataset: 0,
+            frames_before: 0,
+            still_missing: vec![],
+            last_frame_to_final_ms: None,
+            update_us_mean: None,
+            tiles: None,
+            reconstruction: None,
+        }));
+        Step::Finished
+    }
+
     /// Order the full capture nearest-first under the geometry now in use.
     fn start_capture(&mut self) {
         let all = self.rig.nominal.leds();
@@ -712,6 +889,7 @@ impl Acquisition {
             .into_iter()
             .map(|k| all[k])
             .collect();
+        self.pending = self.order.clone();
     }
 
     /// A labelled frame of the full capture or its retake, into the stream.
@@ -888,6 +1066,7 @@ impl Acquisition {
             capture,
             retake: self.retake.clone(),
             frames_in_dataset,
+            frames_before: self.frames_before,
             still_missing,
             last_frame_to_final_ms: self.last_frame_to_final_ms,
             update_us_mean: (!self.update_us.is_empty())

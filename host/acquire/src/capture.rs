@@ -71,7 +71,7 @@ impl<'a> ShotView<'a> {
 }
 
 /// What a capture did.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct CaptureReport {
     /// Steps in the sequence.
     pub requested: usize,
@@ -105,6 +105,30 @@ pub struct CaptureReport {
     /// pairing refused (0 expected; the dataset follows the final labels, and a caller
     /// that streamed them must not trust what it built).
     pub relabelled: usize,
+    /// Controller sequences it took: 1, and one more after each pause.
+    pub sequences: usize,
+}
+
+impl CaptureReport {
+    /// This capture continued by `later`, which lit the LEDs it had not reached (after
+    /// a pause): one report over both. The clock fit is the later sequence's (each
+    /// sequence restarts the controller's clock).
+    pub fn then(&mut self, later: CaptureReport) {
+        self.labelled += later.labelled;
+        self.missing = later.missing;
+        self.extra_frames += later.extra_frames;
+        self.ambiguous_frames += later.ambiguous_frames;
+        self.clock_offset_ns = later.clock_offset_ns;
+        self.clock_drift_ppm = later.clock_drift_ppm;
+        self.stamp_spread_ms = self.stamp_spread_ms.max(later.stamp_spread_ms);
+        self.clock_problem = later.clock_problem.or(self.clock_problem.take());
+        self.seconds += later.seconds;
+        self.frames_per_s = self.labelled as f64 / self.seconds.max(1e-9);
+        self.outcome = later.outcome;
+        self.failed = later.failed;
+        self.relabelled += later.relabelled;
+        self.sequences += later.sequences;
+    }
 }
 
 /// One capture sequence: which LEDs in which order, lit how.
@@ -217,13 +241,14 @@ impl Drop for FrameDrain {
 /// once; the final pairing over everything is authoritative and is what the returned
 /// shots follow. Every labelled frame reaches `on_frame` exactly once (those that could
 /// not be labelled while acquiring, right after the final pairing); a frame handed out
-/// early that the final pairing contradicts is counted in `relabelled`. Once `cancel`
-/// is set the sequence is aborted; the frames that came are labelled as ever.
+/// early that the final pairing contradicts is counted in `relabelled`. Once `stop`
+/// says so (a cancel, a pause) the sequence is aborted; the frames that came are
+/// labelled as ever.
 pub fn capture(
     dev: &Controller,
     camera: &ServiceNames,
     sequence: &Sequence<'_>,
-    cancel: &AtomicBool,
+    stop: impl Fn() -> bool,
     mut on_frame: impl FnMut(ShotView<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
     let &Sequence {
@@ -259,7 +284,7 @@ pub fn capture(
     let mut failure: Option<String> = None;
     let mut aborted = false;
     loop {
-        if !aborted && ended.is_none() && cancel.load(Ordering::SeqCst) {
+        if !aborted && ended.is_none() && stop() {
             aborted = true;
             if let Err(e) = dev.abort_sequence() {
                 failure = Some(format!(
@@ -386,6 +411,7 @@ pub fn capture(
             (None, None) => "no end of sequence".into(),
         },
         failed: failure.is_some(),
+        sequences: 1,
     };
     Ok((shots, report))
 }

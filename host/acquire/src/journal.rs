@@ -38,7 +38,7 @@ enum Line {
 }
 
 /// A checksum of 16-bit pixels (to know a file already holds them; not cryptographic).
-fn checksum<'a>(pixels: impl Iterator<Item = &'a u16>) -> u64 {
+pub fn checksum<'a>(pixels: impl Iterator<Item = &'a u16>) -> u64 {
     pixels.fold(0xcbf2_9ce4_8422_2325u64, |h, &p| {
         (h ^ u64::from(p)).wrapping_mul(0x0000_0100_0000_01b3)
     })
@@ -106,6 +106,46 @@ impl Journal {
             .with_context(|| format!("writing {}", self.out.join(JOURNAL).display()))?;
         self.written.insert(path, sum);
         Ok(())
+    }
+
+    /// Carry on a frame an earlier run wrote (a resumed acquisition): its line names its
+    /// file, already on disk.
+    pub fn adopt(
+        &mut self,
+        led: fpm_protocol::LedIndex,
+        exposure_us: u32,
+        bit_depth: u32,
+        checksum: u64,
+    ) -> Result<()> {
+        let entry = FrameEntry {
+            file: String::new(),
+            led,
+            defocus_um: 0.0,
+            exposure_ms: exposure_us as f64 / 1e3,
+        };
+        let name = frame_file_name(&entry);
+        let path = self.out.join(&name);
+        if !path.is_file() {
+            bail!("{}: the frame to carry on is not there", path.display());
+        }
+        self.line(&Line::Frame {
+            entry: FrameEntry {
+                file: name,
+                ..entry
+            },
+            bit_depth,
+            checksum,
+        })?;
+        self.written.insert(path, checksum);
+        Ok(())
+    }
+
+    fn line(&mut self, line: &Line) -> Result<()> {
+        let mut text = serde_json::to_string(line)?;
+        text.push('\n');
+        self.file
+            .write_all(text.as_bytes())
+            .with_context(|| format!("writing {}", self.out.join(JOURNAL).display()))
     }
 
     /// Whether the file at `path` was written by the journal with these pixels.

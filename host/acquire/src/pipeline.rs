@@ -8,7 +8,9 @@
 //! disk, and lent again from there for the last passes. Calibration frames are used
 //! from memory too.
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use fpm_frames::ServiceNames;
@@ -122,17 +124,185 @@ impl<F: FnMut(&Progress)> Watcher for F {
     }
 }
 
+/// How a running acquisition is steered from outside its loop (another thread, a
+/// signal handler): cancel, pause, resume. The loop reads the flags between events; a
+/// capture sequence running is aborted at once by a cancel or a pause.
+#[derive(Debug, Clone, Default)]
+pub struct Control {
+    cancel: Arc<AtomicBool>,
+    pause: Arc<AtomicBool>,
+}
+
+impl Control {
+    /// Nothing asked yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Cancelled when `flag` is set (by a signal handler, say).
+    pub fn cancelled_by(flag: Arc<AtomicBool>) -> Self {
+        Self {
+            cancel: flag,
+            ..Self::default()
+        }
+    }
+
+    /// Stop: no new sequence starts, what was captured is written, the run fails
+    /// saying it was cancelled.
+    pub fn cancel(&self) {
+        self.cancel.store(true, Ordering::SeqCst);
+    }
+
+    /// Hold between LEDs (and before any stage move) until [`Control::resume`].
+    pub fn pause(&self) {
+        self.pause.store(true, Ordering::SeqCst);
+    }
+
+    /// Go on after a pause.
+    pub fn resume(&self) {
+        self.pause.store(false, Ordering::SeqCst);
+    }
+
+    /// Whether a cancel was asked for.
+    pub fn is_cancelled(&self) -> bool {
+        self.cancel.load(Ordering::SeqCst)
+    }
+
+    /// Whether a pause is asked for now.
+    pub fn is_paused(&self) -> bool {
+        self.pause.load(Ordering::SeqCst)
+    }
+}
+
 /// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
-/// `watcher` sees its progress after every event; setting `cancel` aborts the running
-/// sequence and writes what was captured (the run then fails, saying so). Frames that
-/// arrived are labelled and written even when the controller is lost; the error then
-/// says so.
+/// `watcher` sees its progress after every event; `control` pauses, resumes or
+/// cancels it (a cancel aborts the running sequence and writes what was captured; the
+/// run then fails, saying so). Frames that arrived are labelled and written even when
+/// the controller is lost; the error then says so.
 pub fn acquire(
     dev: &Controller,
     stage: &mut dyn FocusStage,
     plan: &Plan,
+    watcher: impl Watcher,
+    control: &Control,
+) -> Result<AcquireSummary> {
+    run(dev, stage, plan, None, watcher, control)
+}
+
+/// Complete the acquisition an earlier run of `plan` left in `plan.out` (interrupted,
+/// cancelled, failed part-way): its frames are kept (a journal a kill left is made a
+/// dataset first) and only the LEDs they lack are lit, with the geometry it used (its
+/// `calibration.json` when it calibrated). `plan.calibrate` is ignored: the first run
+/// calibrated, or did not.
+pub fn resume(
+    dev: &Controller,
+    stage: &mut dyn FocusStage,
+    plan: &Plan,
+    watcher: impl Watcher,
+    control: &Control,
+) -> Result<AcquireSummary> {
+    let out = &plan.out;
+    crate::journal::recover(out)?;
+    if !out.join("dataset.toml").is_file() {
+        bail!(
+            "{}: no frames to resume from (no dataset.toml, no journal): acquire again",
+            out.display()
+        );
+    }
+    let before = fpm_host::dataset::Dataset::load(out)
+        .with_context(|| format!("the partial dataset in {}", out.display()))?;
+    let system = before.manifest.system();
+    if let Some(what) = differs(&system, &plan.system) {
+        bail!(
+            "{}: its dataset was acquired with {what}; resume with the plan it was acquired with",
+            out.display()
+        );
+    }
+    let geometry = match out.join("calibration.json") {
+        file if file.is_file() => {
+            let g = fpm_host::calibration::PlacementFile::read(&file)?
+                .geometry(&before.manifest.geometry());
+            Some((g, fpm_host::calibration::GeometrySource::File(file)))
+        }
+        _ => None,
+    };
+    let plan = Plan {
+        calibrate: false,
+        store_geometry: false,
+        ..plan.clone()
+    };
+    run(
+        dev,
+        stage,
+        &plan,
+        Some((shots_of(before)?, geometry)),
+        watcher,
+        control,
+    )
+}
+
+/// The first optical setting in which `a` and `b` differ, named as a request names it.
+fn differs(a: &System, b: &System) -> Option<String> {
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-6 * x.abs().max(y.abs()).max(1e-9);
+    [
+        ("wavelength_um", a.wavelength_um, b.wavelength_um),
+        ("na", a.na, b.na),
+        ("magnification", a.magnification, b.magnification),
+        ("pixel_um", a.pixel_size_um, b.pixel_size_um),
+    ]
+    .into_iter()
+    .find(|(_, x, y)| !close(*x, *y))
+    .map(|(name, x, y)| format!("{name} {x}, not {y}"))
+}
+
+/// A dataset's frames as labelled shots (their headers rebuilt from the manifest:
+/// exposure, size, bit depth).
+fn shots_of(dataset: fpm_host::dataset::Dataset) -> Result<Vec<crate::capture::Shot>> {
+    let bit_depth = dataset.manifest.camera.bit_depth.unwrap_or(16);
+    dataset
+        .frames
+        .into_iter()
+        .map(|f| {
+            let fpm_physics::frame::Pixels::U16(pixels) = f.raw else {
+                bail!(
+                    "{}: not 16-bit counts; only an acquisition's own frames can be resumed",
+                    f.entry.file
+                );
+            };
+            let (h, w) = pixels.dim();
+            let header = fpm_frames::FrameHeader {
+                frame_number: 0,
+                timestamp_ns: 0,
+                exposure_us: (f.entry.exposure_ms * 1e3).round() as u32,
+                width: w as u32,
+                height: h as u32,
+                bit_depth,
+                pixel_count: (w * h) as u64,
+                camera_id: 0,
+                flags: 0,
+            };
+            Ok(crate::capture::Shot {
+                led: f.entry.led,
+                header,
+                pixels,
+            })
+        })
+        .collect()
+}
+
+/// The labelled frames and placement of a run being resumed.
+type Before = (
+    Vec<crate::capture::Shot>,
+    Option<(LedGeometry, fpm_host::calibration::GeometrySource)>,
+);
+
+fn run(
+    dev: &Controller,
+    stage: &mut dyn FocusStage,
+    plan: &Plan,
+    before: Option<Before>,
     mut watcher: impl Watcher,
-    cancel: &AtomicBool,
+    control: &Control,
 ) -> Result<AcquireSummary> {
     plan.validate()?;
     wait_for_camera(&plan.camera)?;
@@ -144,14 +314,38 @@ pub fn acquire(
         camera_settings: camera_settings(&plan.camera, &plan.system),
     };
     let nominal = rig.nominal;
-    let mut acq = Acquisition::new(plan.clone(), rig)?;
+    // The frames an earlier run wrote, which a new journal must carry on.
+    let mut adopted = vec![];
+    let mut acq = match before {
+        None => Acquisition::new(plan.clone(), rig)?,
+        Some((shots, geometry)) => {
+            adopted = shots
+                .iter()
+                .map(|s| Adopted {
+                    led: s.led,
+                    exposure_us: s.header.exposure_us,
+                    bit_depth: s.header.bit_depth,
+                    checksum: crate::journal::checksum(s.pixels.iter()),
+                })
+                .collect();
+            Acquisition::resume(plan.clone(), rig, shots, geometry)?
+        }
+    };
     // The capture's frames go to disk as they are labelled (what a kill leaves).
     let mut journal: Option<Journal> = None;
-    // A cancel reaches the machine before the next action, and before the outcome of
-    // the action it interrupted (a sequence aborted by it is not then retaken).
-    let deliver_cancel = |acq: &mut Acquisition| {
-        if cancel.load(Ordering::SeqCst) && !acq.progress().cancelled {
+    // A cancel or a pause reaches the machine before the next action, and before the
+    // outcome of the action it interrupted (a sequence aborted by it is not then
+    // retaken). `pause_seen` latches a pause the capture obeyed, however briefly it
+    // lasted.
+    let pause_seen = Cell::new(false);
+    let deliver = |acq: &mut Acquisition| {
+        let p = acq.progress();
+        if control.is_cancelled() && !p.cancelled {
             acq.handle(Event::Cancel);
+        }
+        let pause = control.is_paused() || pause_seen.replace(false);
+        if pause != p.paused {
+            acq.handle(if pause { Event::Pause } else { Event::Resume });
         }
     };
     let watch = |acq: &mut Acquisition, watcher: &mut dyn Watcher| {
@@ -163,9 +357,16 @@ pub fn acquire(
         }
     };
     loop {
-        deliver_cancel(&mut acq);
+        deliver(&mut acq);
         watch(&mut acq, &mut watcher);
         let event = match acq.next_action() {
+            Action::Paused => {
+                watch(&mut acq, &mut watcher);
+                while control.is_paused() && !control.is_cancelled() {
+                    std::thread::sleep(std::time::Duration::from_millis(5));
+                }
+                continue;
+            }
             Action::MoveStage(to) => {
                 stage.move_to(to)?;
                 Event::StageArrived
@@ -173,7 +374,7 @@ pub fn acquire(
             Action::RunSequence { id, leds } => {
                 let captures = matches!(id, sequence_id::CAPTURE | sequence_id::RETAKE);
                 if captures && journal.is_none() {
-                    journal = start_journal(plan, &nominal);
+                    journal = start_journal(plan, &nominal, &adopted);
                 }
                 let mut on_frame = |shot: ShotView<'_>| {
                     if let Some(j) = journal.as_mut().filter(|_| captures) {
@@ -192,7 +393,16 @@ pub fn acquire(
                     color: plan.color,
                     exposure_us: plan.step_us(),
                 };
-                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, cancel, &mut on_frame))
+                // A pause cuts the capture short (the LEDs it did not reach wait); the
+                // calibration's sequences and a retake are short, and finish first.
+                let stop = || {
+                    let pause = id == sequence_id::CAPTURE && control.is_paused();
+                    if pause {
+                        pause_seen.set(true);
+                    }
+                    control.is_cancelled() || pause
+                };
+                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_frame))
             }
             Action::Finished(result) => return *result,
             write => {
@@ -200,7 +410,7 @@ pub fn acquire(
                 Event::Done
             }
         };
-        deliver_cancel(&mut acq);
+        deliver(&mut acq);
         acq.handle(event);
     }
 }
@@ -259,22 +469,46 @@ fn write_out(
             std::fs::write(out.join("acquisition.json"), json)?;
             page::acquisition(summary, system, failure, out);
         }
-        Action::MoveStage(_) | Action::RunSequence { .. } | Action::Finished(_) => {
+        Action::MoveStage(_)
+        | Action::RunSequence { .. }
+        | Action::Paused
+        | Action::Finished(_) => {
             bail!("the acquisition asked for a write that is not one")
         }
     }
     Ok(())
 }
 
+/// A frame an earlier run wrote, carried on by a resumed run's journal.
+struct Adopted {
+    led: fpm_protocol::LedIndex,
+    exposure_us: u32,
+    bit_depth: u32,
+    checksum: u64,
+}
+
 /// The capture's journal in `plan.out` (an optional extra: without it the frames are
-/// written when the capture ends, as ever).
-fn start_journal(plan: &Plan, nominal: &LedGeometry) -> Option<Journal> {
+/// written when the capture ends, as ever), carrying on the frames of the run resumed.
+/// Its dataset.toml is then removed: the journal holds all it said, and a kill makes a
+/// dataset of the journal only where there is no dataset.toml.
+fn start_journal(plan: &Plan, nominal: &LedGeometry, adopted: &[Adopted]) -> Option<Journal> {
     let camera = fpm_host::dataset::CameraSection {
         dark_level: plan.dark_level,
         ..Default::default()
     };
     let manifest = fpm_host::dataset::Manifest::new(&plan.system, nominal, camera, vec![]);
-    Journal::start(&plan.out, &manifest)
+    let started = Journal::start(&plan.out, &manifest).and_then(|mut j| {
+        for a in adopted {
+            j.adopt(a.led, a.exposure_us, a.bit_depth, a.checksum)?;
+        }
+        if !adopted.is_empty() {
+            let toml = plan.out.join("dataset.toml");
+            std::fs::remove_file(&toml)
+                .with_context(|| format!("removing {} (the journal holds it)", toml.display()))?;
+        }
+        Ok(j)
+    });
+    started
         .map_err(|e| {
             tracing::warn!(
                 "frames will be written when the capture ends, not as they arrive: {e:#}"

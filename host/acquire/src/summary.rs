@@ -39,6 +39,8 @@ pub struct AcquireSummary {
     pub retake: Option<CaptureReport>,
     /// Frames written to the dataset.
     pub frames_in_dataset: usize,
+    /// Of those, the frames an earlier run had taken (a resumed acquisition; 0 else).
+    pub frames_before: usize,
     /// LEDs without a frame after the retake.
     pub still_missing: Vec<LedIndex>,
     /// Last frame → final image, ms (with reconstruction).

@@ -1,10 +1,12 @@
 //! The acquisition's state machine, driven synchronously through generated runs as
 //! `firmware/core` is: sequences that lose frames, break off (controller lost) or
-//! cannot start, retakes that bring nothing, frames handed out in any order, and a
-//! cancel at any point. Whatever happens, the machine
+//! cannot start, retakes that bring nothing, frames handed out in any order, a pause
+//! that cuts the capture short and holds a while, and a cancel at any point. Whatever
+//! happens, the machine
 //!
 //! * runs each sequence with the stage where its purpose needs it, and starts none
-//!   after a cancel;
+//!   after a cancel or while paused;
+//! * after a pause, captures exactly the LEDs the cut capture did not label;
 //! * captures every LED of the array once, and retakes exactly the LEDs the capture
 //!   missed, once, only when the capture neither failed nor was cancelled;
 //! * writes a dataset in which every frame sits under the LED that lit it, each LED at
@@ -55,6 +57,9 @@ struct Case {
     camera_stops: bool,
     /// Cancel before this event (None: never).
     cancel_at: Option<usize>,
+    /// Pause as the capture starts (the driver then cuts it short), holding for this
+    /// many `Paused` actions before resuming (None: never).
+    pause_holds: Option<usize>,
     seed: u64,
 }
 
@@ -72,13 +77,17 @@ fn cases() -> impl Strategy<Value = Case> {
             prop_oneof![Just(0.0), 0.0..0.1],
             any::<bool>(),
         ),
-        (prop::option::weighted(0.4, 0usize..120), any::<u64>()),
+        (
+            prop::option::weighted(0.4, 0usize..120),
+            prop::option::weighted(0.3, 0usize..3),
+            any::<u64>(),
+        ),
     )
         .prop_map(
             |(
                 (rows, cols, calibrate, store_geometry),
                 (drop, lost, refused, camera_stops),
-                (cancel_at, seed),
+                (cancel_at, pause_holds, seed),
             )| Case {
                 rows,
                 cols,
@@ -89,6 +98,7 @@ fn cases() -> impl Strategy<Value = Case> {
                 refused,
                 camera_stops,
                 cancel_at,
+                pause_holds,
                 seed,
             },
         )
@@ -98,8 +108,8 @@ const SIDE: usize = 16;
 
 /// How many generated runs ended each way, so that the generator is seen to reach
 /// every branch: succeeded, failed with a dataset, failed without one, calibrated,
-/// retook, cut short by a cancel.
-static ENDINGS: [AtomicUsize; 6] = [const { AtomicUsize::new(0) }; 6];
+/// retook, cut short by a cancel, paused and resumed.
+static ENDINGS: [AtomicUsize; 7] = [const { AtomicUsize::new(0) }; 7];
 
 fn count(k: usize) {
     ENDINGS[k].fetch_add(1, Ordering::Relaxed);
@@ -184,6 +194,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         camera: ServiceNames::for_camera("never-opened"),
         out: out.to_path_buf(),
         calibrate: case.calibrate,
+        capture: true,
         store_geometry: case.store_geometry,
         reconstruct: false,
         step_ms: 10.0,
@@ -228,6 +239,10 @@ struct Seen {
     cancelled: bool,
     cut: bool,
     calibrated: bool,
+    /// Paused and not yet resumed.
+    paused: bool,
+    /// The pause was made (once per run).
+    pause_made: bool,
 }
 
 /// Drive one generated run; every assertion about the actions' order is made as they
@@ -259,6 +274,7 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
     let mut seen = Seen::default();
     let mut events = 0usize;
     let mut frame_number = 0u64;
+    let mut holds = 0usize;
     let cancel_due = |acq: &mut Acquisition, seen: &mut Seen, events: &mut usize| {
         if Some(*events) == case.cancel_at {
             acq.handle(Event::Cancel);
@@ -269,12 +285,41 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
     for _ in 0..100 {
         cancel_due(&mut acq, &mut seen, &mut events);
         let event = match acq.next_action() {
+            Action::Paused => {
+                prop_assert!(seen.paused, "held without a pause");
+                prop_assert_eq!(acq.progress().phase, Phase::Paused);
+                holds += 1;
+                if holds > case.pause_holds.unwrap_or(0) {
+                    acq.handle(Event::Resume);
+                    seen.paused = false;
+                }
+                continue;
+            }
             Action::MoveStage(to) => {
+                prop_assert!(!seen.paused, "the stage moved while paused");
                 stage = Some(to);
                 Event::StageArrived
             }
             Action::RunSequence { id, leds } => {
                 prop_assert!(!seen.cancelled, "sequence {id} started after a cancel");
+                prop_assert!(!seen.paused, "sequence {id} started while paused");
+                if id == sequence_id::CAPTURE && seen.pause_made {
+                    // The capture goes on with exactly what the cut one did not label.
+                    prop_assert_eq!(
+                        Some(&leds),
+                        seen.capture_missing.as_ref(),
+                        "the capture after a pause is not the LEDs still to take"
+                    );
+                }
+                // The pause comes as the capture starts; the driver cuts it short.
+                let cut_at =
+                    (id == sequence_id::CAPTURE && case.pause_holds.is_some() && !seen.pause_made)
+                        .then(|| {
+                            acq.handle(Event::Pause);
+                            seen.paused = true;
+                            seen.pause_made = true;
+                            rng.gen_range(0..=leds.len())
+                        });
                 let needed = match id {
                     sequence_id::REFERENCE => {
                         Some(StagePosition::in_focus(Slide::CalibrationTarget))
@@ -290,6 +335,9 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
                 prop_assert_eq!(stage, needed, "sequence {} with the stage elsewhere", id);
                 seen.sequences.push((id, leds.clone()));
                 if rng.gen_bool(case.refused) {
+                    // After a pause, the frames of the capture's first part are kept
+                    // and the run fails.
+                    seen.capture_failed |= id == sequence_id::CAPTURE;
                     Event::SequenceEnded(Err(anyhow::anyhow!(
                         "the controller refused the sequence"
                     )))
@@ -302,6 +350,7 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
                         .iter()
                         .enumerate()
                         .filter(|&(k, _)| lost_at.is_none_or(|at| k < at))
+                        .filter(|&(k, _)| cut_at.is_none_or(|at| k < at))
                         .filter(|_| !silent && !rng.gen_bool(case.drop))
                         .filter_map(|(_, &led)| {
                             frame_number += 1;
@@ -344,11 +393,14 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
                         frames_per_s: shots.len() as f64,
                         outcome: if lost_at.is_some() {
                             "the LED controller was lost mid-sequence".into()
+                        } else if cut_at.is_some() {
+                            "Aborted".into()
                         } else {
                             "done".into()
                         },
                         failed: lost_at.is_some(),
                         relabelled: 0,
+                        sequences: 1,
                     };
                     if id == sequence_id::CAPTURE || id == sequence_id::RETAKE {
                         // A cancel before the last sequence ended cut it short.
@@ -379,6 +431,12 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
             }
             Action::WriteSummary { summary, failure } => {
                 seen.summaries += 1;
+                let captures = seen
+                    .sequences
+                    .iter()
+                    .filter(|(id, _)| *id == sequence_id::CAPTURE)
+                    .count();
+                prop_assert_eq!(summary.capture.sequences, captures);
                 prop_assert_eq!(
                     summary.frames_in_dataset,
                     seen.dataset_leds.as_ref().map_or(0, |d| d.len())
@@ -488,7 +546,14 @@ fn check_end(
     acq: &Acquisition,
 ) -> Result<bool, TestCaseError> {
     prop_assert_eq!(acq.progress().phase, Phase::Finished);
-    let ids: Vec<u32> = seen.sequences.iter().map(|(id, _)| *id).collect();
+    let mut ids: Vec<u32> = seen.sequences.iter().map(|(id, _)| *id).collect();
+    let captures = ids.iter().filter(|&&id| id == sequence_id::CAPTURE).count();
+    // A pause splits the capture in two.
+    prop_assert!(captures <= 1 + usize::from(seen.pause_made));
+    if captures == 2 {
+        count(6);
+    }
+    ids.dedup();
     let calibration: &[u32] = if case.calibrate {
         &[sequence_id::REFERENCE, sequence_id::CALIBRATION_GRID]
     } else {
@@ -602,7 +667,7 @@ fn any_run_keeps_every_frame_under_its_led_and_finishes() {
         panic!("{e}");
     }
     let endings: Vec<usize> = ENDINGS.iter().map(|e| e.load(Ordering::Relaxed)).collect();
-    eprintln!("succeeded, failed with a dataset, failed without, calibrated, retook, cut short: {endings:?}");
+    eprintln!("succeeded, failed with a dataset, failed without, calibrated, retook, cut short, paused and resumed: {endings:?}");
     if count >= 1_000 {
         assert!(
             endings.iter().all(|&n| n > 0),
@@ -623,6 +688,7 @@ fn a_clean_run_captures_every_led_once_and_succeeds() {
         refused: 0.0,
         camera_stops: false,
         cancel_at: None,
+        pause_holds: None,
         seed: 1,
     };
     assert!(run(&clean).unwrap());

@@ -147,6 +147,32 @@ class Client:
             body["out"] = str(Path(out).absolute())
         return self._request("POST", "/api/jobs", body)["id"]
 
+    def calibrate(self, out: Optional[os.PathLike] = None, **fields: Any) -> int:
+        """Queue a calibration of the LED array on the rig (pdcFPM) into ``out`` (as for
+        :meth:`acquire`), stored on the controller unless ``store_geometry=False``, so
+        that the acquisitions after it start from it; ``fields`` as ``fpm acquire
+        --calibrate``'s flags (``defocus_um``, ``defocus_sigma_um``, the optics). Its job
+        id."""
+        body = {"kind": "calibrate", **fields}
+        if out is not None:
+            body["out"] = str(Path(out).absolute())
+        return self._request("POST", "/api/jobs", body)["id"]
+
+    def reconstruct(
+        self, dataset: os.PathLike, out: Optional[os.PathLike] = None, **fields: Any
+    ) -> int:
+        """Queue a reconstruction of the dataset in ``dataset`` (an acquisition job's
+        ``out``, say) into ``out`` (as for :meth:`acquire`); ``fields`` as ``fpm
+        reconstruct``'s flags (``calibration``, ``passes``, ``upsample``,
+        ``flatten_background``, ``refine_leds``, ``format="ome-zarr"``, …). The finished
+        image is then the job's :meth:`snapshot`. Its job id."""
+        body = {"kind": "reconstruct", "dataset": str(Path(dataset).absolute()), **fields}
+        if out is not None:
+            body["out"] = str(Path(out).absolute())
+        if isinstance(body.get("calibration"), os.PathLike):
+            body["calibration"] = str(Path(body["calibration"]).absolute())
+        return self._request("POST", "/api/jobs", body)["id"]
+
     def snapshot(self, job: int) -> Snapshot:
         """``job``'s newest snapshot of its reconstruction (``ServiceError`` 404 when it
         has none yet, or it is no longer in the service's memory: the images are then
@@ -200,6 +226,17 @@ class Client:
         """Cancel ``job``: a queued one never starts, a running one stops and keeps
         what it captured."""
         self._request("POST", f"/api/jobs/{int(job)}/cancel")
+
+    def pause(self, job: int) -> None:
+        """Pause the running ``job``: the rig holds before its next LED (the capture's
+        sequence is cut at the LED it is on; the LEDs it did not reach wait)."""
+        self._request("POST", f"/api/jobs/{int(job)}/pause")
+
+    def resume(self, job: int) -> int:
+        """Go on with ``job``: a paused one goes on (its id is returned); one that ended
+        part-way (interrupted, cancelled, failed) is completed by a new job, which
+        lights only the LEDs its frames lack, into its directory (the new id)."""
+        return int(self._request("POST", f"/api/jobs/{int(job)}/resume")["id"])
 
     def wait(self, job: int, timeout: float = 600.0, poll: float = 0.1) -> dict:
         """``job`` once it has ended (``TimeoutError`` if not within ``timeout`` s)."""

@@ -3,6 +3,7 @@ followed through the event stream and written; live snapshots and camera frames 
 NumPy arrays; a second acquisition cancelled mid-sequence; a bad request refused
 naming its field."""
 
+import json
 import subprocess
 import time
 
@@ -12,11 +13,10 @@ import pytest
 import fpm
 
 
-@pytest.fixture()
-def service(fpm_cli, tmp_path):
-    state = tmp_path / "state"
+def _serve(fpm_cli, state, size):
+    """`fpm serve --virtual` with a size² camera, its client; stopped after."""
     process = subprocess.Popen(
-        [fpm_cli, "serve", "--virtual", "--virtual-size", "64", "--listen", "127.0.0.1:0",
+        [fpm_cli, "serve", "--virtual", "--virtual-size", str(size), "--listen", "127.0.0.1:0",
          "--state-dir", str(state)],
         stdout=subprocess.PIPE,
         text=True,
@@ -29,6 +29,17 @@ def service(fpm_cli, tmp_path):
     finally:
         process.terminate()
         process.wait(timeout=30)
+
+
+@pytest.fixture()
+def service(fpm_cli, tmp_path):
+    yield from _serve(fpm_cli, tmp_path / "state", 64)
+
+
+@pytest.fixture()
+def calibratable(fpm_cli, tmp_path):
+    """A rig whose camera is large enough for the calibration's defocused feature."""
+    yield from _serve(fpm_cli, tmp_path / "state", 192)
 
 
 def test_an_acquisition_is_queued_followed_and_written(service, tmp_path):
@@ -50,6 +61,39 @@ def test_an_acquisition_is_queued_followed_and_written(service, tmp_path):
     record = service.job(job)
     assert record["summary"]["frames_in_dataset"] == 441
     assert len(fpm.Dataset.load(out)) == 441
+
+
+def test_a_reconstruct_job_makes_what_fpm_reconstruct_makes(service, fpm_cli, tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    dataset = tmp_path / "field"
+    service.wait(service.acquire(dataset, step_ms=15.0), timeout=120)
+    events = service.events()
+    job = service.reconstruct(dataset, tmp_path / "rec", passes=3, flatten_background=True)
+    work = []
+    for event in events:
+        if event.get("job") != job:
+            continue
+        if event["event"] == "work":
+            work.append((event["done"], event["total"]))
+        elif event["event"] == "state" and event["state"] in fpm.client.FINAL_STATES:
+            assert event["state"] == "done", service.job(job)
+            break
+    assert work and work[-1][0] == work[-1][1] and work == sorted(work), work
+    record = service.job(job)
+    assert record["kind"] == "reconstruct" and record["summary"]["passes"] == 3
+    assert record["reports"] == ["report.html"]
+    subprocess.run(
+        [fpm_cli, "reconstruct", str(dataset), "--out", str(tmp_path / "cli"), "--passes", "3",
+         "--flatten-background"],
+        check=True, capture_output=True,
+    )
+    ours = tifffile.imread(tmp_path / "rec" / "amplitude.tif")
+    theirs = tifffile.imread(tmp_path / "cli" / "amplitude.tif")
+    assert np.array_equal(ours, theirs)
+    # The finished image is the job's snapshot.
+    assert np.array_equal(service.snapshot(job).amplitude, ours)
+    with pytest.raises(fpm.ServiceError, match=r"400: dataset .*no dataset.toml"):
+        service.reconstruct(tmp_path / "nothing-here")
 
 
 def test_live_snapshots_and_camera_frames_come_as_numpy_arrays(service):
@@ -109,3 +153,73 @@ def test_a_bad_request_is_refused_naming_its_field(service, tmp_path):
     with pytest.raises(fpm.ServiceError, match=r"401: .*token"):
         fpm.Client(service.address, token="wrong").acquire(tmp_path / "y")
     assert service.jobs() == []
+
+
+def _rig_of(client):
+    """The virtual rig's name, as `fpm serve --virtual` describes it."""
+    rig = client.status()["rig"]
+    assert rig.startswith("virtual rig "), rig
+    return rig.removeprefix("virtual rig ").split(":")[0]
+
+
+def test_calibrate_acquire_and_cancel_a_second_as_a_notebook_would(
+    calibratable, fpm_cli, tmp_path
+):
+    """The service's whole round from Python: a calibration stored on the board, an
+    acquisition reconstructing from it with live snapshots, a second one cancelled as
+    its frames come; the first's image is the one `fpm acquire` makes on the same rig."""
+    tifffile = pytest.importorskip("tifffile")
+    service = calibratable
+    events = service.events()
+    cal = service.calibrate(tmp_path / "calibration", defocus_sigma_um=0.0)
+    first = service.acquire(
+        tmp_path / "first", step_ms=15.0, reconstruct=True, flatten_background=True,
+        snapshot_every=150, passes=2,
+    )
+    second = service.acquire(tmp_path / "second", step_ms=40.0)
+    ended, snapshots = {}, []
+    seen_at_cancel = asked = None
+    for event in events:
+        job, kind = event.get("job"), event["event"]
+        if kind == "snapshot" and job == first:
+            snapshots.append(service.snapshot(first))
+        elif (kind == "progress" and job == second and seen_at_cancel is None
+              and event["progress"]["frames"] >= 20):
+            seen_at_cancel, asked = event["progress"]["frames"], time.time()
+            service.cancel(second)
+        elif kind == "state" and event["state"] in fpm.client.FINAL_STATES:
+            ended[job] = event
+            if job == second:
+                break
+    assert [ended[j]["state"] for j in (cal, first, second)] == ["done", "done", "cancelled"]
+    calibration = service.job(cal)
+    assert (tmp_path / "calibration" / "calibration.json").is_file()
+    assert "calibration.html" in calibration["reports"]
+    # The acquisition after it started from the calibration stored on the board.
+    record = service.job(first)
+    assert record["summary"]["geometry_source"] == "board", record["summary"]
+    assert [s.frames for s in snapshots] == [150, 300, 441]
+    assert snapshots[-1].finished
+    # The second stopped within a few LEDs of the cancel (40 ms each), its frames kept.
+    kept = service.job(second)["summary"]["frames_in_dataset"]
+    assert seen_at_cancel <= kept <= seen_at_cancel + 4, (seen_at_cancel, kept)
+    print(f"cancel → cancelled event: {1e3 * (ended[second]['at_s'] - asked):.0f} ms; "
+          f"{kept - seen_at_cancel} frames after the {seen_at_cancel} seen")
+    # The same acquisition by the command line on the same rig (the service is idle).
+    rig = _rig_of(service)
+    out = tmp_path / "by-the-cli"
+    subprocess.run(
+        [fpm_cli, "acquire", "--port", str(tmp_path / "state" / "virtual-rig" / "controller.tty"),
+         "--frames", rig, "--stage", "virtual", "--rig", rig, "--out", str(out),
+         "--step-ms", "15", "--reconstruct", "--flatten-background", "--passes", "2"],
+        check=True, capture_output=True, text=True,
+    )
+    cli = json.loads((out / "acquisition.json").read_text())
+    assert cli["geometry_source"] == "board"
+    ours = tifffile.imread(tmp_path / "first" / "reconstruction" / "amplitude.tif")
+    theirs = tifffile.imread(out / "reconstruction" / "amplitude.tif")
+    assert ours.shape == theirs.shape
+    assert np.allclose(snapshots[-1].amplitude, ours, rtol=1e-6)
+    difference = np.linalg.norm(ours - theirs) / np.linalg.norm(theirs)
+    print(f"service vs fpm acquire: amplitude differs by {difference:.4f} (relative L2)")
+    assert difference < 0.02, difference

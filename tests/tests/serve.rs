@@ -200,6 +200,8 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         "/api/jobs",
         "/api/jobs/{id}",
         "/api/jobs/{id}/cancel",
+        "/api/jobs/{id}/pause",
+        "/api/jobs/{id}/resume",
         "/api/jobs/{id}/snapshot/{part}",
         "/api/jobs/{id}/files/{path}",
         "/api/camera/frame",
@@ -394,19 +396,55 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         .unwrap()["id"]
         .as_i64()
         .unwrap();
+    let frames_of_d = |at_least: u64| {
+        let start = Instant::now();
+        loop {
+            let status = service.get("/api/status").json().unwrap();
+            let frames = status["progress"]["frames"].as_u64().unwrap_or(0);
+            if status["running"].as_i64() == Some(d) && frames >= at_least {
+                break (frames, status);
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "job {d} never got {at_least} frames: {status}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    // Paused after 30 frames, it holds between LEDs (no frame comes) until resumed.
+    frames_of_d(30);
+    assert_eq!(
+        service.post(&format!("/api/jobs/{d}/pause"), None).status,
+        202
+    );
     let start = Instant::now();
-    let labelled_before_kill = loop {
+    let held = loop {
         let status = service.get("/api/status").json().unwrap();
-        let frames = status["progress"]["frames"].as_u64().unwrap_or(0);
-        if status["running"].as_i64() == Some(d) && frames >= 30 {
-            break frames;
+        if status["progress"]["phase"] == "paused" {
+            break status["progress"]["frames"].as_u64().unwrap();
         }
         assert!(
-            start.elapsed() < Duration::from_secs(30),
-            "job {d} never got 30 frames: {status}"
+            start.elapsed() < Duration::from_secs(5),
+            "job {d} did not pause: {status}"
         );
-        std::thread::sleep(Duration::from_millis(20));
+        std::thread::sleep(Duration::from_millis(10));
     };
+    eprintln!("pause → holding in {:?}", start.elapsed());
+    std::thread::sleep(Duration::from_millis(800));
+    let status = service.get("/api/status").json().unwrap();
+    assert_eq!(status["progress"]["phase"], "paused", "{status}");
+    assert_eq!(status["progress"]["frames"], held, "frames while paused");
+    assert_eq!(
+        service.post(&format!("/api/jobs/{a}/pause"), None).status,
+        409
+    );
+    let resumed = service.post(&format!("/api/jobs/{d}/resume"), None);
+    assert_eq!(resumed.status, 202, "{}", resumed.body);
+    assert_eq!(
+        resumed.json().unwrap(),
+        serde_json::json!({"id": d, "queued": false})
+    );
+    let (labelled_before_kill, _) = frames_of_d(held + 30);
     let link = state.join("virtual-rig/controller.tty");
     assert!(link.exists());
     service.kill();
@@ -423,7 +461,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     assert_eq!(job["state"], "interrupted", "{job}");
     let error = job["error"].as_str().unwrap();
     assert!(
-        error.contains("partial dataset") && error.contains("queue it again"),
+        error.contains("partial dataset") && error.contains("resume"),
         "{job}"
     );
     let recovered = Dataset::load(&d_out).unwrap();
@@ -446,6 +484,39 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
         "recovered frames contradict their LED: {wrong:?}"
     );
     eprintln!("kill -9 after {labelled_before_kill} frames labelled: {n} recovered, 0 contradict their LED");
+    // Resumed, it takes only the LEDs without a frame, into the same dataset.
+    assert_eq!(
+        service.post(&format!("/api/jobs/{a}/resume"), None).status,
+        409,
+        "a done job resumed"
+    );
+    let resumed = service.post(&format!("/api/jobs/{d}/resume"), None);
+    assert_eq!(resumed.status, 202, "{}", resumed.body);
+    let resumed = resumed.json().unwrap();
+    assert_eq!(resumed["queued"], true, "{resumed}");
+    let e = resumed["id"].as_i64().unwrap();
+    let job = service.wait(e, Duration::from_secs(120));
+    assert_eq!(job["state"], "done", "{job}");
+    assert_eq!(job["kind"], "resume", "{job}");
+    assert_eq!(job["out"], d_out.display().to_string(), "{job}");
+    let summary = &job["summary"];
+    assert_eq!(summary["frames_before"], n, "{job}");
+    assert_eq!(summary["capture"]["requested"], 441 - n, "{job}");
+    let whole = Dataset::load(&d_out).unwrap();
+    let mut leds: Vec<_> = whole.frames.iter().map(|f| f.entry.led).collect();
+    leds.sort();
+    leds.dedup();
+    assert_eq!((whole.frames.len(), leds.len()), (441, 441));
+    let wrong = fpm_tests::contradicted_by_physics(&whole, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "resumed frames contradict their LED: {wrong:?}"
+    );
+    assert!(!d_out.join(fpm_acquire::journal::JOURNAL).exists());
+    eprintln!(
+        "resumed: {} LEDs lit, 441 frames, 0 contradict their LED",
+        441 - n
+    );
     for (id, state) in [(a, "done"), (b, "cancelled"), (c, "done")] {
         assert_eq!(
             service.get(&format!("/api/jobs/{id}")).json().unwrap()["state"],
@@ -564,13 +635,22 @@ fn bad_request(
                 body.to_string(),
             )
         }
-        // Unknown fields, kinds, `out` not a path or relative.
+        // Unknown fields, kinds, `out` not a path or relative; the other kinds wrong:
+        // a resume of no job or of the running one (job 1), a reconstruction of a
+        // relative or missing dataset, a calibration out of range.
         4 => {
-            match rng.gen_range(0..4) {
+            match rng.gen_range(0..8) {
                 0 => body["unknown_field"] = serde_json::json!(1),
                 1 => body["kind"] = serde_json::json!("scan"),
                 2 => body["out"] = serde_json::json!(5),
-                _ => body["out"] = serde_json::json!("relative/dir"),
+                3 => body["out"] = serde_json::json!("relative/dir"),
+                4 => body = serde_json::json!({"kind": "resume", "job": 999999}),
+                5 => body = serde_json::json!({"kind": "resume", "job": 1}),
+                6 => {
+                    let dataset = ["relative", "/nonexistent/dataset"][rng.gen_range(0..2)];
+                    body = serde_json::json!({"kind": "reconstruct", "dataset": dataset});
+                }
+                _ => body = serde_json::json!({"kind": "calibrate", "na": 2.0}),
             }
             (
                 "/api/jobs".into(),
@@ -612,8 +692,9 @@ fn bad_request(
                 1 => "abc".to_string(),
                 _ => "-3".to_string(),
             };
+            let verb = ["cancel", "pause", "resume"][rng.gen_range(0..3)];
             (
-                format!("/api/jobs/{id}/cancel"),
+                format!("/api/jobs/{id}/{verb}"),
                 vec![("Authorization", auth)],
                 String::new(),
             )
@@ -627,7 +708,7 @@ fn bad_request(
         _ => {
             let path = [
                 "/api/nothing",
-                "/api/jobs/1/pause",
+                "/api/jobs/1/stop",
                 "/../etc/passwd",
                 "/api",
             ][rng.gen_range(0..4)];
@@ -706,15 +787,25 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     let report = service.get(link);
     assert_eq!(report.status, 200, "{link}: {}", report.body);
 
-    // The second: cancelled from the page after 20 frames or more, before the last,
-    // and what it took written as a dataset.
+    // The second: paused from the page (no frame while it held), resumed, cancelled
+    // after 30 frames or more, before the last, what it took written as a dataset;
+    // then completed from the history's Resume button, into the same dataset.
     let second = seen["second"].as_i64().unwrap();
+    assert_eq!(seen["pause_button"], "Resume", "{seen}");
+    assert_eq!(seen["frames_paused"], seen["frames_paused_later"], "{seen}");
     assert_eq!(seen["second_state"], "cancelled", "{seen}");
     let at_cancel = seen["frames_at_cancel"].as_u64().unwrap();
-    assert!((20..441).contains(&at_cancel), "{seen}");
+    assert!((30..441).contains(&at_cancel), "{seen}");
     let job = service.get(&format!("/api/jobs/{second}")).json().unwrap();
     let kept = job["summary"]["frames_in_dataset"].as_u64().unwrap() as usize;
     assert!(kept >= at_cancel as usize && kept < 441, "{job}");
+    assert_eq!(job["summary"]["capture"]["sequences"], 2, "{job}");
+    assert_eq!(seen["third_state"], "done", "{seen}");
+    assert_eq!(seen["third_kind"], "resume", "{seen}");
+    let third = seen["third"].as_i64().unwrap();
+    let completed = service.get(&format!("/api/jobs/{third}")).json().unwrap();
+    assert_eq!(completed["summary"]["frames_before"], kept, "{completed}");
+    assert_eq!(completed["out"], job["out"], "{completed}");
     let out = std::path::Path::new(job["out"].as_str().unwrap());
-    assert_eq!(Dataset::load(out).unwrap().frames.len(), kept);
+    assert_eq!(Dataset::load(out).unwrap().frames.len(), 441);
 }

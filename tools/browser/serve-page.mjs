@@ -1,6 +1,7 @@
 // Drives `fpm serve`'s page in Debian's headless Chromium as a person would: open the
 // address the service printed, start an acquisition, watch its progress and its final
-// image, then start a second and cancel it mid-capture. Prints what it saw as one JSON
+// image, then start a second, pause it, resume it, cancel it mid-capture, and complete
+// it with the history's Resume button. Prints what it saw as one JSON
 // object on stdout; tests/tests/serve.rs judges it (this script asserts nothing).
 //
 //   node tools/browser/serve-page.mjs PAGE_URL SCREENSHOT.png
@@ -110,6 +111,19 @@ try {
     second,
     { timeout: 60_000 },
   );
+  // Paused: the page says so and no frame comes while it holds; resumed: frames again.
+  await page.click("#pause");
+  await page.waitForFunction(() => document.getElementById("progress-text").textContent.startsWith("paused"), null, {
+    timeout: 10_000,
+  });
+  seen.pause_button = await page.textContent("#pause");
+  seen.frames_paused = Number(await page.getAttribute("body", "data-frames"));
+  await page.waitForTimeout(800);
+  seen.frames_paused_later = Number(await page.getAttribute("body", "data-frames"));
+  await page.click("#pause");
+  await page.waitForFunction((n) => Number(document.body.dataset.frames) >= n + 10, seen.frames_paused, {
+    timeout: 30_000,
+  });
   seen.frames_at_cancel = Number(await page.getAttribute("body", "data-frames"));
   await page.click("#cancel");
   await page.waitForFunction(
@@ -122,6 +136,25 @@ try {
   );
   seen.second_state = await page.getAttribute(row(second), "data-state");
   seen.second_text = await page.textContent(row(second));
+  // Completed from the history: a resume job lights the LEDs the cancel left.
+  await page.click(`${row(second)} button.resume`);
+  await page.waitForFunction(
+    (f) => [...document.querySelectorAll("tr[data-job]")].some((r) => Number(r.dataset.job) > f),
+    second,
+    { timeout: 10_000 },
+  );
+  const third = await page.evaluate(() => Math.max(...[...document.querySelectorAll("tr[data-job]")].map((r) => Number(r.dataset.job))));
+  seen.third = third;
+  await page.waitForFunction(
+    (sel) => {
+      const r = document.querySelector(sel);
+      return r && !["queued", "running"].includes(r.dataset.state);
+    },
+    row(third),
+    { timeout: 90_000 },
+  );
+  seen.third_state = await page.getAttribute(row(third), "data-state");
+  seen.third_kind = await page.textContent(`${row(third)} td:nth-child(2)`);
   await page.screenshot({ path: screenshot, fullPage: true });
 } catch (e) {
   seen.errors.push("driver: " + e.message);

@@ -26,9 +26,11 @@ use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 use utoipa::{OpenApi, ToSchema};
 
-use crate::jobs::{AcquireRequest, JobRequest};
+use crate::jobs::{
+    AcquireRequest, CalibrateRequest, JobRequest, ReconstructRequest, ResumeRequest,
+};
 use crate::store::{Job, JobState};
-use crate::worker::{CancelError, Event, Handle, Shared};
+use crate::worker::{acquisition_of, CancelError, Event, Handle, Shared, SteerError};
 
 /// The largest request body, bytes: a job request is a few hundred.
 pub const MAX_BODY: usize = 64 * 1024;
@@ -142,6 +144,8 @@ impl IntoResponse for ApiError {
         submit,
         get_job,
         cancel,
+        pause,
+        resume,
         events,
         snapshot,
         camera_frame,
@@ -150,10 +154,14 @@ impl IntoResponse for ApiError {
     components(schemas(
         Status,
         Submitted,
+        Resumed,
         Job,
         JobState,
         JobRequest,
         AcquireRequest,
+        CalibrateRequest,
+        ReconstructRequest,
+        ResumeRequest,
         ApiError,
         Event
     ))
@@ -167,6 +175,8 @@ pub fn router(state: State) -> Router {
         .route("/api/jobs", get(list_jobs).post(submit))
         .route("/api/jobs/{id}", get(get_job))
         .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/pause", post(pause))
+        .route("/api/jobs/{id}/resume", post(resume))
         .route("/api/jobs/{id}/snapshot/{part}", get(snapshot))
         .route("/api/jobs/{id}/files/{*path}", get(job_file))
         .route("/api/camera/frame", get(camera_frame))
@@ -295,11 +305,20 @@ async fn submit(
         JobRequest::parse(&body).map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e))?;
     request.place(&state.shared.runs);
     // Checked now, not when the rig gets to it: a bad value is said to the one who sent it.
-    match &request {
+    match &mut request {
         JobRequest::Acquire(a) => {
             a.plan(&state.shared.camera)
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
         }
+        JobRequest::Calibrate(c) => {
+            c.plan(&state.shared.camera)
+                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        }
+        JobRequest::Reconstruct(r) => {
+            r.job()
+                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        }
+        JobRequest::Resume(r) => r.out = Some(resumable(&state, r.job)?),
     }
     let id = state
         .worker
@@ -339,12 +358,101 @@ async fn cancel(
         Err(e @ CancelError::Unknown(_)) => {
             Err(ApiError::new(StatusCode::NOT_FOUND, e.to_string()))
         }
-        Err(e @ CancelError::Ended(..)) => Err(ApiError::new(StatusCode::CONFLICT, e.to_string())),
+        Err(e @ (CancelError::Ended(..) | CancelError::Unstoppable(_))) => {
+            Err(ApiError::new(StatusCode::CONFLICT, e.to_string()))
+        }
         Err(e) => Err(ApiError::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             e.to_string(),
         )),
     }
+}
+
+/// Where job `id`'s frames are, if it can be completed by a resume job: it is an
+/// acquisition (or a resume of one) that ended part-way.
+fn resumable(state: &State, id: i64) -> Result<PathBuf, ApiError> {
+    let steer = steer_error;
+    let job = state
+        .shared
+        .store
+        .get(id)
+        .map_err(|e| steer(SteerError::Store(e)))?
+        .ok_or_else(|| steer(SteerError::Unknown(id)))?;
+    acquisition_of(&state.shared.store, id).map_err(steer)?;
+    match job.state {
+        JobState::Interrupted | JobState::Cancelled | JobState::Failed => Ok(PathBuf::from(job.out)),
+        JobState::Done => Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!("job {id}: done, every LED has its frame; nothing to resume"),
+        )),
+        JobState::Queued | JobState::Running => Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!("job {id}: {:?}, not ended; pause and resume a running job with /api/jobs/{id}/pause and /resume", job.state),
+        )),
+    }
+}
+
+fn steer_error(e: SteerError) -> ApiError {
+    let status = match e {
+        SteerError::Unknown(_) => StatusCode::NOT_FOUND,
+        SteerError::Conflict(_) => StatusCode::CONFLICT,
+        SteerError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    ApiError::new(status, e.to_string())
+}
+
+#[utoipa::path(post, path = "/api/jobs/{id}/pause", params(("id" = i64, Path, description = "The job's id")),
+    responses((status = 202, description = "Pausing: the rig holds before its next LED (the capture's sequence is cut at the LED it is on; those it did not reach wait)"),
+        (status = 404, body = ApiError), (status = 409, body = ApiError)),
+    security(("token" = [])))]
+async fn pause(
+    Extract(state): Extract<State>,
+    id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
+) -> Result<StatusCode, ApiError> {
+    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
+    state.worker.pause(id).map_err(steer_error)?;
+    Ok(StatusCode::ACCEPTED)
+}
+
+/// What a resume did.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Resumed {
+    /// The job that goes on: the paused one itself, or the new `resume` job queued to
+    /// complete one that ended part-way.
+    pub id: i64,
+    /// Whether `id` is a new job.
+    pub queued: bool,
+}
+
+#[utoipa::path(post, path = "/api/jobs/{id}/resume", params(("id" = i64, Path, description = "The job's id")),
+    responses((status = 202, body = Resumed, description = "A paused job goes on; a job that ended part-way (interrupted, cancelled, failed) is completed by a new resume job, which lights only the LEDs its frames lack"),
+        (status = 404, body = ApiError), (status = 409, body = ApiError)),
+    security(("token" = [])))]
+async fn resume(
+    Extract(state): Extract<State>,
+    id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
+) -> Result<(StatusCode, Json<Resumed>), ApiError> {
+    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
+    if state.worker.is_paused(id) {
+        state.worker.resume_running(id).map_err(steer_error)?;
+        return Ok((StatusCode::ACCEPTED, Json(Resumed { id, queued: false })));
+    }
+    let out = resumable(&state, id)?;
+    let request = JobRequest::Resume(ResumeRequest {
+        job: id,
+        out: Some(out),
+    });
+    let new = state
+        .worker
+        .submit(&request)
+        .map_err(|e| ApiError::new(StatusCode::SERVICE_UNAVAILABLE, format!("{e:#}")))?;
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(Resumed {
+            id: new,
+            queued: true,
+        }),
+    ))
 }
 
 #[utoipa::path(get, path = "/api/events",

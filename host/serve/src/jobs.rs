@@ -12,6 +12,9 @@ use fpm_protocol::Rgb;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
+/// The kinds a request may have, as an error lists them.
+const KINDS: &str = "\"acquire\", \"calibrate\", \"reconstruct\" or \"resume\"";
+
 /// A job to queue.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -19,6 +22,28 @@ pub enum JobRequest {
     /// Acquire a dataset (as `fpm acquire`): optionally calibrate first and
     /// reconstruct while the frames arrive.
     Acquire(AcquireRequest),
+    /// Calibrate the LED array on the rig (pdcFPM, as `fpm acquire --calibrate` does
+    /// first) and store the result on the controller, for the acquisitions after it.
+    Calibrate(CalibrateRequest),
+    /// Reconstruct a dataset on disk (as `fpm reconstruct`): the images, the report
+    /// page, and the finished image as the job's snapshot.
+    Reconstruct(ReconstructRequest),
+    /// Complete an acquisition job that ended part-way (interrupted, cancelled,
+    /// failed): its frames are kept, only the LEDs they lack are lit, into its output
+    /// directory, with its settings.
+    Resume(ResumeRequest),
+}
+
+/// Which job to complete.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ResumeRequest {
+    /// The job to complete (an `acquire` job, or a `resume` of one).
+    pub job: i64,
+    /// Set by the service: that job's output directory (a value sent is replaced).
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
 }
 
 impl JobRequest {
@@ -32,8 +57,8 @@ impl JobRequest {
             .ok_or("a job request is a JSON object with a \"kind\"")?;
         let kind = match fields.remove("kind") {
             Some(serde_json::Value::String(k)) => k,
-            Some(other) => return Err(format!("kind {other}: give \"acquire\"")),
-            None => return Err("kind: missing; give \"acquire\"".into()),
+            Some(other) => return Err(format!("kind {other}: give {KINDS}")),
+            None => return Err(format!("kind: missing; give {KINDS}")),
         };
         let named = |e: serde_path_to_error::Error<serde_json::Error>| {
             let path = e.path().to_string();
@@ -46,7 +71,16 @@ impl JobRequest {
             "acquire" => serde_path_to_error::deserialize(value)
                 .map(JobRequest::Acquire)
                 .map_err(named),
-            other => Err(format!("kind \"{other}\": unknown; give \"acquire\"")),
+            "calibrate" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Calibrate)
+                .map_err(named),
+            "reconstruct" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Reconstruct)
+                .map_err(named),
+            "resume" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Resume)
+                .map_err(named),
+            other => Err(format!("kind \"{other}\": unknown; give {KINDS}")),
         }
     }
 
@@ -54,6 +88,9 @@ impl JobRequest {
     pub fn kind(&self) -> &'static str {
         match self {
             JobRequest::Acquire(_) => "acquire",
+            JobRequest::Calibrate(_) => "calibrate",
+            JobRequest::Reconstruct(_) => "reconstruct",
+            JobRequest::Resume(_) => "resume",
         }
     }
 
@@ -61,14 +98,22 @@ impl JobRequest {
     pub fn out(&self) -> Option<&std::path::Path> {
         match self {
             JobRequest::Acquire(a) => a.out.as_deref(),
+            JobRequest::Calibrate(c) => c.out.as_deref(),
+            JobRequest::Reconstruct(r) => r.out.as_deref(),
+            JobRequest::Resume(r) => r.out.as_deref(),
         }
     }
 
     /// Give a job sent without `out` a new directory of its own under `runs` (named by
     /// the time it was queued, to the microsecond; a clash takes the next name).
     pub fn place(&mut self, runs: &std::path::Path) {
-        let JobRequest::Acquire(a) = self;
-        if a.out.is_some() {
+        let out = match self {
+            JobRequest::Acquire(a) => &mut a.out,
+            JobRequest::Calibrate(c) => &mut c.out,
+            JobRequest::Reconstruct(r) => &mut r.out,
+            JobRequest::Resume(_) => return,
+        };
+        if out.is_some() {
             return;
         }
         let now = std::time::SystemTime::now()
@@ -82,7 +127,7 @@ impl JobRequest {
             }
             dir = runs.join(format!("{stamp}-{n}"));
         }
-        a.out = Some(dir);
+        *out = Some(dir);
     }
 }
 
@@ -151,6 +196,221 @@ pub struct AcquireRequest {
     pub snapshot_every: usize,
 }
 
+/// A calibration on the rig: every field may be left out (`fpm acquire --calibrate`'s
+/// defaults; the result is stored on the controller unless `store_geometry` is false).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrateRequest {
+    /// Output directory (absolute): calibration/ (its frames), calibration.json and its
+    /// page. Absent: a new directory under the service's runs directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
+    /// Store the calibration on the controller (acquisitions without `calibrate` then
+    /// start from it).
+    #[serde(default = "yes")]
+    pub store_geometry: bool,
+    /// How long each LED stays lit, ms.
+    #[serde(default = "step_ms")]
+    pub step_ms: f64,
+    /// Defocus, µm toward the LEDs.
+    #[serde(default = "defocus_um")]
+    pub defocus_um: f64,
+    /// 1σ of that defocus, µm.
+    #[serde(default = "defocus_sigma_um")]
+    pub defocus_sigma_um: f64,
+    /// LED colour, [r, g, b] (0–255).
+    #[serde(default = "color")]
+    pub color: [u8; 3],
+    /// The camera's dark level, counts.
+    #[serde(default = "dark_level")]
+    pub dark_level: f64,
+    /// Illumination wavelength, µm.
+    #[serde(default = "wavelength_um")]
+    pub wavelength_um: f64,
+    /// Objective NA.
+    #[serde(default = "na")]
+    pub na: f64,
+    /// Objective magnification.
+    #[serde(default = "magnification")]
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    #[serde(default = "pixel_um")]
+    pub pixel_um: f64,
+}
+
+impl CalibrateRequest {
+    /// The calibration's plan on camera `camera`, checked as an acquisition's is.
+    pub fn plan(&self, camera: &ServiceNames) -> Result<Plan> {
+        let Some(out) = &self.out else {
+            bail!("out: missing (the service places a job without one under its runs directory)");
+        };
+        if out.join("calibration.json").exists() {
+            bail!(
+                "out {}: already holds a calibration; pick another directory",
+                out.display()
+            );
+        }
+        let as_acquisition = AcquireRequest {
+            out: self.out.clone(),
+            calibrate: true,
+            store_geometry: self.store_geometry,
+            reconstruct: false,
+            step_ms: self.step_ms,
+            defocus_um: self.defocus_um,
+            defocus_sigma_um: self.defocus_sigma_um,
+            color: self.color,
+            dark_level: self.dark_level,
+            wavelength_um: self.wavelength_um,
+            na: self.na,
+            magnification: self.magnification,
+            pixel_um: self.pixel_um,
+            entrance_pupil_mm: None,
+            passes: passes(),
+            tile: None,
+            flatten_background: false,
+            snapshot_every: 0,
+        };
+        Ok(Plan {
+            capture: false,
+            ..as_acquisition.plan_in(camera, out)?
+        })
+    }
+}
+
+/// `fpm reconstruct` as a request: the dataset, and settings that may be left out
+/// (the CLI's defaults).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructRequest {
+    /// The dataset's directory (absolute; with dataset.toml): an acquisition job's
+    /// `out`, say.
+    #[schema(value_type = String)]
+    pub dataset: PathBuf,
+    /// Output directory (absolute): amplitude, phase, pupil, report.json and
+    /// report.html. Absent: a new directory under the service's runs directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
+    /// The LED placement (absolute path): a calibration.json, refined-board.json or
+    /// placement file. Absent: the dataset's nominal placement.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub calibration: Option<PathBuf>,
+    /// The LEDs' height below the sample, mm, instead of the dataset's.
+    #[serde(default)]
+    pub led_height_mm: Option<f64>,
+    /// The objective's entrance pupil distance above the sample, mm (absent:
+    /// telecentric).
+    #[serde(default)]
+    pub entrance_pupil_mm: Option<f64>,
+    /// Passes over all frames.
+    #[serde(default = "reconstruct_passes")]
+    pub passes: usize,
+    /// Upsampling of the object over the camera's sampling.
+    #[serde(default = "upsample")]
+    pub upsample: usize,
+    /// Tile side, camera pixels (absent: from the physics).
+    #[serde(default)]
+    pub tile: Option<usize>,
+    /// Keep the pupil fixed (no aberration recovery).
+    #[serde(default)]
+    pub fixed_pupil: bool,
+    /// Refine each LED's position from the frames.
+    #[serde(default)]
+    pub refine_leds: bool,
+    /// Take the clear background's low-order phase off.
+    #[serde(default)]
+    pub flatten_background: bool,
+    /// Refocus the object by this many µm.
+    #[serde(default)]
+    pub refocus_um: f64,
+    /// Image format: "tiff" or "ome-zarr".
+    #[serde(default)]
+    pub format: OutputFormat,
+}
+
+/// How a reconstruction's images are written.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum OutputFormat {
+    /// OME-TIFF (and plain TIFF) files.
+    #[default]
+    Tiff,
+    /// One OME-Zarr store.
+    OmeZarr,
+}
+
+fn reconstruct_passes() -> usize {
+    fpm_host::reconstruction::Job::default().passes
+}
+fn upsample() -> usize {
+    fpm_physics::reconstruct::Settings::default().upsample
+}
+
+impl ReconstructRequest {
+    /// The reconstruction job, checked: a path that is not absolute or not there, or a
+    /// setting out of its range, is named.
+    pub fn job(&self) -> Result<fpm_host::reconstruction::Job> {
+        use fpm_host::reconstruction::{GeometryChoice, Job};
+        let absolute = |name: &str, path: &std::path::Path| -> Result<()> {
+            if !path.is_absolute() {
+                bail!(
+                    "{name} {}: give an absolute path (the service's working directory is not the client's)",
+                    path.display()
+                );
+            }
+            Ok(())
+        };
+        absolute("dataset", &self.dataset)?;
+        if !self.dataset.join("dataset.toml").is_file() {
+            bail!("dataset {}: no dataset.toml there", self.dataset.display());
+        }
+        if let Some(out) = &self.out {
+            absolute("out", out)?;
+        }
+        let geometry = match (&self.calibration, self.led_height_mm) {
+            (Some(_), Some(_)) => bail!("calibration and led_height_mm: give one"),
+            (Some(path), None) => {
+                absolute("calibration", path)?;
+                if !path.is_file() {
+                    bail!("calibration {}: no such file", path.display());
+                }
+                GeometryChoice::File(path.clone())
+            }
+            (None, Some(h)) => GeometryChoice::LedHeightMm(h),
+            (None, None) => GeometryChoice::Nominal,
+        };
+        let defaults = Job::default();
+        let job = Job {
+            geometry,
+            entrance_pupil_mm: self.entrance_pupil_mm,
+            settings: fpm_physics::reconstruct::Settings {
+                upsample: self.upsample,
+                update_pupil: !self.fixed_pupil,
+                refine_leds: self
+                    .refine_leds
+                    .then(fpm_physics::reconstruct::Refine::default),
+                flatten: if self.flatten_background {
+                    Flatten::Auto
+                } else {
+                    Flatten::Keep
+                },
+                defocus_um: self.refocus_um,
+                ..defaults.settings
+            },
+            passes: self.passes,
+            tile: self.tile,
+            ..defaults
+        };
+        job.validate()?;
+        Ok(job)
+    }
+}
+
+fn yes() -> bool {
+    true
+}
 fn step_ms() -> f64 {
     defaults::STEP_MS
 }
@@ -193,6 +453,18 @@ impl AcquireRequest {
         let Some(out) = &self.out else {
             bail!("out: missing (the service places a job without one under its runs directory)");
         };
+        if out.join("dataset.toml").exists() {
+            bail!(
+                "out {}: already holds a dataset; pick another directory",
+                out.display()
+            );
+        }
+        self.plan_in(camera, out)
+    }
+
+    /// The plan writing into `out`, which may hold the partial dataset of an earlier run
+    /// of this request (a resume).
+    pub fn plan_in(&self, camera: &ServiceNames, out: &std::path::Path) -> Result<Plan> {
         if !out.is_absolute() {
             bail!(
                 "out {}: give an absolute path (the service's working directory is not the client's)",
@@ -202,17 +474,12 @@ impl AcquireRequest {
         if self.store_geometry && !self.calibrate {
             bail!("store_geometry needs calibrate");
         }
-        if out.join("dataset.toml").exists() {
-            bail!(
-                "out {}: already holds a dataset; pick another directory",
-                out.display()
-            );
-        }
         let [r, g, b] = self.color;
         let plan = Plan {
             camera: camera.clone(),
-            out: out.clone(),
+            out: out.to_path_buf(),
             calibrate: self.calibrate,
+            capture: true,
             store_geometry: self.store_geometry,
             reconstruct: self.reconstruct,
             step_ms: self.step_ms,

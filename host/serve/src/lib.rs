@@ -132,8 +132,9 @@ fn recover_interrupted(store: &store::Store) {
         let out = Path::new(&job.out);
         let said = match fpm_acquire::journal::recover(out) {
             Ok(Some(n)) if n > 0 => format!(
-                "the service stopped while the job ran; the {n} frames it had labelled are a partial dataset in {} (the LEDs without a frame are missing from it); queue it again for a whole one",
-                out.display()
+                "the service stopped while the job ran; the {n} frames it had labelled are a partial dataset in {} (the LEDs without a frame are missing from it); resume it (POST /api/jobs/{}/resume, fpm.Client.resume) to light only those",
+                out.display(),
+                id
             ),
             Ok(_) => "the service stopped while the job ran, before any frame of its capture was labelled; queue it again".into(),
             Err(e) => format!(

@@ -90,11 +90,13 @@ pub struct Job {
 }
 
 impl Job {
-    /// The report pages an acquisition writes, in the order a person reads them.
-    pub const REPORTS: [&'static str; 3] = [
+    /// The report pages a job writes, in the order a person reads them (an
+    /// acquisition's, a reconstruction's own).
+    pub const REPORTS: [&'static str; 4] = [
         "acquisition.html",
         "reconstruction/report.html",
         "calibration.html",
+        "report.html",
     ];
 
     /// With `reports` listing the pages that exist in `out`.

@@ -2,21 +2,25 @@
 //! `fpm_acquire::pipeline::acquire` (the acquisition's state machine and its loop),
 //! and publishes progress as it goes. Cancelling sets the job's flag: the running
 //! sequence is aborted on the controller, what was captured is written, and the job
-//! ends `cancelled`.
+//! ends `cancelled`. Pausing holds the rig between LEDs until resumed; a job that
+//! ended part-way (interrupted, cancelled, failed) is completed by a `resume` job,
+//! which lights only the LEDs its frames lack.
 
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
+use fpm_acquire::pipeline::Control;
 use fpm_acquire::{Controller, Progress};
 use fpm_frames::ServiceNames;
 use serde::Serialize;
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
-use crate::jobs::JobRequest;
+use crate::jobs::{AcquireRequest, JobRequest};
 use crate::live::Live;
 use crate::store::{JobState, Store};
 use crate::Rig;
@@ -55,6 +59,14 @@ pub enum Event {
     },
     /// A new camera frame for viewers (a few a second at most): `GET /api/camera/frame`.
     CameraFrame { job: i64, seq: u64, led: [u8; 2] },
+    /// How far a job that does not acquire is (a reconstruction's frame updates), a
+    /// few times a second.
+    Work {
+        job: i64,
+        what: &'static str,
+        done: usize,
+        total: usize,
+    },
 }
 
 /// An event as the stream sends it: with `at_s`, when the service published it (Unix
@@ -69,7 +81,9 @@ pub struct Stamped {
 /// The running job.
 struct Running {
     id: i64,
-    cancel: Arc<AtomicBool>,
+    /// What kind of job (a reconstruction cannot be stopped part-way).
+    kind: String,
+    control: Control,
     progress: Option<Progress>,
     eta_s: Option<f64>,
 }
@@ -152,9 +166,52 @@ pub enum CancelError {
     /// It has ended.
     #[error("job {0} has already ended ({1:?})")]
     Ended(i64, JobState),
+    /// It is a reconstruction running now: it ends by itself.
+    #[error("job {0} is reconstructing and cannot be stopped part-way; it ends by itself")]
+    Unstoppable(i64),
     /// The database could not say.
     #[error("{0:#}")]
     Store(anyhow::Error),
+}
+
+/// Why a pause or a resume was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum SteerError {
+    /// No such job.
+    #[error("no job {0}")]
+    Unknown(i64),
+    /// It is not in a state the request applies to.
+    #[error("{0}")]
+    Conflict(String),
+    /// The database could not say.
+    #[error("{0:#}")]
+    Store(anyhow::Error),
+}
+
+/// The acquisition request a job carries out: its own, or for a `resume` job the
+/// request of the job it completes (followed back through resumes of resumes).
+pub fn acquisition_of(store: &Store, id: i64) -> Result<AcquireRequest, SteerError> {
+    let mut at = id;
+    for _ in 0..1000 {
+        let job = store
+            .get(at)
+            .map_err(SteerError::Store)?
+            .ok_or(SteerError::Unknown(at))?;
+        let request: JobRequest = serde_json::from_value(job.request)
+            .map_err(|e| SteerError::Store(anyhow!("job {at}'s stored request: {e}")))?;
+        match request {
+            JobRequest::Acquire(a) => return Ok(a),
+            JobRequest::Calibrate(_) | JobRequest::Reconstruct(_) => {
+                return Err(SteerError::Conflict(format!(
+                    "job {at} does not acquire: queue it again rather than resume it"
+                )))
+            }
+            JobRequest::Resume(r) => at = r.job,
+        }
+    }
+    Err(SteerError::Conflict(format!(
+        "job {id}: its resumes do not lead back to an acquisition"
+    )))
 }
 
 /// The API's way to the worker.
@@ -189,7 +246,10 @@ impl Handle {
     /// Cancel job `id`: a queued job never starts; a running one stops at once.
     pub fn cancel(&self, id: i64) -> Result<(), CancelError> {
         if let Some(r) = self.shared.running().as_ref().filter(|r| r.id == id) {
-            r.cancel.store(true, Ordering::SeqCst);
+            if r.kind == "reconstruct" {
+                return Err(CancelError::Unstoppable(id));
+            }
+            r.control.cancel();
             return Ok(());
         }
         let job = self
@@ -212,6 +272,46 @@ impl Handle {
             JobState::Running => Ok(()),
             state => Err(CancelError::Ended(id, state)),
         }
+    }
+
+    /// Pause the running job `id` between LEDs.
+    pub fn pause(&self, id: i64) -> Result<(), SteerError> {
+        self.steer(id, "paused", Control::pause)
+    }
+
+    /// Resume the running job `id` after a pause.
+    pub fn resume_running(&self, id: i64) -> Result<(), SteerError> {
+        self.steer(id, "resumed", Control::resume)
+    }
+
+    fn steer(&self, id: i64, what: &str, how: fn(&Control)) -> Result<(), SteerError> {
+        if let Some(r) = self.shared.running().as_ref().filter(|r| r.id == id) {
+            if r.kind == "reconstruct" {
+                return Err(SteerError::Conflict(format!(
+                    "job {id} reconstructs: only an acquisition is {what}"
+                )));
+            }
+            how(&r.control);
+            return Ok(());
+        }
+        let job = self
+            .shared
+            .store
+            .get(id)
+            .map_err(SteerError::Store)?
+            .ok_or(SteerError::Unknown(id))?;
+        Err(SteerError::Conflict(format!(
+            "job {id} is {:?}, not running: only a running job is {what}",
+            job.state
+        )))
+    }
+
+    /// Whether the running job `id` is paused (or asked to be).
+    pub fn is_paused(&self, id: i64) -> bool {
+        self.shared
+            .running()
+            .as_ref()
+            .is_some_and(|r| r.id == id && r.control.is_paused())
     }
 }
 
@@ -250,7 +350,7 @@ impl Worker {
     pub fn stop(mut self) {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(r) = self.handle.shared.running().as_ref() {
-            r.cancel.store(true, Ordering::SeqCst);
+            r.control.cancel();
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
@@ -277,29 +377,46 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
             return;
         }
     };
-    let cancel = Arc::new(AtomicBool::new(stop.load(Ordering::SeqCst)));
+    let control = Control::new();
+    if stop.load(Ordering::SeqCst) {
+        control.cancel();
+    }
     *shared.running() = Some(Running {
         id,
-        cancel: cancel.clone(),
+        kind: job.kind.clone(),
+        control: control.clone(),
         progress: None,
         eta_s: None,
     });
     shared.set_state(id, JobState::Running, None, None);
     let request: Result<JobRequest> = serde_json::from_value(job.request).map_err(Into::into);
+    let watcher = JobWatcher::new(shared, id);
+    let open = || -> Result<_> {
+        let dev = Controller::open(&rig.port, Duration::from_secs(2))
+            .map_err(|e| anyhow!("the LED controller on {}: {e:#}", rig.port))?;
+        Ok((dev, (rig.stage)()?))
+    };
+    let summary = |s: fpm_acquire::AcquireSummary| serde_json::to_value(s).unwrap_or_default();
     let outcome = request.and_then(|r| match r {
         JobRequest::Acquire(a) => {
             let plan = a.plan(&rig.camera)?;
-            let dev = Controller::open(&rig.port, Duration::from_secs(2))
-                .map_err(|e| anyhow!("the LED controller on {}: {e:#}", rig.port))?;
-            let mut stage = (rig.stage)()?;
-            let watcher = JobWatcher {
-                shared,
-                job: id,
-                last: None,
-                capture_start: None,
-            };
-            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &cancel)
-                .map(|summary| serde_json::to_value(summary).unwrap_or_default())
+            let (dev, mut stage) = open()?;
+            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
+                .map(summary)
+        }
+        JobRequest::Calibrate(c) => {
+            let plan = c.plan(&rig.camera)?;
+            let (dev, mut stage) = open()?;
+            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
+                .map(summary)
+        }
+        JobRequest::Reconstruct(r) => reconstruct(shared, id, &r, Path::new(&job.out)),
+        JobRequest::Resume(r) => {
+            let a = acquisition_of(&shared.store, r.job)?;
+            let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
+            let (dev, mut stage) = open()?;
+            fpm_acquire::pipeline::resume(&dev, stage.as_mut(), &plan, watcher, &control)
+                .map(summary)
         }
     });
     // What the acquisition wrote, also when it failed part-way.
@@ -310,12 +427,68 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
     };
     match outcome {
         Ok(summary) => shared.set_state(id, JobState::Done, None, Some(summary)),
-        Err(e) if cancel.load(Ordering::SeqCst) => {
+        Err(e) if control.is_cancelled() => {
             shared.set_state(id, JobState::Cancelled, Some(format!("{e:#}")), written())
         }
         Err(e) => shared.set_state(id, JobState::Failed, Some(format!("{e:#}")), written()),
     }
     *shared.running() = None;
+}
+
+/// Run reconstruct job `id` into `out`: progress as `work` events (a few a second),
+/// the finished image as the job's snapshot; the report is its summary.
+fn reconstruct(
+    shared: &Shared,
+    id: i64,
+    request: &crate::jobs::ReconstructRequest,
+    out: &Path,
+) -> Result<serde_json::Value> {
+    let job = request.job()?;
+    let last = Mutex::new(None::<Instant>);
+    let finished = job.run(&request.dataset, &|event| {
+        use fpm_host::reconstruction::JobEvent;
+        let (what, done, total) = match event {
+            JobEvent::Updates { done, total } => ("frame updates", done, total),
+            JobEvent::GammaCandidates { done, total } => ("camera gamma candidates", done, total),
+            JobEvent::FromDisk { .. } => return,
+        };
+        let mut last = last.lock().unwrap_or_else(|e| e.into_inner());
+        if done < total && last.is_some_and(|t| t.elapsed() < Duration::from_millis(200)) {
+            return;
+        }
+        *last = Some(Instant::now());
+        shared.publish(Event::Work {
+            job: id,
+            what,
+            done,
+            total,
+        });
+    })?;
+    let output = fpm_host::reconstruction::OutputOptions {
+        format: match request.format {
+            crate::jobs::OutputFormat::Tiff => fpm_host::reconstruction::ImageFormat::Tiff,
+            crate::jobs::OutputFormat::OmeZarr => fpm_host::reconstruction::ImageFormat::OmeZarr,
+        },
+        ..Default::default()
+    };
+    let reproduce = format!(
+        "fpm serve: reconstruct job {id} ({})",
+        serde_json::to_string(request).unwrap_or_default()
+    );
+    let written = fpm_report::reconstruction::write(&finished, out, output, &reproduce)?;
+    for w in &written.warnings {
+        tracing::warn!("job {id}: {w}");
+    }
+    let r = &finished.reconstruction;
+    let snapshot = fpm_acquire::acquisition::Snapshot {
+        frames: r.report.frames,
+        of: r.report.frames,
+        finished: true,
+        object: r.object.clone(),
+        pixel_um: r.report.pixel_um,
+    };
+    fpm_acquire::pipeline::Watcher::snapshot(&mut JobWatcher::new(shared, id), snapshot);
+    Ok(serde_json::to_value(&r.report)?)
 }
 
 /// The service's view of its running acquisition: progress (with an ETA) into the
@@ -331,7 +504,16 @@ struct JobWatcher<'a> {
     capture_start: Option<(Instant, usize)>,
 }
 
-impl JobWatcher<'_> {
+impl<'a> JobWatcher<'a> {
+    fn new(shared: &'a Shared, job: i64) -> Self {
+        Self {
+            shared,
+            job,
+            last: None,
+            capture_start: None,
+        }
+    }
+
     /// The capture's time left at its rate so far, s.
     fn eta_s(&mut self, p: &Progress) -> Option<f64> {
         use fpm_acquire::Phase;

@@ -261,7 +261,8 @@ fn a_controller_killed_mid_sequence_keeps_what_was_acquired() {
 
 /// Ctrl-C mid-sequence: the controller's sequence is aborted, nothing is retaken, the
 /// frames so far are written under their LEDs (judged by physics), and the run fails
-/// saying it was cancelled.
+/// saying it was cancelled. `fpm acquire --resume` then lights only the LEDs it lacks,
+/// into the same dataset, every frame under its LED.
 #[test]
 fn ctrl_c_mid_sequence_aborts_it_and_keeps_what_was_acquired() {
     let id = format!("acqint-{}", std::process::id());
@@ -289,6 +290,35 @@ fn ctrl_c_mid_sequence_aborts_it_and_keeps_what_was_acquired() {
     );
     let kept = report["frames_in_dataset"].as_u64().unwrap() as usize;
     assert_part_of_the_array_kept(&out, &report, kept);
+    let run = acquire_command(&emu, &id, &out)
+        .arg("--resume")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let report = fpm_tests::acquisition_report(&out);
+    assert_eq!(report["frames_before"], kept, "{report}");
+    assert_eq!(report["capture"]["requested"], 441 - kept, "{report}");
+    assert_eq!(report["frames_in_dataset"], 441, "{report}");
+    let ds = Dataset::load(&out).unwrap();
+    let hidden = LedGeometry::paper().placed(0.0, 0.0, 0.0, 92.0);
+    assert_eq!(ds.frames.len(), 441);
+    let wrong = contradicted_by_physics(&ds, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "resumed frames contradict their LED: {wrong:?}"
+    );
+    // Nothing left to take: said, and the dataset untouched.
+    let run = acquire_command(&emu, &id, &out)
+        .arg("--resume")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && stderr.contains("nothing to resume"),
+        "{stderr}"
+    );
+    assert_eq!(Dataset::load(&out).unwrap().frames.len(), 441);
 }
 
 /// A run broken off part-way (on axis at 92 mm): `kept` of the 441 LEDs have their frame

@@ -706,12 +706,8 @@ fn bad_request(
         }
         // Routes and methods that do not exist.
         _ => {
-            let path = [
-                "/api/nothing",
-                "/api/jobs/1/stop",
-                "/../etc/passwd",
-                "/api",
-            ][rng.gen_range(0..4)];
+            let path =
+                ["/api/nothing", "/api/jobs/1/stop", "/../etc/passwd", "/api"][rng.gen_range(0..4)];
             (path.into(), vec![("Authorization", auth)], String::new())
         }
     };

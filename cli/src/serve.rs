@@ -59,7 +59,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
         None => default_state_dir()?,
     };
     // The virtual rig's processes live as long as this one (and die with it).
-    let mut virtual_rig = None;
+    let mut supervisor = None;
     let rig = if a.r#virtual {
         let fpm = std::env::current_exe().context("locating the fpm executable")?;
         let name = format!("serve-{}", std::process::id());
@@ -78,7 +78,7 @@ pub fn run(a: ServeArgs) -> Result<()> {
                 "virtual rig {name}: emulated controller, virtual {size}² camera, virtual stage"
             ),
         };
-        virtual_rig = Some(started);
+        supervisor = Some(Supervisor::start(started)?);
         rig
     } else {
         let port = match &a.port {
@@ -117,8 +117,47 @@ pub fn run(a: ServeArgs) -> Result<()> {
             .write_all(text.as_bytes())
             .and_then(|()| stdout.flush());
     })?;
-    drop(virtual_rig);
+    drop(supervisor);
     Ok(())
+}
+
+/// A thread that starts the virtual rig's processes again when they exit (killed,
+/// crashed), as a board plugged back in would come back; it stops the rig when dropped.
+struct Supervisor {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Supervisor {
+    fn start(mut rig: VirtualRig) -> Result<Self> {
+        use std::sync::atomic::Ordering;
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("fpm-serve-virtual-rig".into())
+            .spawn(move || {
+                while !flag.load(Ordering::SeqCst) {
+                    if let Err(e) = rig.revive() {
+                        tracing::error!("the virtual rig could not be started again: {e:#}");
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(200));
+                }
+                drop(rig);
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for Supervisor {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 fn virtual_stage(rig: String) -> StageFactory {

@@ -234,6 +234,10 @@ pub struct VirtualRig {
     pub emulator: EmulatorProcess,
     /// The virtual camera.
     pub camera: VirtualCameraProcess,
+    /// How they were started (to start them again).
+    fpm: PathBuf,
+    dir: PathBuf,
+    camera_args: Vec<String>,
 }
 
 impl VirtualRig {
@@ -241,17 +245,47 @@ impl VirtualRig {
     /// camera with `camera_args` (`--size`, `--seed`, …).
     pub fn start(fpm: &Path, name: &str, dir: &Path, camera_args: &[&str]) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let emulator = EmulatorProcess::start_at(
-            fpm,
-            &dir.join("controller.tty"),
-            &["--rig", name, "--camera-exposure-us", "2000"],
-            Stdio::null(),
-        )?;
+        let emulator = Self::start_emulator(fpm, name, dir)?;
         let camera = VirtualCameraProcess::start(fpm, name, name, &dir.join("truth"), camera_args)?;
         Ok(Self {
             name: name.into(),
             emulator,
             camera,
+            fpm: fpm.to_path_buf(),
+            dir: dir.to_path_buf(),
+            camera_args: camera_args.iter().map(|a| a.to_string()).collect(),
         })
+    }
+
+    fn start_emulator(fpm: &Path, name: &str, dir: &Path) -> Result<EmulatorProcess> {
+        EmulatorProcess::start_at(
+            fpm,
+            &dir.join("controller.tty"),
+            &["--rig", name, "--camera-exposure-us", "2000"],
+            Stdio::null(),
+        )
+    }
+
+    /// Start again whichever of its processes has exited (killed, crashed), as a board
+    /// plugged back in or a camera driver restarted would come back; what was restarted,
+    /// in words. The camera comes back with the same scene (its truth is written anew).
+    pub fn revive(&mut self) -> Result<Vec<&'static str>> {
+        let mut revived = vec![];
+        if let Some(status) = self.emulator.process.try_wait() {
+            tracing::warn!("the virtual rig's controller exited ({status}); starting it again");
+            self.emulator = Self::start_emulator(&self.fpm, &self.name, &self.dir)?;
+            revived.push("controller");
+        }
+        if let Some(status) = self.camera.process.try_wait() {
+            tracing::warn!("the virtual rig's camera exited ({status}); starting it again");
+            let truth = self.dir.join("truth");
+            // Its readiness is the truth it writes last.
+            let _ = std::fs::remove_file(truth.join("truth.json"));
+            let args: Vec<&str> = self.camera_args.iter().map(String::as_str).collect();
+            self.camera =
+                VirtualCameraProcess::start(&self.fpm, &self.name, &self.name, &truth, &args)?;
+            revived.push("camera");
+        }
+        Ok(revived)
     }
 }

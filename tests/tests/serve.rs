@@ -805,3 +805,104 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     let out = std::path::Path::new(job["out"].as_str().unwrap());
     assert_eq!(Dataset::load(out).unwrap().frames.len(), 441);
 }
+
+/// The process whose command line holds every one of `parts` (one of the service's
+/// virtual rig's children).
+fn pid_of(parts: &[&str]) -> Option<nix::unistd::Pid> {
+    for entry in std::fs::read_dir("/proc").ok()?.flatten() {
+        let Ok(pid) = entry.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        let args: Vec<String> = cmdline
+            .split(|&b| b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        if parts.iter().all(|p| args.iter().any(|a| a.contains(p))) {
+            return Some(nix::unistd::Pid::from_raw(pid));
+        }
+    }
+    None
+}
+
+/// Faults on the rig, as a crash would make them: the controller, then the camera,
+/// killed (SIGKILL) mid-capture. Each job ends naming what failed (a camera that comes
+/// back in time may serve the retake instead), with the frames it took written under
+/// their LEDs; the service starts the virtual rig's process again, as a board plugged
+/// back in comes back, and the next job takes every frame. A client that goes away
+/// mid-job does not stop it.
+#[test]
+fn rig_faults_fail_the_job_naming_them_and_the_service_recovers() {
+    let dir = TempDir::new("serve-faults");
+    let state = dir.0.join("state");
+    let service = Service::start(&state);
+    let link = state.join("virtual-rig/controller.tty");
+    let truth_dir = state.join("virtual-rig/truth");
+    let (link, truth_dir) = (link.to_string_lossy(), truth_dir.to_string_lossy());
+    let running_with = |id: i64, at_least: u64| {
+        let start = Instant::now();
+        loop {
+            let status = service.get("/api/status").json().unwrap();
+            if status["running"].as_i64() == Some(id)
+                && status["progress"]["frames"].as_u64().unwrap_or(0) >= at_least
+            {
+                return;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "job {id} never got {at_least} frames: {status}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    for (what, parts, named) in [
+        ("controller", ["emulator", link.as_ref()], "LED controller"),
+        ("camera", ["virtual-camera", truth_dir.as_ref()], "camera"),
+    ] {
+        let out = dir.0.join(what);
+        let id = service
+            .post("/api/jobs", Some(&acquire(&out)))
+            .json()
+            .unwrap()["id"]
+            .as_i64()
+            .unwrap();
+        // A client that watches and goes away.
+        let watcher: Vec<String> = events(service.address).take(3).collect();
+        assert_eq!(watcher.len(), 3);
+        running_with(id, 30);
+        let pid = pid_of(&parts).unwrap_or_else(|| panic!("no {what} process"));
+        nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGKILL).unwrap();
+        let job = service.wait(id, Duration::from_secs(120));
+        let error = job["error"].as_str().unwrap_or("");
+        match (what, job["state"].as_str().unwrap()) {
+            (_, "failed") => assert!(error.contains(named), "{job}"),
+            ("camera", "done") => eprintln!("the camera came back in time for the retake"),
+            (_, state) => panic!("job {id} {state} after its {what} was killed: {job}"),
+        }
+        let kept = job["summary"]["frames_in_dataset"].as_u64().unwrap() as usize;
+        let ds = Dataset::load(&out).unwrap();
+        assert!(kept >= 30 && ds.frames.len() == kept, "{job}");
+        let truth = fpm_host::truth::Truth::find(std::path::Path::new(truth_dir.as_ref()))
+            .unwrap()
+            .expect("the virtual rig's truth");
+        let hidden = truth.geometry(&fpm_physics::LedGeometry::paper());
+        let wrong = fpm_tests::contradicted_by_physics(&ds, &hidden);
+        assert!(wrong.is_empty(), "frames contradict their LED: {wrong:?}");
+        // Back: the next job takes every frame.
+        let after = dir.0.join(format!("{what}-after"));
+        let next = service
+            .post("/api/jobs", Some(&acquire(&after)))
+            .json()
+            .unwrap()["id"]
+            .as_i64()
+            .unwrap();
+        let job = service.wait(next, Duration::from_secs(120));
+        assert_eq!(job["state"], "done", "after the {what} came back: {job}");
+        assert_eq!(job["summary"]["frames_in_dataset"], 441, "{job}");
+        eprintln!(
+            "{what} killed after 30+ frames: {kept} kept, 0 contradict; the next job took 441"
+        );
+    }
+}

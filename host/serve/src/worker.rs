@@ -12,7 +12,7 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 use fpm_acquire::pipeline::Control;
 use fpm_acquire::{Controller, Progress};
 use fpm_frames::ServiceNames;
@@ -77,6 +77,9 @@ pub struct Stamped {
     pub event: Event,
     pub at_s: f64,
 }
+
+/// How long a job waits for its LED controller to be there before failing.
+pub const CONTROLLER_WAIT: Duration = Duration::from_secs(15);
 
 /// The running job.
 struct Running {
@@ -391,9 +394,30 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
     shared.set_state(id, JobState::Running, None, None);
     let request: Result<JobRequest> = serde_json::from_value(job.request).map_err(Into::into);
     let watcher = JobWatcher::new(shared, id);
+    // A controller that is not there yet (a board being plugged back in, a driver
+    // restarting) is waited for a while: the service reconnects when it returns.
     let open = || -> Result<_> {
-        let dev = Controller::open(&rig.port, Duration::from_secs(2))
-            .map_err(|e| anyhow!("the LED controller on {}: {e:#}", rig.port))?;
+        let deadline = Instant::now() + CONTROLLER_WAIT;
+        let mut said = false;
+        let dev = loop {
+            match Controller::open(&rig.port, Duration::from_secs(2)) {
+                Ok(dev) => break dev,
+                Err(e) if Instant::now() < deadline && !control.is_cancelled() => {
+                    if !std::mem::replace(&mut said, true) {
+                        tracing::warn!(
+                            "job {id}: waiting for the LED controller on {} ({e:#})",
+                            rig.port
+                        );
+                    }
+                    std::thread::sleep(Duration::from_millis(250));
+                }
+                Err(e) => bail!(
+                    "the LED controller on {}: {e:#} (waited {} s for it: is it plugged in?)",
+                    rig.port,
+                    CONTROLLER_WAIT.as_secs()
+                ),
+            }
+        };
         Ok((dev, (rig.stage)()?))
     };
     let summary = |s: fpm_acquire::AcquireSummary| serde_json::to_value(s).unwrap_or_default();

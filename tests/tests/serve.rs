@@ -335,6 +335,36 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
             .all(|(w, l)| (w - l).abs() <= 1e-6 * w.abs().max(1.0)),
         "the snapshot differs from amplitude.tif"
     );
+    // A local viewer opening now reads the same finished snapshot in shared memory.
+    let name = service.get("/api/status").json().unwrap()["snapshot_service"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert_eq!(
+        name,
+        format!("fpm/serve/{}/snapshots", service.address.port())
+    );
+    let viewer = fpm_frames::SnapshotSubscriber::create(&name).unwrap();
+    let shm = viewer
+        .next(Duration::from_secs(2))
+        .unwrap()
+        .expect("the newest snapshot, kept for viewers that open late");
+    let h = *shm.header();
+    assert_eq!(
+        (h.job, h.frames, h.of, h.finished),
+        (c, 441, 441, 1),
+        "{h:?}"
+    );
+    assert_eq!([h.height as usize, h.width as usize], [shape[0], shape[1]]);
+    assert_eq!(shm.amplitude(), live.as_slice());
+    let phase = service.get(&format!("/api/jobs/{c}/snapshot/phase?format=f32"));
+    let phase: Vec<f32> = phase
+        .bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    assert_eq!(shm.phase(), phase.as_slice());
+    drop((shm, viewer));
     let png = service.get(&format!("/api/jobs/{c}/snapshot/phase"));
     assert_eq!(
         (png.status, png.header("content-type")),

@@ -20,6 +20,7 @@ mod header;
 mod publisher;
 mod service;
 mod settings;
+mod snapshots;
 mod subscriber;
 
 pub use header::FrameHeader;
@@ -29,6 +30,9 @@ pub use service::{
     cleanup_stale, node, set_ipc_log_level, ServiceNames, FRAME_READY, SAMPLES_PER_PUBLISHER,
 };
 pub use settings::{read_settings, SettingsPublisher, MAX_SETTINGS_BYTES};
+pub use snapshots::{
+    snapshot_service_name, SnapshotHeader, SnapshotPublisher, SnapshotSubscriber, SnapshotView,
+};
 pub use subscriber::{Frame, FrameSubscriber};
 
 /// The largest frame the contract is sized for by default: 5472 × 3648 (20 MP).

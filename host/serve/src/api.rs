@@ -261,6 +261,9 @@ pub struct Status {
     pub eta_s: Option<f64>,
     /// Where jobs sent without `out` write.
     pub runs: String,
+    /// The iceoryx2 service on which local viewers read the snapshots in place
+    /// (`fpm_frames::SnapshotSubscriber`; header `fpm::SnapshotHeader/1`).
+    pub snapshot_service: String,
 }
 
 #[utoipa::path(get, path = "/api/status", responses((status = 200, body = Status)))]
@@ -273,6 +276,7 @@ async fn status(Extract(state): Extract<State>) -> Json<Status> {
         progress: current.and_then(|c| c.1),
         eta_s: current.and_then(|c| c.2),
         runs: state.shared.runs.display().to_string(),
+        snapshot_service: state.shared.snapshot_service.clone(),
     })
 }
 

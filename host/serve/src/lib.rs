@@ -97,6 +97,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             rig.description.clone(),
             rig.camera.clone(),
             config.state_dir.join("runs"),
+            fpm_frames::snapshot_service_name(address.port()),
         ));
         let worker = worker::Worker::start(shared.clone(), rig)?;
         let state = api::State {

@@ -105,13 +105,22 @@ pub struct Shared {
     pub runs: std::path::PathBuf,
     /// The live images.
     pub live: Live,
+    /// The iceoryx2 service the snapshots are published on for local viewers.
+    pub snapshot_service: String,
     running: Mutex<Option<Running>>,
 }
 
 impl Shared {
     /// Nothing running yet.
-    pub fn new(store: Store, rig: String, camera: ServiceNames, runs: std::path::PathBuf) -> Self {
+    pub fn new(
+        store: Store,
+        rig: String,
+        camera: ServiceNames,
+        runs: std::path::PathBuf,
+        snapshot_service: String,
+    ) -> Self {
         Self {
+            snapshot_service,
             store,
             events: broadcast::channel(4096).0,
             rig,
@@ -362,16 +371,33 @@ impl Worker {
 }
 
 fn run(shared: &Shared, rig: &Rig, queue: &mpsc::Receiver<i64>, stop: &AtomicBool) {
+    // Snapshots for local viewers in shared memory (an extra: HTTP has them too).
+    let publisher = fpm_frames::SnapshotPublisher::create(&shared.snapshot_service)
+        .map_err(|e| {
+            tracing::warn!(
+                "snapshots are not published on iceoryx2 ({e}); viewers fetch them over HTTP"
+            )
+        })
+        .ok();
     while !stop.load(Ordering::SeqCst) {
+        if let Some(p) = &publisher {
+            p.serve();
+        }
         let Ok(id) = queue.recv_timeout(Duration::from_millis(100)) else {
             continue;
         };
-        run_job(shared, rig, id, stop);
+        run_job(shared, rig, id, stop, publisher.as_ref());
     }
 }
 
 /// Run job `id` if it is still queued.
-fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
+fn run_job(
+    shared: &Shared,
+    rig: &Rig,
+    id: i64,
+    stop: &AtomicBool,
+    publisher: Option<&fpm_frames::SnapshotPublisher>,
+) {
     let job = match shared.store.get(id) {
         Ok(Some(job)) if job.state == JobState::Queued => job,
         Ok(_) => return,
@@ -393,7 +419,7 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
     });
     shared.set_state(id, JobState::Running, None, None);
     let request: Result<JobRequest> = serde_json::from_value(job.request).map_err(Into::into);
-    let watcher = JobWatcher::new(shared, id);
+    let watcher = JobWatcher::new(shared, id, publisher);
     // A controller that is not there yet (a board being plugged back in, a driver
     // restarting) is waited for a while: the service reconnects when it returns.
     let open = || -> Result<_> {
@@ -434,7 +460,11 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
             fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
                 .map(summary)
         }
-        JobRequest::Reconstruct(r) => reconstruct(shared, id, &r, Path::new(&job.out)),
+        JobRequest::Reconstruct(r) => reconstruct(
+            JobWatcher::new(shared, id, publisher),
+            &r,
+            Path::new(&job.out),
+        ),
         JobRequest::Resume(r) => {
             let a = acquisition_of(&shared.store, r.job)?;
             let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
@@ -462,11 +492,11 @@ fn run_job(shared: &Shared, rig: &Rig, id: i64, stop: &AtomicBool) {
 /// Run reconstruct job `id` into `out`: progress as `work` events (a few a second),
 /// the finished image as the job's snapshot; the report is its summary.
 fn reconstruct(
-    shared: &Shared,
-    id: i64,
+    mut watcher: JobWatcher<'_>,
     request: &crate::jobs::ReconstructRequest,
     out: &Path,
 ) -> Result<serde_json::Value> {
+    let (shared, id) = (watcher.shared, watcher.job);
     let job = request.job()?;
     let last = Mutex::new(None::<Instant>);
     let finished = job.run(&request.dataset, &|event| {
@@ -511,7 +541,7 @@ fn reconstruct(
         object: r.object.clone(),
         pixel_um: r.report.pixel_um,
     };
-    fpm_acquire::pipeline::Watcher::snapshot(&mut JobWatcher::new(shared, id), snapshot);
+    fpm_acquire::pipeline::Watcher::snapshot(&mut watcher, snapshot);
     Ok(serde_json::to_value(&r.report)?)
 }
 
@@ -526,15 +556,22 @@ struct JobWatcher<'a> {
     last: Option<Progress>,
     /// When the capture's first frame came, and how many frames there were by then.
     capture_start: Option<(Instant, usize)>,
+    /// Where snapshots go for local viewers.
+    publisher: Option<&'a fpm_frames::SnapshotPublisher>,
 }
 
 impl<'a> JobWatcher<'a> {
-    fn new(shared: &'a Shared, job: i64) -> Self {
+    fn new(
+        shared: &'a Shared,
+        job: i64,
+        publisher: Option<&'a fpm_frames::SnapshotPublisher>,
+    ) -> Self {
         Self {
             shared,
             job,
             last: None,
             capture_start: None,
+            publisher,
         }
     }
 
@@ -579,6 +616,23 @@ impl fpm_acquire::pipeline::Watcher for JobWatcher<'_> {
     fn snapshot(&mut self, snapshot: fpm_acquire::acquisition::Snapshot) {
         let s = self.shared.live.put_snapshot(self.job, &snapshot);
         let (height, width) = s.amplitude.dim();
+        if let Some(p) = self.publisher {
+            let header = fpm_frames::SnapshotHeader {
+                job: self.job,
+                seq: s.seq,
+                frames: s.frames as u64,
+                of: s.of as u64,
+                pixel_um: s.pixel_um,
+                width: width as u32,
+                height: height as u32,
+                finished: u32::from(s.finished),
+                flags: 0,
+            };
+            let (a, phase) = (s.amplitude.iter().copied(), s.phase.iter().copied());
+            if let Err(e) = p.publish(header, a, phase) {
+                tracing::warn!("job {}: snapshot not published on iceoryx2: {e}", self.job);
+            }
+        }
         self.shared.publish(Event::Snapshot {
             job: self.job,
             seq: s.seq,

@@ -2,6 +2,7 @@
 test session with the package's own simulator, the full wave-optics model)."""
 
 import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -41,3 +42,34 @@ def placement(acquisition):
     """Where the simulated array really is, as a placement dict."""
     _, truth = acquisition
     return {k: truth[k] for k in ("dx_mm", "dy_mm", "theta_deg", "height_mm")}
+
+
+# The acquisition service (`fpm serve --virtual`) for the client and napari tests.
+
+def _serve(fpm_cli, state, size):
+    """`fpm serve --virtual` with a size² camera, its client; stopped after."""
+    process = subprocess.Popen(
+        [fpm_cli, "serve", "--virtual", "--virtual-size", str(size), "--listen", "127.0.0.1:0",
+         "--state-dir", str(state)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = process.stdout.readline()
+        assert first.startswith("fpm serve: listening on http://"), first
+        address = first.strip().removeprefix("fpm serve: listening on http://")
+        yield fpm.Client(address, state_dir=state)
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+
+
+@pytest.fixture()
+def service(fpm_cli, tmp_path):
+    yield from _serve(fpm_cli, tmp_path / "state", 64)
+
+
+@pytest.fixture()
+def calibratable(fpm_cli, tmp_path):
+    """A rig whose camera is large enough for the calibration's defocused feature."""
+    yield from _serve(fpm_cli, tmp_path / "state", 192)

@@ -171,6 +171,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         tile: a.tile,
         flatten: a.flatten.flatten(),
         snapshot_every: 0,
+        leds: None,
     };
     let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");

@@ -158,6 +158,18 @@ class Client:
             body["out"] = str(Path(out).absolute())
         return self._request("POST", "/api/jobs", body)["id"]
 
+    def sequence(
+        self, leds, out: Optional[os.PathLike] = None, **fields: Any
+    ) -> int:
+        """Queue a raw capture sequence: the LEDs ``leds`` (``[(row, col), …]``) lit in
+        this order, one labelled frame each, written as a dataset into ``out`` (as for
+        :meth:`acquire`; no calibration, no reconstruction); ``fields`` as ``step_ms``,
+        ``color``, the optics. Its job id."""
+        body = {"kind": "sequence", "leds": [[int(r), int(c)] for r, c in leds], **fields}
+        if out is not None:
+            body["out"] = str(Path(out).absolute())
+        return self._request("POST", "/api/jobs", body)["id"]
+
     def reconstruct(
         self, dataset: os.PathLike, out: Optional[os.PathLike] = None, **fields: Any
     ) -> int:

@@ -13,35 +13,6 @@ import pytest
 import fpm
 
 
-def _serve(fpm_cli, state, size):
-    """`fpm serve --virtual` with a size² camera, its client; stopped after."""
-    process = subprocess.Popen(
-        [fpm_cli, "serve", "--virtual", "--virtual-size", str(size), "--listen", "127.0.0.1:0",
-         "--state-dir", str(state)],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        first = process.stdout.readline()
-        assert first.startswith("fpm serve: listening on http://"), first
-        address = first.strip().removeprefix("fpm serve: listening on http://")
-        yield fpm.Client(address, state_dir=state)
-    finally:
-        process.terminate()
-        process.wait(timeout=30)
-
-
-@pytest.fixture()
-def service(fpm_cli, tmp_path):
-    yield from _serve(fpm_cli, tmp_path / "state", 64)
-
-
-@pytest.fixture()
-def calibratable(fpm_cli, tmp_path):
-    """A rig whose camera is large enough for the calibration's defocused feature."""
-    yield from _serve(fpm_cli, tmp_path / "state", 192)
-
-
 def test_an_acquisition_is_queued_followed_and_written(service, tmp_path):
     out = tmp_path / "field"
     events = service.events()
@@ -145,6 +116,26 @@ def test_a_cancelled_acquisition_keeps_what_it_captured(service, tmp_path):
     assert 0 < kept < 441
     with pytest.raises(fpm.ServiceError, match="already ended"):
         service.cancel(job)
+
+
+def test_a_raw_sequence_takes_the_leds_given_in_their_order(service, tmp_path):
+    leds = [(10, 10), (0, 0), (10, 11), (20, 20)]
+    job = service.sequence(leds, tmp_path / "seq", step_ms=15.0)
+    record = service.wait(job, timeout=60)
+    assert record["state"] == "done", record
+    assert record["kind"] == "sequence"
+    ds = fpm.Dataset.load(tmp_path / "seq")
+    assert sorted(tuple(led) for led in ds.leds) == sorted(leds)
+    summary = record["summary"]
+    assert summary["capture"]["requested"] == 4 and summary["frames_in_dataset"] == 4
+    assert [tuple(l) for l in summary["still_missing"]] == []
+    # The centre LED lights the field (bright field); a corner LED leaves it dark.
+    at = {tuple(led): k for k, led in enumerate(ds.leds)}
+    centre, corner = ds.frame(at[(10, 10)]), ds.frame(at[(0, 0)])
+    assert centre.mean() > 5 * corner.mean(), (centre.mean(), corner.mean())
+    # An LED the board does not have: the job fails naming it.
+    bad = service.wait(service.sequence([(30, 30)], tmp_path / "bad"), timeout=60)
+    assert bad["state"] == "failed" and "[30, 30] is not on the board" in bad["error"], bad
 
 
 def test_a_bad_request_is_refused_naming_its_field(service, tmp_path):

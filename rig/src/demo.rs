@@ -316,6 +316,7 @@ fn plan(demo: &Demo, rig: &str, out: &Path) -> Plan {
         // The hidden sample is cells and bars on clear glass.
         flatten: Flatten::Auto,
         snapshot_every: 0,
+        leds: None,
     }
 }
 

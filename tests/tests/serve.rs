@@ -935,4 +935,11 @@ fn rig_faults_fail_the_job_naming_them_and_the_service_recovers() {
             "{what} killed after 30+ frames: {kept} kept, 0 contradict; the next job took 441"
         );
     }
+    // Stopped (SIGTERM) with a client still watching the event stream: it ends the
+    // stream and exits.
+    let mut watching = events(service.address);
+    assert!(watching.next().is_some());
+    let status = service.0.stop(Duration::from_secs(10)).unwrap();
+    assert!(status.success(), "{status}");
+    assert!(watching.all(|line| !line.starts_with("data:")));
 }

@@ -74,6 +74,9 @@ pub struct Plan {
     /// Frames between live [`Snapshot`]s of the streaming reconstruction (0: none but
     /// the finished reconstruction's, which a reconstructing run always has).
     pub snapshot_every: usize,
+    /// Light only these LEDs, in this order (a raw sequence); None: every LED of the
+    /// array, nearest the axis first.
+    pub leds: Option<Vec<LedIndex>>,
 }
 
 /// What an acquisition does when nothing else is said: `fpm acquire`'s flags and the
@@ -110,6 +113,15 @@ impl Plan {
     pub fn validate(&self) -> Result<()> {
         if !self.capture && !self.calibrate {
             bail!("a plan that neither calibrates nor captures has nothing to do");
+        }
+        if let Some(leds) = &self.leds {
+            if leds.is_empty() {
+                bail!("leds: empty; give at least one LED, or none to take them all");
+            }
+            let mut seen = std::collections::BTreeSet::new();
+            if let Some(twice) = leds.iter().find(|l| !seen.insert((l.row, l.col))) {
+                bail!("leds: LED [{}, {}] twice", twice.row, twice.col);
+            }
         }
         if !self.capture && self.reconstruct {
             bail!(
@@ -392,6 +404,18 @@ impl Acquisition {
     /// The acquisition of `plan` on a rig that said `rig`; the plan is checked first.
     pub fn new(plan: Plan, rig: Rig) -> Result<Self> {
         plan.validate()?;
+        if let Some(leds) = &plan.leds {
+            let all = rig.nominal.leds();
+            if let Some(off) = leds.iter().find(|l| !all.contains(l)) {
+                bail!(
+                    "leds: LED [{}, {}] is not on the board ({}×{})",
+                    off.row,
+                    off.col,
+                    rig.nominal.rows,
+                    rig.nominal.cols
+                );
+            }
+        }
         let (geometry, geometry_source) = match (&rig.stored, plan.calibrate) {
             (_, true) | (None, false) => (rig.nominal, GeometrySource::Controller),
             (Some(c), false) => (
@@ -883,6 +907,11 @@ impl Acquisition {
     /// Order the full capture nearest-first under the geometry now in use.
     fn start_capture(&mut self) {
         let all = self.rig.nominal.leds();
+        if let Some(leds) = &self.plan.leds {
+            self.order = leds.clone();
+            self.pending = self.order.clone();
+            return;
+        }
         self.order = self
             .geometry
             .nearest_first(&all, (0.0, 0.0), &self.plan.system)

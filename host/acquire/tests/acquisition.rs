@@ -213,6 +213,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         tile: None,
         flatten: Flatten::Keep,
         snapshot_every: 0,
+        leds: None,
     };
     match slide {
         Some(s) => Plan {

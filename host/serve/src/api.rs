@@ -28,6 +28,7 @@ use utoipa::{OpenApi, ToSchema};
 
 use crate::jobs::{
     AcquireRequest, CalibrateRequest, JobRequest, ReconstructRequest, ResumeRequest,
+    SequenceRequest,
 };
 use crate::store::{Job, JobState};
 use crate::worker::{acquisition_of, CancelError, Event, Handle, Shared, SteerError};
@@ -105,6 +106,8 @@ pub struct State {
     pub address: SocketAddr,
     /// It listens beyond loopback (`--public`): every request needs the token.
     pub public: bool,
+    /// Set when the service stops (the event streams then end).
+    pub stopping: tokio::sync::watch::Receiver<bool>,
 }
 
 /// An error as the API answers it: a status and a message naming what is wrong.
@@ -161,6 +164,7 @@ impl IntoResponse for ApiError {
         AcquireRequest,
         CalibrateRequest,
         ReconstructRequest,
+        SequenceRequest,
         ResumeRequest,
         ApiError,
         Event
@@ -318,6 +322,11 @@ async fn submit(
             c.plan(&state.shared.camera)
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
         }
+        JobRequest::Sequence(s) => {
+            s.as_acquisition()
+                .plan(&state.shared.camera)
+                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        }
         JobRequest::Reconstruct(r) => {
             r.job()
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
@@ -464,6 +473,10 @@ async fn resume(
 async fn events(
     Extract(state): Extract<State>,
 ) -> Sse<impl Stream<Item = Result<SseEvent, Infallible>>> {
+    let mut stopping = state.stopping.clone();
+    let stopped = async move {
+        let _ = stopping.wait_for(|&s| s).await;
+    };
     let stream = BroadcastStream::new(state.shared.events.subscribe()).map(|e| {
         Ok(match e {
             Ok(event) => SseEvent::default()
@@ -474,7 +487,11 @@ async fn events(
             }
         })
     });
-    Sse::new(stream).keep_alive(KeepAlive::default())
+    Sse::new(futures_util::StreamExt::take_until(
+        stream,
+        Box::pin(stopped),
+    ))
+    .keep_alive(KeepAlive::default())
 }
 
 async fn openapi() -> impl IntoResponse {

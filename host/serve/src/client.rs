@@ -250,6 +250,26 @@ impl VirtualService {
         self.reaped = true;
     }
 
+    /// Stop it as Ctrl-C would (SIGTERM) and wait for it to exit, at most `within`
+    /// (then it is killed, and that is the error).
+    pub fn stop(mut self, within: std::time::Duration) -> anyhow::Result<std::process::ExitStatus> {
+        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let deadline = std::time::Instant::now() + within;
+        self.reaped = true;
+        loop {
+            if let Some(status) = self.child.try_wait()? {
+                return Ok(status);
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                anyhow::bail!("fpm serve did not stop within {within:?} of SIGTERM; killed");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     /// Whether it is still running.
     pub fn running(&mut self) -> bool {
         matches!(self.child.try_wait(), Ok(None))

@@ -8,12 +8,12 @@ use fpm_acquire::acquisition::{defaults, Plan};
 use fpm_frames::ServiceNames;
 use fpm_physics::reconstruct::Flatten;
 use fpm_physics::System;
-use fpm_protocol::Rgb;
+use fpm_protocol::{LedIndex, Rgb};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 /// The kinds a request may have, as an error lists them.
-const KINDS: &str = "\"acquire\", \"calibrate\", \"reconstruct\" or \"resume\"";
+const KINDS: &str = "\"acquire\", \"calibrate\", \"reconstruct\", \"sequence\" or \"resume\"";
 
 /// A job to queue.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -28,6 +28,9 @@ pub enum JobRequest {
     /// Reconstruct a dataset on disk (as `fpm reconstruct`): the images, the report
     /// page, and the finished image as the job's snapshot.
     Reconstruct(ReconstructRequest),
+    /// A raw capture sequence: the LEDs given, in their order, one labelled frame each,
+    /// written as a dataset (no calibration, no reconstruction).
+    Sequence(SequenceRequest),
     /// Complete an acquisition job that ended part-way (interrupted, cancelled,
     /// failed): its frames are kept, only the LEDs they lack are lit, into its output
     /// directory, with its settings.
@@ -77,6 +80,9 @@ impl JobRequest {
             "reconstruct" => serde_path_to_error::deserialize(value)
                 .map(JobRequest::Reconstruct)
                 .map_err(named),
+            "sequence" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Sequence)
+                .map_err(named),
             "resume" => serde_path_to_error::deserialize(value)
                 .map(JobRequest::Resume)
                 .map_err(named),
@@ -90,6 +96,7 @@ impl JobRequest {
             JobRequest::Acquire(_) => "acquire",
             JobRequest::Calibrate(_) => "calibrate",
             JobRequest::Reconstruct(_) => "reconstruct",
+            JobRequest::Sequence(_) => "sequence",
             JobRequest::Resume(_) => "resume",
         }
     }
@@ -100,6 +107,7 @@ impl JobRequest {
             JobRequest::Acquire(a) => a.out.as_deref(),
             JobRequest::Calibrate(c) => c.out.as_deref(),
             JobRequest::Reconstruct(r) => r.out.as_deref(),
+            JobRequest::Sequence(s) => s.out.as_deref(),
             JobRequest::Resume(r) => r.out.as_deref(),
         }
     }
@@ -111,6 +119,7 @@ impl JobRequest {
             JobRequest::Acquire(a) => &mut a.out,
             JobRequest::Calibrate(c) => &mut c.out,
             JobRequest::Reconstruct(r) => &mut r.out,
+            JobRequest::Sequence(s) => &mut s.out,
             JobRequest::Resume(_) => return,
         };
         if out.is_some() {
@@ -194,6 +203,10 @@ pub struct AcquireRequest {
     /// Frames between live snapshots of the reconstruction (0: only the finished one).
     #[serde(default = "snapshot_every")]
     pub snapshot_every: usize,
+    /// Light only these LEDs, `[row, col]`, in this order. Absent: every LED of the
+    /// array, nearest the axis first.
+    #[serde(default)]
+    pub leds: Option<Vec<[u8; 2]>>,
 }
 
 /// A calibration on the rig: every field may be left out (`fpm acquire --calibrate`'s
@@ -270,6 +283,7 @@ impl CalibrateRequest {
             tile: None,
             flatten_background: false,
             snapshot_every: 0,
+            leds: None,
         };
         Ok(Plan {
             capture: false,
@@ -408,6 +422,68 @@ impl ReconstructRequest {
     }
 }
 
+/// A raw capture sequence as a request: the LEDs, and settings that may be left out
+/// (`fpm acquire`'s defaults).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SequenceRequest {
+    /// The LEDs to light, `[row, col]`, in this order, one frame each.
+    pub leds: Vec<[u8; 2]>,
+    /// Output directory (absolute; it must not hold a dataset). Absent: a new directory
+    /// under the service's runs directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
+    /// How long each LED stays lit, ms.
+    #[serde(default = "step_ms")]
+    pub step_ms: f64,
+    /// LED colour, [r, g, b] (0–255).
+    #[serde(default = "color")]
+    pub color: [u8; 3],
+    /// The camera's dark level, counts.
+    #[serde(default = "dark_level")]
+    pub dark_level: f64,
+    /// Illumination wavelength, µm.
+    #[serde(default = "wavelength_um")]
+    pub wavelength_um: f64,
+    /// Objective NA.
+    #[serde(default = "na")]
+    pub na: f64,
+    /// Objective magnification.
+    #[serde(default = "magnification")]
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    #[serde(default = "pixel_um")]
+    pub pixel_um: f64,
+}
+
+impl SequenceRequest {
+    /// The acquisition of just these LEDs that the sequence is.
+    pub fn as_acquisition(&self) -> AcquireRequest {
+        AcquireRequest {
+            out: self.out.clone(),
+            calibrate: false,
+            store_geometry: false,
+            reconstruct: false,
+            step_ms: self.step_ms,
+            defocus_um: defocus_um(),
+            defocus_sigma_um: defocus_sigma_um(),
+            color: self.color,
+            dark_level: self.dark_level,
+            wavelength_um: self.wavelength_um,
+            na: self.na,
+            magnification: self.magnification,
+            pixel_um: self.pixel_um,
+            entrance_pupil_mm: None,
+            passes: passes(),
+            tile: None,
+            flatten_background: false,
+            snapshot_every: 0,
+            leds: Some(self.leds.clone()),
+        }
+    }
+}
+
 fn yes() -> bool {
     true
 }
@@ -502,6 +578,10 @@ impl AcquireRequest {
                 Flatten::Keep
             },
             snapshot_every: self.snapshot_every,
+            leds: self
+                .leds
+                .as_ref()
+                .map(|l| l.iter().map(|&[r, c]| LedIndex::new(r, c)).collect()),
         };
         // The system's own names, as the request names them.
         plan.validate().map_err(|e| {

@@ -92,6 +92,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             .await
             .with_context(|| format!("listening on {}", config.listen))?;
         let address = listener.local_addr()?;
+        let (stopping_tx, stopping_rx) = tokio::sync::watch::channel(false);
         let shared = Arc::new(worker::Shared::new(
             store,
             rig.description.clone(),
@@ -106,6 +107,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             token: Arc::new(token),
             address,
             public: config.public,
+            stopping: stopping_rx,
         };
         on_started(Started {
             address,
@@ -114,7 +116,12 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
         });
         let app = api::router(state);
         axum::serve(listener, app)
-            .with_graceful_shutdown(shutdown_signal())
+            .with_graceful_shutdown(async move {
+                shutdown_signal().await;
+                // Event streams never end by themselves: they end now, so that the
+                // requests in flight can finish and the service stop.
+                let _ = stopping_tx.send(true);
+            })
             .await
             .context("serving")?;
         tracing::info!("stopping: the running job is cancelled, its frames so far written");

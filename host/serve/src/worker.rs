@@ -213,6 +213,7 @@ pub fn acquisition_of(store: &Store, id: i64) -> Result<AcquireRequest, SteerErr
             .map_err(|e| SteerError::Store(anyhow!("job {at}'s stored request: {e}")))?;
         match request {
             JobRequest::Acquire(a) => return Ok(a),
+            JobRequest::Sequence(s) => return Ok(s.as_acquisition()),
             JobRequest::Calibrate(_) | JobRequest::Reconstruct(_) => {
                 return Err(SteerError::Conflict(format!(
                     "job {at} does not acquire: queue it again rather than resume it"
@@ -456,6 +457,12 @@ fn run_job(
         }
         JobRequest::Calibrate(c) => {
             let plan = c.plan(&rig.camera)?;
+            let (dev, mut stage) = open()?;
+            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
+                .map(summary)
+        }
+        JobRequest::Sequence(s) => {
+            let plan = s.as_acquisition().plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
             fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
                 .map(summary)

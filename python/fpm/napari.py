@@ -12,9 +12,10 @@ In napari: *Plugins → fpm: acquisition service*, or from Python::
     viewer.window.add_dock_widget(ServiceWidget(viewer), name="fpm")
 
 It talks to the service over its HTTP API (``fpm.Client``; the token is found in the
-service's state directory as the client finds it). The events are read on a thread of
-their own and handed to the widget through Qt signals, so napari never waits on the
-network.
+service's state directory as the client finds it) and, when the service runs on this
+machine and ``iceoryx2`` is installed, reads the snapshots from shared memory
+(``fpm.local``) rather than over HTTP. The events are read on a thread of their own and
+handed to the widget through Qt signals, so napari never waits on the network.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from . import local as local_snapshots
 from .client import FINAL_STATES, Client, ServiceError, Snapshot
 
 #: The layers the widget keeps up to date.
@@ -48,17 +50,30 @@ class ServiceWidget(QWidget):
 
     ``viewer`` is a ``napari.Viewer`` (or its model, ``napari.components.ViewerModel``);
     ``client`` the service's ``fpm.Client`` (default: the service at its default
-    address)."""
+    address); ``local`` whether to read snapshots from shared memory (default: when the
+    service is on this machine and iceoryx2 is installed)."""
 
     #: An event of the service (on the GUI thread).
     event_received = Signal(dict)
     #: A snapshot fetched for the job the widget follows (on the GUI thread).
     snapshot_received = Signal(object)
 
-    def __init__(self, viewer: Any, client: Optional[Client] = None, parent=None):
+    def __init__(
+        self,
+        viewer: Any,
+        client: Optional[Client] = None,
+        local: Optional[bool] = None,
+        parent=None,
+    ):
         super().__init__(parent)
         self.viewer = viewer
         self.client = client if client is not None else Client()
+        host = self.client.address.rsplit(":", 1)[0]
+        if local is None:
+            local = local_snapshots.available() and host in ("127.0.0.1", "localhost", "[::1]")
+        self._local = local
+        #: Where snapshots come from: "shared memory" or "HTTP".
+        self.snapshots_from = "HTTP"
         #: The job the widget follows (the last it started, or the one running).
         self.job: Optional[int] = None
         #: Its newest snapshot.
@@ -111,7 +126,30 @@ class ServiceWidget(QWidget):
 
     # The service's side, on the reader thread.
 
+    def _local_reader(self):
+        """The shared-memory reader, made on the thread that uses it (None: HTTP)."""
+        if not self._local:
+            return None
+        try:
+            reader = local_snapshots.SnapshotReader(self.client.status()["snapshot_service"])
+        except Exception as e:  # an optional extra never stops the widget
+            self.event_received.emit(
+                {"event": "widget_error", "error": f"snapshots over HTTP ({e})"})
+            return None
+        self.snapshots_from = "shared memory"
+        return reader
+
+    def _snapshot(self, reader, event: dict) -> Snapshot:
+        """The snapshot ``event`` announces: from shared memory if it is there (the
+        service publishes it there before announcing it), else over HTTP."""
+        if reader is not None:
+            snapshot = reader.newest(timeout=0.5, after_seq=event["seq"] - 1)
+            if snapshot is not None and snapshot.job == event["job"]:
+                return snapshot
+        return self.client.snapshot(event["job"])
+
     def _read_events(self) -> None:
+        reader = self._local_reader()
         try:
             for event in self._events:
                 if self._stop.is_set():
@@ -119,7 +157,7 @@ class ServiceWidget(QWidget):
                 if event.get("event") == "snapshot" and event.get("job") == self.job:
                     # Fetched here, not on the GUI thread.
                     try:
-                        self.snapshot_received.emit(self.client.snapshot(event["job"]))
+                        self.snapshot_received.emit(self._snapshot(reader, event))
                     except (ServiceError, OSError) as e:
                         event = {"event": "widget_error", "error": f"snapshot: {e}"}
                 self.event_received.emit(event)

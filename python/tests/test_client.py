@@ -214,3 +214,27 @@ def test_calibrate_acquire_and_cancel_a_second_as_a_notebook_would(
     difference = np.linalg.norm(ours - theirs) / np.linalg.norm(theirs)
     print(f"service vs fpm acquire: amplitude differs by {difference:.4f} (relative L2)")
     assert difference < 0.02, difference
+
+
+def test_snapshots_read_from_shared_memory_equal_the_http_ones(service):
+    from fpm.local import SnapshotReader
+
+    reader = SnapshotReader(service.status()["snapshot_service"])
+    events = service.events()
+    job = service.acquire(step_ms=15.0, reconstruct=True, snapshot_every=200)
+    seen = []
+    for event in events:
+        if event.get("job") != job:
+            continue
+        if event["event"] == "snapshot":
+            local = reader.newest(timeout=2.0, after_seq=event["seq"] - 1)
+            assert local is not None and local.seq == event["seq"], (local, event)
+            seen.append(local)
+        elif event["event"] == "state" and event["state"] in fpm.client.FINAL_STATES:
+            break
+    assert [s.frames for s in seen] == [200, 400, 441] and seen[-1].finished
+    over_http = service.snapshot(job)
+    assert np.array_equal(seen[-1].amplitude, over_http.amplitude)
+    assert np.array_equal(seen[-1].phase, over_http.phase)
+    assert seen[-1].pixel_um == over_http.pixel_um
+    reader.close()

@@ -42,6 +42,8 @@ def test_the_dock_widget_acquires_shows_pauses_and_cancels(service, qtbot):
     )
     qtbot.waitUntil(lambda: widget.start.isEnabled(), timeout=30_000)
     assert seen[-1] == 441 and seen == sorted(seen), seen
+    # On this machine the snapshots came through shared memory, not HTTP.
+    assert widget.snapshots_from == "shared memory"
     amplitude, phase = viewer.layers[AMPLITUDE_LAYER], viewer.layers[PHASE_LAYER]
     pixel_um = 2.4 / 4 / 4  # the virtual camera's pixel, 4× objective, 4× upsampling
     assert tuple(amplitude.scale) == pytest.approx((pixel_um, pixel_um))

@@ -879,28 +879,12 @@ impl Acquisition {
             self.start_capture();
             return Step::Capture;
         }
-        self.result = Some(Ok(AcquireSummary {
-            nominal: self.rig.nominal,
-            geometry: self.geometry,
-            entrance_pupil_mm: self.plan.system.entrance_pupil_mm,
-            geometry_source: self.geometry_source.clone(),
-            board_calibration: self.rig.stored,
-            camera_settings: self.rig.camera_settings.clone(),
-            calibration: std::mem::take(&mut self.calibration_reports),
-            capture: CaptureReport {
-                outcome: "none: the plan only calibrates".into(),
-                sequences: 0,
-                ..CaptureReport::default()
-            },
-            retake: None,
-            frames_in_dataset: 0,
-            frames_before: 0,
-            still_missing: vec![],
-            last_frame_to_final_ms: None,
-            update_us_mean: None,
-            tiles: None,
-            reconstruction: None,
-        }));
+        let none = CaptureReport {
+            outcome: "none: the plan only calibrates".into(),
+            sequences: 0,
+            ..CaptureReport::default()
+        };
+        self.result = Some(Ok(self.summary(none, 0, vec![])));
         Step::Finished
     }
 
@@ -1084,7 +1068,18 @@ impl Acquisition {
         } else {
             None
         };
-        self.summary = Some(AcquireSummary {
+        self.summary = Some(self.summary(capture, frames_in_dataset, still_missing));
+        Step::WriteSummary
+    }
+
+    /// What the run did, with this capture, dataset size and missing LEDs.
+    fn summary(
+        &self,
+        capture: CaptureReport,
+        frames_in_dataset: usize,
+        still_missing: Vec<LedIndex>,
+    ) -> AcquireSummary {
+        AcquireSummary {
             nominal: self.rig.nominal,
             geometry: self.geometry,
             entrance_pupil_mm: self.plan.system.entrance_pupil_mm,
@@ -1102,8 +1097,7 @@ impl Acquisition {
                 .then(|| self.update_us.iter().sum::<f64>() / self.update_us.len() as f64),
             tiles: self.tiles,
             reconstruction: self.reconstruction.as_ref().and(self.reconstruction_source),
-        });
-        Step::WriteSummary
+        }
     }
 }
 

@@ -8,6 +8,8 @@
 //! * Snapshot latency: from the event of the frame that completes a snapshot's count to
 //!   the client holding that snapshot's PNG (the reconstruction's blend, the PNG's
 //!   encoding and the request included).
+//! * Pause: from the client's pause request to the job's progress saying `paused` (the
+//!   capture sequence cut at its LED, the rig holding).
 //! * Cancel: from the client's cancel request to the job's `cancelled` state (the
 //!   sequence aborted, the frames so far labelled and written).
 //! * Overhead: the same 441-LED acquisition run by `fpm acquire` and by the service,
@@ -51,6 +53,7 @@ struct Report {
     round_trip_n_clients: Percentiles,
     frame_event_latency: Percentiles,
     snapshot_latency: Percentiles,
+    pause_to_paused: Percentiles,
     cancel_to_cancelled: Percentiles,
     overhead: Overhead,
 }
@@ -175,33 +178,56 @@ fn live_latencies(service: &VirtualService, step_ms: f64) -> Result<(Percentiles
     ))
 }
 
-/// Acquisitions cancelled a second into their capture: µs from the request to the
-/// job's `cancelled`.
-fn cancels(service: &VirtualService, step_ms: f64, count: usize) -> Result<Percentiles> {
-    let mut samples = vec![];
+/// Acquisitions paused a second into their capture, resumed, then cancelled: µs from
+/// each request to the event that says it took effect (progress `paused`; the job
+/// `cancelled`).
+fn pauses_and_cancels(
+    service: &VirtualService,
+    step_ms: f64,
+    count: usize,
+) -> Result<(Percentiles, Percentiles)> {
+    let (mut pauses, mut cancels) = (vec![], vec![]);
     for _ in 0..count {
-        let lines = event_lines(service.address, None)?;
+        let mut lines = event_lines(service.address, None)?;
         let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
         wait_running(service, job)?;
         std::thread::sleep(Duration::from_secs(1));
+        let mut until = |asked: f64, took_effect: &dyn Fn(&serde_json::Value) -> bool| {
+            for line in lines.by_ref() {
+                let Some(data) = line.strip_prefix("data:") else {
+                    continue;
+                };
+                let event: serde_json::Value = serde_json::from_str(data.trim())?;
+                if event["job"] == job && took_effect(&event) {
+                    let at = event["at_s"].as_f64().unwrap_or_else(now_s);
+                    return Ok((at - asked) * 1e6);
+                }
+            }
+            Err(anyhow!("the event stream ended before job {job} answered"))
+        };
+        for (verb, samples) in [("pause", Some(&mut pauses)), ("resume", None)] {
+            let asked = now_s();
+            let r = service.post(&format!("/api/jobs/{job}/{verb}"), None)?;
+            if r.status != 202 {
+                bail!("{verb}: {}", r.body);
+            }
+            if let Some(samples) = samples {
+                samples.push(until(asked, &|e| {
+                    e["event"] == "progress" && e["progress"]["phase"] == "paused"
+                })?);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(300));
         let asked = now_s();
         let r = service.post(&format!("/api/jobs/{job}/cancel"), None)?;
         if r.status != 202 {
             bail!("cancel: {}", r.body);
         }
-        for line in lines {
-            let Some(data) = line.strip_prefix("data:") else {
-                continue;
-            };
-            let event: serde_json::Value = serde_json::from_str(data.trim())?;
-            if event["job"] == job && event["event"] == "state" && event["state"] == "cancelled" {
-                let at = event["at_s"].as_f64().unwrap_or_else(now_s);
-                samples.push((at - asked) * 1e6);
-                break;
-            }
-        }
+        cancels.push(until(asked, &|e| {
+            e["event"] == "state" && e["state"] == "cancelled"
+        })?);
     }
-    Ok(Percentiles::of(&mut samples))
+    Ok((Percentiles::of(&mut pauses), Percentiles::of(&mut cancels)))
 }
 
 /// `fpm acquire` on a virtual rig of its own: (capture s, run s).
@@ -278,8 +304,8 @@ pub fn run(o: ServeOptions) -> Result<()> {
     let many = round_trips(service.address, o.clients, o.requests.div_ceil(o.clients))?;
     say("a reconstructing acquisition, followed live …");
     let (frame_event, snapshot) = live_latencies(&service, o.step_ms)?;
-    say("cancels …");
-    let cancel = cancels(&service, o.step_ms, 5)?;
+    say("pauses and cancels …");
+    let (pause, cancel) = pauses_and_cancels(&service, o.step_ms, 5)?;
     let mut overhead = Overhead {
         rounds: o.rounds,
         cli_capture_s: vec![],
@@ -308,6 +334,7 @@ pub fn run(o: ServeOptions) -> Result<()> {
         round_trip_n_clients: many,
         frame_event_latency: frame_event,
         snapshot_latency: snapshot,
+        pause_to_paused: pause,
         cancel_to_cancelled: cancel,
         overhead,
     };
@@ -337,6 +364,10 @@ pub fn run(o: ServeOptions) -> Result<()> {
     println!(
         "  frame → snapshot PNG at client: {}",
         ms(&report.snapshot_latency)
+    );
+    println!(
+        "  pause → holding:               {}",
+        ms(&report.pause_to_paused)
     );
     println!(
         "  cancel → job cancelled:        {}",

@@ -9,7 +9,8 @@ use fpm_physics::reconstruct::{GammaScan, Refine, Settings};
 
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
-    CameraGamma, GeometryChoice, ImageFormat, Job, JobEvent, OutputOptions, Report, ZARR_NAME,
+    CameraGamma, GeometryChoice, ImageFormat, Job, JobEvent, OutputOptions, Refocus, Report,
+    ZARR_NAME,
 };
 
 use crate::flatten::FlattenArgs;
@@ -76,9 +77,11 @@ pub struct ReconstructArgs {
     /// LEDs positive, as dataset.toml's defocus_um): the pupil starts with that
     /// defocus and the image comes out refocused onto the sample. Frames of a sample
     /// left out of focus give spoke-like artefacts around small features and smeared
-    /// fine detail when reconstructed as in focus
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    refocus_um: f64,
+    /// fine detail when reconstructed as in focus. `auto`: as far as the bright-field
+    /// frames' shifts against each other say. Left out: that too, where the shifts
+    /// clearly show a defocus (beyond 3σ), else as in focus; the report says which
+    #[arg(long, value_name = "UM|auto", allow_hyphen_values = true, value_parser = refocus)]
+    refocus_um: Option<Refocus>,
     /// HR pixels per camera pixel.
     #[arg(long, default_value_t = 4)]
     upsample: usize,
@@ -109,11 +112,15 @@ pub struct ReconstructArgs {
     /// light and offset drift that long dark-field exposures pick up).
     #[arg(long, value_enum, default_value_t = BackgroundArg::PerFrame)]
     background: BackgroundArg,
-    /// With `--background per-frame`: dark-field pixels within this many standard
-    /// deviations of the background's noise are read as no light (0: only the level
-    /// is taken off).
+    /// With `--background per-frame`: the floor, in standard deviations of the
+    /// dark-field frame's background noise (0: only the level is taken off).
     #[arg(long, default_value_t = 3.0)]
     floor_sigma: f32,
+    /// With `--background per-frame`: how the floor treats the light near it. soft
+    /// (default): light v counts as v·(v²/(v² + floor²))², so noise barely counts and
+    /// dim light in part; hard: everything up to the floor is cut
+    #[arg(long, value_enum, default_value_t = FloorArg::Soft)]
+    floor: FloorArg,
     /// Refine each LED's position inside the passes (a local search of its
     /// illumination frequency against the data, from the second pass on): for boards
     /// with LEDs off their grid or mounted at a tilt. The refined positions go into
@@ -139,6 +146,15 @@ pub struct ReconstructArgs {
     json: bool,
 }
 
+fn refocus(text: &str) -> Result<Refocus, String> {
+    if text.eq_ignore_ascii_case("auto") {
+        return Ok(Refocus::Auto);
+    }
+    text.parse()
+        .map(Refocus::Distance)
+        .map_err(|_| format!("{text}: give a distance in µm (0: as in focus) or auto"))
+}
+
 fn camera_gamma(text: &str) -> Result<CameraGamma, String> {
     if text.eq_ignore_ascii_case("auto") {
         return Ok(CameraGamma::Auto);
@@ -162,8 +178,17 @@ pub enum FormatArg {
 pub enum BackgroundArg {
     /// The dataset's dark level only.
     DarkLevel,
-    /// Also each dark-field frame's own background.
+    /// Also each dark-field frame's own background, its noise floored.
     PerFrame,
+}
+
+/// `--floor`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq)]
+pub enum FloorArg {
+    /// Light near the floor shrunk.
+    Soft,
+    /// Light up to the floor cut.
+    Hard,
 }
 
 impl ReconstructArgs {
@@ -172,6 +197,7 @@ impl ReconstructArgs {
             BackgroundArg::DarkLevel => Correction::DarkLevel,
             BackgroundArg::PerFrame => Correction::PerFrame {
                 floor_sigma: self.floor_sigma,
+                soft: self.floor == FloorArg::Soft,
             },
         }
     }
@@ -234,8 +260,9 @@ impl ReconstructArgs {
                 background: self.background(),
                 refine_leds: self.refine_leds.then(Refine::default),
                 flatten: self.flatten.flatten(),
-                defocus_um: self.refocus_um,
+                defocus_um: 0.0,
             },
+            refocus: self.refocus_um.unwrap_or_default(),
             passes: self.passes,
             tile: self.tile,
             frame_memory_gb: self.frame_memory_gb,

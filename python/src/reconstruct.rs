@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use fpm_host::calibration::PlacementFile;
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
-    write_outputs_with, GeometryChoice, ImageFormat, Job, OutputOptions,
+    write_outputs_with, GeometryChoice, ImageFormat, Job, OutputOptions, Refocus,
 };
 use fpm_physics::background::Correction;
 use fpm_physics::reconstruct::{Flatten, Refine, Settings};
@@ -152,7 +152,10 @@ pub(crate) fn settings(
     background_block_um: Option<f64>,
 ) -> PyResult<Settings> {
     let background = match background {
-        "per-frame" => Correction::PerFrame { floor_sigma },
+        "per-frame" => Correction::PerFrame {
+            floor_sigma,
+            soft: true,
+        },
         "dark-level" => Correction::DarkLevel,
         other => {
             return Err(PyValueError::new_err(format!(
@@ -190,7 +193,8 @@ pub(crate) fn settings(
 ///
 /// `geometry`: see `geometry_from`. `tile`: side in camera pixels (default from the
 /// physics). `background`: "per-frame" (each dark-field frame's own background taken
-/// off, pixels within `floor_sigma` of its noise read as no light) or "dark-level".
+/// off, light near `floor_sigma` of its noise shrunk, noise read as no light) or
+/// "dark-level".
 /// `progress(done, total)` is called as frame updates complete (tqdm: pass
 /// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
 /// background's low-order phase off, over blocks of `background_block_um` (default
@@ -199,10 +203,12 @@ pub(crate) fn settings(
 /// objectives that are not telecentric (camera lenses, simple low-power objectives;
 /// default telecentric; see `fpm reconstruct --help`). `refocus_um`: how far the
 /// sample sat from focus when the frames were taken, µm (toward the LEDs positive); the
-/// pupil starts with that defocus and the image comes out refocused.
+/// pupil starts with that defocus and the image comes out refocused. "auto": as far as
+/// the bright-field frames' shifts say; None (default): that too where the shifts
+/// clearly show a defocus, else as in focus (the report's `refocus` says which).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = 0.0, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(
     py: Python<'_>,
@@ -218,9 +224,23 @@ pub fn reconstruct(
     flatten_background: bool,
     background_block_um: Option<f64>,
     entrance_pupil_mm: Option<f64>,
-    refocus_um: f64,
+    refocus_um: Option<&Bound<'_, PyAny>>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Reconstruction> {
+    let refocus = match refocus_um {
+        None => Refocus::WhereClear,
+        Some(v) => match v.extract::<f64>() {
+            Ok(um) => Refocus::Distance(um),
+            Err(_) => match v.extract::<String>() {
+                Ok(w) if w.eq_ignore_ascii_case("auto") => Refocus::Auto,
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "refocus_um = {v}: give a distance in µm, 'auto' or None"
+                    )))
+                }
+            },
+        },
+    };
     let ds = &dataset.get().inner;
     let geometry = geometry_from(geometry, &ds.manifest.geometry())?;
     let job = Job {
@@ -229,7 +249,6 @@ pub fn reconstruct(
         camera_gamma: None,
         settings: Settings {
             refine_leds: refine_leds.then(Refine::default),
-            defocus_um: refocus_um,
             ..settings(
                 upsample,
                 fixed_pupil,
@@ -239,6 +258,7 @@ pub fn reconstruct(
                 background_block_um,
             )?
         },
+        refocus,
         passes,
         tile,
         ..Job::default()

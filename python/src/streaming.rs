@@ -48,6 +48,7 @@ impl Kept {
                 dark_level,
                 exposure_ms: self.exposure_ms,
                 floor: 0.0,
+                soft_floor: false,
             },
         }
     }

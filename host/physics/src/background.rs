@@ -19,12 +19,29 @@ use crate::optics::{LedGeometry, System};
 pub enum Correction {
     /// The dataset's dark level only.
     DarkLevel,
-    /// Each dark-field frame's own background too ([`estimate`]), and its noise within
+    /// Each dark-field frame's own background too ([`estimate`]), and its noise up to
     /// `floor_sigma` standard deviations read as no light ([`subtract`]).
     PerFrame {
         /// Floor, in standard deviations of the background's noise.
         floor_sigma: f32,
+        /// Whether the floor is soft ([`Measured::soft_floor`]): light near it shrunk
+        /// rather than cut. The default: on the repo's simulated dim dark-field sets and
+        /// its real ring-array frame it beat the hard floor (docs/results.md).
+        soft: bool,
     },
+}
+
+impl Correction {
+    /// The same correction with its floor hard (cut, not shrunk).
+    pub fn with_hard_floor(self) -> Self {
+        match self {
+            Correction::PerFrame { floor_sigma, .. } => Correction::PerFrame {
+                floor_sigma,
+                soft: false,
+            },
+            other => other,
+        }
+    }
 }
 
 /// `frame` as the reconstruction should take it under `correction`: a frame whose LED
@@ -40,7 +57,7 @@ pub fn correct<'a>(
     geometry: &LedGeometry,
     correction: Correction,
 ) -> (LitFrame<'a>, Option<FrameBackground>) {
-    let Correction::PerFrame { floor_sigma } = correction else {
+    let Correction::PerFrame { floor_sigma, soft } = correction else {
         return (frame, None);
     };
     let (h, w) = frame.measured.dim();
@@ -54,7 +71,7 @@ pub fn correct<'a>(
     match estimate(&frame.measured) {
         Some(b) if b.is_flat() => (
             LitFrame {
-                measured: subtract(frame.measured, b, floor_sigma),
+                measured: subtract(frame.measured, b, floor_sigma, soft),
                 ..frame
             },
             Some(b),
@@ -189,15 +206,18 @@ impl BlockStats {
 
 /// `frame` with its background taken off: the dark level raised by the measured level,
 /// and everything within `floor_sigma` × the background's noise of it read as zero
-/// (0: only the level is taken off; negative levels are never added back).
+/// (0: only the level is taken off; negative levels are never added back); with `soft`,
+/// what is near the floor is shrunk instead ([`Measured::soft_floor`]).
 pub fn subtract<'a>(
     frame: Measured<'a>,
     background: FrameBackground,
     floor_sigma: f32,
+    soft: bool,
 ) -> Measured<'a> {
     Measured {
         dark_level: frame.dark_level + background.level.max(0.0),
         floor: (floor_sigma.max(0.0) * background.noise).max(frame.floor),
+        soft_floor: soft,
         ..frame
     }
 }
@@ -218,6 +238,7 @@ mod tests {
             dark_level: dark,
             exposure_ms: 1.0,
             floor: 0.0,
+            soft_floor: false,
         }
     }
 
@@ -268,8 +289,8 @@ mod tests {
             s.sum() / s.len() as f32
         };
         let before = empty_half(&m.intensity(whole));
-        let plain = empty_half(&subtract(m, b, 0.0).intensity(whole));
-        let floored = empty_half(&subtract(m, b, 2.0).intensity(whole));
+        let plain = empty_half(&subtract(m, b, 0.0, false).intensity(whole));
+        let floored = empty_half(&subtract(m, b, 2.0, false).intensity(whole));
         assert!(before > 5.5, "the background reads as light: {before}");
         assert!(plain < 1.0, "level taken off, noise clipped at 0: {plain}");
         assert!(
@@ -277,7 +298,7 @@ mod tests {
             "noise within 2σ read as zero: {floored} against {plain}"
         );
         // The scattering edges keep their signal.
-        let edges = subtract(m, b, 2.0).intensity(whole);
+        let edges = subtract(m, b, 2.0, false).intensity(whole);
         let lit = edges.slice(ndarray::s![0..8, 0..64]);
         let mean = lit.sum() / lit.len() as f32;
         assert!(

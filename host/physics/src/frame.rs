@@ -197,6 +197,11 @@ pub struct Measured<'a> {
     /// Counts above the dark level up to which a pixel is read as no light (0: only
     /// values below the dark level are; see [`crate::background`]).
     pub floor: f32,
+    /// Whether the floor is soft: light v above the dark level counts as
+    /// v·(v²/(v² + floor²))² instead of being cut at the floor, so noise near the level
+    /// barely counts, light well above the floor counts in full, and dim light between
+    /// still counts in part ([`crate::background`]).
+    pub soft_floor: bool,
 }
 
 impl Measured<'_> {
@@ -234,9 +239,18 @@ impl Measured<'_> {
     }
 
     /// Counts above the dark level as the light they stand for: noise below the dark
-    /// level, or within the floor above it, is no light.
+    /// level, or within the floor above it, is no light (a soft floor shrinks what is
+    /// near it instead).
     fn light(&self, v: f32) -> f32 {
-        if v > self.floor {
+        if self.soft_floor {
+            if v > 0.0 {
+                let v2 = v * v;
+                let share = v2 / (v2 + self.floor * self.floor);
+                v * share * share
+            } else {
+                0.0
+            }
+        } else if v > self.floor {
             v
         } else {
             0.0
@@ -291,6 +305,7 @@ mod tests {
             dark_level: 100.0,
             exposure_ms: 2.0,
             floor: 0.0,
+            soft_floor: false,
         };
         let region = Region {
             y0: 0,
@@ -329,6 +344,7 @@ mod tests {
             dark_level: dark,
             exposure_ms: 1.0,
             floor: 0.0,
+            soft_floor: false,
         };
         let light: Vec<f32> = [0.0f32, 10.0, 128.0, 255.0]
             .iter()

@@ -523,6 +523,7 @@ impl SimFrame {
             dark_level: camera.dark_level_dn as f32,
             exposure_ms: self.exposure_ms as f32,
             floor: 0.0,
+            soft_floor: false,
         }
     }
 

@@ -194,6 +194,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
                 dark_level: camera.dark_level_dn as f32,
                 exposure_ms: f.exposure_ms as f32,
                 floor: 0.0,
+                soft_floor: false,
             },
         })
         .collect();

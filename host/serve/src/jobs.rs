@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 use fpm_acquire::acquisition::{defaults, Plan};
 use fpm_frames::ServiceNames;
+use fpm_host::reconstruction::Refocus;
 use fpm_physics::reconstruct::Flatten;
 use fpm_physics::System;
 use fpm_protocol::{LedIndex, Rgb};
@@ -292,6 +293,16 @@ impl CalibrateRequest {
     }
 }
 
+/// `refocus_um`: a distance in µm, or the word "auto".
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum RefocusValue {
+    /// A distance, µm.
+    Um(f64),
+    /// "auto".
+    Word(String),
+}
+
 /// `fpm reconstruct` as a request: the dataset, and settings that may be left out
 /// (the CLI's defaults).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -336,9 +347,12 @@ pub struct ReconstructRequest {
     /// Take the clear background's low-order phase off.
     #[serde(default)]
     pub flatten_background: bool,
-    /// Refocus the object by this many µm.
+    /// Refocus the object by this many µm (toward the LEDs positive), or "auto": as
+    /// far as the bright-field frames' shifts say. Absent: that too where the shifts
+    /// clearly show a defocus, else as in focus (the report's `refocus` says which).
     #[serde(default)]
-    pub refocus_um: f64,
+    #[schema(value_type = Option<Object>, example = json!(140.0))]
+    pub refocus_um: Option<RefocusValue>,
     /// Image format: "tiff" or "ome-zarr".
     #[serde(default)]
     pub format: OutputFormat,
@@ -410,8 +424,15 @@ impl ReconstructRequest {
                 } else {
                     Flatten::Keep
                 },
-                defocus_um: self.refocus_um,
                 ..defaults.settings
+            },
+            refocus: match &self.refocus_um {
+                None => Refocus::WhereClear,
+                Some(RefocusValue::Um(um)) => Refocus::Distance(*um),
+                Some(RefocusValue::Word(w)) if w.eq_ignore_ascii_case("auto") => Refocus::Auto,
+                Some(RefocusValue::Word(w)) => {
+                    bail!("refocus_um \"{w}\": give a distance in µm or \"auto\"")
+                }
             },
             passes: self.passes,
             tile: self.tile,

@@ -392,6 +392,7 @@ impl Dataset {
             dark_level: self.manifest.camera.dark_light(),
             exposure_ms: self.frames[k].entry.exposure_ms as f32,
             floor: 0.0,
+            soft_floor: false,
         }
     }
 

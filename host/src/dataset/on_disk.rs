@@ -127,6 +127,7 @@ impl DatasetOnDisk {
             dark_level: self.manifest.camera.dark_light(),
             exposure_ms: self.manifest.frames[k].exposure_ms as f32,
             floor: 0.0,
+            soft_floor: false,
         }
     }
 }

@@ -7,9 +7,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
+use fpm_physics::reconstruct::refocus::DefocusEstimate;
 use fpm_physics::reconstruct::{GammaScan, Settings};
 use fpm_physics::{LedGeometry, System};
 
+use super::refocus::{defocus_on_disk, RefocusChoice, RefocusReport};
 use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
 use crate::calibration::{GeometrySource, PlacementFile};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
@@ -57,6 +59,22 @@ pub enum CameraGamma {
     Exponent(f64),
 }
 
+/// How far the frames are refocused.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Refocus {
+    /// This far, µm (toward the LEDs positive, as a dataset's `defocus_um`; 0: as in
+    /// focus).
+    Distance(f64),
+    /// As far as the bright-field frames' shifts say
+    /// ([`fpm_physics::reconstruct::refocus`]), however weakly.
+    Auto,
+    /// As far as the frames' shifts say where they clearly show a defocus (beyond 3σ
+    /// of none), else as in focus: the default, since a sample left out of focus is
+    /// the commonest cause of a blurred first run and the shifts cost one FFT a frame.
+    #[default]
+    WhereClear,
+}
+
 /// A reconstruction job; see the module's doc.
 #[derive(Debug, Clone)]
 pub struct Job {
@@ -66,8 +84,10 @@ pub struct Job {
     pub entrance_pupil_mm: Option<f64>,
     /// Overrides the dataset's `[camera] gamma`.
     pub camera_gamma: Option<CameraGamma>,
-    /// EPRY's settings.
+    /// EPRY's settings (their `defocus_um` is set from [`Self::refocus`]).
     pub settings: Settings,
+    /// How far the frames are refocused.
+    pub refocus: Refocus,
     /// Passes over all frames.
     pub passes: usize,
     /// Tile side, camera pixels (None: from the physics).
@@ -84,6 +104,7 @@ impl Default for Job {
             entrance_pupil_mm: None,
             camera_gamma: None,
             settings: Settings::default(),
+            refocus: Refocus::default(),
             passes: 10,
             tile: None,
             frame_memory_gb: 8.0,
@@ -135,6 +156,14 @@ impl Job {
     /// Every setting in its range, or an error naming the first that is not.
     pub fn validate(&self) -> Result<()> {
         self.settings.validate().map_err(anyhow::Error::msg)?;
+        if let Refocus::Distance(um) = self.refocus {
+            Settings {
+                defocus_um: um,
+                ..self.settings
+            }
+            .validate()
+            .map_err(anyhow::Error::msg)?;
+        }
         let positive = |x: f64| x.is_finite() && x > 0.0;
         limits::check_run(self.passes, self.tile).map_err(anyhow::Error::msg)?;
         if let Some(p) = self.entrance_pupil_mm {
@@ -179,15 +208,28 @@ impl Job {
         let progress = |done, total| on(JobEvent::Updates { done, total });
         let bytes = on_disk.in_focus_bytes();
         let system = on_disk.manifest.system();
-        let request = self.request(&geometry, &source);
         let mut r = if bytes as f64 <= self.frame_memory_gb * 1e9 {
             let mut ds = Dataset::load(dir)?;
             ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
             ds.manifest.camera = on_disk.manifest.camera;
-            reconstruct_with_system(&ds, &system, &request, &progress)?
+            let refocus = self.refocus_of(|| {
+                Ok(fpm_physics::reconstruct::refocus::estimate(
+                    &system,
+                    &geometry,
+                    &ds.in_focus(),
+                ))
+            })?;
+            let request = self.request(&geometry, &source, refocus.refocus_um);
+            let mut r = reconstruct_with_system(&ds, &system, &request, &progress)?;
+            r.report.refocus = refocus;
+            r
         } else {
             on(JobEvent::FromDisk { bytes });
-            reconstruct_on_disk(&on_disk, &request, &progress)?
+            let refocus = self.refocus_of(|| defocus_on_disk(&on_disk, &system, &geometry))?;
+            let request = self.request(&geometry, &source, refocus.refocus_um);
+            let mut r = reconstruct_on_disk(&on_disk, &request, &progress)?;
+            r.report.refocus = refocus;
+            r
         };
         score(&on_disk, &mut r);
         r.report.camera_gamma_scan = gamma_scan.clone();
@@ -216,21 +258,63 @@ impl Job {
             ..ds.manifest.system()
         };
         let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
-        let request = self.request(&geometry, &source);
+        let refocus = self.refocus_of(|| {
+            Ok(fpm_physics::reconstruct::refocus::estimate(
+                &system,
+                &geometry,
+                &ds.in_focus(),
+            ))
+        })?;
+        let request = self.request(&geometry, &source, refocus.refocus_um);
         let mut r = reconstruct_with_system(ds, &system, &request, progress)?;
+        r.report.refocus = refocus;
         score(ds, &mut r);
         Ok(r)
     }
 
-    /// The request this job makes of one reconstruction with `geometry`.
-    fn request<'a>(&self, geometry: &'a LedGeometry, source: &'a GeometrySource) -> Request<'a> {
+    /// The request this job makes of one reconstruction with `geometry`, refocused by
+    /// `refocus_um`.
+    fn request<'a>(
+        &self,
+        geometry: &'a LedGeometry,
+        source: &'a GeometrySource,
+        refocus_um: f64,
+    ) -> Request<'a> {
         Request {
             geometry,
             source,
-            settings: self.settings,
+            settings: Settings {
+                defocus_um: refocus_um,
+                ..self.settings
+            },
             passes: self.passes,
             tile: self.tile,
         }
+    }
+
+    /// How far to refocus, as [`Self::refocus`] says: a distance given, or the one the
+    /// frames' shifts show (`estimate` measures them; not called for a distance).
+    fn refocus_of(
+        &self,
+        estimate: impl FnOnce() -> Result<Option<DefocusEstimate>>,
+    ) -> Result<RefocusReport> {
+        let chosen = match self.refocus {
+            Refocus::Distance(um) => return Ok(RefocusReport::given(um)),
+            Refocus::Auto => RefocusChoice::Auto,
+            Refocus::WhereClear => RefocusChoice::WhereClear,
+        };
+        let estimate = estimate()?;
+        let report = RefocusReport::found(chosen, estimate);
+        if let Some(e) = &report.estimate {
+            tracing::info!(
+                z_um = e.z_um,
+                sigma_um = e.sigma_um,
+                frames = e.kept(),
+                refocus_um = report.refocus_um,
+                "defocus read from the bright-field frames' shifts"
+            );
+        }
+        Ok(report)
     }
 
     /// `--camera-gamma auto`: scan the frames and decode them with the gamma found (or

@@ -3,6 +3,7 @@
 
 pub mod batch;
 pub mod job;
+pub mod refocus;
 
 use std::path::Path;
 use std::time::Instant;
@@ -24,7 +25,8 @@ use crate::calibration::GeometrySource;
 use crate::dataset::image_io::{self, TiffOptions};
 use crate::dataset::{Dataset, DatasetOnDisk, Pixels};
 use crate::refinement::RefinedLedsReport;
-pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent};
+pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent, Refocus};
+pub use refocus::{RefocusChoice, RefocusReport};
 
 /// What a reconstruction produced.
 pub struct Reconstruction {
@@ -118,6 +120,12 @@ pub struct Report {
     /// them: an offset share well above 0 is light no object explains.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub bright_field_fit: Option<ContrastFit>,
+    /// How far the frames were refocused, and what their shifts show.
+    pub refocus: RefocusReport,
+    /// Bits per stored sample of the frames (8 or 16 bits; 32: floats), which decides
+    /// what advice applies to them (floats carry no display gamma).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sample_bits: Option<u32>,
 }
 
 /// h from the bright/dark-field boundary, beside the geometry's h.
@@ -289,6 +297,8 @@ impl Report {
             camera_gamma: None,
             camera_gamma_scan: None,
             bright_field_fit: outcome.bright_field,
+            refocus: RefocusReport::given(settings.defocus_um),
+            sample_bits: None,
         }
     }
 }
@@ -299,10 +309,12 @@ pub struct BackgroundReport {
     /// "dark level" (the dataset's only) or "per frame" (each dark-field frame's own
     /// background too).
     pub correction: &'static str,
-    /// With "per frame": dark-field pixels within this many standard deviations of the
-    /// background's noise were read as no light.
+    /// With "per frame": the floor, in standard deviations of the background's noise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub floor_sigma: Option<f32>,
+    /// With "per frame": "soft" (light near the floor shrunk) or "hard" (cut).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor: Option<&'static str>,
     /// Per frame that is dark-field over the whole field: its LED and the background
     /// measured in its darkest blocks, counts above the dataset's dark level, and
     /// whether it was taken off (only a flat one is: mostly white noise, not the
@@ -327,13 +339,18 @@ pub struct FrameBackgroundReport {
 
 impl BackgroundReport {
     fn new(correction: Correction, backgrounds: &[(LedIndex, FrameBackground)]) -> Self {
-        let (correction, floor_sigma) = match correction {
-            Correction::DarkLevel => ("dark level", None),
-            Correction::PerFrame { floor_sigma } => ("per frame", Some(floor_sigma)),
+        let (correction, floor_sigma, floor) = match correction {
+            Correction::DarkLevel => ("dark level", None, None),
+            Correction::PerFrame { floor_sigma, soft } => (
+                "per frame",
+                Some(floor_sigma),
+                Some(if soft { "soft" } else { "hard" }),
+            ),
         };
         Self {
             correction,
             floor_sigma,
+            floor,
             dark_field_frames: backgrounds
                 .iter()
                 .map(|&(led, b)| FrameBackgroundReport {
@@ -450,6 +467,7 @@ pub fn reconstruct_with_system(
     let mut report = Report::new(&ds.dir, system, request, frames.len(), &outcome, total_ms);
     report.height_from_boundary = boundary_check(system, geometry, &frames);
     report.camera_gamma = ds.manifest.camera.gamma;
+    report.sample_bits = ds.frames.first().map(|f| f.raw.bits());
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 
@@ -533,6 +551,7 @@ pub fn reconstruct_on_disk(
     let mut report = Report::new(&ds.dir, &system, request, indices.len(), &outcome, total_ms);
     report.height_from_boundary = edges.and_then(|e| BoundaryCheck::read(&system, geometry, &e));
     report.camera_gamma = ds.manifest.camera.gamma;
+    report.sample_bits = Some(ds.sample_bits());
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

@@ -285,6 +285,7 @@ pub fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         dark_level: 100.0,
         exposure_ms: 1.0,
         floor: 0.0,
+        soft_floor: false,
     };
     let mut background_us = Vec::with_capacity(rounds);
     let mut fftw = crate::fftw::load(size);

@@ -265,7 +265,7 @@ pub enum CalibrationError {
     #[error("reference frame: {0}")]
     Feature(#[from] FeatureError),
     /// Too few usable frames.
-    #[error("only {usable} usable bright-field frames ({dark} too dim, {lost} lost the feature); at least 4 are needed")]
+    #[error("only {usable} usable bright-field frames ({dark} too dim, {lost} lost the feature); at least 4 are needed{}", advice(*.lost))]
     TooFew {
         /// Usable frames.
         usable: usize,
@@ -428,4 +428,14 @@ fn frame_brightness(f: &Frame) -> f64 {
         .map(|row| row_sum(row) as f64)
         .sum();
     total / n / f.exposure_ms.max(1e-12)
+}
+
+/// What would help when `lost` frames lost the feature: its defocused window left the
+/// frame, or another feature came into it.
+fn advice(lost: usize) -> &'static str {
+    if lost > 0 {
+        ": pick a small isolated feature nearer the frame's centre (--roi), so that its defocused window stays inside the frame under every bright-field LED, or calibrate at a smaller defocus"
+    } else {
+        ""
+    }
 }

@@ -79,7 +79,10 @@ impl Default for Settings {
             alpha: 0.5,
             beta: 0.5,
             update_pupil: true,
-            background: Correction::PerFrame { floor_sigma: 3.0 },
+            background: Correction::PerFrame {
+                floor_sigma: 3.0,
+                soft: true,
+            },
             refine_leds: None,
             flatten: Flatten::Keep,
             defocus_um: 0.0,
@@ -149,7 +152,7 @@ impl Settings {
                 limits::REFOCUS_UM
             ));
         }
-        if let Correction::PerFrame { floor_sigma } = self.background {
+        if let Correction::PerFrame { floor_sigma, .. } = self.background {
             if !(floor_sigma.is_finite() && floor_sigma >= 0.0) {
                 return Err(format!("floor_sigma {floor_sigma}: must be 0 or more"));
             }

@@ -169,6 +169,11 @@ pub fn scan(
     let settings = Settings {
         // Not needed to compare the candidates, and each costs a fit per pass.
         refine_leds: None,
+        // The candidates are compared by their frames' error, which a soft floor skews:
+        // it shrinks dim dark-field light by how far above the noise decoding leaves it,
+        // which depends on the gamma (with it, the vendored USAF set read 1.94 instead
+        // of 2.27, a simulated 2.2 read 1.2).
+        background: settings.background.with_hard_floor(),
         ..settings
     };
     let total = COARSE.len() + 4;

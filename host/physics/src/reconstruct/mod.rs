@@ -3,6 +3,7 @@
 //! * [`epry`]: the solver state and one frame's update;
 //! * [`schedule`]: the pass loop and the adaptive step size;
 //! * [`refine`]: each LED's illumination frequency refined inside the passes;
+//! * [`refocus`]: how far out of focus the frames were taken, from their shifts;
 //! * [`offline`]: one square field with every frame at hand;
 //! * [`streaming`]: one square field fed frame by frame while an acquisition runs;
 //! * [`tiled`]: the full field of view in tiles, offline and streaming alike;
@@ -16,6 +17,7 @@ pub mod flatten;
 pub mod gamma;
 pub mod offline;
 pub mod refine;
+pub mod refocus;
 pub mod schedule;
 pub mod streaming;
 pub mod tiled;

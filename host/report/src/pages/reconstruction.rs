@@ -41,12 +41,15 @@ pub fn warnings(report: &Report) -> Vec<String> {
             ));
         }
     }
+    out.extend(report.refocus.warning());
     if let Some(r) = &report.refined_leds {
         out.extend(fpm_host::refinement::warnings(r));
     }
     if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
+        let floats = report.sample_bits == Some(32);
         let cause = match (report.camera_gamma, &report.camera_gamma_scan) {
             (_, Some(_)) => "stray light lifts the frames (the gamma read from them did not explain it)",
+            (None, None) if floats => "stray light lifts the frames, or an offset was left in them when they were made floats (the dataset's dark_level takes a known one off); float frames carry no display gamma",
             (None, None) => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma auto or 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
             (Some(_), None) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
         };

@@ -439,3 +439,31 @@ fn advice(lost: usize) -> &'static str {
         ""
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A refusal for frames that lost the feature says what would help; one for dim
+    /// frames alone does not send the user after the feature.
+    #[test]
+    fn too_few_frames_name_what_would_help() {
+        let lost = CalibrationError::TooFew {
+            usable: 0,
+            dark: 0,
+            lost: 25,
+        }
+        .to_string();
+        assert!(
+            lost.contains("--roi") && lost.contains("nearer the frame's centre"),
+            "{lost}"
+        );
+        let dim = CalibrationError::TooFew {
+            usable: 2,
+            dark: 30,
+            lost: 0,
+        }
+        .to_string();
+        assert!(!dim.contains("--roi"), "{dim}");
+    }
+}

@@ -11,15 +11,20 @@ use fpm_physics::reconstruct::{refocus, Settings};
 use fpm_physics::simulate::{acquire, Camera, ObjectField};
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 
-#[test]
-fn a_defocused_sample_is_recovered_when_the_defocus_is_told() {
-    let system = System::paper();
-    let geometry = LedGeometry {
+/// The paper's array cut to its central 15 × 15 LEDs.
+fn array_15() -> LedGeometry {
+    LedGeometry {
         rows: 15,
         cols: 15,
         center: LedIndex::new(7, 7),
         ..LedGeometry::paper()
-    };
+    }
+}
+
+#[test]
+fn a_defocused_sample_is_recovered_when_the_defocus_is_told() {
+    let system = System::paper();
+    let geometry = array_15();
     let object = ObjectField::test_sample(&system, 96, 32, 2, 5);
     let camera = Camera::realistic();
     let defocus_um = 80.0;
@@ -89,12 +94,7 @@ fn a_defocused_sample_is_recovered_when_the_defocus_is_told() {
 #[test]
 fn the_defocus_is_read_from_the_bright_field_frames_shifts() {
     let system = System::paper();
-    let geometry = LedGeometry {
-        rows: 15,
-        cols: 15,
-        center: LedIndex::new(7, 7),
-        ..LedGeometry::paper()
-    };
+    let geometry = array_15();
     let object = ObjectField::test_sample(&system, 128, 48, 2, 11);
     let camera = Camera::realistic();
     let bright: Vec<LedIndex> = geometry

@@ -212,17 +212,7 @@ impl Job {
             let mut ds = Dataset::load(dir)?;
             ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
             ds.manifest.camera = on_disk.manifest.camera;
-            let refocus = self.refocus_of(|| {
-                Ok(fpm_physics::reconstruct::refocus::estimate(
-                    &system,
-                    &geometry,
-                    &ds.in_focus(),
-                ))
-            })?;
-            let request = self.request(&geometry, &source, refocus.refocus_um);
-            let mut r = reconstruct_with_system(&ds, &system, &request, &progress)?;
-            r.report.refocus = refocus;
-            r
+            self.reconstruct_loaded(&ds, &system, (&geometry, &source), &progress)?
         } else {
             on(JobEvent::FromDisk { bytes });
             let refocus = self.refocus_of(|| defocus_on_disk(&on_disk, &system, &geometry))?;
@@ -258,17 +248,30 @@ impl Job {
             ..ds.manifest.system()
         };
         let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
+        let mut r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
+        score(ds, &mut r);
+        Ok(r)
+    }
+
+    /// Reconstruct a dataset in memory through `system` with `geometry` (and its
+    /// source), refocused as [`Self::refocus`] says.
+    fn reconstruct_loaded(
+        &self,
+        ds: &Dataset,
+        system: &System,
+        (geometry, source): (&LedGeometry, &GeometrySource),
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<Reconstruction> {
         let refocus = self.refocus_of(|| {
             Ok(fpm_physics::reconstruct::refocus::estimate(
-                &system,
-                &geometry,
+                system,
+                geometry,
                 &ds.in_focus(),
             ))
         })?;
-        let request = self.request(&geometry, &source, refocus.refocus_um);
-        let mut r = reconstruct_with_system(ds, &system, &request, progress)?;
+        let request = self.request(geometry, source, refocus.refocus_um);
+        let mut r = reconstruct_with_system(ds, system, &request, progress)?;
         r.report.refocus = refocus;
-        score(ds, &mut r);
         Ok(r)
     }
 

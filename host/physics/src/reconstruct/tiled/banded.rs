@@ -27,8 +27,9 @@ pub struct Banded {
     layout: TileLayout,
     leds: Vec<LedIndex>,
     nearest: usize,
-    /// Per frame once observed: its dark level and floor after its background.
-    corrections: Vec<Option<(f32, f32)>>,
+    /// Per frame once observed: its dark level, floor and whether the floor is soft,
+    /// after its background.
+    corrections: Vec<Option<(f32, f32, bool)>>,
     backgrounds: Vec<(LedIndex, FrameBackground)>,
     clear_level: Option<f32>,
     assembly: Assembly,
@@ -112,7 +113,11 @@ impl Banded {
         );
         self.backgrounds.extend(background.map(|b| (frame.led, b)));
         if let Some(c) = self.corrections.get_mut(k) {
-            *c = Some((corrected.measured.dark_level, corrected.measured.floor));
+            *c = Some((
+                corrected.measured.dark_level,
+                corrected.measured.floor,
+                corrected.measured.soft_floor,
+            ));
         }
         Ok(())
     }
@@ -164,13 +169,14 @@ impl Banded {
                     f.measured.dim()
                 )));
             }
-            let (dark_level, floor) = self.corrections[index]
+            let (dark_level, floor, soft_floor) = self.corrections[index]
                 .ok_or_else(|| bad(format!("frame {index} (LED {led:?}) was not observed")))?;
             frames.push(LitFrame {
                 led,
                 measured: Measured {
                     dark_level,
                     floor,
+                    soft_floor,
                     ..f.measured
                 },
             });

@@ -96,13 +96,13 @@ pub fn defocus_on_disk(
     let Some(&first) = geometry.nearest_first(&leds, (0.0, 0.0), system).first() else {
         return Ok(None);
     };
-    let pixels = ds.frame(indices[first])?;
-    let Some(mut reader) = ShiftReader::new(system, geometry, &lit(ds, indices[first], &pixels))
-    else {
+    let reference = indices[first];
+    let pixels = ds.frame(reference)?;
+    let Some(mut reader) = ShiftReader::new(system, geometry, &lit(ds, reference, &pixels)) else {
         return Ok(None);
     };
     for (&k, &led) in indices.iter().zip(&leds) {
-        if geometry.is_bright_field(led, 0.0, 0.0, system) {
+        if k != reference && geometry.is_bright_field(led, 0.0, 0.0, system) {
             let pixels = ds.frame(k)?;
             reader.read(&lit(ds, k, &pixels));
         }

@@ -80,6 +80,10 @@ pub struct ShiftReader {
     region: Region,
     fft: Fft2,
     window: Vec<f32>,
+    /// Per frequency bin, the phase correlation's weight: a Gaussian roll-off past
+    /// the objective's cutoff (σ = the cutoff: narrower windows, tried down to 0.15 of
+    /// it, read simulated defocus worse).
+    rolloff: Vec<f32>,
     reference: LedIndex,
     /// The reference's spectrum, conjugated.
     reference_spectrum: Vec<Complex32>,
@@ -105,12 +109,20 @@ impl ShiftReader {
         let window = (0..side * side)
             .map(|i| hann(i % side) * hann(i / side))
             .collect();
+        let cutoff_bins = (system.cutoff() * side as f64 * system.sample_pixel_um()) as f32;
+        let rolloff = (0..side * side)
+            .map(|i| {
+                let (kx, ky) = (signed(i % side, side) as f32, signed(i / side, side) as f32);
+                (-(kx * kx + ky * ky) / (2.0 * cutoff_bins * cutoff_bins)).exp()
+            })
+            .collect();
         let mut reader = Self {
             system: *system,
             geometry: *geometry,
             region,
             fft: Fft2::new(side, side),
             window,
+            rolloff,
             reference: reference.led,
             reference_spectrum: vec![],
             shifts: vec![],
@@ -121,8 +133,9 @@ impl ShiftReader {
         Some(reader)
     }
 
-    /// The frame's windowed, mean-free, mean-normalised spectrum over the region (None
-    /// for a frame with no light there).
+    /// The spectrum over the region of the frame divided by its slow level (a plane:
+    /// an oblique LED lights one side of the field more), less one, windowed (None for
+    /// a frame with no light there).
     fn spectrum(&mut self, frame: &LitFrame<'_>) -> Option<Vec<Complex32>> {
         let image = frame.measured.dark_subtracted(self.region);
         let plane = Plane::fit(&image)?;
@@ -154,16 +167,13 @@ impl ShiftReader {
             return;
         };
         let n = self.region.width;
-        // Phase correlation, rolled off past the objective's cutoff (σ = the cutoff:
-        // narrower windows, tried down to 0.15 of it, read simulated defocus worse).
-        let cutoff_bins = (self.system.cutoff() * n as f64 * self.system.sample_pixel_um()) as f32;
-        let sigma2 = cutoff_bins.powi(2);
-        for (i, (c, r)) in cross.iter_mut().zip(&self.reference_spectrum).enumerate() {
-            let (kx, ky) = (signed(i % n, n) as f32, signed(i / n, n) as f32);
+        // Phase correlation, rolled off past the objective's cutoff.
+        let weights = self.reference_spectrum.iter().zip(&self.rolloff);
+        for (c, (r, w)) in cross.iter_mut().zip(weights) {
             let p = *c * *r;
             let m = p.norm();
             *c = if m > 0.0 {
-                p * ((-(kx * kx + ky * ky) / (2.0 * sigma2)).exp() / m)
+                p * (w / m)
             } else {
                 Complex32::default()
             };
@@ -221,10 +231,7 @@ impl ShiftReader {
             for s in shifts.iter_mut() {
                 s.kept = residual(s, z) <= limit;
             }
-            z = match fit(&shifts) {
-                Some((z, _)) => z,
-                None => return None,
-            };
+            z = fit(&shifts)?.0;
         }
         let (z, dd) = fit(&shifts)?;
         let kept: Vec<&LedShift> = shifts.iter().filter(|s| s.kept).collect();

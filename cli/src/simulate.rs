@@ -9,6 +9,7 @@ use clap::{Args, Subcommand};
 
 use fpm_host::simulation::{self, AcquisitionSet, CalibrationSet, Scene};
 use fpm_host::truth::Truth;
+use fpm_physics::simulate::SampleKind;
 
 /// Make a simulated dataset.
 #[derive(Subcommand, Debug)]
@@ -131,6 +132,32 @@ pub struct AcquisitionArgs {
     /// `[camera] gamma`, which `fpm reconstruct` decodes.
     #[arg(long)]
     display_gamma: Option<f64>,
+    /// What the sample is made of: cells (absorbing and phase cells with bar groups),
+    /// weak-phase (unstained cells, a few % contrast) or stained (dense, strongly
+    /// absorbing).
+    #[arg(long, value_enum, default_value_t = Sample::Cells)]
+    sample: Sample,
+}
+
+/// `--sample`.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq)]
+pub enum Sample {
+    /// Soft cells of moderate absorption and thickness, with bar groups.
+    Cells,
+    /// Unstained cells: phase only (0.05–0.3 rad), no bars.
+    WeakPhase,
+    /// Stained tissue: dense, strongly absorbing cells, with bar groups.
+    Stained,
+}
+
+impl From<Sample> for SampleKind {
+    fn from(s: Sample) -> Self {
+        match s {
+            Sample::Cells => SampleKind::Cells,
+            Sample::WeakPhase => SampleKind::WeakPhase,
+            Sample::Stained => SampleKind::Stained,
+        }
+    }
 }
 
 impl SceneArgs {
@@ -212,6 +239,7 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         led_jitter_mm: a.led_jitter_mm,
         entrance_pupil_mm: a.entrance_pupil_mm,
         display_gamma: a.display_gamma,
+        sample: a.sample.into(),
     };
     let bar = indicatif::ProgressBar::new_spinner()
         .with_message(format!("rendering {} frames", s.scene().truth.leds().len()));

@@ -6,7 +6,9 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use fpm_physics::simulate::{acquire_from, CalibrationScene, Camera, ObjectField, SimFrame};
+use fpm_physics::simulate::{
+    acquire_from, CalibrationScene, Camera, ObjectField, SampleKind, SimFrame,
+};
 use fpm_physics::{LedGeometry, LedIndex, System};
 use rand::{Rng, SeedableRng};
 use rand_distr::Distribution;
@@ -145,6 +147,7 @@ impl Scene {
             seed: Some(self.seed),
             leds: None,
             entrance_pupil_mm: None,
+            sample: None,
         }
     }
 }
@@ -187,6 +190,8 @@ pub struct AcquisitionSet {
     /// Frames stored for display with this gamma ([`Camera::display_gamma`]); the
     /// dataset states it as `[camera] gamma`.
     pub display_gamma: Option<f64>,
+    /// What the sample is made of.
+    pub sample: SampleKind,
 }
 
 impl Default for AcquisitionSet {
@@ -197,6 +202,7 @@ impl Default for AcquisitionSet {
             led_jitter_mm: 0.0,
             entrance_pupil_mm: None,
             display_gamma: None,
+            sample: SampleKind::Cells,
         }
     }
 }
@@ -282,7 +288,14 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         display_gamma: set.display_gamma,
         ..scene.camera()
     };
-    let object = ObjectField::test_sample(&system, scene.size, 48, set.upsample, scene.seed);
+    let object = ObjectField::sample(
+        &system,
+        scene.size,
+        48,
+        set.upsample,
+        scene.seed,
+        set.sample,
+    );
     let truth = scene.truth;
     let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
     let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;
@@ -310,6 +323,7 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         object_pixel_um: Some(object.pitch_um()),
         leds: (set.led_jitter_mm > 0.0).then_some(positions),
         entrance_pupil_mm: set.entrance_pupil_mm,
+        sample: Some(set.sample),
         ..scene.truth_file()
     };
     write_json(&out.join("truth.json"), &truth)?;

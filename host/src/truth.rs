@@ -44,6 +44,9 @@ pub struct Truth {
     /// was not telecentric (`fpm simulate acquisition --entrance-pupil-mm`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub entrance_pupil_mm: Option<f64>,
+    /// The simulated sample's kind (`fpm simulate acquisition --sample`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sample: Option<fpm_physics::simulate::SampleKind>,
 }
 
 /// One LED's true place.

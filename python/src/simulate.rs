@@ -1,6 +1,7 @@
 //! `fpm.simulate_acquisition` / `fpm.simulate_calibration`: datasets from the full
 //! wave-optics model, written to disk with their truth, as `fpm simulate` makes them.
 
+use fpm_physics::simulate::SampleKind;
 use std::path::PathBuf;
 
 use fpm_host::simulation::{self, AcquisitionSet, CalibrationSet, Noise, Scene, Written};
@@ -66,9 +67,11 @@ fn loaded<'py>(
 /// `tilt_deg`, while the dataset states the nominal array. Written into `out`
 /// (dataset.toml, frames/, truth.json, truth_amplitude.tif, truth_phase.tif);
 /// returns (Dataset, truth dict). `entrance_pupil_mm`: image through an objective
-/// that is not telecentric (the dataset cannot state it; the truth does).
+/// that is not telecentric (the dataset cannot state it; the truth does). `sample`:
+/// "cells" (absorbing and phase cells with bar groups), "weak-phase" (unstained
+/// cells) or "stained" (dense, strongly absorbing).
 #[pyfunction]
-#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None))]
+#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None, sample = "cells"))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn simulate_acquisition<'py>(
     py: Python<'py>,
@@ -87,8 +90,14 @@ pub fn simulate_acquisition<'py>(
     led_jitter_mm: f64,
     entrance_pupil_mm: Option<f64>,
     display_gamma: Option<f64>,
+    sample: &str,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
+    let sample: SampleKind = serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
+        PyValueError::new_err(format!(
+            "sample = '{sample}': give 'cells', 'weak-phase' or 'stained'"
+        ))
+    })?;
     if let Some(g) = display_gamma.filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0)) {
         return Err(PyValueError::new_err(format!(
             "display_gamma: {g} is not an exponent above 0 and at most 5 (2.2 for sRGB-like images)"
@@ -108,6 +117,7 @@ pub fn simulate_acquisition<'py>(
         led_jitter_mm,
         entrance_pupil_mm,
         display_gamma,
+        sample,
     };
     let written = py
         .detach(|| simulation::write_acquisition(&scene, &set, &out))

@@ -156,6 +156,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
                 seed: Some(a.seed),
                 leds: None,
                 entrance_pupil_mm: a.entrance_pupil_mm,
+                sample: None,
             })?,
         )?;
     }

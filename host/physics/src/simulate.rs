@@ -116,20 +116,34 @@ impl ObjectField {
         upsample: usize,
         seed: u64,
     ) -> Self {
+        Self::sample(system, camera, pad, upsample, seed, SampleKind::Cells)
+    }
+
+    /// A sample of `kind` (cells of random place and size from `seed`).
+    pub fn sample(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        seed: u64,
+        kind: SampleKind,
+    ) -> Self {
         let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(1.0, 0.0));
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let extent = (o.n as f64) * o.pitch_um() / 2.0;
-        let cells: Vec<(f64, f64, f64, f64, f64)> = (0..40)
+        let (count, absorption, thickness) = kind.cells();
+        let cells: Vec<(f64, f64, f64, f64, f64)> = (0..count)
             .map(|_| {
                 (
                     rng.gen_range(-extent..extent),
                     rng.gen_range(-extent..extent),
                     rng.gen_range(4.0..14.0),
-                    rng.gen_range(0.1..0.5),
-                    rng.gen_range(0.4..1.6),
+                    rng.gen_range(absorption.clone()),
+                    rng.gen_range(thickness.clone()),
                 )
             })
             .collect();
+        let bars = kind != SampleKind::WeakPhase;
         let field_half = camera as f64 * o.camera_pixel_um / 2.0;
         // Bar groups inside the field: periods from 4 µm down to 0.9 µm (the objective
         // alone resolves λ/NA ≈ 4.7 µm at NA 0.1, λ 0.47).
@@ -151,7 +165,7 @@ impl ObjectField {
                 for (k, &period) in periods.iter().enumerate() {
                     let y0 = k as f64 * 7.0;
                     let in_group = gy >= y0 && gy < y0 + 5.0 && gx >= 0.0 && gx < 5.0 * period;
-                    if in_group && (gx / period).fract() < 0.5 {
+                    if bars && in_group && (gx / period).fract() < 0.5 {
                         absorb += 0.6;
                     }
                 }
@@ -192,6 +206,37 @@ impl ObjectField {
         let m = self.camera * self.upsample;
         let off = self.pad * self.upsample;
         Array2::from_shape_fn((m, m), |(r, c)| self.field[(r + off) * self.n + c + off])
+    }
+}
+
+/// What a simulated sample is made of: the test sample and two extremes of what
+/// microscopists image, so checks that judge the frames are tried on more than one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SampleKind {
+    /// Soft cells of moderate absorption (0.1–0.5) and thickness (0.4–1.6 rad), with
+    /// bar groups from coarse to finer than the objective resolves.
+    #[default]
+    Cells,
+    /// Unstained cells: phase only, 0.05–0.3 rad, no bars (frames of a few % contrast).
+    WeakPhase,
+    /// Stained tissue: twice as many cells, strongly absorbing (0.5–2), thin (0–0.3
+    /// rad), with the bars.
+    Stained,
+}
+
+impl SampleKind {
+    /// Every kind, for sweeps.
+    pub const ALL: [SampleKind; 3] = [Self::Cells, Self::WeakPhase, Self::Stained];
+
+    /// Cells: how many, absorption range, phase range (rad).
+    fn cells(self) -> (usize, std::ops::Range<f64>, std::ops::Range<f64>) {
+        match self {
+            Self::Cells => (40, 0.1..0.5, 0.4..1.6),
+            // An empty absorption range would panic: an absorption this small is none.
+            Self::WeakPhase => (40, 0.0..1e-9, 0.05..0.3),
+            Self::Stained => (80, 0.5..2.0, 0.0..0.3),
+        }
     }
 }
 

@@ -45,6 +45,21 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// How often each reconstruction warning fires on good simulated sets (false alarms)
+    /// and on sets with the condition it names (detections): three samples, 12- and
+    /// 8-bit cameras, auto and dim dark field; an undeclared display gamma, a wrong LED
+    /// height, a non-telecentric objective.
+    Warnings {
+        /// Seeds of good sets (12 sets each).
+        #[arg(long, default_value_t = 4)]
+        seeds: u64,
+        /// Seeds of sets with a fault (18 sets each).
+        #[arg(long, default_value_t = 2)]
+        fault_seeds: u64,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Camera-frame hand-off through iceoryx2 shared memory versus a Unix socket, for
     /// 2048² and 5472×3648 (20 MP) frames.
     Frames {
@@ -174,6 +189,11 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Geometry { size, passes, json } => {
             fpm_bench::geometry::run(size, passes, json)
         }
+        BenchCommand::Warnings {
+            seeds,
+            fault_seeds,
+            json,
+        } => fpm_bench::warnings::run(seeds, fault_seeds, json),
         BenchCommand::Frames { rounds, json } => fpm_bench::frames::run(rounds, json),
         BenchCommand::Memory(a) => fpm_bench::memory::run(MemoryOptions {
             width: a.width,

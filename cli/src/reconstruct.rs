@@ -69,8 +69,10 @@ pub struct ReconstructArgs {
     /// raw counts: decode them so (overrides the dataset's `[camera] gamma`; needs its
     /// `bit_depth`). `auto` reads it from the frames: the central square (≤ 256 px) is
     /// reconstructed with each candidate gamma (1–3) and the one whose result explains
-    /// the frames best is taken (1: linear; about ten short runs first). The report's
-    /// bright-field fit warns when frames read as linear hold light no object explains
+    /// the frames best is taken (1: linear; about ten short runs first). Without the
+    /// flag, 8-bit frames whose dataset states no gamma are scanned so too, and decoded
+    /// only with a clear gamma (`1` keeps them linear). The report's bright-field fit
+    /// warns when frames read as linear hold light no object explains
     #[arg(long, value_name = "GAMMA|auto", value_parser = camera_gamma)]
     camera_gamma: Option<CameraGamma>,
     /// The sample sat this far from focus when the frames were taken, µm (toward the
@@ -218,12 +220,15 @@ pub fn run(a: ReconstructArgs) -> Result<()> {
     }
 }
 
-/// One line on what `--camera-gamma auto` found.
-fn gamma_summary(scan: &GammaScan) -> String {
-    let read = if scan.linear {
-        "linear (no display encoding)".to_string()
-    } else {
-        format!("gamma {:.2}", scan.best)
+/// One line on what the gamma scan found, and the gamma the frames were decoded with.
+fn gamma_summary(scan: &GammaScan, decoded: Option<f64>) -> String {
+    let read = match decoded {
+        Some(gamma) => format!("decoded with gamma {gamma:.2}"),
+        None if scan.linear => "linear (no display encoding)".to_string(),
+        None => format!(
+            "best gamma {:.2}, not clearly apart from linear: read as linear",
+            scan.best
+        ),
     };
     let table: Vec<String> = scan
         .candidates
@@ -316,11 +321,14 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
     }
     let rep = &finished.reconstruction.report;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(rep)?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&fpm_host::reconstruction::report_json(rep)?)?
+        );
         return Ok(());
     }
     if let Some(scan) = &finished.gamma_scan {
-        println!("{}", gamma_summary(scan));
+        println!("{}", gamma_summary(scan, rep.camera_gamma));
     }
     print_report(rep, out, a.output().format);
     if let Ok(page) = &written.page {

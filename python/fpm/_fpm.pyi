@@ -125,7 +125,12 @@ class Result:
         """The reconstructed grid's pixel at the sample, µm."""
     @property
     def report(self) -> dict[str, Json]:
-        """As report.json (with `versus_truth` for simulated datasets)."""
+        """As report.json (with `versus_truth` for simulated datasets, and `warnings`:
+        each one's `check` and `message`)."""
+    @property
+    def warnings(self) -> list[str]:
+        """What to know before trusting the images, each with the action that applies
+        (empty when all is well)."""
     def save(
         self, dir: Union[str, PathLike[str]], *, format: str = "tiff", compress: bool = False
     ) -> None:
@@ -212,8 +217,12 @@ def simulate_acquisition(
     led_jitter_mm: float = 0.0,
     entrance_pupil_mm: Optional[float] = None,
     display_gamma: Optional[float] = None,
+    sample: str = "cells",
 ) -> Tuple[Dataset, dict[str, Json]]:
     """A full simulated acquisition written into `out`: (dataset, truth).
+
+    `sample`: "cells" (absorbing and phase cells with bar groups), "weak-phase"
+    (unstained cells) or "stained" (dense, strongly absorbing cells).
 
     `noise`: "realistic" (a 12-bit machine-vision sensor), "eight-bit" (a home-built
     rig's 8-bit camera, as noisy as the vendored USAF set's; with

@@ -55,10 +55,17 @@ impl Reconstruction {
         self.inner.report.pixel_um
     }
     /// Everything, as in report.json (timings, tiles, errors per pass, refined LEDs,
-    /// scores against a simulation's truth when the dataset has one).
+    /// scores against a simulation's truth when the dataset has one, warnings).
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &self.inner.report)
+        let json = fpm_host::reconstruction::report_json(&self.inner.report).map_err(failed)?;
+        to_py(py, &json)
+    }
+    /// What a user must know before trusting the images, each with the action that
+    /// applies (report.json's `warnings` has each one's check name too).
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        fpm_host::reconstruction::warnings(&self.inner.report)
     }
     /// Write amplitude/phase as OME-TIFF (`format="tiff"`: float32, the pixel size
     /// in µm in their OME-XML; deflate-compressed with `compress`) or as one OME-Zarr

@@ -23,6 +23,10 @@ def test_real_usaf_reconstructs(usaf):
     # Its frames are decoded from their display gamma, and the result explains them.
     assert report["camera_gamma"] == pytest.approx(2.2)
     assert abs(report["bright_field_fit"]["offset_share"]) < 0.15
+    # Warnings as report.json lists them, and as text; the geometry is the nominal one.
+    checks = [w["check"] for w in report["warnings"]]
+    assert "nominal-geometry" in checks, checks
+    assert len(res.warnings) == len(checks) and "fpm calibrate" in res.warnings[0]
 
 
 def test_frames_stored_for_display_are_simulated_and_stated(tmp_path):
@@ -34,6 +38,10 @@ def test_frames_stored_for_display_are_simulated_and_stated(tmp_path):
     assert ds.dark_level == pytest.approx(255 * (2 / 255) ** (1 / 2.2))
     with pytest.raises(ValueError, match="display_gamma: 0 is not"):
         fpm.simulate_acquisition(tmp_path / "bad", size=64, display_gamma=0.0)
+    with pytest.raises(ValueError, match="sample = 'beads'"):
+        fpm.simulate_acquisition(tmp_path / "bad", size=64, sample="beads")
+    weak, truth = fpm.simulate_acquisition(tmp_path / "weak", size=64, sample="weak-phase")
+    assert truth["sample"] == "weak-phase"
 
 
 def test_the_true_placement_beats_the_nominal_one(acquisition, placement):

@@ -290,12 +290,13 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
         e.contains("frame 2") && e.contains("not on the rings"),
         "{e}"
     );
-    // `fpm reconstruct --camera-gamma` is checked as the key is.
+    // `fpm reconstruct --camera-gamma` is checked as the key is (without a bit depth,
+    // integer frames' sample type gives the full scale).
     let dir = TempDir::new("gamma-flag");
     Dataset::write(&dir.0, &manifest(3), &frames(3, 16, 16)).unwrap();
     edit_toml(&dir.0, |t| t.replace("bit_depth = 12\n", ""));
     let out = dir.0.join("out");
-    for (gamma, why) in [("2.2", "bit_depth"), ("0", "above 0")] {
+    for (gamma, why) in [("0", "above 0"), ("5.5", "at most 5")] {
         let run = fpm(&[
             "reconstruct",
             &dir.0.to_string_lossy(),

@@ -337,7 +337,8 @@ fn usaf_centre_light() -> Array2<f32> {
 /// frames: the report's fit of those frames against the result leaves ~40 % of their
 /// light as an offset and warns, and the image rings (bright halos on every bar, the
 /// clear glass rippled). Decoded as the dataset says, the fit closes and the clear glass
-/// varies no more than the centre frame's light does.
+/// varies no more than the centre frame's light does. A dataset that does not state the
+/// gamma of its 8-bit frames has it read from them by default.
 #[test]
 fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     let dir = TempDir::new("usaf-gamma");
@@ -351,7 +352,7 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
         (report(out), read_f32(&out.join("amplitude.tif")), stderr)
     };
     let (as_linear, decoded) = (dir.0.join("as-linear"), dir.0.join("decoded"));
-    let (r_linear, a_linear, warned_linear) = run(&linear, &as_linear, &[]);
+    let (r_linear, a_linear, warned_linear) = run(&linear, &as_linear, &["--camera-gamma", "1"]);
     let (r_decoded, a_decoded, warned_decoded) = run(&usaf(), &decoded, &[]);
     // The command line can say what the dataset does not, to the same result.
     let told = dir.0.join("told");
@@ -376,6 +377,14 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
         r_auto["bright_field_fit"]
     );
     assert!(!warned_auto.contains("is weak"), "{warned_auto}");
+    // Without the flag, the unstated gamma of 8-bit frames is read so too, and said.
+    let (r_default, _, warned_default) = run(&linear, &dir.0.join("default"), &[]);
+    assert_eq!(r_default["camera_gamma"], r_auto["camera_gamma"]);
+    assert_eq!(r_default["camera_gamma_scan_reason"], "eight-bit-unstated");
+    assert!(
+        warned_default.contains("decoded with") && warned_default.contains("--camera-gamma 1"),
+        "{warned_default}"
+    );
     let share = |r: &serde_json::Value| r["bright_field_fit"]["offset_share"].as_f64().unwrap();
     let correlation =
         |r: &serde_json::Value| r["bright_field_fit"]["correlation"].as_f64().unwrap();
@@ -397,7 +406,7 @@ fn the_usaf_frames_decoded_from_their_display_gamma_are_explained_and_clean() {
     let r_floats = fpm_host::reconstruction::Job::default()
         .run_in_memory(&floats, &|_, _| {})
         .unwrap();
-    let warned_floats = fpm_report::pages::reconstruction::warnings(&r_floats.report).join("\n");
+    let warned_floats = fpm_host::reconstruction::warnings(&r_floats.report).join("\n");
     assert!(
         warned_floats.contains("no object explains")
             && warned_floats.contains("float frames carry no display gamma")
@@ -817,22 +826,31 @@ fn display_encoded_frames_decoded_reconstruct_as_well_as_raw_counts() {
         report(&out)
     };
     let nrmse_of = |r: &serde_json::Value| r["versus_truth"]["complex_nrmse"].as_f64().unwrap();
+    // Raw counts stating no gamma are scanned by default, and left linear.
+    let r_raw_default = run(&raw.0, "raw", &[]);
+    assert!(
+        r_raw_default.get("camera_gamma").is_none(),
+        "{}",
+        r_raw_default["camera_gamma_scan"]
+    );
     let (e_raw, e_decoded, e_linear) = (
-        nrmse_of(&run(&raw.0, "raw", &[])),
+        nrmse_of(&r_raw_default),
         nrmse_of(&run(&encoded.0, "decoded", &[])),
-        nrmse_of(&run(&as_linear, "linear", &[])),
+        nrmse_of(&run(&as_linear, "linear", &["--camera-gamma", "1"])),
     );
     eprintln!("complex NRMSE: raw counts {e_raw:.3}, decoded {e_decoded:.3}, read as linear {e_linear:.3}");
     // Measured: 0.145, 0.146, 0.203.
     assert!(e_decoded < 1.1 * e_raw, "{e_decoded} against {e_raw}");
     assert!(e_linear > 1.2 * e_decoded, "{e_linear} against {e_decoded}");
-    // Nobody wrote the gamma down: it is read from the frames, where the bright-field
-    // fit cannot see it (a weak sample); raw counts are found linear.
+    // Nobody wrote the gamma down: it is read from the frames by default (8-bit frames),
+    // where the bright-field fit cannot see it (a weak sample); raw counts asked for a
+    // scan are found linear.
     let auto = ["--camera-gamma", "auto"];
     let (r_encoded, r_raw) = (
-        run(&as_linear, "auto-encoded", &auto),
+        run(&as_linear, "default-encoded", &[]),
         run(&raw.0, "auto-raw", &auto),
     );
+    assert_eq!(r_encoded["camera_gamma_scan_reason"], "eight-bit-unstated");
     let scan = |r: &serde_json::Value| r["camera_gamma_scan"].clone();
     eprintln!(
         "read from the frames: stored with 2.2 {}, raw counts {}",

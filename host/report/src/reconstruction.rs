@@ -37,6 +37,6 @@ pub fn write(
     }
     Ok(Written {
         page,
-        warnings: crate::pages::reconstruction::warnings(&r.report),
+        warnings: fpm_host::reconstruction::warnings(&r.report),
     })
 }

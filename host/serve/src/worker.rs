@@ -549,7 +549,7 @@ fn reconstruct(
         pixel_um: r.report.pixel_um,
     };
     fpm_acquire::pipeline::Watcher::snapshot(&mut watcher, snapshot);
-    Ok(serde_json::to_value(&r.report)?)
+    fpm_host::reconstruction::report_json(&r.report)
 }
 
 /// The service's view of its running acquisition: progress (with an ETA) into the

@@ -59,6 +59,19 @@ pub enum CameraGamma {
     Exponent(f64),
 }
 
+/// Why a job read the camera gamma from the frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GammaScanReason {
+    /// `--camera-gamma auto`: decoded with whatever the scan found.
+    Asked,
+    /// 8-bit frames (by the dataset's bit depth, else their sample type) whose dataset
+    /// states no gamma: images saved for viewing often
+    /// carry one (the vendored USAF set does), and read as linear they ring. Decoded
+    /// only where the scan is clear ([`GammaScan::is_clear`]).
+    EightBitUnstated,
+}
+
 /// How far the frames are refocused.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum Refocus {
@@ -82,7 +95,8 @@ pub struct Job {
     pub geometry: GeometryChoice,
     /// The objective's entrance pupil above the sample, mm (None: telecentric).
     pub entrance_pupil_mm: Option<f64>,
-    /// Overrides the dataset's `[camera] gamma`.
+    /// Overrides the dataset's `[camera] gamma` (None: the dataset's; 8-bit frames that
+    /// state none are scanned, and decoded where the scan is clear).
     pub camera_gamma: Option<CameraGamma>,
     /// EPRY's settings (their `defocus_um` is set from [`Self::refocus`]).
     pub settings: Settings,
@@ -194,15 +208,44 @@ impl Job {
         on_disk.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
         let nominal = on_disk.manifest.geometry();
         let (geometry, source) = self.geometry.resolve(&nominal)?;
-        let gamma_scan = match self.camera_gamma {
-            Some(CameraGamma::Exponent(gamma)) => {
-                on_disk
-                    .manifest
-                    .camera
-                    .set_gamma(gamma, &dir.join("dataset.toml"))?;
+        let reason = match self.camera_gamma {
+            // γ = 1 is linear: nothing to decode, so no full scale needed.
+            Some(CameraGamma::Exponent(1.0)) => {
+                on_disk.manifest.camera.gamma = None;
                 None
             }
-            Some(CameraGamma::Auto) => Some(self.scan_gamma(&mut on_disk, &geometry, on)?),
+            Some(CameraGamma::Exponent(gamma)) => {
+                let bits = on_disk.sample_bits();
+                if bits > 16 {
+                    bail!(
+                        "camera_gamma {gamma}: the frames of {} are floats, which no display encoding stores (give no gamma, or 1)",
+                        dir.display()
+                    );
+                }
+                let camera = &mut on_disk.manifest.camera;
+                // As the scan does: without a stated bit depth, integer frames' sample
+                // type gives the full scale (so the advice to give a gamma holds).
+                if camera.bit_depth.is_none() {
+                    camera.bit_depth = Some(bits);
+                }
+                camera.set_gamma(gamma, &dir.join("dataset.toml"))?;
+                None
+            }
+            Some(CameraGamma::Auto) => Some(GammaScanReason::Asked),
+            None if on_disk.manifest.camera.gamma.is_none()
+                && on_disk
+                    .manifest
+                    .camera
+                    .bit_depth
+                    .unwrap_or(on_disk.sample_bits())
+                    <= 8 =>
+            {
+                Some(GammaScanReason::EightBitUnstated)
+            }
+            None => None,
+        };
+        let gamma_scan = match reason {
+            Some(reason) => Some(self.scan_gamma(&mut on_disk, &geometry, reason, on)?),
             None => None,
         };
         let progress = |done, total| on(JobEvent::Updates { done, total });
@@ -223,6 +266,7 @@ impl Job {
         };
         score(&on_disk, &mut r);
         r.report.camera_gamma_scan = gamma_scan.clone();
+        r.report.camera_gamma_scan_reason = reason;
         Ok(Finished {
             reconstruction: r,
             gamma_scan,
@@ -320,13 +364,14 @@ impl Job {
         Ok(report)
     }
 
-    /// `--camera-gamma auto`: scan the frames and decode them with the gamma found (or
-    /// as linear). Without a stated bit depth, the frames' sample type gives the full
-    /// scale.
+    /// Scan the frames' gamma and decode them with what was found (asked: as the scan
+    /// says; by default: only a clear gamma, else as linear). Without a stated bit
+    /// depth, the frames' sample type gives the full scale.
     fn scan_gamma(
         &self,
         ds: &mut DatasetOnDisk,
         geometry: &LedGeometry,
+        reason: GammaScanReason,
         on: &(dyn Fn(JobEvent) + Sync),
     ) -> Result<GammaScan> {
         let system = ds.manifest.system();
@@ -341,7 +386,10 @@ impl Job {
         )?;
         let bits = ds.sample_bits();
         let camera = &mut ds.manifest.camera;
-        camera.gamma = scan.gamma();
+        camera.gamma = match reason {
+            GammaScanReason::Asked => scan.gamma(),
+            GammaScanReason::EightBitUnstated => scan.gamma().filter(|_| scan.is_clear()),
+        };
         if camera.gamma.is_some() && camera.bit_depth.is_none() {
             camera.bit_depth = Some(bits);
         }

@@ -4,6 +4,9 @@
 pub mod batch;
 pub mod job;
 pub mod refocus;
+mod warnings;
+
+pub use warnings::{checks, warnings, Check, Warning};
 
 use std::path::Path;
 use std::time::Instant;
@@ -25,7 +28,7 @@ use crate::calibration::GeometrySource;
 use crate::dataset::image_io::{self, TiffOptions};
 use crate::dataset::{Dataset, DatasetOnDisk, Pixels};
 use crate::refinement::RefinedLedsReport;
-pub use job::{CameraGamma, Finished, GeometryChoice, Job, JobEvent, Refocus};
+pub use job::{CameraGamma, Finished, GammaScanReason, GeometryChoice, Job, JobEvent, Refocus};
 pub use refocus::{RefocusChoice, RefocusReport};
 
 /// What a reconstruction produced.
@@ -116,6 +119,11 @@ pub struct Report {
     /// error and bright-field fit over the central square.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub camera_gamma_scan: Option<fpm_physics::reconstruct::GammaScan>,
+    /// Why the scan ran: asked for (`--camera-gamma auto`), or by default on 8-bit
+    /// frames whose dataset states no gamma (then decoded only where the scan is
+    /// clear).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera_gamma_scan_reason: Option<job::GammaScanReason>,
     /// The bright-field frames regressed on the intensities the result predicts for
     /// them: an offset share well above 0 is light no object explains.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -152,11 +160,19 @@ pub struct BoundaryCheck {
 /// the illumination meets may differ by a few per cent.
 pub const NA_RELATIVE_SIGMA: f64 = 0.02;
 
+/// How many σ apart the edge's h and the geometry's must be for the report to warn.
+/// Not 3: the edge's estimate moves in steps as blocks flip between bright and dark
+/// field, which its σ does not carry. Measured by `fpm bench warnings` on 96 good
+/// simulated 128² sets (true h 92 mm): estimates of 90.0–90.2, 94.7 and 99.1 mm, the
+/// last (one sample layout of eight) 3.55σ off; an h stated 8 mm off reads 5.4σ
+/// where the edge bounds h (cells, stained).
+pub const DISAGREE_SIGMA: f64 = 4.0;
+
 impl BoundaryCheck {
-    /// Whether the two disagree: beyond 3σ of the boundary's estimate (the NA's
-    /// uncertainty included).
+    /// Whether the two disagree: beyond [`DISAGREE_SIGMA`] of the boundary's estimate
+    /// (the NA's uncertainty included).
     pub fn disagrees(&self) -> bool {
-        self.difference_sigma.abs() > 3.0
+        self.difference_sigma.abs() > DISAGREE_SIGMA
     }
 }
 
@@ -296,6 +312,7 @@ impl Report {
             refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
             camera_gamma: None,
             camera_gamma_scan: None,
+            camera_gamma_scan_reason: None,
             bright_field_fit: outcome.bright_field,
             refocus: RefocusReport::given(settings.defocus_um),
             sample_bits: None,
@@ -577,6 +594,16 @@ pub struct OutputOptions {
     pub tiff: TiffOptions,
 }
 
+/// `report.json`: the report and, beside its numbers, what they mean for the user
+/// (`warnings`: each [`Warning`]'s check and message).
+pub fn report_json(report: &Report) -> Result<serde_json::Value> {
+    let mut json = serde_json::to_value(report)?;
+    if let Some(object) = json.as_object_mut() {
+        object.insert("warnings".into(), serde_json::to_value(checks(report))?);
+    }
+    Ok(json)
+}
+
 /// Write amplitude/phase TIFFs (float32), the pupil's and `report.json` into `out`
 /// (the PNG previews and the page are the report crate's, `fpm_report`).
 pub fn write_outputs(r: &Reconstruction, out: &Path) -> Result<()> {
@@ -629,7 +656,7 @@ pub fn write_outputs_with(r: &Reconstruction, out: &Path, options: OutputOptions
     tif("pupil_phase.tif", &pphase)?;
     std::fs::write(
         out.join("report.json"),
-        serde_json::to_string_pretty(&r.report)?,
+        serde_json::to_string_pretty(&report_json(&r.report)?)?,
     )?;
     if let Some(board) = r
         .report

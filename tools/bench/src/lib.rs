@@ -16,6 +16,7 @@ pub mod link;
 pub mod memory;
 pub mod serve;
 mod stats;
+pub mod warnings;
 
 pub use memory::MemoryOptions;
 pub use stats::Percentiles;

@@ -72,6 +72,13 @@ impl GammaScan {
         (!self.linear).then_some(self.best)
     }
 
+    /// Whether the frames clearly carry a display gamma: read as not linear, linear
+    /// frames beyond [`FLAT_WITHIN`] of the least error, and the curve not flat. What
+    /// a run that was not asked for a scan decodes with.
+    pub fn is_clear(&self) -> bool {
+        !self.linear && self.range.0 > LINEAR_BELOW && !self.is_flat()
+    }
+
     /// Whether the error barely changes with gamma (a sample that shows little
     /// contrast, or frames without dim dark-field light): the estimate is then weak.
     pub fn is_flat(&self) -> bool {

@@ -11,7 +11,7 @@ use super::embed_chart;
 use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
 use crate::html::{Page, Row};
 use crate::preview::object as write_object_previews;
-use fpm_host::reconstruction::{Reconstruction, Report};
+use fpm_host::reconstruction::Reconstruction;
 
 /// What the page is written from.
 pub struct Context<'a> {
@@ -21,115 +21,6 @@ pub struct Context<'a> {
     pub nominal: &'a LedGeometry,
     /// The command that reproduces the run.
     pub reproduce: &'a str,
-}
-
-/// What a user must know before trusting the images of `report`.
-pub fn warnings(report: &Report) -> Vec<String> {
-    let mut out = vec![];
-    if report.geometry_source.is_nominal() {
-        out.push(
-            "the LED positions are the nominal ones, not calibrated: an array off by a fraction of a millimetre blurs and distorts the image (fpm calibrate, or --calibration)"
-                .to_string(),
-        );
-    }
-    if let (Some(first), Some(last)) = (report.error_per_pass.first(), report.error_per_pass.last())
-    {
-        // A rise within 5 % is the noise of the last pass, not a divergence.
-        if *last > 1.05 * first {
-            out.push(format!(
-                "the frames' error rose over the passes ({first:.4} → {last:.4}): the geometry or the step sizes may be wrong"
-            ));
-        }
-    }
-    out.extend(report.refocus.warning());
-    if let Some(r) = &report.refined_leds {
-        out.extend(fpm_host::refinement::warnings(r));
-    }
-    if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
-        let floats = report.sample_bits == Some(32);
-        let cause = match (report.camera_gamma, &report.camera_gamma_scan) {
-            (_, Some(_)) => "stray light lifts the frames (the gamma read from them did not explain it)",
-            (None, None) if floats => "stray light lifts the frames, or an offset was left in them when they were made floats (the dataset's dark_level takes a known one off); float frames carry no display gamma",
-            (None, None) => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma auto or 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
-            (Some(_), None) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
-        };
-        out.push(format!(
-            "the bright-field frames hold {:.0} % of their light as an offset that no object explains (measured ≈ {:.2} × modelled + offset, correlation {:.3}): {cause}; the image will ring around edges",
-            100.0 * fit.offset_share, fit.gain, fit.correlation
-        ));
-    }
-    if let Some(scan) = report.camera_gamma_scan.as_ref().filter(|s| s.is_flat()) {
-        out.push(format!(
-            "the camera gamma read from the frames is weak: their error stays within {:.0} % of its least for every gamma from {:.1} to {:.1} (a sample with little contrast, or no dim dark-field light); state the camera's gamma if it is known",
-            100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
-            scan.range.0,
-            scan.range.1
-        ));
-    }
-    if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
-        // A calibrated h is only as good as the defocus it was told; a dataset's h
-        // may simply be wrong, and the edge's own estimate can stand in for it.
-        let advice = if report.geometry_source.is_nominal() {
-            format!(
-                "the dataset's height_mm (or its NA) may be off: --led-height-mm {:.1} reconstructs with the edge's height",
-                b.estimate.height_mm
-            )
-        } else {
-            "check the defocus the calibration was told (h is proportional to it) and the NA"
-                .to_string()
-        };
-        out.push(format!(
-            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): {advice}",
-            b.estimate.height_mm, b.sigma_with_na_mm, b.na_relative_sigma * 100.0, b.geometry_height_mm, b.difference_sigma
-        ));
-    }
-    if let Some(p) = report
-        .height_from_boundary
-        .and_then(|b| b.entrance_pupil)
-        .filter(|p| p.fits_better(report.system.entrance_pupil_mm))
-    {
-        let (best, advice) = match p.entrance_pupil_mm {
-            Some(mm) => (
-                format!("an objective whose entrance pupil is {mm:.0} mm above the sample"),
-                format!(
-                    "if the objective is not telecentric (a camera lens, a simple low-power objective), reconstruct with --entrance-pupil-mm {mm:.0}{}",
-                    if report.geometry_source.is_nominal() {
-                        format!(" --led-height-mm {:.1}", p.height_mm)
-                    } else {
-                        String::new()
-                    }
-                ),
-            ),
-            None => (
-                "a telecentric objective".to_string(),
-                "leave --entrance-pupil-mm out".to_string(),
-            ),
-        };
-        out.push(format!(
-            "the frames' bright/dark-field edges fit {best} (h {:.1} mm) better than the system as given: {} blocks off against {}; {advice}",
-            p.height_mm, p.mismatched_blocks, p.mismatched_blocks_as_given
-        ));
-    }
-    let refused = report
-        .background
-        .dark_field_frames
-        .iter()
-        .filter(|f| !f.taken_off)
-        .count();
-    if refused * 2 > report.background.dark_field_frames.len().max(1) {
-        out.push(format!(
-            "{refused} of {} dark-field frames had a background that was not flat (sample light or structured stray light): it was left on",
-            report.background.dark_field_frames.len()
-        ));
-    }
-    let b = &report.background_phase;
-    if b.block_um.is_some() && b.totals.fitted * 2 < b.totals.blocks {
-        out.push(format!(
-            "--flatten-background found clear background in only {} of {} blocks: elsewhere the slow phase is as EPRY left it (is the sample on clear glass? for one that fills the field, leave the flag off)",
-            b.totals.fitted, b.totals.blocks
-        ));
-    }
-    out
 }
 
 /// Longest side of the images the page embeds: a larger object (a full field at
@@ -245,7 +136,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     }
     page.table(&rows);
     page.heading("Warnings");
-    page.warnings(&warnings(rep));
+    page.warnings(&fpm_host::reconstruction::warnings(rep));
 
     page.heading("Charts");
     let plots = dir.join("plots");

@@ -1,0 +1,217 @@
+//! What a user must know before trusting a reconstruction: each check on the
+//! finished run's report, worded with the action that applies to the frames at hand.
+//! The page shows them, report.json lists them (`check` and `message`), the CLI
+//! prints them. How often each fires on good data and on data with its condition is
+//! measured by `fpm bench warnings` (docs/results.md).
+
+use serde::Serialize;
+
+use super::{GammaScanReason, Report};
+
+/// Which check a warning comes from: its name in report.json, stable for scripts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Check {
+    /// The dataset's nominal LED positions were used.
+    NominalGeometry,
+    /// The frames' error rose while the steps were full, or far above its least.
+    ErrorRose,
+    /// The bright-field frames' shifts show a defocus.
+    Refocus,
+    /// LED refinement's own caveats.
+    Refinement,
+    /// The bright-field frames carry light no object explains.
+    BrightFieldOffset,
+    /// `--camera-gamma auto` read a weak gamma.
+    GammaWeak,
+    /// 8-bit frames stating no gamma were decoded with the one read from them.
+    GammaRead,
+    /// The bright/dark-field edge puts the LEDs at another height.
+    HeightFromEdge,
+    /// The edges fit another entrance pupil (a non-telecentric objective).
+    EntrancePupil,
+    /// Most dark-field backgrounds were not flat.
+    DarkFieldBackground,
+    /// `--flatten-background` found little clear background.
+    FlattenBackground,
+}
+
+impl Check {
+    /// Its name in report.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NominalGeometry => "nominal-geometry",
+            Self::ErrorRose => "error-rose",
+            Self::Refocus => "refocus",
+            Self::Refinement => "refinement",
+            Self::BrightFieldOffset => "bright-field-offset",
+            Self::GammaWeak => "gamma-weak",
+            Self::GammaRead => "gamma-read",
+            Self::HeightFromEdge => "height-from-edge",
+            Self::EntrancePupil => "entrance-pupil",
+            Self::DarkFieldBackground => "dark-field-background",
+            Self::FlattenBackground => "flatten-background",
+        }
+    }
+}
+
+/// One warning: its check and what it says.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Warning {
+    /// The check that fired.
+    pub check: Check,
+    /// What it says, with the action that applies.
+    pub message: String,
+}
+
+#[derive(Default)]
+struct Warnings(Vec<Warning>);
+
+impl Warnings {
+    fn push(&mut self, check: Check, message: impl Into<String>) {
+        self.0.push(Warning {
+            check,
+            message: message.into(),
+        });
+    }
+
+    fn extend(&mut self, check: Check, messages: impl IntoIterator<Item = String>) {
+        for m in messages {
+            self.push(check, m);
+        }
+    }
+}
+
+/// The messages of [`checks`].
+pub fn warnings(report: &Report) -> Vec<String> {
+    checks(report).into_iter().map(|w| w.message).collect()
+}
+
+/// What a user must know before trusting the images of `report`, check by check.
+pub fn checks(report: &Report) -> Vec<Warning> {
+    let mut out = Warnings::default();
+    if report.geometry_source.is_nominal() {
+        out.push(
+            Check::NominalGeometry,
+            "the LED positions are the nominal ones, not calibrated: an array off by a fraction of a millimetre blurs and distorts the image (fpm calibrate, or --calibration)",
+        );
+    }
+    if let Some((pass, error, before)) =
+        fpm_physics::reconstruct::schedule::divergence(&report.error_per_pass)
+    {
+        out.push(
+            Check::ErrorRose,
+            format!(
+                "the frames' error rose to {error:.4} in pass {pass} (from {before:.4}): the reconstruction is not converging; check the geometry (fpm calibrate, or --refine-leds) and the dataset's NA and wavelength"
+            ),
+        );
+    }
+    out.extend(Check::Refocus, report.refocus.warning());
+    if let Some(r) = &report.refined_leds {
+        out.extend(Check::Refinement, crate::refinement::warnings(r));
+    }
+    if let Some(fit) = report.bright_field_fit.filter(|f| f.is_suspect()) {
+        let floats = report.sample_bits == Some(32);
+        let cause = match (report.camera_gamma, &report.camera_gamma_scan) {
+            (_, Some(_)) => "stray light lifts the frames (the gamma read from them did not explain it)",
+            (None, None) if floats => "stray light lifts the frames, or an offset was left in them when they were made floats (the dataset's dark_level takes a known one off); float frames carry no display gamma",
+            (None, None) if report.sample_bits.is_some_and(|b| b > 8) => "stray light lifts the frames, or they were saved with a display gamma (rare for frames of more than 8 bits; then reconstruct with --camera-gamma auto)",
+            (None, None) => "8-bit frames saved for viewing carry a display gamma (then reconstruct with --camera-gamma auto or 2.2, or set [camera] gamma = 2.2 and bit_depth in dataset.toml), or stray light lifts the frames",
+            (Some(_), None) => "stray light lifts the frames, or the dataset's camera.gamma is not the camera's",
+        };
+        out.push(Check::BrightFieldOffset, format!(
+            "the bright-field frames hold {:.0} % of their light as an offset that no object explains (measured ≈ {:.2} × modelled + offset, correlation {:.3}): {cause}; the image will ring around edges",
+            100.0 * fit.offset_share, fit.gain, fit.correlation
+        ));
+    }
+    let asked = report.camera_gamma_scan_reason == Some(GammaScanReason::Asked);
+    if let (Some(scan), Some(gamma), false) =
+        (&report.camera_gamma_scan, report.camera_gamma, asked)
+    {
+        out.push(
+            Check::GammaRead,
+            format!(
+                "the 8-bit frames read as saved for viewing with a display gamma: decoded with {gamma:.2} (their error within {:.0} % of its least for gamma {:.1}-{:.1}, and clearly above it as linear); if the camera saved raw counts, give --camera-gamma 1, or state [camera] gamma in dataset.toml",
+                100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
+                scan.range.0,
+                scan.range.1
+            ),
+        );
+    }
+    if let Some(scan) = report
+        .camera_gamma_scan
+        .as_ref()
+        .filter(|s| asked && s.is_flat())
+    {
+        out.push(Check::GammaWeak, format!(
+            "the camera gamma read from the frames is weak: their error stays within {:.0} % of its least for every gamma from {:.1} to {:.1} (a sample with little contrast, or no dim dark-field light); state the camera's gamma if it is known",
+            100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
+            scan.range.0,
+            scan.range.1
+        ));
+    }
+    if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
+        // A calibrated h is only as good as the defocus it was told; a dataset's h
+        // may simply be wrong, and the edge's own estimate can stand in for it.
+        let advice = if report.geometry_source.is_nominal() {
+            format!(
+                "the dataset's height_mm (or its NA) may be off: --led-height-mm {:.1} reconstructs with the edge's height",
+                b.estimate.height_mm
+            )
+        } else {
+            "check the defocus the calibration was told (h is proportional to it) and the NA"
+                .to_string()
+        };
+        out.push(Check::HeightFromEdge, format!(
+            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample (the NA's {:.0} % included), the geometry {:.2} mm ({:+.1}σ): {advice}",
+            b.estimate.height_mm, b.sigma_with_na_mm, b.na_relative_sigma * 100.0, b.geometry_height_mm, b.difference_sigma
+        ));
+    }
+    if let Some(p) = report
+        .height_from_boundary
+        .and_then(|b| b.entrance_pupil)
+        .filter(|p| p.fits_better(report.system.entrance_pupil_mm))
+    {
+        let (best, advice) = match p.entrance_pupil_mm {
+            Some(mm) => (
+                format!("an objective whose entrance pupil is {mm:.0} mm above the sample"),
+                format!(
+                    "if the objective is not telecentric (a camera lens, a simple low-power objective), reconstruct with --entrance-pupil-mm {mm:.0}{}",
+                    if report.geometry_source.is_nominal() {
+                        format!(" --led-height-mm {:.1}", p.height_mm)
+                    } else {
+                        String::new()
+                    }
+                ),
+            ),
+            None => (
+                "a telecentric objective".to_string(),
+                "leave --entrance-pupil-mm out".to_string(),
+            ),
+        };
+        out.push(Check::EntrancePupil, format!(
+            "the frames' bright/dark-field edges fit {best} (h {:.1} mm) better than the system as given: {} blocks off against {}; {advice}",
+            p.height_mm, p.mismatched_blocks, p.mismatched_blocks_as_given
+        ));
+    }
+    let refused = report
+        .background
+        .dark_field_frames
+        .iter()
+        .filter(|f| !f.taken_off)
+        .count();
+    if refused * 2 > report.background.dark_field_frames.len().max(1) {
+        out.push(Check::DarkFieldBackground, format!(
+            "{refused} of {} dark-field frames had a background that was not flat (sample light or structured stray light): it was left on",
+            report.background.dark_field_frames.len()
+        ));
+    }
+    let b = &report.background_phase;
+    if b.block_um.is_some() && b.totals.fitted * 2 < b.totals.blocks {
+        out.push(Check::FlattenBackground, format!(
+            "--flatten-background found clear background in only {} of {} blocks: elsewhere the slow phase is as EPRY left it (is the sample on clear glass? for one that fills the field, leave the flag off)",
+            b.totals.fitted, b.totals.blocks
+        ));
+    }
+    out.0
+}

@@ -1,0 +1,425 @@
+//! `fpm bench warnings`: how often each of a reconstruction's warnings fires on good
+//! data (false alarms) and on data with the condition it names (detections).
+//!
+//! Good data: simulated linear, telecentric sets of three samples (cells, weak-phase,
+//! stained), two cameras (12-bit, 8-bit) and two dark-field exposures (auto-exposed,
+//! dim), reconstructed with the true geometry. Each condition is one thing wrong
+//! with such a set, reconstructed as a user would: frames saved with a display gamma
+//! the dataset does not state, a stated LED height 8 mm
+//! off, a non-telecentric objective. A detection counts where the condition changes
+//! the image by ≥ 10 % (complex NRMSE against the same set without it); the cases
+//! where it does not are shown apart.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use fpm_host::reconstruction::{checks, BoundaryCheck, Check, GeometryChoice, Job};
+use fpm_host::simulation::{self, AcquisitionSet, Noise, Scene};
+use fpm_physics::reconstruct::ContrastFit;
+use fpm_physics::simulate::SampleKind;
+use serde::Serialize;
+
+/// What a set has wrong with it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Condition {
+    /// Nothing: a linear, telecentric set reconstructed with its true geometry.
+    None,
+    /// Frames saved with a display gamma of 2.2 that the dataset does not state.
+    UndeclaredGamma,
+    /// The geometry states the LEDs 8 mm farther than they are.
+    WrongHeight,
+    /// An objective whose entrance pupil is 60 mm above the sample, reconstructed as
+    /// telecentric.
+    NonTelecentric,
+}
+
+impl Condition {
+    /// Every condition that is a fault.
+    pub const FAULTS: [Condition; 3] = [
+        Self::UndeclaredGamma,
+        Self::WrongHeight,
+        Self::NonTelecentric,
+    ];
+}
+
+impl Case {
+    /// The check meant to catch its condition: 8-bit frames are scanned for a gamma
+    /// by default (and decoded where it is clear, which the check reports); deeper
+    /// ones only have the bright-field fit.
+    pub fn expected_check(&self) -> Option<Check> {
+        match self.condition {
+            Condition::None => None,
+            Condition::UndeclaredGamma if self.eight_bit => Some(Check::GammaRead),
+            Condition::UndeclaredGamma => Some(Check::BrightFieldOffset),
+            Condition::WrongHeight => Some(Check::HeightFromEdge),
+            Condition::NonTelecentric => Some(Check::EntrancePupil),
+        }
+    }
+}
+
+/// One simulated set.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Case {
+    /// The sample.
+    pub sample: SampleKind,
+    /// 8-bit camera (else 12-bit).
+    pub eight_bit: bool,
+    /// Dark-field frames dim (else auto-exposed).
+    pub dim_dark_field: bool,
+    /// Noise seed and sample layout.
+    pub seed: u64,
+    /// What is wrong with it.
+    pub condition: Condition,
+}
+
+/// One case's outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct Outcome {
+    /// The case.
+    pub case: Case,
+    /// Complex NRMSE against the hidden truth.
+    pub complex_nrmse: f64,
+    /// The condition's effect: this NRMSE over the same set's without it, minus 1.
+    pub effect: Option<f64>,
+    /// The checks that fired (the run's warnings).
+    pub fired: Vec<Check>,
+    /// The bright-field frames' fit of measured on modelled intensity.
+    pub bright_field_fit: Option<ContrastFit>,
+    /// The bright/dark-field edge's height and entrance pupil.
+    pub boundary: Option<BoundaryCheck>,
+}
+
+/// One check's rates.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Rates {
+    /// Good sets it fired on, of how many.
+    pub false_alarms: (usize, usize),
+    /// Sets with its condition changing the image ≥ 10 % that it fired on, of how many.
+    pub detections: (usize, usize),
+    /// Sets with its condition changing the image < 10 % that it fired on, of how many.
+    pub small_effect_detections: (usize, usize),
+}
+
+/// Sensor side, pixels: large enough for the bright/dark-field edges to show in
+/// blocks, small enough for ~100 sets in a few minutes.
+pub const SIZE: usize = 128;
+
+/// The effect above which a check must catch its condition (the goal).
+pub const EFFECT: f64 = 0.10;
+
+/// The cases: every good set for `seeds` seeds, and every fault on the auto-exposed
+/// good sets of the first `fault_seeds` seeds.
+pub fn cases(seeds: u64, fault_seeds: u64) -> Vec<Case> {
+    let mut out = vec![];
+    for seed in 1..=seeds {
+        for sample in SampleKind::ALL {
+            for eight_bit in [false, true] {
+                for dim_dark_field in [false, true] {
+                    let good = Case {
+                        sample,
+                        eight_bit,
+                        dim_dark_field,
+                        seed,
+                        condition: Condition::None,
+                    };
+                    out.push(good);
+                    if seed <= fault_seeds && !dim_dark_field {
+                        out.extend(Condition::FAULTS.map(|condition| Case { condition, ..good }));
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// What one reconstruction showed.
+pub struct Scored {
+    /// Complex NRMSE against the hidden truth.
+    pub complex_nrmse: f64,
+    /// The checks that fired.
+    pub fired: Vec<Check>,
+    /// See [`Outcome::bright_field_fit`].
+    pub bright_field_fit: Option<ContrastFit>,
+    /// See [`Outcome::boundary`].
+    pub boundary: Option<BoundaryCheck>,
+}
+
+/// Simulate `case` into `dir` and reconstruct it as a user would.
+pub fn run_case(case: &Case, dir: &Path) -> Result<Scored> {
+    let scene = Scene {
+        noise: if case.eight_bit {
+            Noise::EightBit
+        } else {
+            Noise::Realistic
+        },
+        size: SIZE,
+        seed: case.seed,
+        ..Scene::default()
+    };
+    let set = AcquisitionSet {
+        dark_field_peak_dn: case.dim_dark_field.then_some(if case.eight_bit {
+            25.0
+        } else {
+            300.0
+        }),
+        entrance_pupil_mm: (case.condition == Condition::NonTelecentric).then_some(60.0),
+        display_gamma: (case.condition == Condition::UndeclaredGamma).then_some(2.2),
+        sample: case.sample,
+        ..AcquisitionSet::default()
+    };
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("clearing {}", dir.display()))?;
+    }
+    simulation::write_acquisition(&scene, &set, dir)?;
+    if case.condition == Condition::UndeclaredGamma {
+        let manifest = dir.join("dataset.toml");
+        let text = std::fs::read_to_string(&manifest)?;
+        let linear: String = text
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("gamma"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        std::fs::write(&manifest, linear)?;
+    }
+    let mut stated = scene.truth;
+    if case.condition == Condition::WrongHeight {
+        stated.height_mm += 8.0;
+    }
+    let job = Job {
+        geometry: GeometryChoice::Given(stated, "the bench's stated geometry".into()),
+        ..Job::default()
+    };
+    let finished = job.run(dir, &|_| {})?;
+    let report = &finished.reconstruction.report;
+    let nrmse = report
+        .versus_truth
+        .as_ref()
+        .map(|s| s.complex_nrmse)
+        .context("the simulated set has no truth to score against")?;
+    let mut fired: Vec<Check> = checks(report).into_iter().map(|w| w.check).collect();
+    fired.dedup();
+    Ok(Scored {
+        complex_nrmse: nrmse,
+        fired,
+        bright_field_fit: report.bright_field_fit,
+        boundary: report.height_from_boundary,
+    })
+}
+
+/// Run every case; rates per check.
+pub fn measure(
+    seeds: u64,
+    fault_seeds: u64,
+    work: &Path,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<(Vec<Outcome>, BTreeMap<Check, Rates>)> {
+    let cases = cases(seeds, fault_seeds);
+    let mut outcomes: Vec<Outcome> = vec![];
+    for (k, case) in cases.iter().enumerate() {
+        let Scored {
+            complex_nrmse,
+            fired,
+            bright_field_fit,
+            boundary,
+        } = run_case(case, &work.join("set")).with_context(|| format!("case {case:?}"))?;
+        let effect = (case.condition != Condition::None)
+            .then(|| {
+                outcomes.iter().find(|o| {
+                    o.case.condition == Condition::None
+                        && o.case.sample == case.sample
+                        && o.case.eight_bit == case.eight_bit
+                        && o.case.dim_dark_field == case.dim_dark_field
+                        && o.case.seed == case.seed
+                })
+            })
+            .flatten()
+            .map(|clean| complex_nrmse / clean.complex_nrmse - 1.0);
+        outcomes.push(Outcome {
+            case: *case,
+            complex_nrmse,
+            effect,
+            fired,
+            bright_field_fit,
+            boundary,
+        });
+        progress(k + 1, cases.len());
+    }
+    Ok((outcomes.clone(), rates(&outcomes)))
+}
+
+/// Each check's false alarms (on good sets) and detections (on its condition's sets).
+pub fn rates(outcomes: &[Outcome]) -> BTreeMap<Check, Rates> {
+    let mut out: BTreeMap<Check, Rates> = BTreeMap::new();
+    let good = outcomes
+        .iter()
+        .filter(|o| o.case.condition == Condition::None);
+    // Every check that fired anywhere, plus those a condition is meant for.
+    let mut every: Vec<Check> = outcomes.iter().flat_map(|o| o.fired.clone()).collect();
+    every.extend(outcomes.iter().filter_map(|o| o.case.expected_check()));
+    every.retain(|c| *c != Check::NominalGeometry);
+    every.sort();
+    every.dedup();
+    for check in every {
+        let r = out.entry(check).or_default();
+        for o in good.clone() {
+            r.false_alarms.1 += 1;
+            r.false_alarms.0 += o.fired.contains(&check) as usize;
+        }
+        for o in outcomes
+            .iter()
+            .filter(|o| o.case.expected_check() == Some(check))
+        {
+            let slot = if o.effect.unwrap_or(0.0) >= EFFECT {
+                &mut r.detections
+            } else {
+                &mut r.small_effect_detections
+            };
+            slot.1 += 1;
+            slot.0 += o.fired.contains(&check) as usize;
+        }
+    }
+    out
+}
+
+/// `fpm bench warnings`.
+pub fn run(seeds: u64, fault_seeds: u64, json: bool) -> Result<()> {
+    let work = tempfile::tempdir()?;
+    let bar = if json {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(cases(seeds, fault_seeds).len() as u64)
+    };
+    let (outcomes, rates) = measure(seeds, fault_seeds, work.path(), |done, _| {
+        bar.set_position(done as u64)
+    })?;
+    bar.finish_and_clear();
+    if json {
+        let rates: BTreeMap<&str, &Rates> = rates.iter().map(|(c, r)| (c.name(), r)).collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "size": SIZE,
+                "effect_threshold": EFFECT,
+                "rates": rates,
+                "outcomes": outcomes,
+            }))?
+        );
+        return Ok(());
+    }
+    let good = outcomes
+        .iter()
+        .filter(|o| o.case.condition == Condition::None)
+        .count();
+    println!(
+        "warnings on {good} good simulated sets ({SIZE}², 441 LEDs; 3 samples × 12/8-bit × auto/dim dark field × {seeds} seeds) and {} with a fault:",
+        outcomes.len() - good
+    );
+    println!(
+        "  {:<24} {:>13} {:>24} {:>22}",
+        "check", "false alarms", "detections (effect ≥10 %)", "fired (effect <10 %)"
+    );
+    let pct = |(k, n): (usize, usize)| {
+        if n == 0 {
+            "—".to_string()
+        } else {
+            format!("{k}/{n} ({:.0} %)", 100.0 * k as f64 / n as f64)
+        }
+    };
+    for (check, r) in &rates {
+        println!(
+            "  {:<24} {:>13} {:>24} {:>22}",
+            check.name(),
+            pct(r.false_alarms),
+            pct(r.detections),
+            pct(r.small_effect_detections)
+        );
+    }
+    println!("faults (complex NRMSE over the clean set's − 1, and what fired):");
+    for o in outcomes
+        .iter()
+        .filter(|o| o.case.condition != Condition::None)
+    {
+        let fit = o
+            .bright_field_fit
+            .map(|f| {
+                format!(
+                    "offset {:+.2} gain {:.2} r {:.2}",
+                    f.offset_share, f.gain, f.correlation
+                )
+            })
+            .unwrap_or_default()
+            + &o.boundary
+                .map(|b| {
+                    format!(
+                        " h {:.1}±{:.1} ep {:?}",
+                        b.estimate.height_mm,
+                        b.sigma_with_na_mm,
+                        b.entrance_pupil.map(|p| (
+                            p.entrance_pupil_mm.map(|x| x.round()),
+                            p.mismatched_blocks,
+                            p.mismatched_blocks_as_given
+                        ))
+                    )
+                })
+                .unwrap_or_default();
+        println!(
+            "  {:<16} {:<10} {:>5} seed {}  effect {:>+6.1} %  {fit}  {}",
+            serde_json::to_value(o.case.condition)?
+                .as_str()
+                .unwrap_or("?"),
+            serde_json::to_value(o.case.sample)?.as_str().unwrap_or("?"),
+            if o.case.eight_bit { "8-bit" } else { "12-bit" },
+            o.case.seed,
+            100.0 * o.effect.unwrap_or(f64::NAN),
+            o.fired
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    for o in outcomes
+        .iter()
+        .filter(|o| o.case.condition == Condition::None && !o.fired.is_empty())
+    {
+        let fit = o
+            .bright_field_fit
+            .map(|f| {
+                format!(
+                    "offset {:+.2} gain {:.2} r {:.2}",
+                    f.offset_share, f.gain, f.correlation
+                )
+            })
+            .unwrap_or_default()
+            + &o.boundary
+                .map(|b| {
+                    format!(
+                        " h {:.1}±{:.1} ep {:?}",
+                        b.estimate.height_mm,
+                        b.sigma_with_na_mm,
+                        b.entrance_pupil.map(|p| (
+                            p.entrance_pupil_mm.map(|x| x.round()),
+                            p.mismatched_blocks,
+                            p.mismatched_blocks_as_given
+                        ))
+                    )
+                })
+                .unwrap_or_default();
+        println!(
+            "  false alarm: {:<10} {:>5} {} dark field, seed {}: {fit}  {}",
+            serde_json::to_value(o.case.sample)?.as_str().unwrap_or("?"),
+            if o.case.eight_bit { "8-bit" } else { "12-bit" },
+            if o.case.dim_dark_field { "dim" } else { "auto" },
+            o.case.seed,
+            o.fired
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(())
+}

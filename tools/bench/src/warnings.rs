@@ -91,6 +91,53 @@ pub struct Outcome {
     pub boundary: Option<BoundaryCheck>,
 }
 
+impl Outcome {
+    /// What the checks read: the bright-field fit, the edge's h and entrance pupil.
+    pub fn evidence(&self) -> String {
+        let fit = self.bright_field_fit.map(|f| {
+            format!(
+                "offset {:+.2} gain {:.2} r {:.2}",
+                f.offset_share, f.gain, f.correlation
+            )
+        });
+        let edge = self.boundary.map(|b| {
+            let pupil = match b.entrance_pupil {
+                Some(p) => format!(
+                    " pupil {} ({} blocks off, {} as given)",
+                    p.entrance_pupil_mm
+                        .map_or("telecentric".to_string(), |mm| format!("{mm:.0} mm")),
+                    p.mismatched_blocks,
+                    p.mismatched_blocks_as_given
+                ),
+                None => String::new(),
+            };
+            format!(
+                "h {:.1} ± {:.1} mm{pupil}",
+                b.estimate.height_mm, b.sigma_with_na_mm
+            )
+        });
+        [fit, edge]
+            .into_iter()
+            .flatten()
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
+    /// The checks that fired, by name.
+    pub fn fired_names(&self) -> String {
+        let names: Vec<&str> = self.fired.iter().map(|c| c.name()).collect();
+        names.join(", ")
+    }
+}
+
+/// A kebab-case enum's name as serde writes it.
+fn kebab(value: impl Serialize) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
 /// One check's rates.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Rates {
@@ -342,83 +389,29 @@ pub fn run(seeds: u64, fault_seeds: u64, json: bool) -> Result<()> {
         .iter()
         .filter(|o| o.case.condition != Condition::None)
     {
-        let fit = o
-            .bright_field_fit
-            .map(|f| {
-                format!(
-                    "offset {:+.2} gain {:.2} r {:.2}",
-                    f.offset_share, f.gain, f.correlation
-                )
-            })
-            .unwrap_or_default()
-            + &o.boundary
-                .map(|b| {
-                    format!(
-                        " h {:.1}±{:.1} ep {:?}",
-                        b.estimate.height_mm,
-                        b.sigma_with_na_mm,
-                        b.entrance_pupil.map(|p| (
-                            p.entrance_pupil_mm.map(|x| x.round()),
-                            p.mismatched_blocks,
-                            p.mismatched_blocks_as_given
-                        ))
-                    )
-                })
-                .unwrap_or_default();
         println!(
-            "  {:<16} {:<10} {:>5} seed {}  effect {:>+6.1} %  {fit}  {}",
-            serde_json::to_value(o.case.condition)?
-                .as_str()
-                .unwrap_or("?"),
-            serde_json::to_value(o.case.sample)?.as_str().unwrap_or("?"),
+            "  {:<16} {:<10} {:>6} seed {}  effect {:>+6.1} %  {}  {}",
+            kebab(o.case.condition),
+            kebab(o.case.sample),
             if o.case.eight_bit { "8-bit" } else { "12-bit" },
             o.case.seed,
             100.0 * o.effect.unwrap_or(f64::NAN),
-            o.fired
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", ")
+            o.evidence(),
+            o.fired_names()
         );
     }
     for o in outcomes
         .iter()
         .filter(|o| o.case.condition == Condition::None && !o.fired.is_empty())
     {
-        let fit = o
-            .bright_field_fit
-            .map(|f| {
-                format!(
-                    "offset {:+.2} gain {:.2} r {:.2}",
-                    f.offset_share, f.gain, f.correlation
-                )
-            })
-            .unwrap_or_default()
-            + &o.boundary
-                .map(|b| {
-                    format!(
-                        " h {:.1}±{:.1} ep {:?}",
-                        b.estimate.height_mm,
-                        b.sigma_with_na_mm,
-                        b.entrance_pupil.map(|p| (
-                            p.entrance_pupil_mm.map(|x| x.round()),
-                            p.mismatched_blocks,
-                            p.mismatched_blocks_as_given
-                        ))
-                    )
-                })
-                .unwrap_or_default();
         println!(
-            "  false alarm: {:<10} {:>5} {} dark field, seed {}: {fit}  {}",
-            serde_json::to_value(o.case.sample)?.as_str().unwrap_or("?"),
+            "  false alarm: {:<10} {:>6} {} dark field, seed {}: {}  {}",
+            kebab(o.case.sample),
             if o.case.eight_bit { "8-bit" } else { "12-bit" },
             if o.case.dim_dark_field { "dim" } else { "auto" },
             o.case.seed,
-            o.fired
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", ")
+            o.evidence(),
+            o.fired_names()
         );
     }
     Ok(())

@@ -209,26 +209,9 @@ impl Job {
         let nominal = on_disk.manifest.geometry();
         let (geometry, source) = self.geometry.resolve(&nominal)?;
         let reason = match self.camera_gamma {
-            // γ = 1 is linear: nothing to decode, so no full scale needed.
-            Some(CameraGamma::Exponent(1.0)) => {
-                on_disk.manifest.camera.gamma = None;
-                None
-            }
             Some(CameraGamma::Exponent(gamma)) => {
-                let bits = on_disk.sample_bits();
-                if bits > 16 {
-                    bail!(
-                        "camera_gamma {gamma}: the frames of {} are floats, which no display encoding stores (give no gamma, or 1)",
-                        dir.display()
-                    );
-                }
-                let camera = &mut on_disk.manifest.camera;
-                // As the scan does: without a stated bit depth, integer frames' sample
-                // type gives the full scale (so the advice to give a gamma holds).
-                if camera.bit_depth.is_none() {
-                    camera.bit_depth = Some(bits);
-                }
-                camera.set_gamma(gamma, &dir.join("dataset.toml"))?;
+                // γ = 1 is linear: nothing to decode, so no full scale needed.
+                decode_with(&mut on_disk, Some(gamma).filter(|&g| g != 1.0))?;
                 None
             }
             Some(CameraGamma::Auto) => Some(GammaScanReason::Asked),
@@ -384,17 +367,38 @@ impl Job {
             self.passes,
             &progress,
         )?;
-        let bits = ds.sample_bits();
-        let camera = &mut ds.manifest.camera;
-        camera.gamma = match reason {
-            GammaScanReason::Asked => scan.gamma(),
-            GammaScanReason::EightBitUnstated => scan.gamma().filter(|_| scan.is_clear()),
-        };
-        if camera.gamma.is_some() && camera.bit_depth.is_none() {
-            camera.bit_depth = Some(bits);
-        }
+        decode_with(
+            ds,
+            match reason {
+                GammaScanReason::Asked => scan.gamma(),
+                GammaScanReason::EightBitUnstated => scan.gamma().filter(|_| scan.is_clear()),
+            },
+        )?;
         Ok(scan)
     }
+}
+
+/// Decode `ds`'s frames with `gamma` (None: as linear). Without a stated bit depth,
+/// integer frames' sample type gives the full scale (so advice to give a gamma holds
+/// for frames whose dataset does not say); float frames carry no display encoding.
+fn decode_with(ds: &mut DatasetOnDisk, gamma: Option<f64>) -> Result<()> {
+    let Some(gamma) = gamma else {
+        ds.manifest.camera.gamma = None;
+        return Ok(());
+    };
+    let bits = ds.sample_bits();
+    if bits > 16 {
+        bail!(
+            "camera_gamma {gamma}: the frames of {} are floats, which no display encoding stores (give no gamma, or 1)",
+            ds.dir.display()
+        );
+    }
+    let camera = &mut ds.manifest.camera;
+    if camera.bit_depth.is_none() {
+        camera.bit_depth = Some(bits);
+    }
+    camera.set_gamma(gamma, &ds.dir.join("dataset.toml"))?;
+    Ok(())
 }
 
 /// Scores against a simulation's truth, when the dataset has one.

@@ -8,9 +8,9 @@ use serde::Serialize;
 
 use super::{GammaScanReason, Report};
 
-/// Which check a warning comes from: its name in report.json, stable for scripts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
-#[serde(rename_all = "kebab-case")]
+/// Which check a warning comes from: its [`name`](Check::name) in report.json, stable
+/// for scripts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Check {
     /// The dataset's nominal LED positions were used.
     NominalGeometry,
@@ -52,6 +52,12 @@ impl Check {
             Self::DarkFieldBackground => "dark-field-background",
             Self::FlattenBackground => "flatten-background",
         }
+    }
+}
+
+impl Serialize for Check {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
     }
 }
 

@@ -5,10 +5,10 @@
 //! stained), two cameras (12-bit, 8-bit) and two dark-field exposures (auto-exposed,
 //! dim), reconstructed with the true geometry. Each condition is one thing wrong
 //! with such a set, reconstructed as a user would: frames saved with a display gamma
-//! the dataset does not state, a stated LED height 8 mm
-//! off, a non-telecentric objective. A detection counts where the condition changes
-//! the image by ≥ 10 % (complex NRMSE against the same set without it); the cases
-//! where it does not are shown apart.
+//! the dataset does not state, a stated LED height 8 mm off, a non-telecentric
+//! objective. A detection counts where the condition changes the image by ≥ 10 %
+//! (complex NRMSE against the same set without it); the cases where it does not are
+//! shown apart.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -44,21 +44,6 @@ impl Condition {
     ];
 }
 
-impl Case {
-    /// The check meant to catch its condition: 8-bit frames are scanned for a gamma
-    /// by default (and decoded where it is clear, which the check reports); deeper
-    /// ones only have the bright-field fit.
-    pub fn expected_check(&self) -> Option<Check> {
-        match self.condition {
-            Condition::None => None,
-            Condition::UndeclaredGamma if self.eight_bit => Some(Check::GammaRead),
-            Condition::UndeclaredGamma => Some(Check::BrightFieldOffset),
-            Condition::WrongHeight => Some(Check::HeightFromEdge),
-            Condition::NonTelecentric => Some(Check::EntrancePupil),
-        }
-    }
-}
-
 /// One simulated set.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Case {
@@ -74,33 +59,43 @@ pub struct Case {
     pub condition: Condition,
 }
 
+impl Case {
+    /// The check meant to catch its condition: 8-bit frames are scanned for a gamma
+    /// by default (and decoded where it is clear, which the check reports); deeper
+    /// ones only have the bright-field fit.
+    pub fn expected_check(&self) -> Option<Check> {
+        match self.condition {
+            Condition::None => None,
+            Condition::UndeclaredGamma if self.eight_bit => Some(Check::GammaRead),
+            Condition::UndeclaredGamma => Some(Check::BrightFieldOffset),
+            Condition::WrongHeight => Some(Check::HeightFromEdge),
+            Condition::NonTelecentric => Some(Check::EntrancePupil),
+        }
+    }
+}
+
 /// One case's outcome.
 #[derive(Debug, Clone, Serialize)]
 pub struct Outcome {
     /// The case.
     pub case: Case,
-    /// Complex NRMSE against the hidden truth.
-    pub complex_nrmse: f64,
     /// The condition's effect: this NRMSE over the same set's without it, minus 1.
     pub effect: Option<f64>,
-    /// The checks that fired (the run's warnings).
-    pub fired: Vec<Check>,
-    /// The bright-field frames' fit of measured on modelled intensity.
-    pub bright_field_fit: Option<ContrastFit>,
-    /// The bright/dark-field edge's height and entrance pupil.
-    pub boundary: Option<BoundaryCheck>,
+    /// What its reconstruction showed.
+    #[serde(flatten)]
+    pub scored: Scored,
 }
 
 impl Outcome {
     /// What the checks read: the bright-field fit, the edge's h and entrance pupil.
     pub fn evidence(&self) -> String {
-        let fit = self.bright_field_fit.map(|f| {
+        let fit = self.scored.bright_field_fit.map(|f| {
             format!(
                 "offset {:+.2} gain {:.2} r {:.2}",
                 f.offset_share, f.gain, f.correlation
             )
         });
-        let edge = self.boundary.map(|b| {
+        let edge = self.scored.boundary.map(|b| {
             let pupil = match b.entrance_pupil {
                 Some(p) => format!(
                     " pupil {} ({} blocks off, {} as given)",
@@ -125,7 +120,7 @@ impl Outcome {
 
     /// The checks that fired, by name.
     pub fn fired_names(&self) -> String {
-        let names: Vec<&str> = self.fired.iter().map(|c| c.name()).collect();
+        let names: Vec<&str> = self.scored.fired.iter().map(|c| c.name()).collect();
         names.join(", ")
     }
 }
@@ -153,7 +148,7 @@ pub struct Rates {
 /// blocks, small enough for ~100 sets in a few minutes.
 pub const SIZE: usize = 128;
 
-/// The effect above which a check must catch its condition (the goal).
+/// The effect above which a check must catch its condition.
 pub const EFFECT: f64 = 0.10;
 
 /// The cases: every good set for `seeds` seeds, and every fault on the auto-exposed
@@ -183,14 +178,15 @@ pub fn cases(seeds: u64, fault_seeds: u64) -> Vec<Case> {
 }
 
 /// What one reconstruction showed.
+#[derive(Debug, Clone, Serialize)]
 pub struct Scored {
     /// Complex NRMSE against the hidden truth.
     pub complex_nrmse: f64,
-    /// The checks that fired.
+    /// The checks that fired (the run's warnings).
     pub fired: Vec<Check>,
-    /// See [`Outcome::bright_field_fit`].
+    /// The bright-field frames' fit of measured on modelled intensity.
     pub bright_field_fit: Option<ContrastFit>,
-    /// See [`Outcome::boundary`].
+    /// The bright/dark-field edge's height and entrance pupil.
     pub boundary: Option<BoundaryCheck>,
 }
 
@@ -266,12 +262,7 @@ pub fn measure(
     let cases = cases(seeds, fault_seeds);
     let mut outcomes: Vec<Outcome> = vec![];
     for (k, case) in cases.iter().enumerate() {
-        let Scored {
-            complex_nrmse,
-            fired,
-            bright_field_fit,
-            boundary,
-        } = run_case(case, &work.join("set")).with_context(|| format!("case {case:?}"))?;
+        let scored = run_case(case, &work.join("set")).with_context(|| format!("case {case:?}"))?;
         let effect = (case.condition != Condition::None)
             .then(|| {
                 outcomes.iter().find(|o| {
@@ -283,18 +274,16 @@ pub fn measure(
                 })
             })
             .flatten()
-            .map(|clean| complex_nrmse / clean.complex_nrmse - 1.0);
+            .map(|clean| scored.complex_nrmse / clean.scored.complex_nrmse - 1.0);
         outcomes.push(Outcome {
             case: *case,
-            complex_nrmse,
             effect,
-            fired,
-            bright_field_fit,
-            boundary,
+            scored,
         });
         progress(k + 1, cases.len());
     }
-    Ok((outcomes.clone(), rates(&outcomes)))
+    let rates = rates(&outcomes);
+    Ok((outcomes, rates))
 }
 
 /// Each check's false alarms (on good sets) and detections (on its condition's sets).
@@ -304,7 +293,10 @@ pub fn rates(outcomes: &[Outcome]) -> BTreeMap<Check, Rates> {
         .iter()
         .filter(|o| o.case.condition == Condition::None);
     // Every check that fired anywhere, plus those a condition is meant for.
-    let mut every: Vec<Check> = outcomes.iter().flat_map(|o| o.fired.clone()).collect();
+    let mut every: Vec<Check> = outcomes
+        .iter()
+        .flat_map(|o| o.scored.fired.clone())
+        .collect();
     every.extend(outcomes.iter().filter_map(|o| o.case.expected_check()));
     every.retain(|c| *c != Check::NominalGeometry);
     every.sort();
@@ -313,7 +305,7 @@ pub fn rates(outcomes: &[Outcome]) -> BTreeMap<Check, Rates> {
         let r = out.entry(check).or_default();
         for o in good.clone() {
             r.false_alarms.1 += 1;
-            r.false_alarms.0 += o.fired.contains(&check) as usize;
+            r.false_alarms.0 += o.scored.fired.contains(&check) as usize;
         }
         for o in outcomes
             .iter()
@@ -325,7 +317,7 @@ pub fn rates(outcomes: &[Outcome]) -> BTreeMap<Check, Rates> {
                 &mut r.small_effect_detections
             };
             slot.1 += 1;
-            slot.0 += o.fired.contains(&check) as usize;
+            slot.0 += o.scored.fired.contains(&check) as usize;
         }
     }
     out
@@ -402,7 +394,7 @@ pub fn run(seeds: u64, fault_seeds: u64, json: bool) -> Result<()> {
     }
     for o in outcomes
         .iter()
-        .filter(|o| o.case.condition == Condition::None && !o.fired.is_empty())
+        .filter(|o| o.case.condition == Condition::None && !o.scored.fired.is_empty())
     {
         println!(
             "  false alarm: {:<10} {:>6} {} dark field, seed {}: {}  {}",

@@ -394,8 +394,11 @@ fn print_report(rep: &Report, out: &Path, format: ImageFormat) {
 
 fn print_refined(r: &fpm_host::refinement::RefinedLedsReport, out: &Path) {
     println!(
-        "LEDs refined: moved {:.3} mm RMS from the geometry's places",
-        r.moved_rms_mm
+        "LEDs refined: moved {:.3} mm RMS from the geometry's places{}",
+        r.moved_rms_mm,
+        r.led_scatter_mm.map_or(String::new(), |t| format!(
+            "; the data put them {t:.3} mm (1σ) off the board model"
+        ))
     );
     if let Some(t) = &r.versus_truth {
         println!(

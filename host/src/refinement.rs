@@ -21,6 +21,12 @@ pub struct RefinedLedsReport {
     /// How far an LED on the axis moves per frequency bin of the tiles, mm: the
     /// positions come out to ~0.4 of it.
     pub bin_mm: f64,
+    /// How far the data put the LEDs off the fitted board model, mm (τ, 1σ per axis):
+    /// each LED's own move was shrunk by τ²/(τ² + its σ²), so LEDs of a well-built
+    /// board and dim frames stay on the model. Perfect simulated boards read 0.12–0.15
+    /// mm (the model's own error, which the moves also absorb); boards whose LEDs were
+    /// off by 0.25 mm read 0.23–0.25.
+    pub led_scatter_mm: Option<f64>,
     /// Per LED.
     pub leds: Vec<RefinedLed>,
     /// The rigid, tilted board fitted to them (None when the fit failed).
@@ -98,6 +104,7 @@ impl RefinedLedsReport {
             note: NOTE,
             moved_rms_mm: refined.moved_rms_mm(),
             bin_mm: refined.bin_mm,
+            led_scatter_mm: refined.scatter_mm,
             leds,
             board,
             versus_truth: None,

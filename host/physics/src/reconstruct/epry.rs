@@ -474,6 +474,33 @@ impl Epry {
         relative_error(err, norm)
     }
 
+    /// [`Self::misfit`]'s unnormalised squared error Σ(|φ| − √I)² split over a
+    /// `blocks` × `blocks` grid of the constrained window, row-major (LED refinement
+    /// measures a frame's place in each block: their scatter is the place's
+    /// uncertainty).
+    pub fn misfit_blocks(&mut self, amplitude: &Image, f: (f64, f64), blocks: usize) -> Vec<f64> {
+        self.exit_wave(f);
+        let unnormalise = (self.n * self.n) as f32;
+        let gain = (self.upsample * self.upsample) as f32;
+        let [c0, c1, r0, r1] = self.constrained;
+        let n = self.n;
+        let blocks = blocks.max(1);
+        let edge = |lo: usize, hi: usize, j: usize| lo + (hi - lo) * j / blocks;
+        let mut out = vec![0.0; blocks * blocks];
+        for r in r0..r1 {
+            let by = ((r - r0) * blocks / (r1 - r0).max(1)).min(blocks - 1);
+            let row = &mut self.phi[r * n..(r + 1) * n];
+            for bx in 0..blocks {
+                let (a, b) = (edge(c0, c1, bx), edge(c0, c1, bx + 1));
+                if b > a {
+                    out[by * blocks + bx] +=
+                        row_error::<false>(row, amplitude, r, (a, b), gain, unnormalise).0;
+                }
+            }
+        }
+        out
+    }
+
     /// Add the frame lit at `f` to `sums`: its measured intensity against the
     /// intensity the current object and pupil predict, pixel by pixel over the
     /// constrained window ([`super::contrast`]).
@@ -553,6 +580,12 @@ impl Epry {
     /// The frequency grid's bin step, cycles/µm.
     pub fn bin_step(&self) -> f64 {
         self.df
+    }
+
+    /// Camera pixels the amplitude is constrained on (what [`Self::misfit`] sums over).
+    pub fn constrained_pixels(&self) -> usize {
+        let [c0, c1, r0, r1] = self.constrained;
+        (c1 - c0) * (r1 - r0)
     }
 }
 

@@ -28,6 +28,9 @@ pub struct Outcome {
     /// Each shot's illumination frequency at the end (cycles/µm, in the shots' order):
     /// refined when the settings ask for it ([`super::refine`]), else the geometry's.
     pub frequencies: Vec<(f64, f64)>,
+    /// How far the refinement found LEDs off its board model (τ, 1σ per axis),
+    /// cycles/µm (None unrefined).
+    pub led_scatter: Option<f64>,
 }
 
 impl Outcome {
@@ -164,5 +167,6 @@ pub fn run_amplitudes(
         errors: done.errors,
         initial,
         frequencies: Outcome::unordered(&order, done.frequencies),
+        led_scatter: done.led_scatter,
     })
 }

@@ -1,17 +1,27 @@
 //! LED positions refined inside EPRY (`--refine-leds`). A rigid calibration places the
 //! grid; real boards also have LEDs soldered off their grid and boards mounted at a
-//! tilt. Every LED's illumination frequency is therefore searched around the
-//! geometry's, frame by frame inside the passes, as in pcFPM and SC-FPM:
+//! tilt. Every LED's illumination frequency is therefore measured around the
+//! geometry's, frame by frame inside the passes (as in pcFPM and SC-FPM), but only what
+//! the data pin down is used:
 //!
-//! * From pass [`Refine::from_pass`] on (the object needs a first shape), each frame
-//!   tries its current frequency and the four moved by ±step along x and y, keeps the
-//!   one the data fit best ([`Epry::misfit`]) and updates there. A frame whose current
-//!   position wins halves its step, down to [`Refine::min_step_bins`].
-//! * It cannot drift into the object: a shift common to all frames, or a common
-//!   rotation about the axis, is what the object's own phase ramp or a turned object
-//!   would explain as well (the pupil is round), so after every pass that common part
-//!   is taken out of the corrections; and no frame moves farther than
-//!   [`Refine::max_shift_bins`] from where the geometry put it.
+//! * Measure. From pass [`Refine::from_pass`] on (the object needs a first shape), each
+//!   frame's misfit ([`Epry::misfit_blocks`]) is taken at its measured place and
+//!   ±[`Refine::probe_bins`] along x and y, and the place moves by the Newton step of
+//!   the parabola through them. The same step taken in each block of a
+//!   [`Refine::blocks`]² grid of the frame gives independent estimates (other object
+//!   detail, other noise): their scatter is the place's own uncertainty σ. A dim
+//!   dark-field frame's blocks disagree, and its σ is large.
+//! * Model. After each pass a board model is fitted to the measured moves, weighted by
+//!   1/(σ² + τ²): a common shift and a common rotation about the axis (what the
+//!   object's own phase ramp, or a turned object, explains as well: the pupil is round;
+//!   taken out of the measurements, so they cannot drift into the object), and the
+//!   board's height and two tilts (kept: each LED's distance changes, which scales its
+//!   tangent). τ, how far LEDs sit off the model, is estimated from the data: what the
+//!   moves scatter beyond their own σ.
+//! * Use. Each frame is updated at the model's frequency plus its own residual shrunk
+//!   by τ²/(τ² + σ²): LEDs of a well-built board (τ ≈ 0) and dim frames (σ ≫ τ) stay
+//!   on the model; bright frames of a misbuilt board take most of their own move. No
+//!   frame moves farther than [`Refine::max_shift_bins`] from where the geometry put it.
 //! * The refined frequencies are turned back into LED positions (each at its
 //!   geometry's height: a direction alone cannot tell a lower LED from a nearer one),
 //!   and [`BoardFit`] fits a rigid + tilted board to them.
@@ -27,30 +37,35 @@ use crate::Image;
 pub struct Refine {
     /// The first pass (0-based) that refines.
     pub from_pass: usize,
-    /// The first search step, frequency bins (1 bin = 1 / field width).
-    pub step_bins: f64,
-    /// The step a frame stops halving at, bins.
-    pub min_step_bins: f64,
+    /// How far either side of its place a frame's misfit is probed, frequency bins
+    /// (1 bin = 1 / field width); also the most a place moves in one pass, per axis.
+    pub probe_bins: f64,
     /// How far a frame may move from the geometry's frequency, bins.
     pub max_shift_bins: f64,
+    /// The frame is cut into `blocks` × `blocks` for the places' uncertainty.
+    pub blocks: usize,
 }
 
 impl Default for Refine {
-    /// A quarter bin to start: an LED 0.25 mm off its place at 92 mm moves its disc by
-    /// ~0.45 bin in a 77 µm field. On the 441-LED test board (σ 0.25 mm, 1° tilt) the
-    /// refined positions were off by 0.29 mm RMS from a half-bin start, 0.21 from a
-    /// quarter and an eighth (0.36 unrefined). Three bins at most: more than any
-    /// misplacement a calibrated board leaves, less than the ~4 bins between
-    /// neighbouring LEDs.
+    /// A quarter bin: an LED 0.25 mm off its place at 92 mm moves its disc by ~0.45 bin
+    /// in a 77 µm field. Three bins at most: more than any misplacement a calibrated
+    /// board leaves, less than the ~4 bins between neighbouring LEDs. 3 × 3 blocks:
+    /// eight degrees of freedom for each σ, blocks still of 40 px in a 128-px field.
     fn default() -> Self {
         Self {
             from_pass: 1,
-            step_bins: 0.25,
-            min_step_bins: 1.0 / 32.0,
+            probe_bins: 0.25,
             max_shift_bins: 3.0,
+            blocks: 3,
         }
     }
 }
+
+/// Parameters of the board model: common shift x, y and rotation (taken out), then
+/// the height and the two tilts (kept).
+const MODEL_PARAMS: usize = 6;
+/// The first [`NUISANCE_PARAMS`] of [`MODEL_PARAMS`] are what the object explains.
+const NUISANCE_PARAMS: usize = 3;
 
 /// The search state of every frame of one field, in the order the passes see them.
 pub(crate) struct Search {
@@ -59,21 +74,61 @@ pub(crate) struct Search {
     df: f64,
     /// The geometry's frequencies.
     start: Vec<(f64, f64)>,
-    /// The corrections found so far, cycles/µm.
-    offset: Vec<(f64, f64)>,
-    /// Each frame's current step, bins.
-    step: Vec<f64>,
+    /// Each frame's measured move so far, cycles/µm.
+    measured: Vec<(f64, f64)>,
+    /// The measured place's 1σ per axis, cycles/µm (∞ before it is measured, or
+    /// where the misfit is flat).
+    sigma: Vec<(f64, f64)>,
+    /// The move each frame is updated at: the board model plus its shrunk residual.
+    used: Vec<(f64, f64)>,
+    /// Each frame's board-model basis: the move per unit of each parameter.
+    basis: Vec<[(f64, f64); MODEL_PARAMS]>,
+    /// Each frame's board-model move, cycles/µm, as last fitted.
+    board: Vec<(f64, f64)>,
+    /// τ²: how far LEDs sit off the board model (per axis), (cycles/µm)², as last
+    /// estimated.
+    tau2: f64,
 }
 
 impl Search {
-    pub(crate) fn new(settings: Refine, df: f64, start: Vec<(f64, f64)>) -> Self {
+    /// `start`: the geometry's frequencies (cycles/µm).
+    pub(crate) fn new(
+        settings: Refine,
+        df: f64,
+        start: Vec<(f64, f64)>,
+        wavelength_um: f64,
+    ) -> Self {
         let n = start.len();
+        let basis = start
+            .iter()
+            .map(|&f| {
+                let (sx, sy) = (f.0 * wavelength_um, f.1 * wavelength_um);
+                let cos2 = (1.0 - sx * sx - sy * sy).max(1e-6);
+                let (tx, ty) = (sx / cos2.sqrt(), sy / cos2.sqrt());
+                // An LED's distance changed by a fraction ε scales its tangent by
+                // (1 − ε), which moves the sine by −ε·s·cos²; ε = a + b·t_y + c·t_x
+                // (height, tilt about x, tilt about y).
+                let radial = (-f.0 * cos2, -f.1 * cos2);
+                [
+                    (1.0, 0.0),
+                    (0.0, 1.0),
+                    (-f.1, f.0),
+                    radial,
+                    (radial.0 * ty, radial.1 * ty),
+                    (radial.0 * tx, radial.1 * tx),
+                ]
+            })
+            .collect();
         Self {
             settings,
             df,
             start,
-            offset: vec![(0.0, 0.0); n],
-            step: vec![settings.step_bins; n],
+            measured: vec![(0.0, 0.0); n],
+            sigma: vec![(f64::INFINITY, f64::INFINITY); n],
+            used: vec![(0.0, 0.0); n],
+            basis,
+            board: vec![(0.0, 0.0); n],
+            tau2: 0.0,
         }
     }
 
@@ -82,9 +137,9 @@ impl Search {
         pass >= self.settings.from_pass
     }
 
-    /// Frame `k`'s frequency now.
+    /// Frame `k`'s frequency now (the one it is updated at).
     pub(crate) fn frequency(&self, k: usize) -> (f64, f64) {
-        let (s, o) = (self.start[k], self.offset[k]);
+        let (s, o) = (self.start[k], self.used[k]);
         (s.0 + o.0, s.1 + o.1)
     }
 
@@ -93,56 +148,177 @@ impl Search {
         (0..self.start.len()).map(|k| self.frequency(k)).collect()
     }
 
-    /// One search step for frame `k` against the current object: returns the frequency
-    /// to update it at.
+    /// How far LEDs sit off the board model, as last estimated (1σ per axis),
+    /// cycles/µm: τ.
+    pub(crate) fn scatter(&self) -> f64 {
+        self.tau2.sqrt()
+    }
+
+    /// Measure frame `k`'s place against the current object (a Newton step of its
+    /// misfit, and the step's σ from the blocks' scatter); returns the frequency to
+    /// update it at.
     pub(crate) fn step(&mut self, epry: &mut Epry, k: usize, amplitude: &Image) -> (f64, f64) {
-        let step = self.step[k] * self.df;
+        let h = self.settings.probe_bins * self.df;
+        let blocks = self.settings.blocks.max(1);
+        let here = self.measured[k];
+        let s = self.start[k];
+        let mut misfit =
+            |o: (f64, f64)| epry.misfit_blocks(amplitude, (s.0 + o.0, s.1 + o.1), blocks);
+        let centre = misfit(here);
+        let probes: Vec<Vec<f64>> = [(h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h)]
+            .into_iter()
+            .map(|(dx, dy)| misfit((here.0 + dx, here.1 + dy)))
+            .collect();
+        // Per axis: the whole frame's Newton step, and its σ from the blocks' steps
+        // (curvature-weighted, as the whole frame's step is their weighted mean).
+        let axis = |plus: &[f64], minus: &[f64]| -> (f64, f64) {
+            let parts: Vec<(f64, f64)> = (0..centre.len())
+                .map(|j| {
+                    let c = plus[j] + minus[j] - 2.0 * centre[j];
+                    (c, h * (minus[j] - plus[j]) / (2.0 * c))
+                })
+                .collect();
+            let curvature: f64 = parts.iter().map(|p| p.0).sum();
+            let slope: f64 = (0..centre.len()).map(|j| minus[j] - plus[j]).sum();
+            if curvature.is_nan() || curvature <= 0.0 {
+                // No minimum in reach: go downhill by one probe, σ unknown.
+                let step = if slope > 0.0 {
+                    h
+                } else if slope < 0.0 {
+                    -h
+                } else {
+                    0.0
+                };
+                return (step, f64::INFINITY);
+            }
+            let step = (h * slope / (2.0 * curvature)).clamp(-h, h);
+            let usable: Vec<&(f64, f64)> = parts
+                .iter()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .collect();
+            let m = usable.len() as f64;
+            let sigma = if m >= 2.0 {
+                let spread: f64 = usable.iter().map(|p| (p.0 * (p.1 - step)).powi(2)).sum();
+                (spread * m / (m - 1.0)).sqrt() / curvature
+            } else {
+                f64::INFINITY
+            };
+            (step, sigma)
+        };
+        let (dx, sx) = axis(&probes[0], &probes[1]);
+        let (dy, sy) = axis(&probes[2], &probes[3]);
+        self.sigma[k] = (sx, sy);
+        let mut moved = (here.0 + dx, here.1 + dy);
         let limit = self.settings.max_shift_bins * self.df;
-        let here = self.offset[k];
-        let mut best = (epry.misfit(amplitude, self.frequency(k)), here);
-        for (mx, my) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
-            let o = (here.0 + mx * step, here.1 + my * step);
-            if o.0.hypot(o.1) > limit {
-                continue;
-            }
-            let s = self.start[k];
-            let e = epry.misfit(amplitude, (s.0 + o.0, s.1 + o.1));
-            if e < best.0 {
-                best = (e, o);
-            }
+        let length = moved.0.hypot(moved.1);
+        if length > limit {
+            moved = (moved.0 * limit / length, moved.1 * limit / length);
         }
-        if best.1 == here {
-            self.step[k] = (self.step[k] * 0.5).max(self.settings.min_step_bins);
-        }
-        self.offset[k] = best.1;
+        self.measured[k] = moved;
         self.frequency(k)
     }
 
-    /// Take out what all corrections share: a common shift and a common small rotation
-    /// about the axis (least squares over the frames).
-    pub(crate) fn remove_common(&mut self) {
-        let n = self.start.len() as f64;
-        if n < 3.0 {
-            return;
-        }
-        // δ = t + ω·(−f_y, f_x): unknowns (t_x, t_y, ω).
-        let mut jtj = SMatrix::<f64, 3, 3>::zeros();
-        let mut jtr = SVector::<f64, 3>::zeros();
-        for (f, d) in self.start.iter().zip(&self.offset) {
-            for (j, r) in [
-                (SVector::from([1.0, 0.0, -f.1]), d.0),
-                (SVector::from([0.0, 1.0, f.0]), d.1),
-            ] {
-                jtj += j * j.transpose();
-                jtr += j * r;
+    /// Frame `k`'s move to update at: the board model plus its measured residual
+    /// shrunk by τ²/(τ² + σ²), within the limit.
+    fn to_use(&self, k: usize) -> (f64, f64) {
+        let floor = 0.02 * self.df;
+        let (m, board) = (self.measured[k], self.board[k]);
+        let (sx, sy) = self.sigma[k];
+        let shrink = |r: f64, s: f64| {
+            if s.is_finite() {
+                r * self.tau2 / (self.tau2 + s * s + floor * floor)
+            } else {
+                0.0
             }
-        }
-        let Some(x) = jtj.try_inverse().map(|inv| inv * jtr) else {
-            return;
         };
-        for (f, d) in self.start.iter().zip(self.offset.iter_mut()) {
-            d.0 -= x[0] - x[2] * f.1;
-            d.1 -= x[1] + x[2] * f.0;
+        let mut used = (
+            board.0 + shrink(m.0 - board.0, sx),
+            board.1 + shrink(m.1 - board.1, sy),
+        );
+        let limit = self.settings.max_shift_bins * self.df;
+        let length = used.0.hypot(used.1);
+        if length > limit {
+            used = (used.0 * limit / length, used.1 * limit / length);
+        }
+        used
+    }
+
+    /// After a pass: fit the board model to the measured moves and estimate τ (three
+    /// rounds), take the common shift and rotation out of the measurements, and set
+    /// each frame's used move to the model plus its residual shrunk by τ²/(τ² + σ²).
+    pub(crate) fn project(&mut self) {
+        let n = self.start.len();
+        let measured_frames: Vec<usize> = (0..n)
+            .filter(|&k| {
+                let (sx, sy) = self.sigma[k];
+                sx.is_finite() && sy.is_finite()
+            })
+            .collect();
+        if measured_frames.len() < 2 * MODEL_PARAMS {
+            // Too few measured frames for a model: nothing is used yet.
+            self.used = vec![(0.0, 0.0); n];
+            return;
+        }
+        // A floor on σ: three blocks can agree by chance.
+        let floor = 0.02 * self.df;
+        let variance = |s: f64| s * s + floor * floor;
+        let model_at = |basis: &[(f64, f64); MODEL_PARAMS],
+                        x: &SVector<f64, MODEL_PARAMS>,
+                        params: std::ops::Range<usize>| {
+            params.fold((0.0, 0.0), |a, p| {
+                (a.0 + basis[p].0 * x[p], a.1 + basis[p].1 * x[p])
+            })
+        };
+        let mut tau2 = 0.0;
+        let mut x = SVector::<f64, MODEL_PARAMS>::zeros();
+        for _ in 0..3 {
+            let mut jtj = SMatrix::<f64, MODEL_PARAMS, MODEL_PARAMS>::zeros();
+            let mut jtr = SVector::<f64, MODEL_PARAMS>::zeros();
+            for &k in &measured_frames {
+                let b = &self.basis[k];
+                let (sx, sy) = self.sigma[k];
+                for (axis, r, s) in [(0, self.measured[k].0, sx), (1, self.measured[k].1, sy)] {
+                    let w = 1.0 / (variance(s) + tau2);
+                    let j = SVector::<f64, MODEL_PARAMS>::from_fn(|p, _| {
+                        if axis == 0 {
+                            b[p].0
+                        } else {
+                            b[p].1
+                        }
+                    });
+                    jtj += j * j.transpose() * w;
+                    jtr += j * (r * w);
+                }
+            }
+            let Some(fit) = jtj.try_inverse().map(|inv| inv * jtr) else {
+                self.used = vec![(0.0, 0.0); n];
+                return;
+            };
+            x = fit;
+            // τ² by moments: Σ w²(r² − σ²) / Σ w², w = 1/(σ² + τ²).
+            let (mut num, mut den) = (0.0, 0.0);
+            for &k in &measured_frames {
+                let m = model_at(&self.basis[k], &x, 0..MODEL_PARAMS);
+                let (sx, sy) = self.sigma[k];
+                for (r, s) in [
+                    (self.measured[k].0 - m.0, sx),
+                    (self.measured[k].1 - m.1, sy),
+                ] {
+                    let w = 1.0 / (variance(s) + tau2);
+                    num += w * w * (r * r - variance(s));
+                    den += w * w;
+                }
+            }
+            tau2 = (num / den).max(0.0);
+        }
+        self.tau2 = tau2;
+        for k in 0..n {
+            let nuisance = model_at(&self.basis[k], &x, 0..NUISANCE_PARAMS);
+            self.board[k] = model_at(&self.basis[k], &x, NUISANCE_PARAMS..MODEL_PARAMS);
+            let m = &mut self.measured[k];
+            m.0 -= nuisance.0;
+            m.1 -= nuisance.1;
+            self.used[k] = self.to_use(k);
         }
     }
 }
@@ -184,6 +360,9 @@ pub struct FieldFrequencies<'a> {
     pub centre_um: (f64, f64),
     /// Each frame's frequency.
     pub frequencies: &'a [(f64, f64)],
+    /// How far the field's refinement found LEDs off its board model (τ, 1σ per
+    /// axis), cycles/µm.
+    pub led_scatter: Option<f64>,
 }
 
 /// The refined frequencies come out slightly too steep: on perfect simulated boards
@@ -321,6 +500,10 @@ pub struct RefinedLeds {
     /// ~0.4 of this (0.24 mm RMS in 128-px fields, 0.44 in 64-px tiles, at 0.56 and
     /// 1.1 mm per bin).
     pub bin_mm: f64,
+    /// How far the LEDs sit off the board model, mm (τ, 1σ per axis, median over the
+    /// fields): estimated from the data, what each LED's own move was shrunk with. Near
+    /// 0 on a well-built board, whose LEDs then stay on the model.
+    pub scatter_mm: Option<f64>,
 }
 
 impl RefinedLeds {
@@ -342,6 +525,7 @@ impl RefinedLeds {
                 _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
             }
         };
+        let scatter = median(fields.iter().filter_map(|f| f.led_scatter).collect());
         let refined_mm = leds
             .iter()
             .enumerate()
@@ -387,6 +571,9 @@ impl RefinedLeds {
             refined_mm,
             board: BoardFit::fit(geometry, &observations, wavelength_um),
             bin_mm: geometry.height_mm * wavelength_um * bin_step,
+            scatter_mm: scatter
+                .is_finite()
+                .then_some(scatter * geometry.height_mm * wavelength_um),
         }
     }
 
@@ -457,26 +644,97 @@ mod tests {
         assert!(fit.residual_rms_mm < 1e-5, "{}", fit.residual_rms_mm);
     }
 
-    #[test]
-    fn a_common_shift_and_rotation_are_taken_out() {
-        let start: Vec<(f64, f64)> = (0..25)
-            .map(|k| ((k % 5) as f64 * 0.05 - 0.1, (k / 5) as f64 * 0.05 - 0.1))
+    /// A projected search, each frame's board-model move and each LED's own move.
+    type Measured = (Search, Vec<(f64, f64)>, Vec<(f64, f64)>);
+
+    /// A 9×9 board's frequencies out to a sine of 0.4 (λ = 0.5 µm), measured with a
+    /// common shift and rotation (the object's), a tilt about x (the board's), bright
+    /// frames 0..60 with σ 2e-4 and dim frames 60..81 with σ 0.01; each LED's own move
+    /// and measurement noise drawn with σ `own` and the frame's σ.
+    fn measured_board(own: f64) -> Measured {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let start: Vec<(f64, f64)> = (0..81)
+            .map(|k| (((k % 9) as f64 - 4.0) * 0.2, ((k / 9) as f64 - 4.0) * 0.2))
             .collect();
-        let mut s = Search::new(Refine::default(), 0.01, start.clone());
-        let own = |k: usize| (((k * 7) % 5) as f64 - 2.0) * 1e-3;
-        for (k, f) in start.iter().enumerate() {
-            s.offset[k] = (0.004 - 0.01 * f.1 + own(k), -0.002 + 0.01 * f.0);
+        let mut s = Search::new(Refine::default(), 0.01, start, 0.5);
+        let truth = [0.004, -0.002, 0.01, 0.0, 0.02, 0.0];
+        let along = |s: &Search, k: usize, params: std::ops::Range<usize>| {
+            params.fold((0.0, 0.0), |a, p| {
+                (
+                    a.0 + s.basis[k][p].0 * truth[p],
+                    a.1 + s.basis[k][p].1 * truth[p],
+                )
+            })
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let unit = Normal::new(0.0, 1.0).expect("a normal law");
+        let mut draw = || unit.sample(&mut rng);
+        let (mut board, mut own_moves) = (vec![], vec![]);
+        for k in 0..81 {
+            let sigma = if k >= 60 { 0.01 } else { 2e-4 };
+            let o = (own * draw(), own * draw());
+            let all = along(&s, k, 0..6);
+            s.measured[k] = (all.0 + o.0 + sigma * draw(), all.1 + o.1 + sigma * draw());
+            s.sigma[k] = (sigma, sigma);
+            board.push(along(&s, k, 3..6));
+            own_moves.push(o);
         }
-        s.remove_common();
-        let mean: (f64, f64) = s
-            .offset
-            .iter()
-            .fold((0.0, 0.0), |a, d| (a.0 + d.0 / 25.0, a.1 + d.1 / 25.0));
-        assert!(mean.0.abs() < 1e-12 && mean.1.abs() < 1e-12, "{mean:?}");
-        // What is each frame's own stays (up to its share of the common fit).
-        let spread: f64 = (0..25)
-            .map(|k| (s.offset[k].0 - own(k)).abs())
-            .fold(0.0, f64::max);
-        assert!(spread < 1e-3, "{spread}");
+        s.project();
+        (s, board, own_moves)
+    }
+
+    #[test]
+    fn leds_of_a_well_built_board_stay_on_its_model() {
+        let (s, board, _) = measured_board(0.0);
+        assert!(s.scatter() < 2e-4, "τ {}", s.scatter());
+        for (k, (&u, &b)) in s.used.iter().zip(&board).enumerate() {
+            // Within the bright frames' own σ of the model.
+            assert!(
+                (u.0 - b.0).hypot(u.1 - b.1) < 3e-4,
+                "frame {k}: {u:?} vs {b:?}"
+            );
+        }
+        // The common shift and rotation left the measurements (the tilt stays).
+        let mean = (0..60).fold((0.0, 0.0), |a, k| {
+            (
+                a.0 + (s.measured[k].0 - board[k].0) / 60.0,
+                a.1 + (s.measured[k].1 - board[k].1) / 60.0,
+            )
+        });
+        assert!(mean.0.hypot(mean.1) < 1e-4, "{mean:?}");
+    }
+
+    #[test]
+    fn bright_leds_of_a_misbuilt_board_take_their_own_moves_and_dim_ones_do_not() {
+        let own = 0.002;
+        let (s, board, moves) = measured_board(own);
+        assert!(
+            (s.scatter() - own).abs() < 0.25 * own,
+            "τ {} vs {own}",
+            s.scatter()
+        );
+        let rms = |frames: std::ops::Range<usize>, error: &dyn Fn(usize) -> (f64, f64)| {
+            let n = frames.len() as f64;
+            (frames
+                .map(|k| error(k).0.powi(2) + error(k).1.powi(2))
+                .sum::<f64>()
+                / n)
+                .sqrt()
+        };
+        let used_error = |k: usize| {
+            (
+                s.used[k].0 - board[k].0 - moves[k].0,
+                s.used[k].1 - board[k].1 - moves[k].1,
+            )
+        };
+        // Bright frames: within their σ (2e-4 per axis) of their true place.
+        let bright = rms(0..60, &used_error);
+        assert!(bright < 4e-4, "{bright}");
+        // Dim frames (σ 0.01, five times τ): on the model, no farther than it leaves
+        // them (√2·τ), not dragged by their noise.
+        let dim = rms(60..81, &used_error);
+        let on_model = rms(60..81, &|k| moves[k]);
+        assert!(dim <= 1.05 * on_model, "{dim} vs {on_model}");
     }
 }

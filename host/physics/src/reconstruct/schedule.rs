@@ -72,6 +72,9 @@ pub(crate) struct Passes {
     /// Each frame's illumination frequency at the end, in the order given: refined
     /// when the settings ask for it, else as given.
     pub frequencies: Vec<(f64, f64)>,
+    /// How far the refinement found LEDs off its board model, cycles/µm (None
+    /// unrefined).
+    pub led_scatter: Option<f64>,
 }
 
 /// `passes` passes over `frames` (amplitude, illumination frequency), in the order
@@ -89,10 +92,14 @@ pub(crate) fn passes_over(
 ) -> Passes {
     let mut errors = Vec::with_capacity(passes);
     let mut schedule = StepSchedule::default();
-    let mut search = epry
-        .settings()
-        .refine_leds
-        .map(|r| Search::new(r, epry.bin_step(), frames.iter().map(|f| f.1).collect()));
+    let mut search = epry.settings().refine_leds.map(|r| {
+        Search::new(
+            r,
+            epry.bin_step(),
+            frames.iter().map(|f| f.1).collect(),
+            system.wavelength_um,
+        )
+    });
     for pass in 0..passes {
         let (mut e, mut counted) = (0.0, 0usize);
         for (j, &(img, given)) in frames.iter().enumerate() {
@@ -115,19 +122,20 @@ pub(crate) fn passes_over(
             progress(pass * frames.len() + j + 1, passes * frames.len());
         }
         if let Some(s) = search.as_mut().filter(|s| s.active(pass)) {
-            s.remove_common();
+            s.project();
         }
         let e = e / counted.max(1) as f64;
         errors.push(e);
         epry.set_step_scale(schedule.after_pass(e));
     }
-    let frequencies = match search {
-        Some(s) => s.frequencies(),
-        None => frames.iter().map(|f| f.1).collect(),
+    let (frequencies, led_scatter) = match search {
+        Some(s) => (s.frequencies(), Some(s.scatter())),
+        None => (frames.iter().map(|f| f.1).collect(), None),
     };
     Passes {
         errors,
         frequencies,
+        led_scatter,
     }
 }
 

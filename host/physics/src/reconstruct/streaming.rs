@@ -223,6 +223,7 @@ impl Streaming {
             errors: done.errors,
             initial,
             frequencies: Outcome::unordered(&order, done.frequencies),
+            led_scatter: done.led_scatter,
         })
     }
 }

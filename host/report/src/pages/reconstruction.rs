@@ -229,8 +229,11 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     let board = r.board.map_or("no board could be fitted".to_string(), |b| {
                         format!("board fitted to them: {}", b.summary())
                     });
+                    let scatter = r.led_scatter_mm.map_or(String::new(), |t| {
+                        format!("; LEDs off the board model by {t:.3} mm (1σ, from the data)")
+                    });
                     format!(
-                        "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin); {board}",
+                        "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin){scatter}; {board}",
                         r.moved_rms_mm, r.bin_mm
                     )
                 }

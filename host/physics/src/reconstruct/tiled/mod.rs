@@ -53,6 +53,9 @@ pub struct TileResult {
     /// Each frame's illumination frequency at the tile's centre at the end (cycles/µm,
     /// frames' order): refined when the settings ask for it.
     pub frequencies: Vec<(f64, f64)>,
+    /// How far the refinement found LEDs off its board model, cycles/µm (None
+    /// unrefined).
+    pub led_scatter: Option<f64>,
     /// The clear background's low-order phase taken off before blending (None when the
     /// settings keep it).
     pub flattening: Option<Flattening>,
@@ -311,6 +314,7 @@ impl TileJob<'_> {
                     errors: outcome.errors.clone(),
                     ms: began.elapsed().as_secs_f64() * 1e3,
                     frequencies: outcome.frequencies.clone(),
+                    led_scatter: outcome.led_scatter,
                     flattening: None,
                     bright_field,
                 };
@@ -407,6 +411,7 @@ impl Assembly {
                 .map(|(t, frequencies)| FieldFrequencies {
                     centre_um: t.centre_um,
                     frequencies,
+                    led_scatter: t.led_scatter,
                 })
                 .collect();
             let bin_step = 1.0 / (layout.size as f64 * pixel_um);

@@ -176,7 +176,12 @@ def test_calibrate_acquire_and_cancel_a_second_as_a_notebook_would(
             snapshots.append(service.snapshot(first))
         elif (kind == "progress" and job == second and seen_at_cancel is None
               and event["progress"]["frames"] >= 20):
-            seen_at_cancel, asked = event["progress"]["frames"], time.time()
+            # The count the service has now: events can lag behind the rig while this
+            # loop fetches the first job's snapshots (it once read 20 with 64 taken).
+            now = service.status()
+            seen_at_cancel = (now["progress"]["frames"] if now["running"] == second
+                              else event["progress"]["frames"])
+            asked = time.time()
             service.cancel(second)
         elif kind == "state" and event["state"] in fpm.client.FINAL_STATES:
             ended[job] = event

@@ -153,6 +153,7 @@ class Streaming:
         dark_level: float = 0.0,
         fixed_pupil: bool = False,
         background: str = "per-frame",
+        floor: str = "soft",
         floor_sigma: float = 3.0,
         flatten_background: bool = False,
         background_block_um: Optional[float] = None,
@@ -186,11 +187,12 @@ def reconstruct(
     refine_leds: bool = False,
     fixed_pupil: bool = False,
     background: str = "per-frame",
+    floor: str = "soft",
     floor_sigma: float = 3.0,
     flatten_background: bool = False,
     background_block_um: Optional[float] = None,
     entrance_pupil_mm: Optional[float] = None,
-    refocus_um: float = 0.0,
+    refocus_um: Union[float, str, None] = None,
     progress: Optional[Progress] = None,
 ) -> Result:
     """EPRY reconstruction of the dataset's in-focus frames (GIL released).

@@ -154,15 +154,22 @@ pub(crate) fn settings(
     upsample: usize,
     fixed_pupil: bool,
     background: &str,
+    floor: &str,
     floor_sigma: f32,
     flatten_background: bool,
     background_block_um: Option<f64>,
 ) -> PyResult<Settings> {
+    let soft = match floor {
+        "soft" => true,
+        "hard" => false,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "floor = '{other}': give 'soft' or 'hard'"
+            )))
+        }
+    };
     let background = match background {
-        "per-frame" => Correction::PerFrame {
-            floor_sigma,
-            soft: true,
-        },
+        "per-frame" => Correction::PerFrame { floor_sigma, soft },
         "dark-level" => Correction::DarkLevel,
         other => {
             return Err(PyValueError::new_err(format!(
@@ -201,7 +208,8 @@ pub(crate) fn settings(
 /// `geometry`: see `geometry_from`. `tile`: side in camera pixels (default from the
 /// physics). `background`: "per-frame" (each dark-field frame's own background taken
 /// off, light near `floor_sigma` of its noise shrunk, noise read as no light) or
-/// "dark-level".
+/// "dark-level". `floor`: "soft" (default: light v counts as v·(v²/(v² + f²))², f the
+/// floor) or "hard" (everything up to the floor cut), as `fpm reconstruct --floor`.
 /// `progress(done, total)` is called as frame updates complete (tqdm: pass
 /// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
 /// background's low-order phase off, over blocks of `background_block_um` (default
@@ -215,7 +223,7 @@ pub(crate) fn settings(
 /// clearly show a defocus, else as in focus (the report's `refocus` says which).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(
     py: Python<'_>,
@@ -227,6 +235,7 @@ pub fn reconstruct(
     refine_leds: bool,
     fixed_pupil: bool,
     background: &str,
+    floor: &str,
     floor_sigma: f32,
     flatten_background: bool,
     background_block_um: Option<f64>,
@@ -260,6 +269,7 @@ pub fn reconstruct(
                 upsample,
                 fixed_pupil,
                 background,
+                floor,
                 floor_sigma,
                 flatten_background,
                 background_block_um,

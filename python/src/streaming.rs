@@ -61,7 +61,7 @@ impl Streaming {
     /// the LED array `geometry` (a dict, e.g. `Calibration.geometry`), cut into tiles
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]
-    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor_sigma = 3.0, flatten_background = false, background_block_um = None))]
+    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, flatten_background = false, background_block_um = None))]
     #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
     fn new(
         system: &Bound<'_, PyAny>,
@@ -73,6 +73,7 @@ impl Streaming {
         dark_level: f32,
         fixed_pupil: bool,
         background: &str,
+        floor: &str,
         floor_sigma: f32,
         flatten_background: bool,
         background_block_um: Option<f64>,
@@ -88,6 +89,7 @@ impl Streaming {
             upsample,
             fixed_pupil,
             background,
+            floor,
             floor_sigma,
             flatten_background,
             background_block_um,

@@ -166,9 +166,21 @@ def test_an_objective_that_is_not_telecentric_is_reconstructed_when_stated(tmp_p
     assert score(stated) < 0.6 * score(telecentric), (score(stated), score(telecentric))
 
 
+def test_the_floor_is_chosen_as_fpm_reconstruct_chooses_it(usaf):
+    """`floor` is `fpm reconstruct --floor`: soft by default, hard when asked, and the
+    report says which (the dark-field frames' light near the floor then differs)."""
+    soft = fpm.reconstruct(usaf, passes=1)
+    hard = fpm.reconstruct(usaf, passes=1, floor="hard", floor_sigma=5.0)
+    assert soft.report["background"]["floor"] == "soft"
+    assert (hard.report["background"]["floor"], hard.report["background"]["floor_sigma"]) == ("hard", 5.0)
+    assert not np.array_equal(soft.amplitude, hard.amplitude)
+
+
 def test_bad_arguments_are_refused(usaf):
     with pytest.raises(ValueError, match="background"):
         fpm.reconstruct(usaf, background="sometimes")
+    with pytest.raises(ValueError, match="floor = 'medium'"):
+        fpm.reconstruct(usaf, floor="medium")
     with pytest.raises(ValueError, match="passes"):
         fpm.reconstruct(usaf, passes=0)
     with pytest.raises(ValueError, match="geometry"):

@@ -145,9 +145,19 @@ fn print_calibration(file: &fpm_host::calibration::CalibrationFile, no_tilt: boo
         c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um
     );
     let count = |s: LedStatus| c.leds.iter().filter(|l| l.status == s).count();
+    let cut = c
+        .leds
+        .iter()
+        .filter(|l| l.status == LedStatus::Used && l.cut_by_edge)
+        .count();
     println!(
-        "  LEDs: {} used, {} dark-field, {} near the pupil edge, {} lost the feature, {} saturated, {} outliers",
+        "  LEDs: {} used{}, {} dark-field, {} near the pupil edge, {} lost the feature, {} saturated, {} outliers",
         count(LedStatus::Used),
+        if cut > 0 {
+            format!(" ({cut} of them cut by the frame's edge, the cut modelled)")
+        } else {
+            String::new()
+        },
         count(LedStatus::NotBrightField),
         count(LedStatus::NearPupilEdge),
         count(LedStatus::FeatureLost),

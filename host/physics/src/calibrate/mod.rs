@@ -143,6 +143,10 @@ pub struct LedResult {
     pub fitted_um: [f64; 2],
     /// |corrected − fitted|, µm.
     pub residual_um: Option<f64>,
+    /// Its defocused window was cut by the frame's edge: the bias model saw the same
+    /// cut (its bias is then larger, and counts in the uncertainty as every bias does).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub cut_by_edge: bool,
 }
 
 /// One standard deviation of each of the placement's numbers (h from the shifts
@@ -325,6 +329,8 @@ struct Measured {
     /// 1σ of the shift from the frame's pixel noise, µm.
     sigma_um: (f64, f64),
     status: LedStatus,
+    /// The window was cut by the frame's edge (usable only with the bias model).
+    cut_by_edge: bool,
 }
 
 /// Shifts with the model-based bias removed (zero where nothing was measured).

@@ -13,7 +13,7 @@ use std::ops::Range;
 use rustfft::num_complex::Complex32;
 
 use super::feature::{Feature, Polarity};
-use super::shift::{first_moment, Moment, RING_BAND};
+use super::shift::{first_moment_within, Bounds, Moment, RING_BAND};
 use crate::fft::{bin_frequency, Fft2};
 use crate::image::Image;
 use crate::optics::System;
@@ -50,6 +50,10 @@ pub struct FeatureModel {
     /// Where the pupil is centred at the feature, cycles/µm: the chief ray's frequency
     /// there ([`System::chief_ray_frequency`]), zero for a telecentric objective.
     pub pupil_centre: (f64, f64),
+    /// The frame pixel of the grid's (0, 0), for a model rebuilt from a frame.
+    grid_in_frame: Option<(i64, i64)>,
+    /// The frame's pixels on the grid: a moment the frame's edge cut is cut here too.
+    frame: Option<Bounds>,
 }
 
 /// The defocus transfer inside the pupil as a function of the squared frequency ρ²,
@@ -161,7 +165,25 @@ impl FeatureModel {
             }
         }
         let pixel_um = system.sample_pixel_um();
-        Self::from_field(field, n, feature.polarity, half_window, pixel_um)
+        Self {
+            grid_in_frame: Some((fc - (n / 2) as i64, fr - (n / 2) as i64)),
+            ..Self::from_field(field, n, feature.polarity, half_window, pixel_um)
+        }
+    }
+
+    /// Cut the model's moments where a `width` × `height` frame ends (a model rebuilt
+    /// from that frame's reference): a defocused window the frame's edge cuts gives the
+    /// model's prediction the same cut, so its bias is modelled too.
+    pub fn cut_at_frame(&mut self, width: usize, height: usize) {
+        self.frame = self.grid_in_frame.map(|(x, y)| {
+            Bounds {
+                x0: 0,
+                y0: 0,
+                x1: width as i64,
+                y1: height as i64,
+            }
+            .shifted(-x, -y)
+        });
     }
 
     /// A model from a given transmission on an `n × n` grid of `pixel_um` (the
@@ -190,6 +212,8 @@ impl FeatureModel {
             reference: None,
             defocus: None,
             pupil_centre: (0.0, 0.0),
+            grid_in_frame: None,
+            frame: None,
         }
     }
 
@@ -269,18 +293,33 @@ impl FeatureModel {
         let end = (row + reach + 1).clamp(first as i64, n as i64) as usize;
         let part = self.image_rows(system, f, z_um, first..end);
         let local = (start.0, start.1 - first as f64);
+        let unbounded = Bounds {
+            x0: i64::MIN / 4,
+            y0: i64::MIN / 4,
+            x1: i64::MAX / 4,
+            y1: i64::MAX / 4,
+        };
+        let bounds = self.frame.unwrap_or(unbounded);
         let inside = |m: &Moment| {
             (first == 0 || m.window.y >= RING_BAND)
                 && (end == n || m.window.y + m.window.h + RING_BAND <= part.nrows())
         };
-        match first_moment(&part, self.polarity, local, half, iterations) {
+        let polarity = self.polarity;
+        match first_moment_within(
+            &part,
+            bounds.shifted(0, -(first as i64)),
+            polarity,
+            local,
+            half,
+            iterations,
+        ) {
             Some(m) if inside(&m) => Some(Moment {
                 center_px: (m.center_px.0, m.center_px.1 + first as f64),
                 ..m
             }),
             _ if first > 0 || end < n => {
                 let whole = self.image(system, f, z_um);
-                first_moment(&whole, self.polarity, start, half, iterations)
+                first_moment_within(&whole, bounds, polarity, start, half, iterations)
             }
             other => other,
         }
@@ -320,6 +359,7 @@ impl FeatureModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calibrate::shift::first_moment;
     use crate::optics::defocus_transfer;
 
     /// A square hole in a dark film: the calibration's usual feature.

@@ -48,7 +48,8 @@ impl Moment {
 /// Width of the band around the window that the background is taken from, pixels.
 pub const RING_BAND: usize = 6;
 
-/// Background: the median of a band around the window, and how many pixels it took.
+/// Background: the median of a band around the window (within `limits`), and how many
+/// pixels it took.
 fn ring_background(
     img: &Image,
     x0: usize,
@@ -56,10 +57,14 @@ fn ring_background(
     x1: usize,
     y1: usize,
     band: usize,
+    limits: [usize; 4],
 ) -> (f32, usize) {
-    let (h, w) = img.dim();
-    let (bx0, by0) = (x0.saturating_sub(band), y0.saturating_sub(band));
-    let (bx1, by1) = ((x1 + band).min(w), (y1 + band).min(h));
+    let [lx0, ly0, lx1, ly1] = limits;
+    let (bx0, by0) = (
+        x0.saturating_sub(band).max(lx0),
+        y0.saturating_sub(band).max(ly0),
+    );
+    let (bx1, by1) = ((x1 + band).min(lx1), (y1 + band).min(ly1));
     let mut ring: Vec<f32> = Vec::with_capacity(2 * band * (bx1 - bx0 + by1 - by0));
     for r in by0..by1 {
         let row = row_slice(img, r);
@@ -74,6 +79,39 @@ fn ring_background(
     (median(ring), n)
 }
 
+/// The pixels a moment may use, [x0, x1) × [y0, y1) in the image's pixels: the
+/// frame's own, which a model's larger grid must respect to see the frame's cut.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bounds {
+    pub x0: i64,
+    pub y0: i64,
+    pub x1: i64,
+    pub y1: i64,
+}
+
+impl Bounds {
+    /// All of `img`.
+    pub fn whole(img: &Image) -> Self {
+        let (h, w) = img.dim();
+        Self {
+            x0: 0,
+            y0: 0,
+            x1: w as i64,
+            y1: h as i64,
+        }
+    }
+
+    /// Moved by (dx, dy) pixels.
+    pub fn shifted(self, dx: i64, dy: i64) -> Self {
+        Self {
+            x0: self.x0 + dx,
+            y0: self.y0 + dy,
+            x1: self.x1 + dx,
+            y1: self.y1 + dy,
+        }
+    }
+}
+
 /// The first moment of `polarity`-signed, background-removed intensity in a square
 /// window of half-size `half` that is re-centred on the moment `iterations` times,
 /// starting at `start` (col, row).
@@ -84,7 +122,28 @@ pub fn first_moment(
     half: usize,
     iterations: usize,
 ) -> Option<Moment> {
+    first_moment_within(img, Bounds::whole(img), polarity, start, half, iterations)
+}
+
+/// [`first_moment`] using only the pixels within `bounds` (and the image): the window
+/// and its background band are cut there, and the moment says so (`clipped`).
+pub fn first_moment_within(
+    img: &Image,
+    bounds: Bounds,
+    polarity: Polarity,
+    start: (f64, f64),
+    half: usize,
+    iterations: usize,
+) -> Option<Moment> {
     let (h, w) = img.dim();
+    let clamp = |v: i64, hi: usize| v.clamp(0, hi as i64) as usize;
+    let limits = [
+        clamp(bounds.x0, w),
+        clamp(bounds.y0, h),
+        clamp(bounds.x1, w),
+        clamp(bounds.y1, h),
+    ];
+    let [lx0, ly0, lx1, ly1] = limits.map(|v| v as i64);
     let sign = if polarity == Polarity::Bright {
         1.0
     } else {
@@ -100,18 +159,18 @@ pub fn first_moment(
             break;
         }
         last_window = Some((cx, cy));
-        let x0 = (cx - half as i64).max(0) as usize;
-        let y0 = (cy - half as i64).max(0) as usize;
-        let x1 = ((cx + half as i64 + 1).max(0) as usize).min(w);
-        let y1 = ((cy + half as i64 + 1).max(0) as usize).min(h);
+        let x0 = (cx - half as i64).clamp(lx0, lx1) as usize;
+        let y0 = (cy - half as i64).clamp(ly0, ly1) as usize;
+        let x1 = (cx + half as i64 + 1).clamp(lx0, lx1) as usize;
+        let y1 = (cy + half as i64 + 1).clamp(ly0, ly1) as usize;
         if x1 <= x0 + 2 || y1 <= y0 + 2 {
             return None;
         }
-        let clipped = cx - (half as i64) < 0
-            || cy - (half as i64) < 0
-            || cx + half as i64 + 1 > w as i64
-            || cy + half as i64 + 1 > h as i64;
-        let (bg, ring) = ring_background(img, x0, y0, x1, y1, RING_BAND);
+        let clipped = cx - (half as i64) < lx0
+            || cy - (half as i64) < ly0
+            || cx + half as i64 + 1 > lx1
+            || cy + half as i64 + 1 > ly1;
+        let (bg, ring) = ring_background(img, x0, y0, x1, y1, RING_BAND, limits);
         let (c, sw) = signed_moment(img, sign, bg, (x0, x1), (y0, y1))?;
         center = c;
         result = Some(Moment {
@@ -155,5 +214,39 @@ mod tests {
         let img = Image::from_shape_fn((50, 50), |(r, c)| if r < 4 && c < 4 { 100.0 } else { 0.0 });
         let m = first_moment(&img, Polarity::Bright, (2.0, 2.0), 10, 2).unwrap();
         assert!(m.clipped);
+    }
+
+    /// Bounds inside a larger image cut the window and its background band exactly as
+    /// the image's own edge would: the model's grid, larger than the frame, sees the
+    /// frame's cut.
+    #[test]
+    fn bounds_cut_as_the_frame_edge_cuts() {
+        let blob = |(r, c): (usize, usize)| {
+            let d2 = (c as f64 - 33.0).powi(2) + (r as f64 - 30.0).powi(2);
+            (20.0 + 300.0 * (-d2 / 40.0).exp() + ((r * 7 + c * 3) % 5) as f64) as f32
+        };
+        let frame = Image::from_shape_fn((60, 40), blob);
+        let larger = Image::from_shape_fn((60, 90), blob);
+        let bounds = Bounds {
+            x0: 0,
+            y0: 0,
+            x1: 40,
+            y1: 60,
+        };
+        let a = first_moment(&frame, Polarity::Bright, (31.0, 30.0), 12, 3).unwrap();
+        let b =
+            first_moment_within(&larger, bounds, Polarity::Bright, (31.0, 30.0), 12, 3).unwrap();
+        assert!(a.clipped && b.clipped);
+        assert_eq!(
+            (a.window, a.background_pixels),
+            (b.window, b.background_pixels)
+        );
+        assert!(
+            (a.center_px.0 - b.center_px.0).abs() < 1e-9
+                && (a.center_px.1 - b.center_px.1).abs() < 1e-9
+        );
+        // Without the bounds the larger image's window is whole, and elsewhere.
+        let c = first_moment(&larger, Polarity::Bright, (31.0, 30.0), 12, 3).unwrap();
+        assert!(!c.clipped && (c.center_px.0 - b.center_px.0).abs() > 0.1);
     }
 }

@@ -101,6 +101,9 @@ impl Located {
     }
 }
 
+/// A window cut by the frame's edge is used if at least this share of it is left.
+pub(super) const MIN_WINDOW_LEFT: f64 = 0.5;
+
 /// Every defocused frame measured: the window starts where the nominal geometry (with
 /// generous slack) puts the feature and then follows it.
 pub(super) fn measure(
@@ -128,16 +131,26 @@ pub(super) fn measure(
                 f.saturation
                     .is_some_and(|sat| saturated_pixels(f.image, m.window, sat) > 0)
             };
-            let (shift_um, mut status) = match m {
-                Some(m) if saturated(&m) => (None, LedStatus::Saturated),
-                Some(m) if !m.clipped => (
-                    Some((
-                        (m.center_px.0 - ref_center.0) * px,
-                        (m.center_px.1 - ref_center.1) * px,
-                    )),
-                    LedStatus::Used,
-                ),
-                _ => (None, LedStatus::FeatureLost),
+            let shift_of = |m: &shift::Moment| {
+                Some((
+                    (m.center_px.0 - ref_center.0) * px,
+                    (m.center_px.1 - ref_center.1) * px,
+                ))
+            };
+            let full = (2 * located.half_window + 1).pow(2) as f64;
+            let (shift_um, mut status, cut_by_edge) = match m {
+                Some(m) if saturated(&m) => (None, LedStatus::Saturated, false),
+                Some(m) if !m.clipped => (shift_of(&m), LedStatus::Used, false),
+                // Cut by the frame's edge: the moment is biased toward the inside, and
+                // the bias model, cut the same way, accounts for it; most of the
+                // window must be left.
+                Some(m)
+                    if options.bias_correction
+                        && (m.window.w * m.window.h) as f64 >= MIN_WINDOW_LEFT * full =>
+                {
+                    (shift_of(&m), LedStatus::Used, true)
+                }
+                _ => (None, LedStatus::FeatureLost, false),
             };
             let sigma_um = m.map_or((0.0, 0.0), |m| (m.sigma_px.0 * px, m.sigma_px.1 * px));
             if brightness < options.min_brightness {
@@ -150,6 +163,7 @@ pub(super) fn measure(
                 shift_um,
                 sigma_um,
                 status,
+                cut_by_edge,
             }
         })
         .collect()
@@ -185,8 +199,35 @@ pub(super) fn fit_rigid(
         );
         m.reference_half_window = located.reference_half.min(located.half_window);
         m.pupil_centre = system.chief_ray_frequency(xc, yc);
+        let (h, w) = reference.image.dim();
+        m.cut_at_frame(w, h);
         m
     });
+    // Model-based bias of each measured shift under `geometry` (only the frames cut
+    // by the edge when `cut_only`).
+    let biases = |model: &mut model::FeatureModel,
+                  geometry: &LedGeometry,
+                  measured: &[Measured],
+                  bias: &mut [(f64, f64)],
+                  cut_only: bool| {
+        let f_ref = geometry.illumination_frequency(nominal.center, xc, yc, system.wavelength_um);
+        for (m, b) in measured.iter().zip(bias.iter_mut()) {
+            if m.shift_um.is_none() || (cut_only && !m.cut_by_edge) {
+                continue;
+            }
+            let f_led = geometry.illumination_frequency(m.led, xc, yc, system.wavelength_um);
+            let ideal = geometry.defocus_shift_um(m.led, xc, yc, z);
+            let start = (ideal.0 / px, ideal.1 / px);
+            if let Some(pred) = model.predicted_shift_um(system, f_ref, f_led, z, start) {
+                *b = (pred.0 - ideal.0, pred.1 - ideal.1);
+            }
+        }
+    };
+    // A shift the edge cut is far off until its bias is taken off: under the nominal
+    // geometry for the first fit.
+    if let Some(model) = model.as_mut() {
+        biases(model, nominal, measured, &mut bias, true);
+    }
     // The feature's spectrum is ~2/size wide; keep LEDs whose disc edge clears it.
     let feature_size_um = (located.feature.area_px as f64).sqrt() * px;
     let spectral_margin = 2.0 / feature_size_um.max(px);
@@ -226,18 +267,7 @@ pub(super) fn fit_rigid(
         let Some(model) = model.as_mut() else {
             break;
         };
-        let f_ref = geometry.illumination_frequency(nominal.center, xc, yc, system.wavelength_um);
-        for (m, b) in measured.iter().zip(bias.iter_mut()) {
-            if m.shift_um.is_none() {
-                continue;
-            }
-            let f_led = geometry.illumination_frequency(m.led, xc, yc, system.wavelength_um);
-            let ideal = geometry.defocus_shift_um(m.led, xc, yc, z);
-            let start = (ideal.0 / px, ideal.1 / px);
-            if let Some(pred) = model.predicted_shift_um(system, f_ref, f_led, z, start) {
-                *b = (pred.0 - ideal.0, pred.1 - ideal.1);
-            }
-        }
+        biases(model, &geometry, measured, &mut bias, false);
     }
     Ok((result.ok_or(CalibrationError::Fit)?, bias))
 }
@@ -399,6 +429,7 @@ pub(super) fn report(
                 bias_um: m.shift_um.map(|_| [b.0, b.1]),
                 fitted_um: [fitted.0, fitted.1],
                 residual_um: m.shift_um.map(|_| r.0.hypot(r.1)),
+                cut_by_edge: m.cut_by_edge,
             }
         })
         .collect();

@@ -25,7 +25,8 @@ pub struct RefinedLedsReport {
     /// each LED's own move was shrunk by τ²/(τ² + its σ²), so LEDs of a well-built
     /// board and dim frames stay on the model. Perfect simulated boards read 0.12–0.15
     /// mm (the model's own error, which the moves also absorb); boards whose LEDs were
-    /// off by 0.25 mm read 0.23–0.25.
+    /// off by 0.25 mm read 0.23–0.27; with dim, soft-floored dark field every board
+    /// read 0.23–0.33 (the moves then carry the model's error: docs/results.md).
     pub led_scatter_mm: Option<f64>,
     /// Per LED.
     pub leds: Vec<RefinedLed>,

@@ -123,11 +123,15 @@ pub struct ReconstructArgs {
     /// dim light in part; hard: everything up to the floor is cut
     #[arg(long, value_enum, default_value_t = FloorArg::Soft)]
     floor: FloorArg,
-    /// Refine each LED's position inside the passes (a local search of its
-    /// illumination frequency against the data, from the second pass on): for boards
-    /// with LEDs off their grid or mounted at a tilt. The refined positions go into
-    /// report.json, and a rigid, tilted board fitted to them into refined-board.json
-    /// (usable as --calibration). Each pass takes 3–5× longer.
+    /// Refine each LED's position inside the passes, from the second pass on: for
+    /// boards with LEDs off their grid or mounted at a tilt. Each frame's place is
+    /// measured against the data with its own uncertainty; a board model (its tilts) is
+    /// fitted to them, and each LED takes its own move only as far as the data say the
+    /// LEDs sit off the model (τ, printed), so a well-built board's LEDs and dim
+    /// dark-field frames stay on the model. The refined positions go into report.json,
+    /// and a rigid, tilted board fitted to them into refined-board.json (usable as
+    /// --calibration; with dim dark field the image gains but the positions are not a
+    /// calibration). Each pass takes 3–5× longer.
     #[arg(long)]
     refine_leds: bool,
     /// How amplitude and phase are stored: OME-TIFFs (amplitude.tif, phase.tif), or

@@ -63,6 +63,9 @@ impl Default for Refine {
     }
 }
 
+/// A floor on each place's σ, bins: a few blocks can agree by chance.
+const SIGMA_FLOOR_BINS: f64 = 0.02;
+
 /// Parameters of the board model: common shift x, y, rotation and radial scale (taken
 /// out), then the two tilts (kept).
 const MODEL_PARAMS: usize = 6;
@@ -226,15 +229,32 @@ impl Search {
         self.frequency(k)
     }
 
+    /// A place's variance from its σ, with [`SIGMA_FLOOR_BINS`].
+    fn variance(&self, sigma: f64) -> f64 {
+        sigma * sigma + (SIGMA_FLOOR_BINS * self.df).powi(2)
+    }
+
+    /// Frame `k`'s move under the model `x` for the parameters `params`.
+    fn model_at(
+        &self,
+        k: usize,
+        x: &SVector<f64, MODEL_PARAMS>,
+        params: std::ops::Range<usize>,
+    ) -> (f64, f64) {
+        let b = &self.basis[k];
+        params.fold((0.0, 0.0), |a, p| {
+            (a.0 + b[p].0 * x[p], a.1 + b[p].1 * x[p])
+        })
+    }
+
     /// Frame `k`'s move to update at: the board model plus its measured residual
     /// shrunk by τ²/(τ² + σ²), within the limit.
     fn to_use(&self, k: usize) -> (f64, f64) {
-        let floor = 0.02 * self.df;
         let (m, board) = (self.measured[k], self.board[k]);
         let (sx, sy) = self.sigma[k];
         let shrink = |r: f64, s: f64| {
             if s.is_finite() {
-                r * self.tau2 / (self.tau2 + s * s + floor * floor)
+                r * self.tau2 / (self.tau2 + self.variance(s))
             } else {
                 0.0
             }
@@ -252,7 +272,8 @@ impl Search {
     }
 
     /// After a pass: fit the board model to the measured moves and estimate τ (three
-    /// rounds), take the common shift and rotation out of the measurements, and set
+    /// rounds), take the common shift, rotation and radial scale out of the
+    /// measurements, and set
     /// each frame's used move to the model plus its residual shrunk by τ²/(τ² + σ²).
     pub(crate) fn project(&mut self) {
         let n = self.start.len();
@@ -267,16 +288,6 @@ impl Search {
             self.used = vec![(0.0, 0.0); n];
             return;
         }
-        // A floor on σ: three blocks can agree by chance.
-        let floor = 0.02 * self.df;
-        let variance = |s: f64| s * s + floor * floor;
-        let model_at = |basis: &[(f64, f64); MODEL_PARAMS],
-                        x: &SVector<f64, MODEL_PARAMS>,
-                        params: std::ops::Range<usize>| {
-            params.fold((0.0, 0.0), |a, p| {
-                (a.0 + basis[p].0 * x[p], a.1 + basis[p].1 * x[p])
-            })
-        };
         let mut tau2 = 0.0;
         let mut x = SVector::<f64, MODEL_PARAMS>::zeros();
         for _ in 0..3 {
@@ -286,7 +297,7 @@ impl Search {
                 let b = &self.basis[k];
                 let (sx, sy) = self.sigma[k];
                 for (axis, r, s) in [(0, self.measured[k].0, sx), (1, self.measured[k].1, sy)] {
-                    let w = 1.0 / (variance(s) + tau2);
+                    let w = 1.0 / (self.variance(s) + tau2);
                     let j = SVector::<f64, MODEL_PARAMS>::from_fn(|p, _| {
                         if axis == 0 {
                             b[p].0
@@ -306,14 +317,14 @@ impl Search {
             // τ² by moments: Σ w²(r² − σ²) / Σ w², w = 1/(σ² + τ²).
             let (mut num, mut den) = (0.0, 0.0);
             for &k in &measured_frames {
-                let m = model_at(&self.basis[k], &x, 0..MODEL_PARAMS);
+                let m = self.model_at(k, &x, 0..MODEL_PARAMS);
                 let (sx, sy) = self.sigma[k];
                 for (r, s) in [
                     (self.measured[k].0 - m.0, sx),
                     (self.measured[k].1 - m.1, sy),
                 ] {
-                    let w = 1.0 / (variance(s) + tau2);
-                    num += w * w * (r * r - variance(s));
+                    let w = 1.0 / (self.variance(s) + tau2);
+                    num += w * w * (r * r - self.variance(s));
                     den += w * w;
                 }
             }
@@ -321,8 +332,8 @@ impl Search {
         }
         self.tau2 = tau2;
         for k in 0..n {
-            let nuisance = model_at(&self.basis[k], &x, 0..NUISANCE_PARAMS);
-            self.board[k] = model_at(&self.basis[k], &x, NUISANCE_PARAMS..MODEL_PARAMS);
+            let nuisance = self.model_at(k, &x, 0..NUISANCE_PARAMS);
+            self.board[k] = self.model_at(k, &x, NUISANCE_PARAMS..MODEL_PARAMS);
             let m = &mut self.measured[k];
             m.0 -= nuisance.0;
             m.1 -= nuisance.1;

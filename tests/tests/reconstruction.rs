@@ -154,6 +154,11 @@ fn simulate_centred(dir: &TempDir, size: &str, seed: &str) {
 /// The array where the dataset says it is.
 const CENTRED: &[&str] = &["--dx-mm", "0", "--dy-mm", "0", "--theta-deg", "0"];
 
+/// The rigid placement the LED-refinement tests simulate with and give (as JSON).
+const REFINE_RIGID: &[&str] = &["--dx-mm", "0.3", "--dy-mm", "-0.2", "--theta-deg", "1"];
+const REFINE_RIGID_JSON: &str =
+    r#"{ "dx_mm": 0.3, "dy_mm": -0.2, "theta_deg": 1.0, "height_mm": 92.0 }"#;
+
 /// 128² frames of the 8-bit camera with dark-field frames as dim as the USAF set's.
 const DIM_EIGHT_BIT_128: &[&str] = &[
     "--size",
@@ -673,25 +678,10 @@ fn tiles_blend_into_the_whole_field() {
 fn refined_leds_come_closer_to_a_misbuilt_board() {
     let data = TempDir::new("refine-data");
     let d = data.0.to_string_lossy().into_owned();
-    simulate_acquisition(
-        &data,
-        &[
-            "--size",
-            "128",
-            "--seed",
-            "3",
-            "--dx-mm",
-            "0.3",
-            "--dy-mm",
-            "-0.2",
-            "--theta-deg",
-            "1",
-            "--tilt-x-deg",
-            "1",
-            "--led-jitter-mm",
-            "0.25",
-        ],
-    );
+    let mut args = vec!["--size", "128", "--seed", "3"];
+    args.extend_from_slice(REFINE_RIGID);
+    args.extend(["--tilt-x-deg", "1", "--led-jitter-mm", "0.25"]);
+    simulate_acquisition(&data, &args);
     let truth = truth_json(&data.0);
     assert_eq!(
         truth["leds"].as_array().map(Vec::len),
@@ -699,11 +689,7 @@ fn refined_leds_come_closer_to_a_misbuilt_board() {
         "truth.json lists the LEDs"
     );
     let rigid = data.0.join("rigid.json");
-    std::fs::write(
-        &rigid,
-        r#"{ "dx_mm": 0.3, "dy_mm": -0.2, "theta_deg": 1.0, "height_mm": 92.0 }"#,
-    )
-    .unwrap();
+    std::fs::write(&rigid, REFINE_RIGID_JSON).unwrap();
     let run = |out: &TempDir, extra: &[&str]| {
         let mut args = vec![
             "reconstruct",
@@ -781,7 +767,6 @@ fn refined_leds_come_closer_to_a_misbuilt_board() {
 /// placement put it (it once ran away, 1.7 % in ten passes).
 #[test]
 fn refinement_with_dim_dark_field_helps_a_misbuilt_board_and_spares_a_perfect_one() {
-    let rigid = r#"{ "dx_mm": 0.3, "dy_mm": -0.2, "theta_deg": 1.0, "height_mm": 92.0 }"#;
     let case = |name: &str, misbuilt: bool| {
         let data = TempDir::new(name);
         let mut args = vec![
@@ -789,21 +774,16 @@ fn refinement_with_dim_dark_field_helps_a_misbuilt_board_and_spares_a_perfect_on
             "128",
             "--seed",
             "11",
-            "--dx-mm",
-            "0.3",
-            "--dy-mm",
-            "-0.2",
-            "--theta-deg",
-            "1",
             "--dark-field-peak-dn",
             "25",
         ];
+        args.extend_from_slice(REFINE_RIGID);
         if misbuilt {
             args.extend(["--tilt-x-deg", "1", "--led-jitter-mm", "0.25"]);
         }
         simulate_acquisition(&data, &args);
         let placement = data.0.join("rigid.json");
-        std::fs::write(&placement, rigid).unwrap();
+        std::fs::write(&placement, REFINE_RIGID_JSON).unwrap();
         let run = |extra: &[&str]| {
             let out = data.0.join(format!("out{}", extra.len()));
             let mut args = vec!["--calibration", placement.to_str().unwrap()];

@@ -293,13 +293,11 @@ impl FeatureModel {
         let end = (row + reach + 1).clamp(first as i64, n as i64) as usize;
         let part = self.image_rows(system, f, z_um, first..end);
         let local = (start.0, start.1 - first as f64);
-        let unbounded = Bounds {
-            x0: i64::MIN / 4,
-            y0: i64::MIN / 4,
-            x1: i64::MAX / 4,
-            y1: i64::MAX / 4,
+        // The frame's pixels on an image of the grid whose first row is `row0`.
+        let frame = self.frame;
+        let within = |img: &Image, row0: usize| {
+            frame.map_or(Bounds::whole(img), |b| b.shifted(0, -(row0 as i64)))
         };
-        let bounds = self.frame.unwrap_or(unbounded);
         let inside = |m: &Moment| {
             (first == 0 || m.window.y >= RING_BAND)
                 && (end == n || m.window.y + m.window.h + RING_BAND <= part.nrows())
@@ -307,7 +305,7 @@ impl FeatureModel {
         let polarity = self.polarity;
         match first_moment_within(
             &part,
-            bounds.shifted(0, -(first as i64)),
+            within(&part, first),
             polarity,
             local,
             half,
@@ -319,7 +317,7 @@ impl FeatureModel {
             }),
             _ if first > 0 || end < n => {
                 let whole = self.image(system, f, z_um);
-                first_moment_within(&whole, bounds, polarity, start, half, iterations)
+                first_moment_within(&whole, within(&whole, 0), polarity, start, half, iterations)
             }
             other => other,
         }

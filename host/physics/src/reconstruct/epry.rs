@@ -581,12 +581,6 @@ impl Epry {
     pub fn bin_step(&self) -> f64 {
         self.df
     }
-
-    /// Camera pixels the amplitude is constrained on (what [`Self::misfit`] sums over).
-    pub fn constrained_pixels(&self) -> usize {
-        let [c0, c1, r0, r1] = self.constrained;
-        (c1 - c0) * (r1 - r0)
-    }
 }
 
 /// Remove the curvature of the illumination from a reconstructed field. An LED at a

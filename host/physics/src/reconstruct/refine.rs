@@ -8,9 +8,10 @@
 //!   frame's misfit ([`Epry::misfit_blocks`]) is taken at its measured place and
 //!   ±[`Refine::probe_bins`] along x and y, and the place moves by the Newton step of
 //!   the parabola through them. The same step taken in each block of a
-//!   [`Refine::blocks`]² grid of the frame gives independent estimates (other object
-//!   detail, other noise): their scatter is the place's own uncertainty σ. A dim
-//!   dark-field frame's blocks disagree, and its σ is large.
+//!   [`Refine::blocks`]² grid of the frame gives estimates from other object detail
+//!   and other noise: their scatter is the place's own uncertainty σ (none for a frame
+//!   whose light falls in one block). The blocks share the error of the object's
+//!   spectrum under the frame's disc, so σ comes out small; τ below carries the rest.
 //! * Model. After each pass a board model is fitted to the measured moves, weighted by
 //!   1/(σ² + τ²): a common shift and a common rotation about the axis (what the
 //!   object's own phase ramp, or a turned object, explains as well: the pupil is round),
@@ -51,8 +52,8 @@ pub struct Refine {
 impl Default for Refine {
     /// A quarter bin: an LED 0.25 mm off its place at 92 mm moves its disc by ~0.45 bin
     /// in a 77 µm field. Three bins at most: more than any misplacement a calibrated
-    /// board leaves, less than the ~4 bins between neighbouring LEDs. 3 × 3 blocks:
-    /// eight degrees of freedom for each σ, blocks still of 40 px in a 128-px field.
+    /// board leaves, less than the ~4 bins between neighbouring LEDs. 3 × 3 blocks: up
+    /// to nine estimates for each σ, blocks still of 40 px in a 128-px field.
     fn default() -> Self {
         Self {
             from_pass: 1,
@@ -69,7 +70,8 @@ const SIGMA_FLOOR_BINS: f64 = 0.02;
 /// Parameters of the board model: common shift x, y, rotation and radial scale (taken
 /// out), then the two tilts (kept).
 const MODEL_PARAMS: usize = 6;
-/// The first [`NUISANCE_PARAMS`] of [`MODEL_PARAMS`] are what the object explains.
+/// The first [`NUISANCE_PARAMS`] of [`MODEL_PARAMS`] are taken out: what the object
+/// explains (shift, rotation) and what the calibration fixes (the height's scale).
 const NUISANCE_PARAMS: usize = 4;
 
 /// The search state of every frame of one field, in the order the passes see them.

@@ -80,8 +80,8 @@ pub fn central(a: &Array2<Complex32>, fraction: f64) -> Vec<Complex32> {
 
 pub use crate::reconstruct::complex_nrmse;
 
-/// [`complex_nrmse`] of `reconstruction` against `truth` (both `side` × `side`,
-/// row-major, e.g. from [`central`]) after the low-order phase between them (piston,
+/// [`complex_nrmse`] of `reconstruction` against `truth` (both row-major, `width`
+/// columns, e.g. from [`central`]) after the low-order phase between them (piston,
 /// the two tilts and the three quadratic terms) is fitted out. FPM pins the lowest
 /// spatial frequencies of the phase only weakly (the bright-field frames barely see a
 /// slow phase), and on simulated 128² sets that slow phase held nearly all of the
@@ -90,15 +90,18 @@ pub use crate::reconstruct::complex_nrmse;
 pub fn complex_nrmse_low_order_free(
     reconstruction: &[Complex32],
     truth: &[Complex32],
-    side: usize,
+    width: usize,
 ) -> f64 {
     use nalgebra::{SMatrix, SVector};
-    let n = reconstruction.len().min(truth.len()).min(side * side);
+    let width = width.max(1);
+    let n = reconstruction.len().min(truth.len());
+    let height = n / width;
+    let n = width * height;
     let basis = |i: usize| {
-        let half = side as f64 / 2.0;
+        let (half_w, half_h) = (width as f64 / 2.0, height.max(1) as f64 / 2.0);
         let (x, y) = (
-            ((i % side) as f64 - half) / half,
-            ((i / side) as f64 - half) / half,
+            ((i % width) as f64 - half_w) / half_w,
+            ((i / width) as f64 - half_h) / half_h,
         );
         SVector::<f64, 6>::from([1.0, x, y, x * x, x * y, y * y])
     };
@@ -141,6 +144,10 @@ pub struct Scores {
     pub amplitude_nrmse: f64,
     /// Phase RMSE, radians, there (global phase removed, differences wrapped).
     pub phase_rmse_rad: f64,
+    /// Complex NRMSE once the low-order phase (piston, tilts, quadratic) is fitted out
+    /// too ([`complex_nrmse_low_order_free`]): the detail, without the slow phase FPM
+    /// pins only weakly.
+    pub detail_nrmse: f64,
 }
 
 /// Score a reconstruction against the truth: both resampled to the truth's grid and
@@ -164,6 +171,8 @@ pub fn score(
         0.75,
     );
     let complex = complex_nrmse(&r, &t);
+    let width = ((grid.1 as f64) * 0.75).round() as usize;
+    let detail = complex_nrmse_low_order_free(&r, &t, width);
     // Global complex factor c = ⟨r, t⟩/⟨r, r⟩, for the phase.
     let mut rt = rustfft::num_complex::Complex64::default();
     for (a, b) in r.iter().zip(&t) {
@@ -203,6 +212,7 @@ pub fn score(
             1.0
         },
         phase_rmse_rad: (phase2 / n).sqrt(),
+        detail_nrmse: detail,
     }
 }
 

@@ -49,6 +49,7 @@ impl Kept {
                 exposure_ms: self.exposure_ms,
                 floor: 0.0,
                 soft_floor: false,
+                band: 0.0,
             },
         }
     }
@@ -61,7 +62,7 @@ impl Streaming {
     /// the LED array `geometry` (a dict, e.g. `Calibration.geometry`), cut into tiles
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]
-    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, flatten_background = false, background_block_um = None))]
+    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 0.0, flatten_background = false, background_block_um = None))]
     #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
     fn new(
         system: &Bound<'_, PyAny>,
@@ -75,6 +76,7 @@ impl Streaming {
         background: &str,
         floor: &str,
         floor_sigma: f32,
+        noise_band_sigma: f32,
         flatten_background: bool,
         background_block_um: Option<f64>,
     ) -> PyResult<Self> {
@@ -91,6 +93,7 @@ impl Streaming {
             background,
             floor,
             floor_sigma,
+            noise_band_sigma,
             flatten_background,
             background_block_um,
         )?;

@@ -63,6 +63,7 @@ def test_settings_out_of_range_are_refused_as_a_reconstruction_refuses_them(acqu
         (dict(upsample=0), r"upsample 0: must be 1-64"),
         (dict(upsample=65), r"upsample 65: must be 1-64"),
         (dict(floor_sigma=-1.0), r"floor_sigma -1: must be 0 or more"),
+        (dict(noise_band_sigma=-1.0), r"noise_band_sigma -1: must be 0 or more"),
     ):
         with pytest.raises(ValueError, match=name):
             fpm.Streaming(ds.system, ds.geometry, 64, 64, **kwargs)

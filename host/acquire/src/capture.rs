@@ -66,6 +66,7 @@ impl<'a> ShotView<'a> {
                 exposure_ms: self.header.exposure_us.max(1) as f32 / 1e3,
                 floor: 0.0,
                 soft_floor: false,
+                band: 0.0,
             },
         }
     }

@@ -28,6 +28,10 @@ pub enum Correction {
         /// rather than cut. The default: on the repo's simulated dim dark-field sets and
         /// its real ring-array frame it beat the hard floor (docs/results.md).
         soft: bool,
+        /// Half-width of the noise band, in standard deviations of the background's
+        /// noise ([`Measured::band`]): within it of a measured pixel the model's light
+        /// is left as it is (0: the measurement is imposed exactly).
+        band_sigma: f32,
     },
 }
 
@@ -35,9 +39,14 @@ impl Correction {
     /// The same correction with its floor hard (cut, not shrunk).
     pub fn with_hard_floor(self) -> Self {
         match self {
-            Correction::PerFrame { floor_sigma, .. } => Correction::PerFrame {
+            Correction::PerFrame {
+                floor_sigma,
+                band_sigma,
+                ..
+            } => Correction::PerFrame {
                 floor_sigma,
                 soft: false,
+                band_sigma,
             },
             other => other,
         }
@@ -57,7 +66,12 @@ pub fn correct<'a>(
     geometry: &LedGeometry,
     correction: Correction,
 ) -> (LitFrame<'a>, Option<FrameBackground>) {
-    let Correction::PerFrame { floor_sigma, soft } = correction else {
+    let Correction::PerFrame {
+        floor_sigma,
+        soft,
+        band_sigma,
+    } = correction
+    else {
         return (frame, None);
     };
     let (h, w) = frame.measured.dim();
@@ -71,7 +85,10 @@ pub fn correct<'a>(
     match estimate(&frame.measured) {
         Some(b) if b.is_flat() => (
             LitFrame {
-                measured: subtract(frame.measured, b, floor_sigma, soft),
+                measured: Measured {
+                    band: band_sigma.max(0.0) * b.noise,
+                    ..subtract(frame.measured, b, floor_sigma, soft)
+                },
                 ..frame
             },
             Some(b),
@@ -239,6 +256,7 @@ mod tests {
             exposure_ms: 1.0,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         }
     }
 

@@ -202,6 +202,10 @@ pub struct Measured<'a> {
     /// barely counts, light well above the floor counts in full, and dim light between
     /// still counts in part ([`crate::background`]).
     pub soft_floor: bool,
+    /// Counts either side of each measured pixel within which the model's light is
+    /// left as it is rather than brought to the measurement (0: none; see
+    /// [`Self::intensity_band`]).
+    pub band: f32,
 }
 
 impl Measured<'_> {
@@ -273,6 +277,12 @@ impl Measured<'_> {
             .region_map(region, |v| (self.light(self.above_dark(v)) * scale).sqrt())
     }
 
+    /// [`Self::band`] as intensity relative to `clear_level`, as [`Self::amplitude`]
+    /// normalises it: what [`crate::reconstruct::Epry::update_within`] takes.
+    pub fn intensity_band(&self, clear_level: f32) -> f32 {
+        self.band / (self.exposure_ms.max(f32::MIN_POSITIVE) * clear_level)
+    }
+
     /// Mean intensity per ms over the whole frame.
     pub fn mean_intensity(&self) -> f32 {
         let (h, w) = self.dim();
@@ -306,6 +316,7 @@ mod tests {
             exposure_ms: 2.0,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         };
         let region = Region {
             y0: 0,
@@ -345,6 +356,7 @@ mod tests {
             exposure_ms: 1.0,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         };
         let light: Vec<f32> = [0.0f32, 10.0, 128.0, 255.0]
             .iter()

@@ -569,6 +569,7 @@ impl SimFrame {
             exposure_ms: self.exposure_ms as f32,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         }
     }
 

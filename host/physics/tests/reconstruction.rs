@@ -195,6 +195,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
                 exposure_ms: f.exposure_ms as f32,
                 floor: 0.0,
                 soft_floor: false,
+                band: 0.0,
             },
         })
         .collect();

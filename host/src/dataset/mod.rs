@@ -393,6 +393,7 @@ impl Dataset {
             exposure_ms: self.frames[k].entry.exposure_ms as f32,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         }
     }
 

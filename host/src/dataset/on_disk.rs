@@ -128,6 +128,7 @@ impl DatasetOnDisk {
             exposure_ms: self.manifest.frames[k].exposure_ms as f32,
             floor: 0.0,
             soft_floor: false,
+            band: 0.0,
         }
     }
 }

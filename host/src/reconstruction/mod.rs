@@ -332,6 +332,10 @@ pub struct BackgroundReport {
     /// With "per frame": "soft" (light near the floor shrunk) or "hard" (cut).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub floor: Option<&'static str>,
+    /// With "per frame": the noise band, in standard deviations of the background's
+    /// noise (0: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise_band_sigma: Option<f32>,
     /// Per frame that is dark-field over the whole field: its LED and the background
     /// measured in its darkest blocks, counts above the dataset's dark level, and
     /// whether it was taken off (only a flat one is: mostly white noise, not the
@@ -356,18 +360,24 @@ pub struct FrameBackgroundReport {
 
 impl BackgroundReport {
     fn new(correction: Correction, backgrounds: &[(LedIndex, FrameBackground)]) -> Self {
-        let (correction, floor_sigma, floor) = match correction {
-            Correction::DarkLevel => ("dark level", None, None),
-            Correction::PerFrame { floor_sigma, soft } => (
+        let (correction, floor_sigma, floor, noise_band_sigma) = match correction {
+            Correction::DarkLevel => ("dark level", None, None, None),
+            Correction::PerFrame {
+                floor_sigma,
+                soft,
+                band_sigma,
+            } => (
                 "per frame",
                 Some(floor_sigma),
                 Some(if soft { "soft" } else { "hard" }),
+                Some(band_sigma),
             ),
         };
         Self {
             correction,
             floor_sigma,
             floor,
+            noise_band_sigma,
             dark_field_frames: backgrounds
                 .iter()
                 .map(|&(led, b)| FrameBackgroundReport {

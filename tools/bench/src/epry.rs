@@ -286,6 +286,7 @@ pub fn run(size: usize, upsample: usize, json: bool) -> Result<()> {
         exposure_ms: 1.0,
         floor: 0.0,
         soft_floor: false,
+        band: 0.0,
     };
     let mut background_us = Vec::with_capacity(rounds);
     let mut fftw = crate::fftw::load(size);

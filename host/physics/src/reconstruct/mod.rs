@@ -23,7 +23,10 @@ pub mod streaming;
 pub mod tiled;
 
 pub use contrast::{ContrastFit, ContrastSums};
-pub use epry::{amplitude, complex_nrmse, limits, remove_illumination_curvature, Epry, Settings};
+pub use epry::{
+    amplitude, complex_nrmse, limits, remove_illumination_curvature, Epry, Settings,
+    NOISE_BAND_SIGMA,
+};
 pub use flatten::{flatten_background_phase, Flatten, Flattening};
 pub use gamma::{GammaCandidate, GammaScan};
 pub use offline::{run, run_amplitudes, Amplitudes, Field, Outcome, Shot};

@@ -3,7 +3,7 @@
 use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
-use super::schedule::passes_over;
+use super::schedule::{passes_over, PassFrame};
 use super::{amplitude, Epry, Settings};
 use crate::optics::{LedGeometry, System};
 use crate::Image;
@@ -116,6 +116,7 @@ pub fn run(
     let frames = Amplitudes {
         leds: &leds,
         images: &amplitudes,
+        bands: &[],
     };
     run_amplitudes(system, geometry, field, frames, settings, passes, progress)
 }
@@ -128,6 +129,9 @@ pub struct Amplitudes<'a> {
     pub leds: &'a [LedIndex],
     /// Their amplitudes, in the same order.
     pub images: &'a [Image],
+    /// The intensity band each one's noise allows, I / clear level
+    /// ([`Epry::update_within`]), in the same order (empty: none).
+    pub bands: &'a [f32],
 }
 
 /// [`run`] on [`Amplitudes`].
@@ -143,6 +147,7 @@ pub fn run_amplitudes(
     let Amplitudes {
         leds,
         images: amplitudes,
+        bands,
     } = frames;
     let order = geometry.nearest_first(leds, field.centre_um, system);
     let initial = *order.first()?;
@@ -153,11 +158,12 @@ pub fn run_amplitudes(
         illumination_radius_um(system, geometry, leds[initial], field.centre_um),
     );
     let (cx, cy) = field.centre_um;
-    let frames: Vec<(&Image, (f64, f64))> = order
+    let frames: Vec<PassFrame<'_>> = order
         .iter()
-        .map(|&k| {
-            let f = geometry.pupil_frequency(leds[k], cx, cy, system);
-            (&amplitudes[k], f)
+        .map(|&k| PassFrame {
+            amplitude: &amplitudes[k],
+            band: bands.get(k).copied().unwrap_or(0.0),
+            frequency: geometry.pupil_frequency(leds[k], cx, cy, system),
         })
         .collect();
     // The pupil is learned from the second pass on, once the object has a first shape.

@@ -77,7 +77,18 @@ pub(crate) struct Passes {
     pub led_scatter: Option<f64>,
 }
 
-/// `passes` passes over `frames` (amplitude, illumination frequency), in the order
+/// One frame as the passes impose it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PassFrame<'a> {
+    /// √(I / clear level).
+    pub amplitude: &'a Image,
+    /// The intensity band its noise allows ([`Epry::update_within`]; 0: none).
+    pub band: f32,
+    /// The illumination frequency the geometry gives it, cycles/µm.
+    pub frequency: (f64, f64),
+}
+
+/// `passes` passes over `frames`, in the order
 /// given, with the adaptive step size; the pupil (if the settings learn it) is learned
 /// from bright-field frames from pass `learn_from` on, and the frequencies refined if
 /// the settings ask for it ([`super::refine`]). `progress(done, total)` after every
@@ -85,7 +96,7 @@ pub(crate) struct Passes {
 pub(crate) fn passes_over(
     epry: &mut Epry,
     system: &System,
-    frames: &[(&Image, (f64, f64))],
+    frames: &[PassFrame<'_>],
     passes: usize,
     learn_from: usize,
     mut progress: impl FnMut(usize, usize),
@@ -96,13 +107,14 @@ pub(crate) fn passes_over(
         Search::new(
             r,
             epry.bin_step(),
-            frames.iter().map(|f| f.1).collect(),
+            frames.iter().map(|f| f.frequency).collect(),
             system.wavelength_um,
         )
     });
     for pass in 0..passes {
         let (mut e, mut counted) = (0.0, 0usize);
-        for (j, &(img, given)) in frames.iter().enumerate() {
+        for (j, frame) in frames.iter().enumerate() {
+            let (img, given) = (frame.amplitude, frame.frequency);
             // Bright-field by the geometry's frequency: refinement moves a frame by a
             // fraction of a bin, and which frames teach the pupil should not flicker.
             let learn = epry.settings().update_pupil
@@ -113,7 +125,7 @@ pub(crate) fn passes_over(
                 Some(s) => s.frequency(j),
                 None => given,
             };
-            let error = epry.update_amplitude(img, f, learn);
+            let error = epry.update_within(img, frame.band, f, learn);
             // Frames with no light in this field have no relative error.
             if error.is_finite() {
                 e += error;
@@ -130,7 +142,7 @@ pub(crate) fn passes_over(
     }
     let (frequencies, led_scatter) = match search {
         Some(s) => (s.frequencies(), Some(s.scatter())),
-        None => (frames.iter().map(|f| f.1).collect(), None),
+        None => (frames.iter().map(|f| f.frequency).collect(), None),
     };
     Passes {
         errors,

@@ -8,8 +8,8 @@
 use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
-use super::offline::{illumination_radius_um, Field, Outcome, Shot};
-use super::schedule::passes_over;
+use super::offline::{illumination_radius_um, Amplitudes, Field, Outcome, Shot};
+use super::schedule::{passes_over, PassFrame};
 use super::{amplitude, Epry, Settings};
 use crate::frame::{Measured, Region};
 use crate::optics::{LedGeometry, System};
@@ -21,8 +21,9 @@ pub struct Streaming {
     geometry: LedGeometry,
     settings: Settings,
     field: Field,
-    /// Frames that arrived before the estimate could be seeded, as intensities.
-    waiting: Vec<(LedIndex, Image)>,
+    /// Frames that arrived before the estimate could be seeded, as intensities, with
+    /// their noise bands in the same units.
+    waiting: Vec<(LedIndex, Image, f32)>,
     /// LEDs of the frames used so far, in arrival order.
     used: Vec<LedIndex>,
     epry: Option<Epry>,
@@ -78,11 +79,11 @@ impl Streaming {
     /// A frame (intensity per ms) arrived. Returns whether the estimate was updated.
     pub fn push(&mut self, led: LedIndex, image: Image) -> bool {
         if self.epry.is_none() {
-            self.waiting.push((led, image));
+            self.waiting.push((led, image, 0.0));
             return self.try_seed();
         }
         let amp = amplitude(&(image / self.scale.unwrap_or(1.0)));
-        self.update(led, &amp);
+        self.update(led, &amp, 0.0);
         true
     }
 
@@ -92,11 +93,12 @@ impl Streaming {
         match (self.epry.is_some(), self.scale) {
             (true, Some(scale)) => {
                 let amp = frame.amplitude(region, scale);
-                self.update(led, &amp);
+                self.update(led, &amp, frame.intensity_band(scale));
                 true
             }
             _ => {
-                self.waiting.push((led, frame.intensity(region)));
+                let band = frame.intensity_band(1.0);
+                self.waiting.push((led, frame.intensity(region), band));
                 self.try_seed()
             }
         }
@@ -120,7 +122,7 @@ impl Streaming {
         let Some(seed) = self
             .waiting
             .iter()
-            .position(|(led, _)| self.bright_field(*led))
+            .position(|(led, _, _)| self.bright_field(*led))
         else {
             return false;
         };
@@ -150,17 +152,18 @@ impl Streaming {
         );
         self.epry = Some(epry);
         // Earlier (dark-field) frames first, as they arrived, then the seed and the rest.
-        for (led, image) in std::mem::take(&mut self.waiting) {
+        for (led, image, band) in std::mem::take(&mut self.waiting) {
             let amp = amplitude(&(image / scale));
-            self.update(led, &amp);
+            self.update(led, &amp, band / scale);
         }
         true
     }
 
-    fn update(&mut self, led: LedIndex, amplitude: &Image) {
+    /// Update with a frame's amplitude and its noise band ([`Epry::update_within`]).
+    fn update(&mut self, led: LedIndex, amplitude: &Image, band: f32) {
         let f = self.frequency(led);
         if let Some(e) = self.epry.as_mut() {
-            e.update_amplitude(amplitude, f, false);
+            e.update_within(amplitude, band, f, false);
         }
         self.used.push(led);
     }
@@ -196,25 +199,38 @@ impl Streaming {
             .iter()
             .map(|s| amplitude(&(s.image / scale)))
             .collect();
-        self.finish_amplitudes(&leds, &amplitudes, passes, |_, _| {})
+        let frames = Amplitudes {
+            leds: &leds,
+            images: &amplitudes,
+            bands: &[],
+        };
+        self.finish_amplitudes(frames, passes, |_, _| {})
     }
 
     /// [`Self::finish`] on amplitudes already normalised by [`Self::clear_level`].
     pub fn finish_amplitudes(
         mut self,
-        leds: &[LedIndex],
-        amplitudes: &[Image],
+        frames: Amplitudes<'_>,
         passes: usize,
         progress: impl FnMut(usize, usize),
     ) -> Option<Outcome> {
         let mut epry = self.epry.take()?;
+        let Amplitudes {
+            leds,
+            images: amplitudes,
+            bands,
+        } = frames;
         let order = self
             .geometry
             .nearest_first(leds, self.field.centre_um, &self.system);
         let initial = *order.first()?;
-        let frames: Vec<(&Image, (f64, f64))> = order
+        let frames: Vec<PassFrame<'_>> = order
             .iter()
-            .map(|&k| (&amplitudes[k], self.frequency(leds[k])))
+            .map(|&k| PassFrame {
+                amplitude: &amplitudes[k],
+                band: bands.get(k).copied().unwrap_or(0.0),
+                frequency: self.frequency(leds[k]),
+            })
             .collect();
         // Every frame has already updated the object once as it arrived.
         let done = passes_over(&mut epry, &self.system, &frames, passes, 0, progress);

@@ -130,6 +130,10 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
             format!("{:.4}", s.complex_nrmse),
         ));
         rows.push(Row::new(
+            "complex NRMSE, slow phase (piston, tilts, quadratic) fitted out",
+            format!("{:.4}", s.detail_nrmse),
+        ));
+        rows.push(Row::new(
             "amplitude NRMSE / phase RMSE",
             format!("{:.4} / {:.4} rad", s.amplitude_nrmse, s.phase_rmse_rad),
         ));
@@ -270,8 +274,9 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
             "background",
             match rep.background.floor_sigma {
                 Some(f) => format!(
-                    "{}, floor {f}σ; {} of {} dark-field frames' backgrounds taken off",
+                    "{}, floor {f}σ, noise band {}σ; {} of {} dark-field frames' backgrounds taken off",
                     rep.background.correction,
+                    rep.background.noise_band_sigma.unwrap_or(0.0),
                     rep.background
                         .dark_field_frames
                         .iter()

@@ -27,9 +27,9 @@ pub struct Banded {
     layout: TileLayout,
     leds: Vec<LedIndex>,
     nearest: usize,
-    /// Per frame once observed: its dark level, floor and whether the floor is soft,
-    /// after its background.
-    corrections: Vec<Option<(f32, f32, bool)>>,
+    /// Per frame once observed: its dark level, floor, whether the floor is soft and
+    /// its noise band, after its background.
+    corrections: Vec<Option<(f32, f32, bool, f32)>>,
     backgrounds: Vec<(LedIndex, FrameBackground)>,
     clear_level: Option<f32>,
     assembly: Assembly,
@@ -117,6 +117,7 @@ impl Banded {
                 corrected.measured.dark_level,
                 corrected.measured.floor,
                 corrected.measured.soft_floor,
+                corrected.measured.band,
             ));
         }
         Ok(())
@@ -169,7 +170,7 @@ impl Banded {
                     f.measured.dim()
                 )));
             }
-            let (dark_level, floor, soft_floor) = self.corrections[index]
+            let (dark_level, floor, soft_floor, band) = self.corrections[index]
                 .ok_or_else(|| bad(format!("frame {index} (LED {led:?}) was not observed")))?;
             frames.push(LitFrame {
                 led,
@@ -177,6 +178,7 @@ impl Banded {
                     dark_level,
                     floor,
                     soft_floor,
+                    band,
                     ..f.measured
                 },
             });

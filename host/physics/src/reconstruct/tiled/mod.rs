@@ -272,14 +272,19 @@ impl TileJob<'_> {
                     .iter()
                     .map(|f| f.measured.amplitude(region, self.clear_level))
                     .collect();
+                let bands: Vec<f32> = frames
+                    .iter()
+                    .map(|f| f.measured.intensity_band(self.clear_level))
+                    .collect();
                 let field = self.layout.field(k, pixel_um, Some(self.clear_level));
+                let frames = Amplitudes {
+                    leds: self.leds,
+                    images: &amplitudes,
+                    bands: &bands,
+                };
                 let mut outcome = match start {
-                    Some(s) => s.finish_amplitudes(self.leds, &amplitudes, self.passes, self.tick),
+                    Some(s) => s.finish_amplitudes(frames, self.passes, self.tick),
                     None => {
-                        let frames = Amplitudes {
-                            leds: self.leds,
-                            images: &amplitudes,
-                        };
                         let (system, geometry) = (self.system, self.geometry);
                         run_amplitudes(
                             system,

@@ -110,6 +110,9 @@ pub struct FrameBackground {
     /// neighbour differences): 1 for a flat background's noise, near 0 for light from
     /// the sample, which the optics blur over several pixels.
     pub white_share: f32,
+    /// The brightest block's mean above the level, counts: how far the frame's light
+    /// rises out of its background (over [`Self::noise`], its signal-to-noise ratio).
+    pub brightest: f32,
 }
 
 impl FrameBackground {
@@ -189,8 +192,10 @@ pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
         mean_of(background, |b| b.variance),
         mean_of(background, |b| b.white_variance),
     );
+    let brightest = blocks.last().map_or(level, |b| b.mean);
     Some(FrameBackground {
         level: level as f32,
+        brightest: (brightest - level).max(0.0) as f32,
         noise: white.sqrt() as f32,
         white_share: if variance > 0.0 {
             (white / variance).min(1.0) as f32

@@ -354,6 +354,8 @@ pub struct FrameBackgroundReport {
     pub noise_counts: f32,
     /// The share of the darkest blocks' variance that is white noise.
     pub white_share: f32,
+    /// The brightest block's mean above the level, counts.
+    pub brightest_block_counts: f32,
     /// Whether the level was taken off.
     pub taken_off: bool,
 }
@@ -385,6 +387,7 @@ impl BackgroundReport {
                     level_counts: b.level,
                     noise_counts: b.noise,
                     white_share: b.white_share,
+                    brightest_block_counts: b.brightest,
                     taken_off: b.is_flat(),
                 })
                 .collect(),

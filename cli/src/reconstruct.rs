@@ -123,11 +123,12 @@ pub struct ReconstructArgs {
     /// dim light in part; hard: everything up to the floor is cut
     #[arg(long, value_enum, default_value_t = FloorArg::Soft)]
     floor: FloorArg,
-    /// With `--background per-frame`: the noise band of dark-field frames, in standard
-    /// deviations of the frame's background noise. Where the model's light lies within
-    /// it of a measured pixel the model keeps it, so dim frames' noise is not imposed
-    /// on the object. 0 (default): every pixel imposed exactly. Try 7.5 when dim 8-bit
-    /// dark field leaves the clear glass noisy (docs/results.md, "Noise band")
+    /// With `--background per-frame`: the noise band of the dark-field frames that are
+    /// mostly noise (their brightest block under 20× their noise), in standard
+    /// deviations of that noise. Where the model's light lies within it of a measured
+    /// pixel the model keeps it, so such frames' noise is not pressed into the object.
+    /// 0 (default): every pixel imposed exactly. Try 7.5 when dim 8-bit dark field
+    /// leaves the clear glass noisy (docs/results.md, "Noise band")
     #[arg(long, default_value_t = fpm_physics::reconstruct::NOISE_BAND_SIGMA)]
     noise_band_sigma: f32,
     /// Refine each LED's position inside the passes, from the second pass on: for

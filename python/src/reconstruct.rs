@@ -217,8 +217,9 @@ pub(crate) fn settings(
 /// "dark-level". `floor`: "soft" (default: light v counts as v·(v²/(v² + f²))², f the
 /// floor) or "hard" (everything up to the floor cut), as `fpm reconstruct --floor`.
 /// `noise_band_sigma`: the dark-field frames' noise band in σ of their background
-/// noise (default 0: each pixel imposed exactly; 7.5 cleans dim 8-bit dark field's
-/// noise off clear glass), as `fpm reconstruct --noise-band-sigma`.
+/// noise, on the frames that are mostly noise (default 0: each pixel imposed
+/// exactly; 7.5 cleans such frames' noise off clear glass), as
+/// `fpm reconstruct --noise-band-sigma`.
 /// `progress(done, total)` is called as frame updates complete (tqdm: pass
 /// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
 /// background's low-order phase off, over blocks of `background_block_um` (default

@@ -67,15 +67,17 @@ pub fn resample_to(
 /// central 75 %).
 pub fn central(a: &Array2<Complex32>, fraction: f64) -> Vec<Complex32> {
     let (h, w) = a.dim();
-    let (kh, kw) = (
-        ((h as f64) * fraction).round() as usize,
-        ((w as f64) * fraction).round() as usize,
-    );
+    let (kh, kw) = (central_side(h, fraction), central_side(w, fraction));
     let (oy, ox) = ((h - kh) / 2, (w - kw) / 2);
     a.slice(ndarray::s![oy..oy + kh, ox..ox + kw])
         .iter()
         .copied()
         .collect()
+}
+
+/// The side [`central`] keeps of a side of `n` pixels.
+fn central_side(n: usize, fraction: f64) -> usize {
+    ((n as f64) * fraction).round() as usize
 }
 
 pub use crate::reconstruct::complex_nrmse;
@@ -161,18 +163,19 @@ pub fn score(
     truth_pitch_um: f64,
     in_aperture: impl Fn(f64, f64) -> bool,
 ) -> Scores {
+    // docs/dataset.md §6: the central 75 %.
+    const SCORED: f64 = 0.75;
     let grid = truth.dim();
     let t = central(
         &resample_to(truth, truth_pitch_um, grid, &in_aperture),
-        0.75,
+        SCORED,
     );
     let r = central(
         &resample_to(reconstruction, reconstruction_pitch_um, grid, &in_aperture),
-        0.75,
+        SCORED,
     );
     let complex = complex_nrmse(&r, &t);
-    let width = ((grid.1 as f64) * 0.75).round() as usize;
-    let detail = complex_nrmse_low_order_free(&r, &t, width);
+    let detail = complex_nrmse_low_order_free(&r, &t, central_side(grid.1, SCORED));
     // Global complex factor c = ⟨r, t⟩/⟨r, r⟩, for the phase.
     let mut rt = rustfft::num_complex::Complex64::default();
     for (a, b) in r.iter().zip(&t) {

@@ -656,24 +656,31 @@ fn row_error<const IMPOSE: bool>(
 ) -> (f64, f64) {
     let measured = amplitude.row(r);
     let row = &mut row[c0..c1];
-    match measured.as_slice() {
-        Some(m) => amplitude_error::<IMPOSE>(row, &m[c0..c1], gain, unnormalise, band),
+    let owned: Vec<f32>;
+    let m = match measured.as_slice() {
+        Some(m) => &m[c0..c1],
         None => {
-            let m: Vec<f32> = measured.iter().skip(c0).take(c1 - c0).copied().collect();
-            amplitude_error::<IMPOSE>(row, &m, gain, unnormalise, band)
+            owned = measured.iter().skip(c0).take(c1 - c0).copied().collect();
+            &owned
         }
+    };
+    // The band is chosen once per row, not per pixel: this loop is the update's hot one.
+    if band > 0.0 {
+        amplitude_error::<IMPOSE, true>(row, m, gain, unnormalise, band)
+    } else {
+        amplitude_error::<IMPOSE, false>(row, m, gain, unnormalise, 0.0)
     }
 }
 
 /// Σ(|ψ| − measured)² and Σ measured² over a row of the exit wave (unnormalised by
 /// `unnormalise`; measured amplitudes times `gain`). With `IMPOSE`, each value's
 /// modulus is then replaced by the measured amplitude, keeping its phase (a value with
-/// no modulus becomes the measured amplitude itself), or with a noise `band` > 0 (in
-/// squared measured amplitude) clamped into [√(m² − band), √(m² + band)]; without, the
-/// row is left as it is (LED refinement's misfit). Eight independent lanes keep the sums from chaining
-/// every pixel to the last, so the loop vectorises; this is the only per-pixel work of
-/// an update besides the FFTs.
-fn amplitude_error<const IMPOSE: bool>(
+/// no modulus becomes the measured amplitude itself), or, `BANDED`, clamped into
+/// [√(m² − band), √(m² + band)] (`band` in squared measured amplitude); without, the
+/// row is left as it is (LED refinement's misfit). Eight independent lanes keep the
+/// sums from chaining every pixel to the last, so the loop vectorises; this is the only
+/// per-pixel work of an update besides the FFTs.
+fn amplitude_error<const IMPOSE: bool, const BANDED: bool>(
     row: &mut [Complex32],
     measured: &[f32],
     gain: f32,
@@ -689,7 +696,7 @@ fn amplitude_error<const IMPOSE: bool>(
         *err += (a - target) * (a - target);
         *norm += target * target;
         if IMPOSE {
-            let wanted = if band > 0.0 {
+            let wanted = if BANDED {
                 let m2 = m * m;
                 a.clamp(
                     (m2 - band).max(0.0).sqrt() * gain,
@@ -790,7 +797,7 @@ mod tests {
             Complex32::new(0.1, 0.0),
         ];
         let mut banded = model;
-        let (err, norm) = amplitude_error::<true>(&mut banded, &measured, 1.0, 1.0, 0.5);
+        let (err, norm) = amplitude_error::<true, true>(&mut banded, &measured, 1.0, 1.0, 0.5);
         assert!((err - (0.01 + 0.25 + 0.81)).abs() < 1e-5 && (norm - 3.0).abs() < 1e-6);
         // Intensities 0.81 (within 1 ± 0.5), 2.25 (above) and 0.01 (below).
         let expected = [
@@ -802,7 +809,7 @@ mod tests {
             assert!((got - want).norm() < 1e-6, "{got} against {want}");
         }
         let mut exact = model;
-        amplitude_error::<true>(&mut exact, &measured, 1.0, 1.0, 0.0);
+        amplitude_error::<true, false>(&mut exact, &measured, 1.0, 1.0, 0.0);
         assert!(exact.iter().all(|v| (v.norm() - 1.0).abs() < 1e-6));
     }
 

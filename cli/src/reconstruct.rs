@@ -126,9 +126,8 @@ pub struct ReconstructArgs {
     /// With `--background per-frame`: the noise band of the dark-field frames that are
     /// mostly noise (their brightest block under 20× their noise), in standard
     /// deviations of that noise. Where the model's light lies within it of a measured
-    /// pixel the model keeps it, so such frames' noise is not pressed into the object.
-    /// 0 (default): every pixel imposed exactly. Try 7.5 when dim 8-bit dark field
-    /// leaves the clear glass noisy (docs/results.md, "Noise band")
+    /// pixel the model keeps it, so such frames' noise is not pressed into the object
+    /// (docs/results.md, "Noise band"). 0: every pixel imposed exactly
     #[arg(long, default_value_t = fpm_physics::reconstruct::NOISE_BAND_SIGMA)]
     noise_band_sigma: f32,
     /// Refine each LED's position inside the passes, from the second pass on: for

@@ -155,7 +155,7 @@ class Streaming:
         background: str = "per-frame",
         floor: str = "soft",
         floor_sigma: float = 3.0,
-        noise_band_sigma: float = 0.0,
+        noise_band_sigma: float = 7.5,
         flatten_background: bool = False,
         background_block_um: Optional[float] = None,
     ) -> None: ...
@@ -190,7 +190,7 @@ def reconstruct(
     background: str = "per-frame",
     floor: str = "soft",
     floor_sigma: float = 3.0,
-    noise_band_sigma: float = 0.0,
+    noise_band_sigma: float = 7.5,
     flatten_background: bool = False,
     background_block_um: Optional[float] = None,
     entrance_pupil_mm: Optional[float] = None,

@@ -217,8 +217,8 @@ pub(crate) fn settings(
 /// "dark-level". `floor`: "soft" (default: light v counts as v·(v²/(v² + f²))², f the
 /// floor) or "hard" (everything up to the floor cut), as `fpm reconstruct --floor`.
 /// `noise_band_sigma`: the dark-field frames' noise band in σ of their background
-/// noise, on the frames that are mostly noise (default 0: each pixel imposed
-/// exactly; 7.5 cleans such frames' noise off clear glass), as
+/// noise, on the frames that are mostly noise (default 7.5: their noise kept off
+/// clear glass; 0 imposes each pixel exactly), as
 /// `fpm reconstruct --noise-band-sigma`.
 /// `progress(done, total)` is called as frame updates complete (tqdm: pass
 /// `lambda d, t: bar.update(d - bar.n)`). `flatten_background`: take the clear
@@ -233,7 +233,7 @@ pub(crate) fn settings(
 /// clearly show a defocus, else as in focus (the report's `refocus` says which).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 0.0, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
+#[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 7.5, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(
     py: Python<'_>,

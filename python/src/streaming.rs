@@ -62,7 +62,7 @@ impl Streaming {
     /// the LED array `geometry` (a dict, e.g. `Calibration.geometry`), cut into tiles
     /// as `reconstruct` cuts them; `dark_level` is the camera's offset in counts.
     #[new]
-    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 0.0, flatten_background = false, background_block_um = None))]
+    #[pyo3(signature = (system, geometry, width, height, *, tile = None, upsample = 4, dark_level = 0.0, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 7.5, flatten_background = false, background_block_um = None))]
     #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
     fn new(
         system: &Bound<'_, PyAny>,

@@ -170,11 +170,11 @@ def test_the_floor_is_chosen_as_fpm_reconstruct_chooses_it(usaf):
     """`floor` is `fpm reconstruct --floor`: soft by default, hard when asked, and the
     report says which (the dark-field frames' light near the floor then differs)."""
     soft = fpm.reconstruct(usaf, passes=1)
-    hard = fpm.reconstruct(usaf, passes=1, floor="hard", floor_sigma=5.0, noise_band_sigma=7.5)
+    hard = fpm.reconstruct(usaf, passes=1, floor="hard", floor_sigma=5.0, noise_band_sigma=0.0)
     assert soft.report["background"]["floor"] == "soft"
-    assert soft.report["background"]["noise_band_sigma"] == 0.0
+    assert soft.report["background"]["noise_band_sigma"] == 7.5
     background = hard.report["background"]
-    assert (background["floor"], background["floor_sigma"], background["noise_band_sigma"]) == ("hard", 5.0, 7.5)
+    assert (background["floor"], background["floor_sigma"], background["noise_band_sigma"]) == ("hard", 5.0, 0.0)
     assert not np.array_equal(soft.amplitude, hard.amplitude)
 
 

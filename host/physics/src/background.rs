@@ -51,6 +51,20 @@ impl Correction {
             other => other,
         }
     }
+
+    /// The same correction with no noise band: every measurement imposed exactly.
+    pub fn without_band(self) -> Self {
+        match self {
+            Correction::PerFrame {
+                floor_sigma, soft, ..
+            } => Correction::PerFrame {
+                floor_sigma,
+                soft,
+                band_sigma: 0.0,
+            },
+            other => other,
+        }
+    }
 }
 
 /// `frame` as the reconstruction should take it under `correction`: a frame whose LED

@@ -93,14 +93,12 @@ impl Default for Settings {
 
 /// The default noise band ([`Correction::PerFrame`]'s `band_sigma`), in standard
 /// deviations of a dark-field frame's background noise, for the frames that are mostly
-/// noise ([`crate::background::FrameBackground::is_mostly_noise`]): none. 7.5σ there
-/// cleaned the real ring-array frame's glass from 5.4× to 2.7× its raw frame's
-/// variation, keeping group 8's bars, halved an 8-bit simulated set's complex NRMSE, and
-/// left the USAF set's glass a little cleaner (1.16× → 1.12×) and the 12-bit sets as
-/// they were; but as the default it made the gamma scan misread a good simulated 8-bit
-/// stained set (a false `gamma-read` warning), so it is not the default yet
-/// (docs/results.md, "Noise band").
-pub const NOISE_BAND_SIGMA: f32 = 0.0;
+/// noise ([`crate::background::FrameBackground::is_mostly_noise`]). 7.5σ cleaned the
+/// real ring-array frame's glass from 5.4× to 2.7× its raw frame's variation, keeping
+/// group 8's bars, halved an 8-bit simulated set's complex NRMSE, left the USAF set's
+/// glass a little cleaner (1.16× → 1.12×) and the 12-bit sets as they were
+/// (docs/results.md, "Noise band"). The gamma scan compares its candidates without it.
+pub const NOISE_BAND_SIGMA: f32 = 7.5;
 
 /// The ranges a reconstruction's settings must be in (a job's, a stream's, an
 /// acquisition's): beyond them a run is refused up front, naming the setting.

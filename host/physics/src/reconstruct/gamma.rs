@@ -179,8 +179,10 @@ pub fn scan(
         // The candidates are compared by their frames' error, which a soft floor skews:
         // it shrinks dim dark-field light by how far above the noise decoding leaves it,
         // which depends on the gamma (with it, the vendored USAF set read 1.94 instead
-        // of 2.27, a simulated 2.2 read 1.2).
-        background: settings.background.with_hard_floor(),
+        // of 2.27, a simulated 2.2 read 1.2). A noise band skews it too: it leaves the
+        // model free within the band, whose width in decoded units depends on the gamma
+        // (with it a good simulated 8-bit stained set read as display-encoded).
+        background: settings.background.with_hard_floor().without_band(),
         ..settings
     };
     let total = COARSE.len() + 4;

@@ -318,6 +318,13 @@ fn one(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
             bytes as f64 / 1e9,
             a.frame_memory_gb
         ),
+        JobEvent::WeighingEdgeHeight { stated_mm, edge_mm } => {
+            bar.reset();
+            eprintln!(
+                "{}: the bright/dark-field edge puts the LEDs at {edge_mm:.1} mm, not the dataset's {stated_mm:.1} mm: reconstructing at it too, to keep the height the frames fit clearly better",
+                dir.display()
+            );
+        }
         JobEvent::Updates { done, total } => crate::progress::advance(&bar, done, total),
     })?;
     gamma_bar.finish_and_clear();
@@ -378,6 +385,9 @@ fn print_report(rep: &Report, out: &Path, format: ImageFormat) {
             b.geometry_height_mm,
             b.difference_sigma
         );
+    }
+    if let Some(c) = &rep.height_choice {
+        println!("LED height {c}");
     }
     if let Some(r) = &rep.refined_leds {
         print_refined(r, out);

@@ -39,6 +39,10 @@ pub enum GeometrySource {
     Dataset,
     /// The dataset's nominal placement at another LED height (`--led-height-mm`).
     DatasetAtHeight(f64),
+    /// The dataset's nominal placement at the height the frames' bright/dark-field
+    /// edge reads, which fitted them clearly better than the dataset's
+    /// ([`crate::reconstruction::height`]).
+    EdgeHeight(f64),
     /// The controller's nominal array (an acquisition without calibration).
     Controller,
     /// The calibration stored on the controller board.
@@ -56,14 +60,16 @@ impl GeometrySource {
     pub fn is_nominal(&self) -> bool {
         matches!(
             self,
-            Self::Dataset | Self::DatasetAtHeight(_) | Self::Controller
+            Self::Dataset | Self::DatasetAtHeight(_) | Self::EdgeHeight(_) | Self::Controller
         )
     }
 
     /// The one-word name acquisition.json uses: "nominal", "board", "calibration.json".
     pub fn short_name(&self) -> String {
         match self {
-            Self::Dataset | Self::DatasetAtHeight(_) | Self::Controller => "nominal".into(),
+            Self::Dataset | Self::DatasetAtHeight(_) | Self::EdgeHeight(_) | Self::Controller => {
+                "nominal".into()
+            }
             Self::Board => "board".into(),
             Self::CalibratedNow => "calibration.json".into(),
             other => other.to_string(),
@@ -76,6 +82,10 @@ impl std::fmt::Display for GeometrySource {
         match self {
             Self::Dataset => write!(f, "nominal (dataset.toml)"),
             Self::DatasetAtHeight(h) => write!(f, "nominal (dataset.toml) at --led-height-mm {h}"),
+            Self::EdgeHeight(h) => write!(
+                f,
+                "nominal (dataset.toml) at the bright/dark-field edge's height, {h:.2} mm"
+            ),
             Self::Controller => write!(f, "nominal (controller)"),
             Self::Board => write!(f, "stored on the board"),
             Self::CalibratedNow => write!(f, "calibration.json"),

@@ -41,12 +41,14 @@ fn good_sets_of_every_sample_raise_no_warning() {
     }
 }
 
-/// An LED height stated 8 mm off (the image's complex NRMSE doubles) is caught by the
-/// edge's height, and the solver's error rises with it; frames saved with a display
-/// gamma the dataset does not state are caught by their bright-field offset on the
-/// cells sample (the bench states where it is not: weak-phase and stained samples).
+/// A dataset stating its LED height 8 mm off (reconstructed at it, the image's complex
+/// NRMSE triples) gives way to the edge's height, which the frames fit clearly better:
+/// the image is nearly as good as the right height's, and the warning says what was
+/// done. Frames saved with a display gamma the dataset does not state are caught by
+/// their bright-field offset on the cells sample (the bench states where it is not:
+/// weak-phase and stained samples).
 #[test]
-fn a_wrong_height_and_an_undeclared_gamma_are_named() {
+fn a_wrong_height_is_corrected_and_an_undeclared_gamma_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let set = dir.path().join("set");
     let clean = run_case(&case(SampleKind::Cells, false, Condition::None), &set).unwrap();
@@ -55,19 +57,21 @@ fn a_wrong_height_and_an_undeclared_gamma_are_named() {
         &set,
     )
     .unwrap();
+    let choice = high.height_choice.expect("the edge's height weighed");
+    assert!(choice.edge_taken, "{choice:?}");
+    assert!((choice.edge_mm - 92.0).abs() < 3.0, "{choice:?}");
+    // Measured: +2 % over the right height's run (+190 % at the stated 100 mm).
     assert!(
-        high.complex_nrmse > 1.5 * clean.complex_nrmse,
+        high.complex_nrmse < 1.2 * clean.complex_nrmse,
         "{} vs {}",
         high.complex_nrmse,
         clean.complex_nrmse
     );
-    for check in [Check::HeightFromEdge, Check::ErrorRose] {
-        assert!(
-            high.fired.contains(&check),
-            "{check:?} not in {:?}",
-            high.fired
-        );
-    }
+    assert!(
+        high.fired.contains(&Check::HeightFromEdge),
+        "{:?}",
+        high.fired
+    );
     let gamma = run_case(
         &case(SampleKind::Cells, false, Condition::UndeclaredGamma),
         &set,

@@ -511,7 +511,7 @@ fn reconstruct(
         let (what, done, total) = match event {
             JobEvent::Updates { done, total } => ("frame updates", done, total),
             JobEvent::GammaCandidates { done, total } => ("camera gamma candidates", done, total),
-            JobEvent::FromDisk { .. } => return,
+            JobEvent::FromDisk { .. } | JobEvent::WeighingEdgeHeight { .. } => return,
         };
         let mut last = last.lock().unwrap_or_else(|e| e.into_inner());
         if done < total && last.is_some_and(|t| t.elapsed() < Duration::from_millis(200)) {

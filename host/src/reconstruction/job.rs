@@ -11,8 +11,9 @@ use fpm_physics::reconstruct::refocus::DefocusEstimate;
 use fpm_physics::reconstruct::{GammaScan, Settings};
 use fpm_physics::{LedGeometry, System};
 
+use super::height;
 use super::refocus::{defocus_on_disk, RefocusChoice, RefocusReport};
-use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
+use super::{reconstruct_on_disk, reconstruct_with_system, BoundaryCheck, Reconstruction, Request};
 use crate::calibration::{GeometrySource, PlacementFile};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 
@@ -144,6 +145,15 @@ pub enum JobEvent {
         /// Bytes the in-focus frames take.
         bytes: u64,
     },
+    /// The bright/dark-field edge's LED height is [`height::WEIGH_SIGMA`] from the
+    /// dataset's: the run is done again at it, and the one whose frames fit clearly
+    /// better kept ([`height`]).
+    WeighingEdgeHeight {
+        /// The dataset's, mm.
+        stated_mm: f64,
+        /// The edge's, mm.
+        edge_mm: f64,
+    },
     /// Frame updates so far, over all tiles.
     Updates {
         /// Done.
@@ -231,22 +241,19 @@ impl Job {
             Some(reason) => Some(self.scan_gamma(&mut on_disk, &geometry, reason, on)?),
             None => None,
         };
-        let progress = |done, total| on(JobEvent::Updates { done, total });
-        let bytes = on_disk.in_focus_bytes();
         let system = on_disk.manifest.system();
-        let mut r = if bytes as f64 <= self.frame_memory_gb * 1e9 {
-            let mut ds = Dataset::load(dir)?;
-            ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
-            ds.manifest.camera = on_disk.manifest.camera;
-            self.reconstruct_loaded(&ds, &system, (&geometry, &source), &progress)?
-        } else {
-            on(JobEvent::FromDisk { bytes });
-            let refocus = self.refocus_of(|| defocus_on_disk(&on_disk, &system, &geometry))?;
-            let request = self.request(&geometry, &source, refocus.refocus_um);
-            let mut r = reconstruct_on_disk(&on_disk, &request, &progress)?;
-            r.report.refocus = refocus;
-            r
-        };
+        let mut r = self.reconstruct_stored(&on_disk, &system, (&geometry, &source), on)?;
+        if let Some(edge) = self.edge_to_weigh(&r) {
+            let at_edge = height::at_edge(&geometry, &edge);
+            on(JobEvent::WeighingEdgeHeight {
+                stated_mm: geometry.height_mm,
+                edge_mm: at_edge.height_mm,
+            });
+            let source = GeometrySource::EdgeHeight(at_edge.height_mm);
+            let alternative =
+                self.reconstruct_stored(&on_disk, &system, (&at_edge, &source), on)?;
+            r = keep_better(r, alternative, &edge);
+        }
         score(&on_disk, &mut r);
         r.report.camera_gamma_scan = gamma_scan.clone();
         r.report.camera_gamma_scan_reason = reason;
@@ -256,6 +263,43 @@ impl Job {
             system,
             nominal,
         })
+    }
+
+    /// Reconstruct the stored dataset `ds` through `system` with `geometry` (and its
+    /// source): its frames held in memory within the budget, else read from disk band
+    /// by band.
+    fn reconstruct_stored(
+        &self,
+        ds: &DatasetOnDisk,
+        system: &System,
+        (geometry, source): (&LedGeometry, &GeometrySource),
+        on: &(dyn Fn(JobEvent) + Sync),
+    ) -> Result<Reconstruction> {
+        let progress = |done, total| on(JobEvent::Updates { done, total });
+        let bytes = ds.in_focus_bytes();
+        if bytes as f64 <= self.frame_memory_gb * 1e9 {
+            let mut loaded = Dataset::load(&ds.dir)?;
+            loaded.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
+            loaded.manifest.camera = ds.manifest.camera;
+            self.reconstruct_loaded(&loaded, system, (geometry, source), &progress)
+        } else {
+            on(JobEvent::FromDisk { bytes });
+            let refocus = self.refocus_of(|| defocus_on_disk(ds, system, geometry))?;
+            let request = self.request(geometry, source, refocus.refocus_um);
+            let mut r = reconstruct_on_disk(ds, &request, &progress)?;
+            r.report.refocus = refocus;
+            Ok(r)
+        }
+    }
+
+    /// The edge's height to weigh against the geometry's ([`height`]): only for the
+    /// dataset's own nominal geometry (a calibration, a file or a height given is the
+    /// user's word), and where the two are [`height::WEIGH_SIGMA`] apart.
+    fn edge_to_weigh(&self, r: &Reconstruction) -> Option<BoundaryCheck> {
+        (self.geometry == GeometryChoice::Nominal)
+            .then_some(r.report.height_from_boundary)
+            .flatten()
+            .filter(height::worth_weighing)
     }
 
     /// Reconstruct a dataset already in memory (Python's `Dataset`), through `system`
@@ -276,6 +320,13 @@ impl Job {
         };
         let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
         let mut r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
+        if let Some(edge) = self.edge_to_weigh(&r) {
+            let at_edge = height::at_edge(&geometry, &edge);
+            let source = GeometrySource::EdgeHeight(at_edge.height_mm);
+            let alternative =
+                self.reconstruct_loaded(ds, &system, (&at_edge, &source), progress)?;
+            r = keep_better(r, alternative, &edge);
+        }
         score(ds, &mut r);
         Ok(r)
     }
@@ -376,6 +427,28 @@ impl Job {
         )?;
         Ok(scan)
     }
+}
+
+/// Of the run at the dataset's height (`stated`) and the one at the `edge`'s, the one
+/// whose frames fit clearly better ([`height::HeightChoice`]), the weighing in its
+/// report.
+fn keep_better(
+    stated: Reconstruction,
+    at_edge: Reconstruction,
+    edge: &BoundaryCheck,
+) -> Reconstruction {
+    let choice = height::HeightChoice::weigh(&stated.report, &at_edge.report, edge);
+    tracing::info!(
+        stated_mm = choice.stated_mm,
+        edge_mm = choice.edge_mm,
+        stated_error = choice.stated_error,
+        edge_error = choice.edge_error,
+        taken = choice.edge_taken,
+        "the LED height from the bright/dark-field edge weighed on the frames"
+    );
+    let mut kept = if choice.edge_taken { at_edge } else { stated };
+    kept.report.height_choice = Some(choice);
+    kept
 }
 
 /// Decode `ds`'s frames with `gamma` (None: as linear). Without a stated bit depth,

@@ -2,6 +2,7 @@
 //! The algorithm itself is `fpm_physics::reconstruct`.
 
 pub mod batch;
+pub mod height;
 pub mod job;
 pub mod refocus;
 mod warnings;
@@ -108,6 +109,10 @@ pub struct Report {
     /// on the stage's z, against the geometry's (when the frames bracket it).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub height_from_boundary: Option<BoundaryCheck>,
+    /// The edge's height weighed against the dataset's on the frames, when they were
+    /// [`height::WEIGH_SIGMA`] apart and the geometry was the dataset's own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub height_choice: Option<height::HeightChoice>,
     /// The LED positions refined inside the passes (`--refine-leds`), and the board
     /// fitted to them.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -309,6 +314,7 @@ impl Report {
             background_phase: BackgroundPhaseReport::new(system, geometry, settings, outcome),
             versus_truth: None,
             height_from_boundary: None,
+            height_choice: None,
             refined_leds: outcome.refined_leds.as_ref().map(RefinedLedsReport::new),
             camera_gamma: None,
             camera_gamma_scan: None,

@@ -188,7 +188,20 @@ pub fn checks(report: &Report) -> Vec<Warning> {
             scan.range.1
         ));
     }
-    if let Some(b) = report.height_from_boundary.filter(|b| b.disagrees()) {
+    let height_choice = report.height_choice;
+    if let Some(c) = height_choice.filter(|c| c.edge_taken) {
+        out.push(Check::HeightFromEdge, format!(
+            "the bright/dark-field boundary puts the LEDs {:.2} ± {:.2} mm below the sample, not the dataset's {:.2} mm, and the frames agree (their error {:.4} at it, {:.4} at the dataset's): reconstructed at {:.2} mm; correct height_mm in dataset.toml or calibrate (fpm calibrate), or give --led-height-mm {} to keep the dataset's",
+            c.edge_mm, c.edge_sigma_mm, c.stated_mm, c.edge_error, c.stated_error, c.edge_mm, c.stated_mm
+        ));
+    }
+    // Where the frames fit the dataset's height at least as well as the edge's, the
+    // edge is what is off (soft vignetting moves it): no warning.
+    let weighed = height_choice.is_some_and(|c| c.edge_taken || c.stated_fits_better());
+    if let Some(b) = report
+        .height_from_boundary
+        .filter(|b| b.disagrees() && !weighed)
+    {
         // A calibrated h is only as good as the defocus it was told; a dataset's h
         // may simply be wrong, and the edge's own estimate can stand in for it.
         let advice = if report.geometry_source.is_nominal() {

@@ -201,7 +201,10 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     b.estimate.partly_bright,
                     b.difference_sigma,
                     b.geometry_height_mm
-                ),
+                ) + &rep
+                    .height_choice
+                    .map(|c| format!("; {c}"))
+                    .unwrap_or_default(),
                 None => "not bracketed by these frames".to_string(),
             },
         ),

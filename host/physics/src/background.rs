@@ -36,30 +36,15 @@ pub enum Correction {
 }
 
 impl Correction {
-    /// The same correction with its floor hard (cut, not shrunk).
-    pub fn with_hard_floor(self) -> Self {
+    /// The same correction with its floor hard (cut, not shrunk) and no noise band
+    /// (every measurement imposed exactly): what runs whose frames' errors are compared
+    /// use, since a soft floor and a band both move that error by amounts that depend
+    /// on how the frames were read.
+    pub fn for_comparing_errors(self) -> Self {
         match self {
-            Correction::PerFrame {
-                floor_sigma,
-                band_sigma,
-                ..
-            } => Correction::PerFrame {
+            Correction::PerFrame { floor_sigma, .. } => Correction::PerFrame {
                 floor_sigma,
                 soft: false,
-                band_sigma,
-            },
-            other => other,
-        }
-    }
-
-    /// The same correction with no noise band: every measurement imposed exactly.
-    pub fn without_band(self) -> Self {
-        match self {
-            Correction::PerFrame {
-                floor_sigma, soft, ..
-            } => Correction::PerFrame {
-                floor_sigma,
-                soft,
                 band_sigma: 0.0,
             },
             other => other,

@@ -13,7 +13,7 @@ use fpm_physics::{LedGeometry, System};
 
 use super::height;
 use super::refocus::{defocus_on_disk, RefocusChoice, RefocusReport};
-use super::{reconstruct_on_disk, reconstruct_with_system, BoundaryCheck, Reconstruction, Request};
+use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
 use crate::calibration::{GeometrySource, PlacementFile};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 
@@ -242,18 +242,37 @@ impl Job {
             None => None,
         };
         let system = on_disk.manifest.system();
-        let mut r = self.reconstruct_stored(&on_disk, &system, (&geometry, &source), on)?;
-        if let Some(edge) = self.edge_to_weigh(&r) {
-            let at_edge = height::at_edge(&geometry, &edge);
+        let bytes = on_disk.in_focus_bytes();
+        // Loaded once, whether the run is done at one height or two.
+        let loaded = if bytes as f64 <= self.frame_memory_gb * 1e9 {
+            let mut ds = Dataset::load(dir)?;
+            ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
+            ds.manifest.camera = on_disk.manifest.camera;
+            Some(ds)
+        } else {
+            on(JobEvent::FromDisk { bytes });
+            None
+        };
+        let progress = |done, total| on(JobEvent::Updates { done, total });
+        let reconstruct_at = |geometry: &LedGeometry, source: &GeometrySource| match &loaded {
+            Some(ds) => self.reconstruct_loaded(ds, &system, (geometry, source), &progress),
+            None => {
+                let refocus = self.refocus_of(|| defocus_on_disk(&on_disk, &system, geometry))?;
+                let request = self.request(geometry, source, refocus.refocus_um);
+                let mut r = reconstruct_on_disk(&on_disk, &request, &progress)?;
+                r.report.refocus = refocus;
+                Ok(r)
+            }
+        };
+        let r = reconstruct_at(&geometry, &source)?;
+        let mut r = self.with_edge_height_weighed(r, &geometry, |at_edge, source| {
             on(JobEvent::WeighingEdgeHeight {
                 stated_mm: geometry.height_mm,
                 edge_mm: at_edge.height_mm,
             });
-            let source = GeometrySource::EdgeHeight(at_edge.height_mm);
-            let alternative =
-                self.reconstruct_stored(&on_disk, &system, (&at_edge, &source), on)?;
-            r = keep_better(r, alternative, &edge);
-        }
+            reconstruct_at(at_edge, source)
+        })?;
+        drop(loaded); // the frames are not needed to score the result
         score(&on_disk, &mut r);
         r.report.camera_gamma_scan = gamma_scan.clone();
         r.report.camera_gamma_scan_reason = reason;
@@ -265,41 +284,38 @@ impl Job {
         })
     }
 
-    /// Reconstruct the stored dataset `ds` through `system` with `geometry` (and its
-    /// source): its frames held in memory within the budget, else read from disk band
-    /// by band.
-    fn reconstruct_stored(
+    /// `r`, the run with `geometry`, or the run at the bright/dark-field edge's height
+    /// (made by `reconstruct_at`) if the frames fit that clearly better, the weighing
+    /// in the report ([`height`]). Weighed only for the dataset's own nominal geometry
+    /// (a calibration, a file or a height given is the user's word), and where the two
+    /// heights are [`height::WEIGH_SIGMA`] apart.
+    fn with_edge_height_weighed(
         &self,
-        ds: &DatasetOnDisk,
-        system: &System,
-        (geometry, source): (&LedGeometry, &GeometrySource),
-        on: &(dyn Fn(JobEvent) + Sync),
+        r: Reconstruction,
+        geometry: &LedGeometry,
+        reconstruct_at: impl FnOnce(&LedGeometry, &GeometrySource) -> Result<Reconstruction>,
     ) -> Result<Reconstruction> {
-        let progress = |done, total| on(JobEvent::Updates { done, total });
-        let bytes = ds.in_focus_bytes();
-        if bytes as f64 <= self.frame_memory_gb * 1e9 {
-            let mut loaded = Dataset::load(&ds.dir)?;
-            loaded.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
-            loaded.manifest.camera = ds.manifest.camera;
-            self.reconstruct_loaded(&loaded, system, (geometry, source), &progress)
-        } else {
-            on(JobEvent::FromDisk { bytes });
-            let refocus = self.refocus_of(|| defocus_on_disk(ds, system, geometry))?;
-            let request = self.request(geometry, source, refocus.refocus_um);
-            let mut r = reconstruct_on_disk(ds, &request, &progress)?;
-            r.report.refocus = refocus;
-            Ok(r)
-        }
-    }
-
-    /// The edge's height to weigh against the geometry's ([`height`]): only for the
-    /// dataset's own nominal geometry (a calibration, a file or a height given is the
-    /// user's word), and where the two are [`height::WEIGH_SIGMA`] apart.
-    fn edge_to_weigh(&self, r: &Reconstruction) -> Option<BoundaryCheck> {
-        (self.geometry == GeometryChoice::Nominal)
+        let edge = (self.geometry == GeometryChoice::Nominal)
             .then_some(r.report.height_from_boundary)
             .flatten()
-            .filter(height::worth_weighing)
+            .filter(height::worth_weighing);
+        let Some(edge) = edge else {
+            return Ok(r);
+        };
+        let at_edge = height::at_edge(geometry, &edge);
+        let alternative = reconstruct_at(&at_edge, &GeometrySource::EdgeHeight(at_edge.height_mm))?;
+        let choice = height::HeightChoice::weigh(&r.report, &alternative.report, &edge);
+        tracing::info!(
+            stated_mm = choice.stated_mm,
+            edge_mm = choice.edge_mm,
+            stated_error = choice.stated_error,
+            edge_error = choice.edge_error,
+            taken = choice.edge_taken,
+            "the LED height from the bright/dark-field edge weighed on the frames"
+        );
+        let mut kept = if choice.edge_taken { alternative } else { r };
+        kept.report.height_choice = Some(choice);
+        Ok(kept)
     }
 
     /// Reconstruct a dataset already in memory (Python's `Dataset`), through `system`
@@ -319,14 +335,10 @@ impl Job {
             ..ds.manifest.system()
         };
         let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
-        let mut r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
-        if let Some(edge) = self.edge_to_weigh(&r) {
-            let at_edge = height::at_edge(&geometry, &edge);
-            let source = GeometrySource::EdgeHeight(at_edge.height_mm);
-            let alternative =
-                self.reconstruct_loaded(ds, &system, (&at_edge, &source), progress)?;
-            r = keep_better(r, alternative, &edge);
-        }
+        let r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
+        let mut r = self.with_edge_height_weighed(r, &geometry, |at_edge, source| {
+            self.reconstruct_loaded(ds, &system, (at_edge, source), progress)
+        })?;
         score(ds, &mut r);
         Ok(r)
     }
@@ -427,28 +439,6 @@ impl Job {
         )?;
         Ok(scan)
     }
-}
-
-/// Of the run at the dataset's height (`stated`) and the one at the `edge`'s, the one
-/// whose frames fit clearly better ([`height::HeightChoice`]), the weighing in its
-/// report.
-fn keep_better(
-    stated: Reconstruction,
-    at_edge: Reconstruction,
-    edge: &BoundaryCheck,
-) -> Reconstruction {
-    let choice = height::HeightChoice::weigh(&stated.report, &at_edge.report, edge);
-    tracing::info!(
-        stated_mm = choice.stated_mm,
-        edge_mm = choice.edge_mm,
-        stated_error = choice.stated_error,
-        edge_error = choice.edge_error,
-        taken = choice.edge_taken,
-        "the LED height from the bright/dark-field edge weighed on the frames"
-    );
-    let mut kept = if choice.edge_taken { at_edge } else { stated };
-    kept.report.height_choice = Some(choice);
-    kept
 }
 
 /// Decode `ds`'s frames with `gamma` (None: as linear). Without a stated bit depth,

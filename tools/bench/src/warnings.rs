@@ -6,9 +6,9 @@
 //! dim), their datasets stating the true geometry. Each condition is one thing wrong
 //! with such a set, reconstructed as a user would (no flags): frames saved with a
 //! display gamma the dataset does not state, a dataset's LED height 8 mm off, a
-//! non-telecentric objective. A detection counts where the condition changes the image by ≥ 10 %
-//! (complex NRMSE against the same set without it); the cases where it does not are
-//! shown apart.
+//! non-telecentric objective. A detection counts where the condition changes the
+//! image by ≥ 10 % (complex NRMSE against the same set without it); the cases where it
+//! does not are shown apart.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -113,16 +113,7 @@ impl Outcome {
                 b.estimate.height_mm, b.sigma_with_na_mm
             )
         });
-        let weighed = self.scored.height_choice.map(|c| {
-            format!(
-                "h weighed: error {:.3} at {:.1} mm, {:.3} at {:.1} mm, {}",
-                c.stated_error,
-                c.stated_mm,
-                c.edge_error,
-                c.edge_mm,
-                if c.edge_taken { "edge's taken" } else { "kept" }
-            )
-        });
+        let weighed = self.scored.height_choice.map(|c| format!("h {c}"));
         [fit, edge, weighed]
             .into_iter()
             .flatten()

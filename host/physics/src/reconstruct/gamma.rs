@@ -182,7 +182,7 @@ pub fn scan(
         // of 2.27, a simulated 2.2 read 1.2). A noise band skews it too: it leaves the
         // model free within the band, whose width in decoded units depends on the gamma
         // (with it a good simulated 8-bit stained set read as display-encoded).
-        background: settings.background.with_hard_floor().without_band(),
+        background: settings.background.for_comparing_errors(),
         ..settings
     };
     let total = COARSE.len() + 4;

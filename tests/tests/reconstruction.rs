@@ -1425,6 +1425,17 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
     let found = &report(&no_flags)["refocus"];
     eprintln!("refocus found: {found}");
     assert_eq!(found["choice"], "where-clear");
+    // The run says it refocused, and how to reconstruct as in focus instead.
+    assert!(
+        quiet["warnings"]
+            .as_array()
+            .is_some_and(|w| w.iter().any(|w| w["check"] == "refocus"
+                && w["message"]
+                    .as_str()
+                    .is_some_and(|m| m.contains("--refocus-um 0")))),
+        "{}",
+        quiet["warnings"]
+    );
     let z = found["refocus_um"].as_f64().unwrap();
     let sigma = found["estimate"]["sigma_um"].as_f64().unwrap();
     // Measured: 164.5 ± 13.4 µm (the shifts give z/h: the dataset's h of 110 mm may be

@@ -2,8 +2,13 @@
 //! by the full wave-optics model and reconstructed as a user would (the cases of
 //! `fpm bench warnings`, which measures the rates over many more).
 
+use std::path::Path;
+
 use fpm_bench::warnings::{run_case, Case, Condition};
-use fpm_host::reconstruction::Check;
+use fpm_host::dataset::{Dataset, Pixels};
+use fpm_host::reconstruction::{checks, Check, Job, Warning};
+use fpm_host::simulation::{self, AcquisitionSet, Noise, Scene};
+use fpm_physics::reconstruct::{Flatten, Settings};
 use fpm_physics::simulate::SampleKind;
 
 fn case(sample: SampleKind, eight_bit: bool, condition: Condition) -> Case {
@@ -105,4 +110,119 @@ fn an_unstated_gamma_of_eight_bit_frames_is_read_and_decoded() {
         gamma.complex_nrmse,
         clean.complex_nrmse
     );
+}
+
+/// A 128² set of `sample` (12-bit camera, dark field auto-exposed, seed 1, its true
+/// placement stated), loaded.
+fn simulated(sample: SampleKind, dir: &Path) -> Dataset {
+    let scene = Scene {
+        noise: Noise::Realistic,
+        size: 128,
+        seed: 1,
+        ..Scene::default()
+    };
+    let set = AcquisitionSet {
+        sample,
+        ..AcquisitionSet::default()
+    };
+    simulation::write_acquisition(&scene, &set, dir).unwrap();
+    Dataset::load(dir).unwrap()
+}
+
+/// The checks `job` raises on `ds` (the reminder to calibrate, right on every
+/// simulated set, left out), with their messages.
+fn raised(ds: &Dataset, job: &Job) -> Vec<Warning> {
+    let done = job.run_in_memory(ds, &|_, _| {}).unwrap();
+    checks(&done.report)
+        .into_iter()
+        .filter(|w| w.check != Check::NominalGeometry)
+        .collect()
+}
+
+fn message(warnings: &[Warning], check: Check) -> Option<&str> {
+    warnings
+        .iter()
+        .find(|w| w.check == check)
+        .map(|w| w.message.as_str())
+}
+
+/// On a weak-phase sample the bright/dark-field edge bounds the LED height only to
+/// ±3 mm, so a height stated 8 mm off is not corrected: the passes' error rises, and
+/// the warning names the geometry as what to check.
+#[test]
+fn a_wrong_height_the_edge_cannot_bound_makes_the_error_rise_and_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    let high = run_case(
+        &case(SampleKind::WeakPhase, false, Condition::WrongHeight),
+        &set,
+    )
+    .unwrap();
+    assert!(high.fired.contains(&Check::ErrorRose), "{:?}", high.fired);
+    let choice = high.height_choice;
+    assert!(choice.is_none_or(|c| !c.edge_taken), "{choice:?}");
+}
+
+/// Structured stray light in every dark-field frame (diagonal fringes of 16 px
+/// period and 80 counts, as a reflection makes) is not taken for background: it is left on, and the warning
+/// says so and what to do. The same frames without it raise nothing.
+#[test]
+fn structured_stray_light_in_the_dark_field_is_left_on_and_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut ds = simulated(SampleKind::Cells, &dir.path().join("set"));
+    let job = Job::default();
+    let clean = raised(&ds, &job);
+    assert!(
+        message(&clean, Check::DarkFieldBackground).is_none(),
+        "{clean:?}"
+    );
+    let (system, geometry) = (ds.manifest.system(), ds.manifest.geometry());
+    let mut lit = 0;
+    for f in &mut ds.frames {
+        if geometry.is_bright_field(f.entry.led, 0.0, 0.0, &system) {
+            continue;
+        }
+        let Pixels::U16(raw) = &mut f.raw else {
+            panic!("12-bit frames are stored as u16")
+        };
+        for ((r, c), v) in raw.indexed_iter_mut() {
+            let phase = 2.0 * std::f64::consts::PI * (r + c) as f64 / 16.0;
+            let fringe = 40.0 * (1.0 + phase.sin());
+            *v = (*v as f64 + fringe).round().min(4095.0) as u16;
+        }
+        lit += 1;
+    }
+    assert!(lit > 300, "{lit} dark-field frames");
+    let stray = raised(&ds, &job);
+    let said = message(&stray, Check::DarkFieldBackground).unwrap_or_else(|| panic!("{stray:?}"));
+    assert!(said.contains("left on") && said.contains("shade"), "{said}");
+}
+
+/// `--flatten-background` on a sample that fills the field (dense stained tissue)
+/// finds little clear glass and says to leave the flag off; on cells with glass
+/// between them it fits and is quiet.
+#[test]
+fn flattening_a_sample_without_clear_glass_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let flatten = Job {
+        settings: Settings {
+            flatten: Flatten::Auto,
+            ..Job::default().settings
+        },
+        ..Job::default()
+    };
+    let cells = raised(
+        &simulated(SampleKind::Cells, &dir.path().join("cells")),
+        &flatten,
+    );
+    assert!(
+        message(&cells, Check::FlattenBackground).is_none(),
+        "{cells:?}"
+    );
+    let stained = raised(
+        &simulated(SampleKind::Stained, &dir.path().join("stained")),
+        &flatten,
+    );
+    let said = message(&stained, Check::FlattenBackground).unwrap_or_else(|| panic!("{stained:?}"));
+    assert!(said.contains("leave the flag off"), "{said}");
 }

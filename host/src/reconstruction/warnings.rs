@@ -253,7 +253,7 @@ pub fn checks(report: &Report) -> Vec<Warning> {
         .count();
     if refused * 2 > report.background.dark_field_frames.len().max(1) {
         out.push(Check::DarkFieldBackground, format!(
-            "{refused} of {} dark-field frames had a background that was not flat (sample light or structured stray light): it was left on",
+            "{refused} of {} dark-field frames had a background that was not flat (the sample's own light, or structured stray light): it was left on. If the sample fills the field, that is its light and nothing is lost; otherwise shade the objective from the room and from reflections off the LED board (the report's dark-field chart shows which frames), and acquire again",
             report.background.dark_field_frames.len()
         ));
     }

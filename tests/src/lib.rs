@@ -28,6 +28,9 @@ use std::sync::OnceLock;
 /// `requirements` installed, made (or remade, when the requirements changed) on first
 /// use. Needs Python ≥ 3.9 with `venv`; the packages come from PyPI.
 pub fn python_venv(name: &str, requirements: &Path) -> PathBuf {
+    // Tests of one binary run on threads: one makes the environment, the others wait.
+    static MAKING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _making = MAKING.lock().unwrap_or_else(|e| e.into_inner());
     let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
     let venv = workspace.join("target").join(name);
     let python = venv.join("bin/python");

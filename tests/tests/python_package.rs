@@ -50,3 +50,112 @@ fn python_package_builds_and_its_tests_pass() {
         "no test may be skipped here:\n{report}"
     );
 }
+
+/// What `pip install ptychoscope` would give a user without Rust: the release wheel
+/// (abi3, one file for every CPython from 3.9, manylinux x86_64) built by maturin,
+/// installed into a fresh virtual environment with NumPy alone, and the Python example
+/// run there with no `cargo` or `rustc` on the PATH, importing the installed package.
+#[test]
+fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust() {
+    let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let python = python_venv(
+        "python-package",
+        &workspace.join("python/requirements-test.txt"),
+    );
+    let venv = python
+        .parent()
+        .and_then(Path::parent)
+        .expect("target/python-package");
+    let scratch = tempfile::tempdir().unwrap();
+    let wheels = scratch.path().join("wheels");
+    let build = Command::new(venv.join("bin/maturin"))
+        .args(["build", "--release", "--strip", "--quiet", "-m"])
+        .arg(workspace.join("python/Cargo.toml"))
+        .arg("--out")
+        .arg(&wheels)
+        .output()
+        .expect("running maturin");
+    assert!(
+        build.status.success(),
+        "maturin build failed:\n{}",
+        String::from_utf8_lossy(&build.stderr)
+    );
+    let built: Vec<_> = std::fs::read_dir(&wheels)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    let [wheel] = built.as_slice() else {
+        panic!("one wheel expected: {built:?}")
+    };
+    let name = wheel.file_name().unwrap().to_string_lossy().to_string();
+    assert!(
+        name.starts_with("ptychoscope-")
+            && name.contains("-cp39-abi3-manylinux_")
+            && name.ends_with("_x86_64.whl"),
+        "{name}"
+    );
+
+    let fresh = scratch.path().join("venv");
+    let made = Command::new("python3")
+        .args(["-m", "venv"])
+        .arg(&fresh)
+        .output()
+        .expect("python3 -m venv");
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    // NumPy pinned as the test environment pins it; the wheel brings everything else.
+    let numpy = std::fs::read_to_string(workspace.join("python/requirements-test.txt"))
+        .unwrap()
+        .lines()
+        .find(|l| l.starts_with("numpy=="))
+        .expect("numpy pinned in python/requirements-test.txt")
+        .to_string();
+    let pip = Command::new(fresh.join("bin/python"))
+        .args(["-m", "pip", "install", "--quiet", &numpy])
+        .arg(wheel)
+        .output()
+        .expect("pip install");
+    assert!(
+        pip.status.success(),
+        "installing {name}: {}",
+        String::from_utf8_lossy(&pip.stderr)
+    );
+    // Only the environment and the system's own directories: no ~/.cargo/bin.
+    let path = format!("{}:/usr/bin:/bin", fresh.join("bin").display());
+    let out = scratch.path().join("out");
+    let run = Command::new(fresh.join("bin/python"))
+        .args([
+            "-c",
+            "import runpy, shutil, sys\n\
+             missing = [t for t in ('cargo', 'rustc') if shutil.which(t)]\n\
+             assert not missing, f'on the PATH: {missing}'\n\
+             import fpm\n\
+             assert fpm.__file__.startswith(sys.prefix), fpm.__file__\n\
+             print('installed at', fpm.__file__)\n\
+             sys.argv = [sys.argv[1], sys.argv[2]]\n\
+             runpy.run_path(sys.argv[0], run_name='__main__')",
+        ])
+        .arg(workspace.join("examples/python_session.py"))
+        .arg(&out)
+        .env_clear()
+        .env("PATH", &path)
+        .env("HOME", scratch.path())
+        .current_dir(scratch.path())
+        .output()
+        .expect("running the example");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    println!("{stdout}");
+    assert!(
+        run.status.success(),
+        "the example failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(
+        stdout.contains("Δx =") && stdout.contains("wrote"),
+        "{stdout}"
+    );
+    assert!(out.join("usaf/amplitude.tif").exists());
+}

@@ -58,6 +58,10 @@ class Dataset:
     @property
     def leds(self) -> list[Led]: ...
     @property
+    def led_positions_mm(self) -> list[tuple[float, float, float]]:
+        """Each frame's LED as the dataset places it: (x, y, z) mm, z its distance
+        below the sample."""
+    @property
     def exposure_ms(self) -> list[float]: ...
     @property
     def defocus_um(self) -> list[float]: ...

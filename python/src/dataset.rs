@@ -176,6 +176,18 @@ impl Dataset {
             .collect()
     }
 
+    /// Where the dataset's LED array puts each frame's LED, (x, y, z) mm in the sample's
+    /// frame (z: its distance below the sample), one row per frame.
+    #[getter]
+    fn led_positions_mm(&self) -> Vec<(f64, f64, f64)> {
+        let geometry = self.inner.manifest.geometry();
+        self.inner
+            .frames
+            .iter()
+            .map(|f| geometry.led_position_3d_mm(f.entry.led))
+            .collect()
+    }
+
     /// Each frame's exposure, ms.
     #[getter]
     fn exposure_ms(&self) -> Vec<f64> {

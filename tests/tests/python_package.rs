@@ -3,13 +3,14 @@
 //! (python/tests/, which also runs examples/python_session.py) against the real USAF
 //! data, simulated sets, and the `fpm` command for comparison.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use fpm_tests::{fpm_bin, python_venv};
 
-#[test]
-fn python_package_builds_and_its_tests_pass() {
+/// The workspace, and the test environment's Python and its directory
+/// (`target/python-package`, with maturin and the pinned test packages).
+fn package_environment() -> (&'static Path, PathBuf, PathBuf) {
     let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
     let python = python_venv(
         "python-package",
@@ -18,12 +19,19 @@ fn python_package_builds_and_its_tests_pass() {
     let venv = python
         .parent()
         .and_then(Path::parent)
-        .expect("target/python-package");
+        .expect("target/python-package")
+        .to_path_buf();
+    (workspace, python, venv)
+}
+
+#[test]
+fn python_package_builds_and_its_tests_pass() {
+    let (workspace, python, venv) = package_environment();
     // The dev profile builds the physics optimised (Cargo.toml), as the tests do.
     let build = Command::new(venv.join("bin/maturin"))
         .args(["develop", "--quiet", "-m"])
         .arg(workspace.join("python/Cargo.toml"))
-        .env("VIRTUAL_ENV", venv)
+        .env("VIRTUAL_ENV", &venv)
         .output()
         .expect("running maturin");
     assert!(
@@ -57,15 +65,7 @@ fn python_package_builds_and_its_tests_pass() {
 /// run there with no `cargo` or `rustc` on the PATH, importing the installed package.
 #[test]
 fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust() {
-    let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
-    let python = python_venv(
-        "python-package",
-        &workspace.join("python/requirements-test.txt"),
-    );
-    let venv = python
-        .parent()
-        .and_then(Path::parent)
-        .expect("target/python-package");
+    let (workspace, _, venv) = package_environment();
     let scratch = tempfile::tempdir().unwrap();
     let wheels = scratch.path().join("wheels");
     let build = Command::new(venv.join("bin/maturin"))

@@ -39,10 +39,7 @@ from qtpy.QtWidgets import (
 
 from . import local as local_snapshots
 from .client import FINAL_STATES, Client, ServiceError, Snapshot
-
-#: The layers the widget keeps up to date.
-AMPLITUDE_LAYER = "fpm amplitude"
-PHASE_LAYER = "fpm phase"
+from .napari_data import AMPLITUDE_LAYER, PHASE_LAYER, show_amplitude_and_phase
 
 
 class ServiceWidget(QWidget):
@@ -254,19 +251,9 @@ class ServiceWidget(QWidget):
         """Show ``snapshot`` as the amplitude and phase layers (made on first use, then
         updated in place), scaled to its pixel in µm."""
         self.last_snapshot = snapshot
-        scale = (snapshot.pixel_um, snapshot.pixel_um)
+        show_amplitude_and_phase(self.viewer, snapshot.amplitude, snapshot.phase,
+                                 snapshot.pixel_um)
         layers = self.viewer.layers
-        for name, data, style in (
-            (AMPLITUDE_LAYER, snapshot.amplitude, {"colormap": "gray"}),
-            (PHASE_LAYER, snapshot.phase,
-             {"colormap": "twilight", "contrast_limits": (-math.pi, math.pi)}),
-        ):
-            if name in layers:
-                layer = layers[name]
-                layer.data = data
-                layer.scale = scale
-            else:
-                self.viewer.add_image(data, name=name, scale=scale, units="µm", **style)
         what = "finished reconstruction" if snapshot.finished else (
             f"after {snapshot.frames} of {snapshot.of} frames")
         layers[AMPLITUDE_LAYER].metadata["fpm"] = {

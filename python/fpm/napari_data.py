@@ -39,7 +39,7 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
-#: Layer names the reconstruct widget keeps up to date.
+#: Layer names the reconstruct widget and the service widget (fpm.napari) keep up to date.
 AMPLITUDE_LAYER = "fpm amplitude"
 PHASE_LAYER = "fpm phase"
 PUPIL_AMPLITUDE_LAYER = "fpm pupil amplitude"
@@ -75,10 +75,14 @@ def read_dataset(path: Any) -> list[LayerData]:
     from . import Dataset
 
     folder = Path(path[0] if isinstance(path, list) else path)
+    import dask.array as da  # napari's own dependency
+
     ds = Dataset.load(folder)
     system = ds.system
     pixel_um = system["pixel_size_um"] / system["magnification"]
-    frames = np.stack(ds.frames)
+    # A lazy stack of the frames' views: napari reads the frame shown, and a dataset
+    # of hundreds of large frames is not copied once more into memory.
+    frames = da.stack([da.from_array(f, chunks=f.shape) for f in ds.frames])
     leds = [tuple(int(v) for v in led) for led in ds.leds]
     positions = np.array([(y, x) for x, y, _ in ds.led_positions_mm], dtype=float)
     frames_meta = {
@@ -151,6 +155,17 @@ def _show(viewer, name: str, data: np.ndarray, **meta) -> None:
                 setattr(layer, key, meta[key])
     else:
         viewer.add_image(data, name=name, **meta)
+
+
+def show_amplitude_and_phase(viewer, amplitude: np.ndarray, phase: np.ndarray,
+                             pixel_um: float) -> None:
+    """The layers ``AMPLITUDE_LAYER`` and ``PHASE_LAYER`` (cyclic colormap, −π…π) at
+    `pixel_um` µm: made on first use, then updated in place (the reconstruct widget's
+    result, the acquisition service's snapshots)."""
+    scale = _micrometres(pixel_um)
+    _show(viewer, AMPLITUDE_LAYER, amplitude, colormap="gray", **scale)
+    _show(viewer, PHASE_LAYER, phase, colormap="twilight",
+          contrast_limits=(-math.pi, math.pi), **scale)
 
 
 class ReconstructWidget(QWidget):
@@ -245,10 +260,8 @@ class ReconstructWidget(QWidget):
             self.status.setText(f"failed: {result}")
             return
         self.result = result
-        scale = _micrometres(result.pixel_um)
-        _show(self.viewer, AMPLITUDE_LAYER, result.amplitude, colormap="gray", **scale)
-        _show(self.viewer, PHASE_LAYER, result.phase, colormap="twilight",
-              contrast_limits=(-math.pi, math.pi), **scale)
+        show_amplitude_and_phase(self.viewer, result.amplitude, result.phase,
+                                 result.pixel_um)
         pupil = result.pupil
         _show(self.viewer, PUPIL_AMPLITUDE_LAYER, np.abs(pupil), colormap="magma",
               visible=False)

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use fpm_bench::warnings::{run_case, Case, Condition};
+use fpm_bench::warnings::{run_case, Case, Condition, SIZE};
 use fpm_host::dataset::{Dataset, Pixels};
 use fpm_host::reconstruction::{checks, Check, Job, Warning};
 use fpm_host::simulation::{self, AcquisitionSet, Noise, Scene};
@@ -112,12 +112,12 @@ fn an_unstated_gamma_of_eight_bit_frames_is_read_and_decoded() {
     );
 }
 
-/// A 128² set of `sample` (12-bit camera, dark field auto-exposed, seed 1, its true
-/// placement stated), loaded.
+/// A set of `sample` as the bench's (`SIZE`², 12-bit camera, dark field auto-exposed,
+/// seed 1, its true placement stated), loaded.
 fn simulated(sample: SampleKind, dir: &Path) -> Dataset {
     let scene = Scene {
         noise: Noise::Realistic,
-        size: 128,
+        size: SIZE,
         seed: 1,
         ..Scene::default()
     };
@@ -163,9 +163,9 @@ fn a_wrong_height_the_edge_cannot_bound_makes_the_error_rise_and_is_named() {
     assert!(choice.is_none_or(|c| !c.edge_taken), "{choice:?}");
 }
 
-/// Structured stray light in every dark-field frame (diagonal fringes of 16 px
-/// period and 80 counts, as a reflection makes) is not taken for background: it is left on, and the warning
-/// says so and what to do. The same frames without it raise nothing.
+/// Structured stray light in every dark-field frame (diagonal fringes of 16 px period
+/// and 80 counts, as a reflection makes) is not taken for background: it is left on,
+/// and the warning says so and what to do. The same frames without it raise nothing.
 #[test]
 fn structured_stray_light_in_the_dark_field_is_left_on_and_named() {
     let dir = tempfile::tempdir().unwrap();

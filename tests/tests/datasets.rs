@@ -7,7 +7,7 @@ use std::process::Command;
 use fpm_host::dataset::{
     CameraSection, Dataset, FrameEntry, LedSection, Manifest, Pixels, SystemSection,
 };
-use fpm_physics::LedIndex;
+use fpm_physics::{LedGeometry, LedIndex, LedList, ListedLed};
 use fpm_tests::{data_dir, fpm_bin, TempDir};
 use ndarray::Array2;
 
@@ -20,15 +20,17 @@ fn manifest(frames: usize) -> Manifest {
             pixel_size_um: 2.4,
         },
         led: LedSection {
-            rows: 21,
-            cols: 21,
-            pitch_mm: 2.5,
+            rows: Some(21),
+            cols: Some(21),
+            pitch_mm: Some(2.5),
             height_mm: 92.0,
-            center: LedIndex::new(10, 10),
+            center: Some(LedIndex::new(10, 10)),
             offset_mm: [0.1, -0.2],
             rotation_deg: 1.5,
             tilt_deg: [0.0, 0.0],
             rings: None,
+            position: None,
+            na: None,
         },
         camera: CameraSection {
             dark_level: 100.0,
@@ -115,7 +117,7 @@ fn the_vendored_usaf_dataset_from_another_lab_loads() {
     let ds = Dataset::load(&data_dir().join("zuo-usaf-11x11")).unwrap();
     assert_eq!(ds.frames.len(), 121);
     assert_eq!(ds.frames[0].raw.dim(), (128, 128));
-    assert_eq!(ds.manifest.led.rows, 11);
+    assert_eq!(ds.manifest.led.rows, Some(11));
     assert_eq!(ds.manifest.camera.bit_depth, Some(8));
     // Bright-field frames (rows 4–6, cols 4–6) are far brighter than dark-field ones.
     let mean = |k: usize| ds.frames[k].raw.to_f32().mean().unwrap();
@@ -433,4 +435,168 @@ fn calibration_refuses_datasets_without_a_feature_or_light() {
     Dataset::write(&dir.0, &m, &frames(1, 32, 32)).unwrap();
     let out = fpm(&["calibrate", &dir.0.to_string_lossy()]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("no in-focus reference frame"));
+}
+
+/// The manifest of [`manifest`] with its grid written as a list of the same LEDs'
+/// places (every frame's LED and the centre among them).
+fn listed_manifest(frames: usize) -> Manifest {
+    let mut m = manifest(frames);
+    let grid = m.geometry();
+    let leds = grid
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (p, q) = grid.grid_offset(led);
+            ListedLed {
+                led,
+                x_mm: p * grid.pitch_mm,
+                y_mm: q * grid.pitch_mm,
+                z_mm: if led.row == 0 { 1.5 } else { 0.0 },
+            }
+        })
+        .collect();
+    m.led = LedSection::of(&LedGeometry::listed(
+        LedList::new(leds).unwrap(),
+        grid.height_mm,
+        None,
+    ));
+    m.led.offset_mm = [0.1, -0.2];
+    m.led.rotation_deg = 1.5;
+    m
+}
+
+#[test]
+fn a_listed_layout_round_trips_and_places_its_leds_as_listed() {
+    let dir = TempDir::new("listed");
+    let m = listed_manifest(5);
+    Dataset::write(&dir.0, &m, &frames(5, 16, 12)).unwrap();
+    let text = std::fs::read_to_string(dir.0.join("dataset.toml")).unwrap();
+    assert!(
+        text.contains("[[led.position]]") && !text.contains("rows"),
+        "{text}"
+    );
+    let ds = Dataset::load(&dir.0).unwrap();
+    assert_eq!(ds.manifest.led, m.led);
+    let (listed, grid) = (ds.manifest.geometry(), manifest(1).geometry());
+    assert_eq!(listed.center, grid.center);
+    assert!((listed.pitch_mm - 2.5).abs() < 1e-12);
+    // Listed where the grid puts them, the row-0 LEDs 1.5 mm farther off.
+    for led in [
+        LedIndex::new(10, 10),
+        LedIndex::new(3, 17),
+        LedIndex::new(0, 4),
+    ] {
+        let (a, b) = (grid.led_position_3d_mm(led), listed.led_position_3d_mm(led));
+        let deeper = if led.row == 0 { 1.5 } else { 0.0 };
+        // The 1.5° turn leaves a depth along the board's normal a depth.
+        assert!(
+            (a.0 - b.0).abs() < 1e-9
+                && (a.1 - b.1).abs() < 1e-9
+                && (b.2 - a.2 - deeper).abs() < 1e-9,
+            "{led}: grid {a:?}, listed {b:?}"
+        );
+    }
+}
+
+#[test]
+fn an_na_list_places_each_led_where_its_angle_points_at_the_stated_height() {
+    let dir = TempDir::new("na-list");
+    Dataset::write(&dir.0, &manifest(1), &frames(1, 16, 12)).unwrap();
+    edit_toml(&dir.0, |t| {
+        let led = t.find("[led]").unwrap();
+        let camera = t.find("[camera]").unwrap();
+        let section = "[led]\nheight_mm = 50.0\n\n[[led.na]]\nled = [0, 0]\nna = [0.0, 0.0]\n\n\
+                       [[led.na]]\nled = [0, 1]\nna = [0.1, -0.2]\n\n";
+        let frames = t[camera..].replace("led = [\n    0,\n    0,\n]", "led = [0, 1]");
+        format!("{}{section}{frames}", &t[..led])
+    });
+    let ds = Dataset::load(&dir.0).unwrap();
+    let g = ds.manifest.geometry();
+    let (x, y, h) = g.led_position_3d_mm(LedIndex::new(0, 1));
+    let cos = (1.0f64 - 0.01 - 0.04).sqrt();
+    assert!((x - 5.0 / cos).abs() < 1e-9 && (y + 10.0 / cos).abs() < 1e-9 && h == 50.0);
+    // Seen from the field's centre, the LED is at the NA the file gave.
+    let system = ds.manifest.system();
+    let f = g.illumination_frequency(LedIndex::new(0, 1), 0.0, 0.0, system.wavelength_um);
+    let na = (-f.0 * system.wavelength_um, -f.1 * system.wavelength_um);
+    assert!(
+        (na.0 - 0.1).abs() < 1e-12 && (na.1 + 0.2).abs() < 1e-12,
+        "{na:?}"
+    );
+    assert_eq!(g.center, LedIndex::new(0, 0));
+}
+
+#[test]
+fn bad_led_lists_fail_naming_the_key_or_frame() {
+    let write_listed = |tag: &str, edit: &dyn Fn(String) -> String| {
+        let dir = TempDir::new(tag);
+        Dataset::write(&dir.0, &listed_manifest(3), &frames(3, 16, 16)).unwrap();
+        edit_toml(&dir.0, edit);
+        format!(
+            "{}",
+            Dataset::load(&dir.0).expect_err("a broken list must not load")
+        )
+    };
+    // The frames light (0, 0), (1, 7), (2, 14): LED (1, 7) listed twice, (2, 14) as (2, 15).
+    let e = write_listed("twice", &|t| {
+        t.replacen(
+            "led = [\n    1,\n    8,\n]",
+            "led = [\n    1,\n    7,\n]",
+            1,
+        )
+    });
+    assert!(
+        e.contains("led.position") && e.contains("(1, 7) is listed twice"),
+        "{e}"
+    );
+    let e = write_listed("unlisted", &|t| {
+        t.replacen(
+            "led = [\n    2,\n    14,\n]",
+            "led = [\n    22,\n    14,\n]",
+            1,
+        )
+    });
+    assert!(
+        e.contains("frame 2") && e.contains("not one of the listed LEDs"),
+        "{e}"
+    );
+    let e = write_listed("rows", &|t| t.replace("[led]\n", "[led]\nrows = 21\n"));
+    assert!(
+        e.contains("led.rows/cols") && e.contains("leave rows and cols out"),
+        "{e}"
+    );
+    let e = write_listed("both", &|t| {
+        t.replace(
+            "[camera]",
+            "[[led.na]]\nled = [0, 0]\nna = [0.0, 0.0]\n\n[camera]",
+        )
+    });
+    assert!(e.contains("led.position/led.na"), "{e}");
+    let e = write_listed("units", &|t| t.replacen("x_mm = ", "x_mm = \"", 1));
+    assert!(e.contains("x_mm"), "{e}");
+    let e = write_listed("centre", &|t| {
+        t.replace("center = [\n    10,\n    10,\n]", "center = [30, 30]")
+    });
+    assert!(
+        e.contains("led.center") && e.contains("not one of the listed"),
+        "{e}"
+    );
+    // An NA at or beyond 1 places no LED.
+    let e = broken("na-one", |d| {
+        edit_toml(d, |t| {
+            let led = t.find("[led]").unwrap();
+            let camera = t.find("[camera]").unwrap();
+            format!(
+                "{}[led]\nheight_mm = 50.0\n\n[[led.na]]\nled = [0, 0]\nna = [0.8, 0.7]\n\n{}",
+                &t[..led],
+                &t[camera..]
+            )
+        })
+    });
+    assert!(e.contains("led.na") && e.contains("NAx² + NAy² < 1"), "{e}");
+    // A grid without its pitch names the key.
+    let e = broken("no-pitch", |d| {
+        edit_toml(d, |t| t.replace("pitch_mm = 2.5\n", ""))
+    });
+    assert!(e.contains("led.pitch_mm") && e.contains("absent"), "{e}");
 }

@@ -1481,3 +1481,111 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
         "the band keeps the bars: {by_itself} against {unbanded}"
     );
 }
+
+/// The dataset in `from` copied to `to` with its `[led]` section rewritten by `led`
+/// (given the nominal geometry).
+fn with_led_section(
+    from: &Path,
+    to: &Path,
+    led: impl FnOnce(&fpm_physics::LedGeometry) -> fpm_host::dataset::LedSection,
+) {
+    copy_dataset(from, to);
+    let mut m = fpm_host::dataset::DatasetOnDisk::open(to).unwrap().manifest;
+    m.led = led(&m.geometry());
+    m.write(to).unwrap();
+}
+
+/// Every LED of `g` as `[[led.position]]`, each place passed through `place`.
+fn as_positions(
+    g: &fpm_physics::LedGeometry,
+    place: impl Fn(f64, f64) -> (f64, f64),
+) -> fpm_host::dataset::LedSection {
+    let leds = g
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (x, y) = g.led_position_mm(led);
+            let (x_mm, y_mm) = place(x, y);
+            fpm_physics::ListedLed {
+                led,
+                x_mm,
+                y_mm,
+                z_mm: 0.0,
+            }
+        })
+        .collect();
+    let list = fpm_physics::LedList::new(leds).unwrap();
+    fpm_host::dataset::LedSection::of(&fpm_physics::LedGeometry::listed(list, g.height_mm, None))
+}
+
+/// Every LED of `g` as `[[led.na]]` (its sines seen from the field's centre), each
+/// passed through `turn`.
+fn as_nas(
+    g: &fpm_physics::LedGeometry,
+    turn: impl Fn([f64; 2]) -> [f64; 2],
+) -> fpm_host::dataset::LedSection {
+    use fpm_host::dataset::{LedNa, LedNas, LedSection};
+    let nas = g
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (x, y, h) = g.led_position_3d_mm(led);
+            let r = (x * x + y * y + h * h).sqrt();
+            LedNa {
+                led,
+                na: turn([x / r, y / r]),
+            }
+        })
+        .collect();
+    LedSection {
+        na: Some(LedNas::new(nas).unwrap()),
+        ..LedSection::of(g)
+    }
+    .without_grid()
+}
+
+/// An acquisition (full wave-optics model, its array where the dataset says) restated
+/// as a list of its LEDs' places, or of their NAs, reconstructs exactly as the grid
+/// does; the same list with a sign, the axes or the units wrong is caught by the
+/// hidden truth.
+#[test]
+fn a_listed_layout_reconstructs_as_its_grid_and_a_wrong_sign_axis_or_unit_is_caught() {
+    let (sim, dir) = (TempDir::new("layout-sim"), TempDir::new("layout"));
+    simulate_centred(&sim, "128", "4");
+    let nrmse = |dataset: &Path, tag: &str| {
+        let out = dir.0.join(format!("{tag}-out"));
+        reconstruct_ok(dataset, &out, &["--passes", "8"]);
+        report(&out)["versus_truth"]["complex_nrmse"]
+            .as_f64()
+            .unwrap()
+    };
+    let restated =
+        |tag: &str, led: &dyn Fn(&fpm_physics::LedGeometry) -> fpm_host::dataset::LedSection| {
+            let to = dir.0.join(tag);
+            with_led_section(&sim.0, &to, led);
+            nrmse(&to, tag)
+        };
+    let grid = nrmse(&sim.0, "grid");
+    let nas = restated("nas", &|g| as_nas(g, |na| na));
+    let positions = restated("positions", &|g| as_positions(g, |x, y| (x, y)));
+    let sign = restated("sign", &|g| as_nas(g, |na| [-na[0], na[1]]));
+    let axes = restated("axes", &|g| as_positions(g, |x, y| (y, x)));
+    let units = restated("units", &|g| as_positions(g, |x, y| (x / 10.0, y / 10.0)));
+    eprintln!(
+        "complex NRMSE: grid {grid:.4}, NA list {nas:.4}, positions {positions:.4}; \
+         NAx sign flipped {sign:.4}, x and y swapped {axes:.4}, cm read as mm {units:.4}"
+    );
+    for (what, e) in [("the NA list", nas), ("the positions", positions)] {
+        assert!(
+            (e - grid).abs() < 0.02 * grid,
+            "{what}: {e} against the grid's {grid}"
+        );
+    }
+    for (what, e) in [
+        ("a flipped sign", sign),
+        ("swapped axes", axes),
+        ("cm as mm", units),
+    ] {
+        assert!(e > 1.5 * grid, "{what}: {e} against the grid's {grid}");
+    }
+}

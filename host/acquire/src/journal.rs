@@ -28,7 +28,7 @@ pub const JOURNAL: &str = "frames/journal.jsonl";
 #[serde(tag = "line", rename_all = "snake_case")]
 enum Line {
     /// The first: the dataset's manifest, without frames.
-    Start { manifest: Manifest },
+    Start { manifest: Box<Manifest> },
     /// A frame written: its entry, its bit depth, and its pixels' checksum.
     Frame {
         entry: FrameEntry,
@@ -61,10 +61,10 @@ impl Journal {
             .with_context(|| format!("creating {}", out.join("frames").display()))?;
         let mut file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
-        let manifest = Manifest {
+        let manifest = Box::new(Manifest {
             frames: vec![],
             ..manifest.clone()
-        };
+        });
         let mut line = serde_json::to_string(&Line::Start { manifest })?;
         line.push('\n');
         file.write_all(line.as_bytes())
@@ -180,7 +180,7 @@ pub fn recover(out: &Path) -> Result<Option<usize>> {
     let mut bit_depth = None;
     for (k, line) in text.lines().enumerate() {
         match serde_json::from_str::<Line>(line) {
-            Ok(Line::Start { manifest: m }) if k == 0 => manifest = Some(m),
+            Ok(Line::Start { manifest: m }) if k == 0 => manifest = Some(*m),
             Ok(Line::Frame {
                 entry,
                 bit_depth: b,

@@ -23,6 +23,7 @@ pub mod coverage;
 pub mod fft;
 pub mod frame;
 pub mod image;
+pub mod led_list;
 pub mod metrics;
 pub mod optics;
 pub mod reconstruct;
@@ -32,6 +33,7 @@ pub mod study;
 pub mod tiles;
 
 pub use image::Image;
+pub use led_list::{LedList, ListedLed};
 pub use optics::{LedGeometry, LedIndex, Placement, Rings, System};
 /// The complex type of every field (object, pupil, exit wave).
 pub use rustfft::num_complex::Complex32;

@@ -4,6 +4,8 @@ use serde::{Deserialize, Serialize};
 
 pub use fpm_protocol::LedIndex;
 
+use crate::led_list::LedList;
+
 /// Microscope and camera.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct System {
@@ -263,8 +265,8 @@ impl Placement {
         }
     }
 }
-/// A regular LED grid below the sample (docs/dataset.md §1), or LEDs on rings
-/// ([`Rings`]).
+/// A regular LED grid below the sample (docs/dataset.md §1), LEDs on rings
+/// ([`Rings`]) or LEDs where a list puts them ([`LedList`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LedGeometry {
     /// Grid rows.
@@ -295,6 +297,13 @@ pub struct LedGeometry {
     /// then the number of rings, `cols` the largest ring's LEDs, `center` (0, 0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rings: Option<Rings>,
+    /// LEDs where a list puts them in the array's own frame, not on a grid; the list's
+    /// origin takes the centre LED's place (at (Δx, Δy), `height_mm` below the sample,
+    /// θ and the tilts turning about it). `rows`, `cols` bound the ids, `center` is the
+    /// LED nearest the origin and `pitch_mm` the typical spacing
+    /// ([`LedList::typical_spacing_mm`]), for what needs a grid's numbers.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub list: Option<LedList>,
 }
 
 impl LedGeometry {
@@ -325,6 +334,7 @@ impl LedGeometry {
             tilt_x_deg: 0.0,
             tilt_y_deg: 0.0,
             rings: None,
+            list: None,
         }
     }
 
@@ -342,6 +352,34 @@ impl LedGeometry {
             tilt_x_deg: 0.0,
             tilt_y_deg: 0.0,
             rings: Some(rings),
+            list: None,
+        }
+    }
+
+    /// LEDs where `list` puts them, its origin `height_mm` below the sample on the
+    /// axis, nominally placed; `pitch_mm` the spacing heuristics use (None: the
+    /// list's typical spacing).
+    pub fn listed(list: LedList, height_mm: f64, pitch_mm: Option<f64>) -> Self {
+        let bound = |f: fn(&crate::led_list::ListedLed) -> u8| {
+            list.leds()
+                .iter()
+                .map(|l| f(l) as usize + 1)
+                .max()
+                .unwrap_or(1)
+        };
+        Self {
+            rows: bound(|l| l.led.row),
+            cols: bound(|l| l.led.col),
+            pitch_mm: pitch_mm.unwrap_or_else(|| list.typical_spacing_mm()),
+            height_mm,
+            center: list.nearest_origin(),
+            dx_mm: 0.0,
+            dy_mm: 0.0,
+            theta_deg: 0.0,
+            tilt_x_deg: 0.0,
+            tilt_y_deg: 0.0,
+            rings: None,
+            list: Some(list),
         }
     }
 
@@ -394,21 +432,31 @@ impl LedGeometry {
     /// Whether `other` is the same grid (rows, columns, pitch, centre LED), wherever
     /// either is placed.
     pub fn same_grid(&self, other: &LedGeometry) -> bool {
-        (self.rows, self.cols, self.center, self.rings)
-            == (other.rows, other.cols, other.center, other.rings)
+        (self.rows, self.cols, self.center, self.rings, self.list)
+            == (
+                other.rows,
+                other.cols,
+                other.center,
+                other.rings,
+                other.list,
+            )
             && (self.pitch_mm - other.pitch_mm).abs() < 1e-6
     }
 
-    /// Whether `led` is on this grid (or on its rings).
+    /// Whether `led` is on this grid (on its rings, in its list).
     pub fn contains(&self, led: LedIndex) -> bool {
-        match &self.rings {
-            Some(rings) => led.c() < rings.count(led.r()),
-            None => led.r() < self.rows && led.c() < self.cols,
+        match (&self.rings, &self.list) {
+            (_, Some(list)) => list.get(led).is_some(),
+            (Some(rings), None) => led.c() < rings.count(led.r()),
+            (None, None) => led.r() < self.rows && led.c() < self.cols,
         }
     }
 
-    /// Every LED, row by row (ring by ring).
+    /// Every LED, row by row (ring by ring; a list's by id).
     pub fn leds(&self) -> Vec<LedIndex> {
+        if let Some(list) = &self.list {
+            return list.leds().iter().map(|l| l.led).collect();
+        }
         (0..self.rows.min(256))
             .flat_map(|r| (0..self.cols.min(256)).map(move |c| LedIndex::new(r as u8, c as u8)))
             .filter(|&led| self.contains(led))
@@ -416,8 +464,14 @@ impl LedGeometry {
     }
 
     /// Board offsets (p, q) of `led` from the centre LED, in pitches: (c − c₀, r − r₀)
-    /// on a grid, (r·cos φ, r·sin φ) on rings.
+    /// on a grid, (r·cos φ, r·sin φ) on rings; from a list's origin, its (x, y) / pitch
+    /// (an LED not in the list at the origin).
     pub fn grid_offset(&self, led: LedIndex) -> (f64, f64) {
+        if let Some(list) = &self.list {
+            return list.get(led).map_or((0.0, 0.0), |l| {
+                (l.x_mm / self.pitch_mm, l.y_mm / self.pitch_mm)
+            });
+        }
         match &self.rings {
             Some(rings) => rings.offset(led),
             None => (
@@ -425,6 +479,14 @@ impl LedGeometry {
                 led.row as f64 - self.center.row as f64,
             ),
         }
+    }
+
+    /// How far a listed LED sits off the board's plane, away from the sample, mm (0
+    /// on grids and rings).
+    pub fn board_depth_mm(&self, led: LedIndex) -> f64 {
+        self.list
+            .and_then(|list| list.get(led))
+            .map_or(0.0, |l| l.z_mm)
     }
 
     /// Position (x, y) of `led` in mm.
@@ -442,6 +504,7 @@ impl LedGeometry {
             self.theta_deg.to_radians(),
             (self.tilt_x_deg.to_radians(), self.tilt_y_deg.to_radians()),
             self.grid_offset(led),
+            self.board_depth_mm(led),
         );
         (x + self.dx_mm, y + self.dy_mm, self.height_mm + depth)
     }
@@ -539,16 +602,26 @@ impl LedGeometry {
     }
 }
 
-/// Where grid offset (p, q) sits relative to the centre LED on a board of `pitch`
-/// turned by `theta` (radians) in its plane and tilted by `tilt` (about x, about y;
-/// radians) through the centre LED: (x, y, depth below the centre LED), in the pitch's
-/// units. The rotations apply in that order: θ, then about y, then about x.
-pub fn board_offset(pitch: f64, theta: f64, tilt: (f64, f64), (p, q): (f64, f64)) -> [f64; 3] {
+/// Where grid offset (p, q), `depth` off the board's plane (away from the sample, in
+/// the pitch's units; 0 but for listed LEDs), sits relative to the centre LED on a
+/// board of `pitch` turned by `theta` (radians) in its plane and tilted by `tilt`
+/// (about x, about y; radians) through the centre LED: (x, y, depth below the centre
+/// LED), in the pitch's units. The rotations apply in that order: θ, then about y,
+/// then about x.
+pub fn board_offset(
+    pitch: f64,
+    theta: f64,
+    tilt: (f64, f64),
+    (p, q): (f64, f64),
+    depth: f64,
+) -> [f64; 3] {
     let (s, c) = theta.sin_cos();
     let (a, b) = (pitch * (p * c - q * s), pitch * (p * s + q * c));
     let (sa, ca) = tilt.0.sin_cos();
     let (sb, cb) = tilt.1.sin_cos();
-    [a * cb, b * ca - a * sb * sa, b * sa + a * sb * ca]
+    // About y first: (a, b, depth) → (a·cos β − depth·sin β, b, a·sin β + depth·cos β).
+    let w = a * sb + depth * cb;
+    [a * cb - depth * sb, b * ca - w * sa, b * sa + w * ca]
 }
 
 /// Angular-spectrum transfer function for propagation by `z_um` at frequency (fx, fy):
@@ -588,6 +661,82 @@ mod tests {
 
     fn geometry() -> LedGeometry {
         LedGeometry::paper()
+    }
+
+    /// The paper's grid as a list of its LEDs' board positions.
+    fn paper_as_list() -> LedGeometry {
+        let grid = LedGeometry::paper();
+        let leds = grid
+            .leds()
+            .into_iter()
+            .map(|led| {
+                let (p, q) = grid.grid_offset(led);
+                crate::ListedLed {
+                    led,
+                    x_mm: p * grid.pitch_mm,
+                    y_mm: q * grid.pitch_mm,
+                    z_mm: 0.0,
+                }
+            })
+            .collect();
+        let list = LedList::new(leds).expect("a valid list");
+        LedGeometry::listed(list, grid.height_mm, None)
+    }
+
+    #[test]
+    fn a_listed_grid_is_placed_as_the_grid_is() {
+        let grid = LedGeometry::paper();
+        let listed = paper_as_list();
+        assert_eq!(
+            (listed.rows, listed.cols, listed.center),
+            (21, 21, grid.center)
+        );
+        assert!((listed.pitch_mm - 2.5).abs() < 1e-12);
+        assert_eq!(listed.leds(), grid.leds());
+        // The same offset, turn, height and tilt move every LED the same way.
+        let p = Placement::from_array([0.7, -0.4, 3.0, 88.0, 1.5, -2.0]);
+        let (grid, listed) = (grid.placed_at(p), listed.placed_at(p));
+        for led in [
+            LedIndex::new(0, 0),
+            LedIndex::new(10, 10),
+            LedIndex::new(3, 17),
+        ] {
+            let (a, b) = (grid.led_position_3d_mm(led), listed.led_position_3d_mm(led));
+            assert!(
+                (a.0 - b.0).abs() + (a.1 - b.1).abs() + (a.2 - b.2).abs() < 1e-9,
+                "{led}: grid {a:?}, list {b:?}"
+            );
+        }
+        assert!(!listed.contains(LedIndex::new(21, 0)));
+    }
+
+    #[test]
+    fn a_listed_led_off_the_board_plane_is_that_much_farther() {
+        let list = LedList::new(vec![
+            crate::ListedLed {
+                led: LedIndex::new(0, 0),
+                x_mm: 0.0,
+                y_mm: 0.0,
+                z_mm: 0.0,
+            },
+            crate::ListedLed {
+                led: LedIndex::new(0, 1),
+                x_mm: 10.0,
+                y_mm: 0.0,
+                z_mm: -30.0,
+            },
+        ])
+        .expect("a valid list");
+        let g = LedGeometry::listed(list, 60.0, None);
+        let (x, y, h) = g.led_position_3d_mm(LedIndex::new(0, 1));
+        assert!((x - 10.0).abs() < 1e-12 && y.abs() < 1e-12 && (h - 30.0).abs() < 1e-12);
+        // Tilted 90° about y, the LED's depth turns into −x: the board's normal
+        // points along +x then.
+        let (x, _, h) = g.tilted(0.0, 90.0).led_position_3d_mm(LedIndex::new(0, 1));
+        assert!(
+            (x - 30.0).abs() < 1e-9 && (h - 70.0).abs() < 1e-9,
+            "{x} {h}"
+        );
     }
 
     #[test]

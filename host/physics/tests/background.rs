@@ -30,6 +30,7 @@ fn stray_light_under_dim_dark_field_frames_is_found_and_taken_off() {
         tilt_x_deg: 0.0,
         tilt_y_deg: 0.0,
         rings: None,
+        list: None,
     };
     let w = 128;
     let object = ObjectField::test_sample(&system, w, 32, 2, 3);

@@ -26,6 +26,7 @@ fn epry_beats_the_centre_frame_by_far() {
         tilt_x_deg: 0.0,
         tilt_y_deg: 0.0,
         rings: None,
+        list: None,
     };
     let w = 96;
     let object = ObjectField::test_sample(&system, w, 32, 2, 5);

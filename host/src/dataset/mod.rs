@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use fpm_physics::bayer::{self, BayerChannel, BayerPattern};
 use fpm_physics::frame::{LitFrame, Measured, Region, Response};
-use fpm_physics::{Image, LedGeometry, LedIndex, Rings, System};
+use fpm_physics::{Image, LedGeometry, LedIndex, LedList, ListedLed, Rings, System};
 use serde::{Deserialize, Serialize};
 
 pub use image_io::{ImageError, Pixels};
@@ -59,20 +59,27 @@ pub struct SystemSection {
     pub pixel_size_um: f64,
 }
 
-/// `[led]`: the nominal geometry.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// `[led]`: the nominal geometry: a grid (`rows`, `cols`, `pitch_mm`, `center`), rings
+/// (and `rings`) or a list of the LEDs' places (`position` or `na`; docs/dataset.md
+/// §1.2 and §5.2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LedSection {
-    /// Rows.
-    pub rows: usize,
+    /// Rows (a grid's or rings'; a list's ids bound them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<usize>,
     /// Columns.
-    pub cols: usize,
-    /// Pitch, mm.
-    pub pitch_mm: f64,
-    /// LED plane to sample, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cols: Option<usize>,
+    /// Pitch, mm (a list's: the spacing heuristics use; absent: its typical spacing).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pitch_mm: Option<f64>,
+    /// LED plane (a list's origin) to sample, mm.
     pub height_mm: f64,
-    /// (row, col) of the nominal centre LED.
-    pub center: LedIndex,
+    /// (row, col) of the nominal centre LED (a list's: absent, the LED nearest its
+    /// origin).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<LedIndex>,
     /// Δx, Δy, mm.
     #[serde(default)]
     pub offset_mm: [f64; 2],
@@ -89,6 +96,76 @@ pub struct LedSection {
     /// [0, 0]; frame LEDs are [ring, LED on the ring].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rings: Option<Rings>,
+    /// `[[led.position]]`: each LED's id and place in the array's own frame, mm (an
+    /// extension of the format for domes and hand-placed LEDs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<LedList>,
+    /// `[[led.na]]`: each LED's id and illumination NA at the axis, (sin θx, sin θy),
+    /// for sources that give only the angles; placed at `height_mm` on the axis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub na: Option<LedNas>,
+}
+
+/// One `[[led.na]]`: an LED's id and its illumination NA at the field's centre.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LedNa {
+    /// The LED's id, (row, col).
+    pub led: LedIndex,
+    /// (NAx, NAy) = (x, y)/R: the sines of the LED's angle off the axis, seen from the
+    /// field's centre, signed as its position (an LED at +x has NAx > 0 and lights
+    /// the sample at f_i = −NAx/λ, §1.3).
+    pub na: [f64; 2],
+}
+
+/// `[[led.na]]`, checked as read: each id once, each NA finite with NAx² + NAy² < 1.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(transparent)]
+pub struct LedNas(Vec<LedNa>);
+
+impl LedNas {
+    /// `nas`, or what is wrong with them.
+    pub fn new(nas: Vec<LedNa>) -> Result<Self, String> {
+        if nas.is_empty() {
+            return Err("the list holds no LED".into());
+        }
+        for (k, n) in nas.iter().enumerate() {
+            let s2 = n.na[0] * n.na[0] + n.na[1] * n.na[1];
+            if !(n.na.iter().all(|v| v.is_finite()) && s2 < 1.0) {
+                return Err(format!(
+                    "LED {} (entry {k}): na = {:?} must be finite with NAx² + NAy² < 1",
+                    n.led, n.na
+                ));
+            }
+            if nas[..k].iter().any(|m| m.led == n.led) {
+                return Err(format!("LED {} is listed twice", n.led));
+            }
+        }
+        Ok(Self(nas))
+    }
+
+    /// The LEDs as placed `height_mm` below the sample on the axis: an LED seen from
+    /// the field's centre at sines (NAx, NAy) sits at h·(NAx, NAy)/√(1 − NAx² − NAy²).
+    pub fn positions(&self, height_mm: f64) -> Vec<ListedLed> {
+        self.0
+            .iter()
+            .map(|n| {
+                let cos = (1.0 - n.na[0] * n.na[0] - n.na[1] * n.na[1]).sqrt();
+                ListedLed {
+                    led: n.led,
+                    x_mm: height_mm * n.na[0] / cos,
+                    y_mm: height_mm * n.na[1] / cos,
+                    z_mm: 0.0,
+                }
+            })
+            .collect()
+    }
+}
+
+impl<'de> Deserialize<'de> for LedNas {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        Self::new(Vec::deserialize(d)?).map_err(serde::de::Error::custom)
+    }
 }
 
 fn is_flat(tilt: &[f64; 2]) -> bool {
@@ -250,17 +327,7 @@ impl Manifest {
                 magnification: system.magnification,
                 pixel_size_um: system.pixel_size_um,
             },
-            led: LedSection {
-                rows: geometry.rows,
-                cols: geometry.cols,
-                pitch_mm: geometry.pitch_mm,
-                height_mm: geometry.height_mm,
-                center: geometry.center,
-                offset_mm: [geometry.dx_mm, geometry.dy_mm],
-                rotation_deg: geometry.theta_deg,
-                tilt_deg: [geometry.tilt_x_deg, geometry.tilt_y_deg],
-                rings: geometry.rings,
-            },
+            led: LedSection::of(geometry),
             camera,
             frames,
             entrance_pupil_mm: system.entrance_pupil_mm,
@@ -281,20 +348,83 @@ impl Manifest {
 
     /// The nominal LED geometry.
     pub fn geometry(&self) -> LedGeometry {
-        let l = &self.led;
-        LedGeometry {
-            rows: l.rows,
-            cols: l.cols,
-            pitch_mm: l.pitch_mm,
-            height_mm: l.height_mm,
-            center: l.center,
-            dx_mm: l.offset_mm[0],
-            dy_mm: l.offset_mm[1],
-            theta_deg: l.rotation_deg,
-            tilt_x_deg: l.tilt_deg[0],
-            tilt_y_deg: l.tilt_deg[1],
-            rings: l.rings,
+        self.led.geometry()
+    }
+}
+
+impl LedSection {
+    /// The section describing `geometry` (the inverse of [`Self::geometry`]): a list's
+    /// LEDs by position, with its centre LED and pitch.
+    pub fn of(geometry: &LedGeometry) -> Self {
+        let listed = geometry.list.is_some();
+        Self {
+            rows: (!listed).then_some(geometry.rows),
+            cols: (!listed).then_some(geometry.cols),
+            pitch_mm: Some(geometry.pitch_mm),
+            height_mm: geometry.height_mm,
+            center: Some(geometry.center),
+            offset_mm: [geometry.dx_mm, geometry.dy_mm],
+            rotation_deg: geometry.theta_deg,
+            tilt_deg: [geometry.tilt_x_deg, geometry.tilt_y_deg],
+            rings: geometry.rings,
+            position: geometry.list,
+            na: None,
         }
+    }
+
+    /// The same section with a grid's keys (rows, cols, pitch, centre, rings) left
+    /// out: what a list of LEDs is written with when they are not its own.
+    pub fn without_grid(self) -> Self {
+        Self {
+            rows: None,
+            cols: None,
+            pitch_mm: None,
+            center: None,
+            rings: None,
+            ..self
+        }
+    }
+
+    /// The listed LEDs' places, if the section lists them (an NA list placed at
+    /// `height_mm`); None for a grid or rings, or a list that is not valid (a section
+    /// read from a file never holds one).
+    pub fn list(&self) -> Option<LedList> {
+        match (&self.position, &self.na) {
+            (Some(list), _) => Some(*list),
+            (None, Some(nas)) => LedList::new(nas.positions(self.height_mm)).ok(),
+            (None, None) => None,
+        }
+    }
+
+    /// The nominal LED geometry.
+    pub fn geometry(&self) -> LedGeometry {
+        let base = match self.list() {
+            Some(list) => {
+                let g = LedGeometry::listed(list, self.height_mm, self.pitch_mm);
+                LedGeometry {
+                    center: self.center.unwrap_or(g.center),
+                    ..g
+                }
+            }
+            None => LedGeometry {
+                rings: self.rings,
+                ..LedGeometry::grid(
+                    self.rows.unwrap_or(0),
+                    self.cols.unwrap_or(0),
+                    self.pitch_mm.unwrap_or(0.0),
+                    self.height_mm,
+                    self.center.unwrap_or(LedIndex::new(0, 0)),
+                )
+            },
+        };
+        base.placed_at(fpm_physics::Placement {
+            dx_mm: self.offset_mm[0],
+            dy_mm: self.offset_mm[1],
+            theta_deg: self.rotation_deg,
+            height_mm: self.height_mm,
+            tilt_x_deg: self.tilt_deg[0],
+            tilt_y_deg: self.tilt_deg[1],
+        })
     }
 }
 
@@ -707,39 +837,102 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
     if let Some((key, v, why)) = m.system().out_of_range() {
         return Err(value(&format!("system.{key}"), v.to_string(), why));
     }
-    positive("led.pitch_mm", m.led.pitch_mm)?;
     positive("led.height_mm", m.led.height_mm)?;
-    if m.led.rows == 0 || m.led.cols == 0 {
-        return Err(value(
-            "led.rows/cols",
-            format!("{}x{}", m.led.rows, m.led.cols),
-            "the array needs at least one LED",
-        ));
+    if let Some(pitch) = m.led.pitch_mm {
+        positive("led.pitch_mm", pitch)?;
     }
-    if m.led.rows > 256 || m.led.cols > 256 {
-        return Err(value(
-            "led.rows/cols",
-            format!("{}x{}", m.led.rows, m.led.cols),
-            "at most 256x256 (LED indices are 0-255)",
-        ));
-    }
-    if let Some(rings) = m.led.rings {
-        let stated = (m.led.rows, m.led.cols, m.led.center);
-        let implied = (rings.len(), rings.widest(), LedIndex::new(0, 0));
-        if stated != implied {
+    let listed = m.led.position.is_some() || m.led.na.is_some();
+    if listed {
+        let fixed = if m.led.position.is_some() && m.led.na.is_some() {
+            Some((
+                "led.position/led.na",
+                "give the LEDs' positions or their NAs, not both",
+            ))
+        } else if m.led.rings.is_some() {
+            Some((
+                "led.rings",
+                "a list places its LEDs itself: leave rings out",
+            ))
+        } else if m.led.rows.is_some() || m.led.cols.is_some() {
+            Some((
+                "led.rows/cols",
+                "a list's LED ids bound the array: leave rows and cols out",
+            ))
+        } else {
+            None
+        };
+        if let Some((key, why)) = fixed {
+            return Err(value(key, "given".into(), why));
+        }
+        let Some(list) = m.led.list() else {
             return Err(value(
-                "led.rows/cols/center",
-                format!("{}x{}, center {}", stated.0, stated.1, stated.2),
-                "with led.rings: rows = the number of rings, cols = the largest ring's LEDs, center = [0, 0]",
+                "led.na",
+                "given".into(),
+                "the NAs do not place a valid list of LEDs",
+            ));
+        };
+        if let Some(center) = m.led.center {
+            if list.get(center).is_none() {
+                return Err(value(
+                    "led.center",
+                    center.to_string(),
+                    "is not one of the listed LEDs",
+                ));
+            }
+        }
+    } else {
+        let (Some(rows), Some(cols), Some(_), Some(center)) =
+            (m.led.rows, m.led.cols, m.led.pitch_mm, m.led.center)
+        else {
+            let missing = [
+                ("rows", m.led.rows.is_none()),
+                ("cols", m.led.cols.is_none()),
+                ("pitch_mm", m.led.pitch_mm.is_none()),
+                ("center", m.led.center.is_none()),
+            ]
+            .iter()
+            .filter(|(_, absent)| *absent)
+            .map(|(k, _)| format!("led.{k}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+            return Err(value(
+                &missing,
+                "absent".into(),
+                "a grid or ring array needs rows, cols, pitch_mm and center (or list the LEDs: [[led.position]] or [[led.na]])",
+            ));
+        };
+        if rows == 0 || cols == 0 {
+            return Err(value(
+                "led.rows/cols",
+                format!("{rows}x{cols}"),
+                "the array needs at least one LED",
             ));
         }
-    }
-    if m.led.center.r() >= m.led.rows || m.led.center.c() >= m.led.cols {
-        return Err(value(
-            "led.center",
-            m.led.center.to_string(),
-            "is outside the array",
-        ));
+        if rows > 256 || cols > 256 {
+            return Err(value(
+                "led.rows/cols",
+                format!("{rows}x{cols}"),
+                "at most 256x256 (LED indices are 0-255)",
+            ));
+        }
+        if let Some(rings) = m.led.rings {
+            let stated = (rows, cols, center);
+            let implied = (rings.len(), rings.widest(), LedIndex::new(0, 0));
+            if stated != implied {
+                return Err(value(
+                    "led.rows/cols/center",
+                    format!("{}x{}, center {}", stated.0, stated.1, stated.2),
+                    "with led.rings: rows = the number of rings, cols = the largest ring's LEDs, center = [0, 0]",
+                ));
+            }
+        }
+        if center.r() >= rows || center.c() >= cols {
+            return Err(value(
+                "led.center",
+                center.to_string(),
+                "is outside the array",
+            ));
+        }
     }
     if !m.led.offset_mm.iter().all(|v| v.is_finite()) {
         return Err(value(
@@ -793,6 +986,7 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             reason: "no [[frame]] entries".into(),
         });
     }
+    let geometry = m.geometry();
     for (index, f) in m.frames.iter().enumerate() {
         let bad = |reason: String| DatasetError::Frame {
             path: path.to_path_buf(),
@@ -800,22 +994,20 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             file: f.file.clone(),
             reason,
         };
-        match m.led.rings {
-            Some(rings) if f.led.c() >= rings.count(f.led.r()) => {
-                return Err(bad(format!(
+        if !geometry.contains(f.led) {
+            return Err(bad(match (m.led.rings, listed) {
+                (_, true) => format!("LED {} is not one of the listed LEDs", f.led),
+                (Some(rings), false) => format!(
                     "LED {} is not on the rings (ring {} holds {} LEDs)",
                     f.led,
                     f.led.r(),
                     rings.count(f.led.r())
-                )));
-            }
-            None if f.led.r() >= m.led.rows || f.led.c() >= m.led.cols => {
-                return Err(bad(format!(
+                ),
+                (None, false) => format!(
                     "LED {} is outside the {}x{} array",
-                    f.led, m.led.rows, m.led.cols
-                )));
-            }
-            _ => {}
+                    f.led, geometry.rows, geometry.cols
+                ),
+            }));
         }
         if !f.defocus_um.is_finite() {
             return Err(bad(format!("defocus_um = {} is not finite", f.defocus_um)));

@@ -73,8 +73,21 @@ pub const DEFAULT_DEFOCUS_SIGMA_UM: f64 = 1.0;
 pub const GRID_HALF: usize = 2;
 
 /// The LEDs pdcFPM takes its defocused frames under: the (2·`half` + 1)² grid around
-/// the centre LED, row by row, those off the board left out (never repeated).
+/// the centre LED, row by row, those off the board left out (never repeated); on a
+/// listed layout the (2·`half` + 1)² LEDs nearest its origin, by id.
 pub fn calibration_grid(geometry: &LedGeometry, half: usize) -> Vec<LedIndex> {
+    if let Some(list) = &geometry.list {
+        let r2 = |l: &crate::ListedLed| l.x_mm * l.x_mm + l.y_mm * l.y_mm;
+        let mut nearest: Vec<_> = list.leds().to_vec();
+        nearest.sort_by(|a, b| r2(a).total_cmp(&r2(b)));
+        let mut leds: Vec<LedIndex> = nearest
+            .iter()
+            .take((2 * half + 1).pow(2))
+            .map(|l| l.led)
+            .collect();
+        leds.sort_by_key(|l| (l.row, l.col));
+        return leds;
+    }
     let (r0, c0, k) = (
         geometry.center.r() as i64,
         geometry.center.c() as i64,
@@ -284,6 +297,10 @@ pub enum CalibrationError {
     /// The fit failed (degenerate layout).
     #[error("the fit did not converge (degenerate LED layout?)")]
     Fit,
+    /// A listed layout with LEDs off the board's plane (a dome): the shifts are fitted
+    /// as a flat board's.
+    #[error("the LED list places LED {0} off the board's plane (z_mm ≠ 0): calibration fits a flat board; place a dome's LEDs by its own drawing and reconstruct with --refine-leds")]
+    NotFlat(LedIndex),
 }
 
 /// Calibrate from a reference frame and defocused frames: find the feature in the
@@ -297,6 +314,12 @@ pub fn calibrate(
     frames: &[Frame<'_>],
     options: &Options,
 ) -> Result<Calibration, CalibrationError> {
+    if let Some(off) = nominal
+        .list
+        .and_then(|l| l.leds().iter().find(|l| l.z_mm != 0.0).map(|l| l.led))
+    {
+        return Err(CalibrationError::NotFlat(off));
+    }
     let (reference, defocused, z) = stages::split(nominal, frames)?;
     let located = stages::Located::find(system, reference, z, options)?;
     let mut measured = stages::measure(nominal, reference, &defocused, &located, z, options);

@@ -44,7 +44,7 @@ impl TiltedParams {
 /// The shift under grid offset `grid` on a tilted board: z·(x_c − x, y_c − y)/h_led.
 pub fn predict(s: &Setup, p: &TiltedParams, grid: (f64, f64)) -> (f64, f64) {
     let r = &p.rigid;
-    let [x, y, depth] = board_offset(s.pitch_um, r.theta, p.tilt, grid);
+    let [x, y, depth] = board_offset(s.pitch_um, r.theta, p.tilt, grid, 0.0);
     let k = s.z_um / (r.h + depth);
     (
         k * (s.feature_um.0 - x - r.dx),

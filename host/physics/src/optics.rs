@@ -571,7 +571,7 @@ impl LedGeometry {
     }
 
     /// Indices into `leds` ordered nearest-first: by |f_i − f_chief| at sample point
-    /// `at_um`, ties kept in the given order. This is EPRY's order (it also copes with a
+    /// `at_um`, equal radii by LED id (a frame repeated keeps its place). This is EPRY's order (it also copes with a
     /// wrongly chosen centre LED) and the acquisition's, so frames arrive in the order
     /// they are used.
     pub fn nearest_first(
@@ -587,8 +587,12 @@ impl LedGeometry {
                 f.0.hypot(f.1)
             })
             .collect();
+        // Equal radii (symmetric LEDs, up to rounding) go by LED id, so the order does
+        // not depend on the order of the dataset's frames (docs/dataset.md §5.4): a
+        // spiral or a row-major file must reconstruct alike.
+        let step = system.cutoff() * 1e-9;
         let mut order: Vec<usize> = (0..leds.len()).collect();
-        order.sort_by(|&a, &b| radius[a].total_cmp(&radius[b]));
+        order.sort_by_key(|&k| ((radius[k] / step).round() as i64, leds[k].row, leds[k].col));
         order
     }
 
@@ -681,6 +685,27 @@ mod tests {
             .collect();
         let list = LedList::new(leds).expect("a valid list");
         LedGeometry::listed(list, grid.height_mm, None)
+    }
+
+    #[test]
+    fn the_nearest_first_order_does_not_depend_on_the_frames_order() {
+        let (g, system) = (LedGeometry::paper(), System::paper());
+        let row_major = g.leds();
+        let mut reversed = row_major.clone();
+        reversed.reverse();
+        let ordered = |leds: &[LedIndex], at: (f64, f64)| -> Vec<LedIndex> {
+            g.nearest_first(leds, at, &system)
+                .into_iter()
+                .map(|k| leds[k])
+                .collect()
+        };
+        for at in [(0.0, 0.0), (150.0, -40.0)] {
+            assert_eq!(ordered(&row_major, at), ordered(&reversed, at), "at {at:?}");
+        }
+        // The four LEDs next to the centre one are equally far: by id.
+        let first: Vec<LedIndex> = ordered(&reversed, (0.0, 0.0))[1..5].to_vec();
+        let ids = [(9, 10), (10, 9), (10, 11), (11, 10)].map(|(r, c)| LedIndex::new(r, c));
+        assert_eq!(first, ids);
     }
 
     #[test]

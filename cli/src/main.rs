@@ -12,6 +12,7 @@ mod demo;
 mod device;
 mod emulator;
 mod flatten;
+mod import;
 mod progress;
 mod reconstruct;
 mod serve;
@@ -58,6 +59,8 @@ enum Command {
     /// Acquire a dataset from a rig (controller + camera on iceoryx2): optional pdcFPM
     /// calibration, every LED labelled, streaming reconstruction.
     Acquire(acquire::AcquireArgs),
+    /// Read another lab's FPM data (MATLAB, PtyLab HDF5, TIFF + CSV) into a dataset.
+    Import(import::ImportArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
     /// Run the acquisition service: a local HTTP/JSON API that queues jobs on the rig.
@@ -102,6 +105,7 @@ fn main() -> ExitCode {
         Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
+        Command::Import(args) => import::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
         Command::Serve(args) => serve::run(args),

@@ -37,6 +37,7 @@ fn manifest(frames: usize) -> Manifest {
             bit_depth: Some(12),
             ..CameraSection::default()
         },
+        source: None,
         frames: (0..frames)
             .map(|k| FrameEntry {
                 file: String::new(),

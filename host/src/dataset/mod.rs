@@ -263,6 +263,21 @@ fn one() -> f64 {
     1.0
 }
 
+/// `[source]` (optional; written by `fpm import`): the data's origin, so a dataset
+/// converted from another lab's format says what it was and what was assumed in
+/// mapping it onto this format's conventions.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceSection {
+    /// The source format's name (`fpm import --list`).
+    pub format: String,
+    /// The file or folder it was read from, as given.
+    pub path: String,
+    /// What the import assumed where the source does not say, one sentence each.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub assumed: Vec<String>,
+}
+
 /// One `[[frame]]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -290,6 +305,9 @@ pub struct Manifest {
     /// `[camera]`.
     #[serde(default)]
     pub camera: CameraSection,
+    /// `[source]`: where an imported dataset came from and what the import assumed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceSection>,
     /// `[[frame]]`.
     #[serde(rename = "frame")]
     pub frames: Vec<FrameEntry>,
@@ -329,6 +347,7 @@ impl Manifest {
             },
             led: LedSection::of(geometry),
             camera,
+            source: None,
             frames,
             entrance_pupil_mm: system.entrance_pupil_mm,
         }
@@ -368,6 +387,24 @@ impl LedSection {
             tilt_deg: [geometry.tilt_x_deg, geometry.tilt_y_deg],
             rings: geometry.rings,
             position: geometry.list,
+            na: None,
+        }
+    }
+
+    /// A section for a list of LEDs `height_mm` below the sample, nominally placed,
+    /// before its `position` or `na` is set.
+    pub fn listed(height_mm: f64) -> Self {
+        Self {
+            rows: None,
+            cols: None,
+            pitch_mm: None,
+            height_mm,
+            center: None,
+            offset_mm: [0.0, 0.0],
+            rotation_deg: 0.0,
+            tilt_deg: [0.0, 0.0],
+            rings: None,
+            position: None,
             na: None,
         }
     }

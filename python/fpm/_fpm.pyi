@@ -43,6 +43,26 @@ class Dataset:
         dicts of the dataset's keys. `gamma`: the frames were saved with a display
         gamma (a stored v is the light F·(v/F)^gamma, F = 2^bit_depth − 1; needs
         `bit_depth`)."""
+    @staticmethod
+    def from_zheng_mat(src: Union[str, PathLike[str]], out: Union[str, PathLike[str]], **stated: Any) -> Dataset:
+        """Zheng lab MATLAB data (`fpm import zheng-mat`), written as a dataset in
+        `out` and loaded. Keywords state what the file does not give:
+        wavelength_um, na, magnification, pixel_size_um, height_mm, pitch_mm,
+        bit_depth, dark_level (docs/import.md)."""
+    @staticmethod
+    def from_caltech_mat(src: Union[str, PathLike[str]], out: Union[str, PathLike[str]], **stated: Any) -> Dataset:
+        """Caltech FPM_software MATLAB data (`fpm import caltech-mat`)."""
+    @staticmethod
+    def from_ptylab_h5(src: Union[str, PathLike[str]], out: Union[str, PathLike[str]], **stated: Any) -> Dataset:
+        """PtyLab FPM HDF5 data (`fpm import ptylab-h5`)."""
+    @staticmethod
+    def from_tiff_csv(src: Union[str, PathLike[str]], out: Union[str, PathLike[str]], **stated: Any) -> Dataset:
+        """TIFFs and a CSV of LED positions or NAs (`fpm import tiff-csv`; `csv` names
+        the CSV)."""
+    @property
+    def source(self) -> Optional[dict[str, Any]]:
+        """Where an imported dataset came from: format, path, assumed (None for
+        fpm's own)."""
     def save(self, dir: Union[str, PathLike[str]]) -> None:
         """Write frames/ (TIFF) and dataset.toml into `dir`."""
     @property

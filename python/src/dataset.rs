@@ -76,6 +76,62 @@ impl Dataset {
         Ok(Self { inner })
     }
 
+    /// Zheng lab MATLAB data (`fpm import zheng-mat`), written as a dataset in `out`
+    /// and loaded. Keywords state what the file does not give (docs/import.md).
+    #[staticmethod]
+    #[pyo3(signature = (src, out, **stated))]
+    fn from_zheng_mat(
+        py: Python<'_>,
+        src: PathBuf,
+        out: PathBuf,
+        stated: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        imported(py, fpm_import::Format::ZhengMat, src, out, stated)
+    }
+
+    /// Caltech FPM_software MATLAB data (`fpm import caltech-mat`).
+    #[staticmethod]
+    #[pyo3(signature = (src, out, **stated))]
+    fn from_caltech_mat(
+        py: Python<'_>,
+        src: PathBuf,
+        out: PathBuf,
+        stated: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        imported(py, fpm_import::Format::CaltechMat, src, out, stated)
+    }
+
+    /// PtyLab FPM HDF5 data (`fpm import ptylab-h5`).
+    #[staticmethod]
+    #[pyo3(signature = (src, out, **stated))]
+    fn from_ptylab_h5(
+        py: Python<'_>,
+        src: PathBuf,
+        out: PathBuf,
+        stated: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        imported(py, fpm_import::Format::PtylabH5, src, out, stated)
+    }
+
+    /// TIFFs and a CSV of LED positions or NAs (`fpm import tiff-csv`).
+    #[staticmethod]
+    #[pyo3(signature = (src, out, **stated))]
+    fn from_tiff_csv(
+        py: Python<'_>,
+        src: PathBuf,
+        out: PathBuf,
+        stated: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        imported(py, fpm_import::Format::TiffCsv, src, out, stated)
+    }
+
+    /// Where an imported dataset came from: format, path and what the import
+    /// assumed (None for fpm's own datasets).
+    #[getter]
+    fn source<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &self.inner.manifest.source)
+    }
+
     /// A dataset from arrays in memory: `frames` (a 3-D array or a sequence of 2-D
     /// images in the sample-plane orientation; uint8, uint16 or float), `leds` (the
     /// (row, col) lit for each), `system` and `geometry` as dicts of the dataset's
@@ -271,4 +327,48 @@ fn view<'py>(slf: &Bound<'py, Dataset>, k: usize) -> PyResult<Bound<'py, PyAny>>
     flags.set_item("write", false)?;
     array.call_method("setflags", (), Some(&flags))?;
     Ok(array)
+}
+
+/// `src` read as `format`, written to `out` and loaded; `stated` the keywords of
+/// [`fpm_import::Stated`], each refused by name if unknown or of the wrong type.
+fn imported(
+    py: Python<'_>,
+    format: fpm_import::Format,
+    src: PathBuf,
+    out: PathBuf,
+    stated: Option<&Bound<'_, PyDict>>,
+) -> PyResult<Dataset> {
+    let mut s = fpm_import::Stated::default();
+    for (key, value) in stated
+        .map(|d| d.iter().collect::<Vec<_>>())
+        .unwrap_or_default()
+    {
+        let key: String = key.extract()?;
+        let number = || -> PyResult<Option<f64>> { Ok(Some(value.extract::<f64>()?)) };
+        match key.as_str() {
+            "wavelength_um" => s.wavelength_um = number()?,
+            "na" => s.na = number()?,
+            "magnification" => s.magnification = number()?,
+            "pixel_size_um" => s.pixel_size_um = number()?,
+            "height_mm" => s.height_mm = number()?,
+            "pitch_mm" => s.pitch_mm = number()?,
+            "dark_level" => s.dark_level = number()?,
+            "bit_depth" => s.bit_depth = Some(value.extract::<u32>()?),
+            "csv" => s.csv = Some(value.extract::<PathBuf>()?),
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "{other}: not a keyword of {} (wavelength_um, na, magnification, pixel_size_um, height_mm, pitch_mm, bit_depth, dark_level, csv)",
+                    format.name()
+                )))
+            }
+        }
+    }
+    let inner = py
+        .detach(|| {
+            fpm_import::import(format, &src, &out, &s)
+                .map_err(|e| e.to_string())
+                .and_then(|_| fpm_host::dataset::Dataset::load(&out).map_err(|e| e.to_string()))
+        })
+        .map_err(crate::convert::DatasetError::new_err)?;
+    Ok(Dataset { inner })
 }

@@ -601,3 +601,76 @@ fn bad_led_lists_fail_naming_the_key_or_frame() {
     });
     assert!(e.contains("led.pitch_mm") && e.contains("absent"), "{e}");
 }
+
+/// A calibration set whose array is stated as a list of its LEDs' places (ids kept)
+/// calibrates to the same placement as when stated as a grid: the list's rigid
+/// placement is the grid's.
+#[test]
+fn a_listed_array_calibrates_to_the_placement_its_grid_does() {
+    let dir = TempDir::new("simcal-listed");
+    let grid = dir.0.join("grid");
+    let out = fpm(&[
+        "simulate",
+        "calibration",
+        "--out",
+        &grid.to_string_lossy(),
+        "--dx-mm",
+        "-2.1",
+        "--dy-mm",
+        "1.4",
+        "--theta-deg",
+        "-4",
+        "--height-mm",
+        "95",
+        "--seed",
+        "3",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let listed = dir.0.join("listed");
+    std::fs::create_dir_all(listed.join("frames")).unwrap();
+    let mut m = fpm_host::dataset::DatasetOnDisk::open(&grid)
+        .unwrap()
+        .manifest;
+    for f in &m.frames {
+        std::fs::copy(grid.join(&f.file), listed.join(&f.file)).unwrap();
+    }
+    let g = m.geometry();
+    let leds = g
+        .leds()
+        .into_iter()
+        .map(|led| {
+            let (p, q) = g.grid_offset(led);
+            ListedLed {
+                led,
+                x_mm: p * g.pitch_mm,
+                y_mm: q * g.pitch_mm,
+                z_mm: 0.0,
+            }
+        })
+        .collect();
+    m.led = LedSection::of(&LedGeometry::listed(
+        LedList::new(leds).unwrap(),
+        g.height_mm,
+        None,
+    ));
+    m.write(&listed).unwrap();
+    let calibrated = |d: &Path| -> serde_json::Value {
+        let out = fpm(&["calibrate", &d.to_string_lossy()]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_str(&std::fs::read_to_string(d.join("calibration.json")).unwrap()).unwrap()
+    };
+    let (a, b) = (calibrated(&grid), calibrated(&listed));
+    for k in ["dx_mm", "dy_mm", "theta_deg", "height_mm"] {
+        let (x, y) = (a[k].as_f64().unwrap(), b[k].as_f64().unwrap());
+        assert!((x - y).abs() < 1e-6, "{k}: grid {x}, listed {y}");
+    }
+    assert_eq!(b["leds"].as_array().unwrap().len(), 25);
+}

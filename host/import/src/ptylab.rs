@@ -65,13 +65,15 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
             );
             (0..n).map(|k| (enc[k] - my, enc[n + k] - mx)).collect()
         }
-        _ => return Err(ImportError::field(
-            src,
-            "encoder",
-            format!(
+        _ => {
+            return Err(ImportError::field(
+                src,
+                "encoder",
+                format!(
                 "shape {enc_shape:?}: frames x 2 expected, one row per frame of ptychogram ({n})"
             ),
-        )),
+            ))
+        }
     };
     let metres = |name: &str, lo: f64, hi: f64| -> Result<f64, ImportError> {
         let v = file.scalar(name)?;

@@ -32,6 +32,19 @@ pub enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// One DPC update (four half-circle frames to phase and absorption) on one core,
+    /// against the six FFTs it needs.
+    Dpc {
+        /// Frame side, pixels.
+        #[arg(long, default_value_t = 256)]
+        size: usize,
+        /// Updates timed.
+        #[arg(long, default_value_t = 200)]
+        rounds: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Reconstruction quality with a misplaced LED array: nominal vs pdcFPM-calibrated vs
     /// true geometry (the paper's Fig. 1 and 5 trends).
     Geometry {
@@ -186,6 +199,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             repeat,
             json,
         } => fpm_bench::calibration::run(random, coverage, seed, repeat, json),
+        BenchCommand::Dpc { size, rounds, json } => fpm_bench::dpc::run(size, rounds, json),
         BenchCommand::Geometry { size, passes, json } => {
             fpm_bench::geometry::run(size, passes, json)
         }

@@ -10,6 +10,7 @@ mod camera;
 mod color;
 mod demo;
 mod device;
+mod dpc;
 mod emulator;
 mod flatten;
 mod import;
@@ -61,6 +62,9 @@ enum Command {
     Acquire(acquire::AcquireArgs),
     /// Read another lab's FPM data (MATLAB, PtyLab HDF5, TIFF + CSV) into a dataset.
     Import(import::ImportArgs),
+    /// Quantitative phase of a weak object (DPC) from a dataset's bright-field frames:
+    /// four half-circle patterns, a first look and a focus measure.
+    Dpc(dpc::DpcArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
     /// Run the acquisition service: a local HTTP/JSON API that queues jobs on the rig.
@@ -106,6 +110,7 @@ fn main() -> ExitCode {
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Import(args) => import::run(args),
+        Command::Dpc(args) => dpc::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Acquire(args) => acquire::run(args),
         Command::Serve(args) => serve::run(args),

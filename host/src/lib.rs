@@ -8,6 +8,7 @@
 pub mod calibration;
 pub mod camera_gamma;
 pub mod dataset;
+pub mod dpc;
 pub mod ome;
 pub mod ome_zarr;
 pub mod pyramid;

@@ -20,6 +20,7 @@ pub mod background;
 pub mod bayer;
 pub mod calibrate;
 pub mod coverage;
+pub mod dpc;
 pub mod fft;
 pub mod frame;
 pub mod image;

@@ -7,6 +7,7 @@
 //! the criterion micro-benchmark of the EPRY update is `benches/epry.rs`.
 
 pub mod calibration;
+pub mod dpc;
 pub mod epry;
 mod fftw;
 pub mod frames;

@@ -320,15 +320,14 @@ fn fpm(args: &[&str]) -> std::process::Output {
     Command::new(fpm_bin()).args(args).output().unwrap()
 }
 
-#[test]
-fn simulate_then_calibrate_recovers_the_hidden_array() {
-    let dir = TempDir::new("simcal");
-    let d = dir.0.to_string_lossy().into_owned();
-    let out = fpm(&[
+/// A simulated calibration set in `out`: the array 2.1 mm, 1.4 mm off, turned −4°,
+/// 95 mm below the sample.
+fn simulate_calibration(out: &Path) {
+    let run = fpm(&[
         "simulate",
         "calibration",
         "--out",
-        &d,
+        &out.to_string_lossy(),
         "--dx-mm",
         "-2.1",
         "--dy-mm",
@@ -341,10 +340,17 @@ fn simulate_then_calibrate_recovers_the_hidden_array() {
         "3",
     ]);
     assert!(
-        out.status.success(),
+        run.status.success(),
         "{}",
-        String::from_utf8_lossy(&out.stderr)
+        String::from_utf8_lossy(&run.stderr)
     );
+}
+
+#[test]
+fn simulate_then_calibrate_recovers_the_hidden_array() {
+    let dir = TempDir::new("simcal");
+    let d = dir.0.to_string_lossy().into_owned();
+    simulate_calibration(&dir.0);
     let plot = dir.0.join("residuals.png");
     let out = fpm(&["calibrate", &d, "--plot", &plot.to_string_lossy()]);
     assert!(
@@ -609,27 +615,7 @@ fn bad_led_lists_fail_naming_the_key_or_frame() {
 fn a_listed_array_calibrates_to_the_placement_its_grid_does() {
     let dir = TempDir::new("simcal-listed");
     let grid = dir.0.join("grid");
-    let out = fpm(&[
-        "simulate",
-        "calibration",
-        "--out",
-        &grid.to_string_lossy(),
-        "--dx-mm",
-        "-2.1",
-        "--dy-mm",
-        "1.4",
-        "--theta-deg",
-        "-4",
-        "--height-mm",
-        "95",
-        "--seed",
-        "3",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    simulate_calibration(&grid);
     let listed = dir.0.join("listed");
     std::fs::create_dir_all(listed.join("frames")).unwrap();
     let mut m = fpm_host::dataset::DatasetOnDisk::open(&grid)

@@ -121,6 +121,52 @@ fn source_section(dir: &Path) -> String {
     toml[toml.find("[source]").expect("a [source] section")..].to_string()
 }
 
+/// Each of `mutations` of `sim` written as `format` (file `MUTATION.ext`), imported
+/// with `args` and reconstructed: its complex NRMSE.
+fn broken(
+    dir: &TempDir,
+    sim: &Path,
+    format: &str,
+    ext: &str,
+    mutations: &[&'static str],
+    args: &[&str],
+) -> Vec<(&'static str, f64)> {
+    mutations
+        .iter()
+        .map(|&mutation| {
+            let file = dir.0.join(format!("{mutation}.{ext}"));
+            export(format, sim, &file, &["--mutate", mutation]);
+            let ds = dir.0.join(mutation);
+            import_ok(format, &file, &ds, args);
+            (mutation, nrmse(&ds, sim))
+        })
+        .collect()
+}
+
+/// The error of importing `sim` written as `format` with its units broken.
+fn units_refused(dir: &TempDir, sim: &Path, format: &str, ext: &str, args: &[&str]) -> String {
+    let file = dir.0.join(format!("units.{ext}"));
+    export(format, sim, &file, &["--mutate", "units"]);
+    import_refused(format, &file, &dir.0.join("units"), args)
+}
+
+/// The imported set within 1 % of the original's NRMSE, each broken one past 1.5×.
+fn assert_caught(format: &str, original: f64, imported: &[(&str, f64)], broken: &[(&str, f64)]) {
+    eprintln!("{format}: complex NRMSE {original:.4} as simulated, imported {imported:?}; broken {broken:?}");
+    for (tag, e) in imported {
+        assert!(
+            (e - original).abs() < 0.01 * original,
+            "{format} {tag}: {e} against {original}"
+        );
+    }
+    for (what, e) in broken {
+        assert!(
+            e > &(1.5 * original),
+            "{format} with its {what} wrong: {e} against {original}"
+        );
+    }
+}
+
 const SYSTEM: &[&str] = &[
     "--wavelength-um",
     "0.47",
@@ -156,34 +202,18 @@ fn caltech_files_v5_and_v73_reconstruct_as_the_dataset_they_came_from() {
         source_section(&plane)
     );
     let plane_waves = nrmse(&plane, &sim);
-    let mut broken = vec![];
-    for mutation in ["sign", "axes"] {
-        let mat = dir.0.join(format!("{mutation}.mat"));
-        export("caltech-mat", &sim, &mat, &["--mutate", mutation]);
-        let ds = dir.0.join(mutation);
-        import_ok("caltech-mat", &mat, &ds, &["--height-mm", "92"]);
-        broken.push((mutation, nrmse(&ds, &sim)));
-    }
-    eprintln!(
-        "caltech-mat: complex NRMSE {original:.4} as simulated, imported {results:?}, \
-         as plane waves {plane_waves:.4}; broken {broken:?}"
+    let broken = broken(
+        &dir,
+        &sim,
+        "caltech-mat",
+        "mat",
+        &["sign", "axes"],
+        &["--height-mm", "92"],
     );
-    for (tag, e) in results {
-        assert!(
-            (e - original).abs() < 0.01 * original,
-            "{tag}: {e} against {original}"
-        );
-    }
-    for (what, e) in broken {
-        assert!(
-            e > 1.5 * original,
-            "NA_list with its {what} wrong: {e} against {original}"
-        );
-    }
+    eprintln!("caltech-mat as plane waves: {plane_waves:.4}");
+    assert_caught("caltech-mat", original, &results, &broken);
     // lambda and dpix_c in metres are refused by name.
-    let metres = dir.0.join("units.mat");
-    export("caltech-mat", &sim, &metres, &["--mutate", "units"]);
-    let e = import_refused("caltech-mat", &metres, &dir.0.join("units"), &[]);
+    let e = units_refused(&dir, &sim, "caltech-mat", "mat", &[]);
     assert!(e.contains("`lambda`") && e.contains("µm"), "{e}");
 }
 
@@ -222,31 +252,14 @@ fn zheng_files_reconstruct_as_the_dataset_they_came_from() {
         source.contains("amplitude") && source.contains("spiral"),
         "{source}"
     );
-    let mut broken = vec![];
-    for mutation in ["sign", "axes"] {
-        let mat = dir.0.join(format!("{mutation}.mat"));
-        export("zheng-mat", &sim, &mat, &["--mutate", mutation]);
-        let ds = dir.0.join(mutation);
-        import_ok("zheng-mat", &mat, &ds, &args);
-        broken.push((mutation, nrmse(&ds, &sim)));
-    }
-    eprintln!(
-        "zheng-mat: complex NRMSE {original:.4} for the central 15 x 15 as simulated, \
-         {imported:.4} imported; broken {broken:?}"
+    let broken = broken(&dir, &sim, "zheng-mat", "mat", &["sign", "axes"], &args);
+    assert_caught(
+        "zheng-mat (the central 15 x 15)",
+        original,
+        &[("v5", imported)],
+        &broken,
     );
-    assert!(
-        (imported - original).abs() < 0.01 * original,
-        "{imported} against {original}"
-    );
-    for (what, e) in broken {
-        assert!(
-            e > 1.5 * original,
-            "the spiral with its {what} wrong: {e} against {original}"
-        );
-    }
-    let nm = dir.0.join("units.mat");
-    export("zheng-mat", &sim, &nm, &["--mutate", "units"]);
-    let e = import_refused("zheng-mat", &nm, &dir.0.join("units"), &args);
+    let e = units_refused(&dir, &sim, "zheng-mat", "mat", &args);
     assert!(e.contains("`wlength`") && e.contains("metres"), "{e}");
 }
 
@@ -262,28 +275,9 @@ fn ptylab_files_reconstruct_as_the_dataset_they_came_from() {
     let ds = dir.0.join("imported");
     import_ok("ptylab-h5", &h5, &ds, &[]);
     let imported = nrmse(&ds, &sim);
-    let mut broken = vec![];
-    for mutation in ["sign", "axes"] {
-        let h5 = dir.0.join(format!("{mutation}.h5"));
-        export("ptylab-h5", &sim, &h5, &["--mutate", mutation]);
-        let ds = dir.0.join(mutation);
-        import_ok("ptylab-h5", &h5, &ds, &[]);
-        broken.push((mutation, nrmse(&ds, &sim)));
-    }
-    eprintln!("ptylab-h5: complex NRMSE {original:.4} as simulated, {imported:.4} imported; broken {broken:?}");
-    assert!(
-        (imported - original).abs() < 0.01 * original,
-        "{imported} against {original}"
-    );
-    for (what, e) in broken {
-        assert!(
-            e > 1.5 * original,
-            "the encoder with its {what} wrong: {e} against {original}"
-        );
-    }
-    let micrometres = dir.0.join("units.h5");
-    export("ptylab-h5", &sim, &micrometres, &["--mutate", "units"]);
-    let e = import_refused("ptylab-h5", &micrometres, &dir.0.join("units"), &[]);
+    let broken = broken(&dir, &sim, "ptylab-h5", "h5", &["sign", "axes"], &[]);
+    assert_caught("ptylab-h5", original, &[("h5", imported)], &broken);
+    let e = units_refused(&dir, &sim, "ptylab-h5", "h5", &[]);
     assert!(e.contains("`wavelength`") && e.contains("metres"), "{e}");
 }
 
@@ -303,25 +297,15 @@ fn a_tiff_stack_and_a_csv_reconstruct_as_the_dataset_they_came_from() {
     let ds = dir.0.join("imported");
     import_ok("tiff-csv", &tiff, &ds, &args);
     let imported = nrmse(&ds, &sim);
-    let mut broken = vec![];
-    for mutation in ["sign", "axes", "units"] {
-        let tiff = dir.0.join(format!("{mutation}.tif"));
-        export("tiff-csv", &sim, &tiff, &["--mutate", mutation]);
-        let ds = dir.0.join(mutation);
-        import_ok("tiff-csv", &tiff, &ds, &args);
-        broken.push((mutation, nrmse(&ds, &sim)));
-    }
-    eprintln!("tiff-csv: complex NRMSE {original:.4} as simulated, {imported:.4} imported; broken {broken:?}");
-    assert!(
-        (imported - original).abs() < 0.01 * original,
-        "{imported} against {original}"
+    let broken = broken(
+        &dir,
+        &sim,
+        "tiff-csv",
+        "tif",
+        &["sign", "axes", "units"],
+        &args,
     );
-    for (what, e) in broken {
-        assert!(
-            e > 1.5 * original,
-            "positions with their {what} wrong: {e} against {original}"
-        );
-    }
+    assert_caught("tiff-csv", original, &[("tif", imported)], &broken);
     // What the files cannot say is asked for by option; a column without its unit is
     // refused by name.
     let e = import_refused(

@@ -15,12 +15,13 @@
 
 use std::path::Path;
 
-use fpm_host::dataset::{CameraSection, FrameEntry, LedNa, LedNas, LedSection};
-use fpm_physics::LedIndex;
+use fpm_host::dataset::{LedNa, LedNas, LedSection};
 
 use crate::mat::MatFile;
 use crate::stack::{self, Layout};
-use crate::{system_section, Format, ImportError, Imported, Stated};
+use crate::{
+    camera_for, frame_id, in_focus, system_section, Format, ImportError, Imported, Stated,
+};
 
 /// Where the LEDs are placed when the file gives no distance: far enough that the
 /// light is a plane wave across any field the reference reconstructs in one piece.
@@ -95,7 +96,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
     let values = na_list.to_f64();
     let nas = (0..n)
         .map(|k| LedNa {
-            led: id(k),
+            led: frame_id(k),
             na: [-values[k], -values[n + k]],
         })
         .collect();
@@ -106,46 +107,22 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         ));
         PLANE_WAVE_HEIGHT_MM
     });
-    let frames = (0..n)
+    let frames: Vec<_> = (0..n)
         .map(|k| {
-            let entry = FrameEntry {
-                file: String::new(),
-                led: id(k),
-                defocus_um: 0.0,
-                exposure_ms: 1.0,
-            };
-            (
-                entry,
-                stack::frame(&imlow.values, Layout::MatlabHwn, (h, w), k),
-            )
+            let pixels = stack::frame(&imlow.values, Layout::MatlabHwn, (h, w), k);
+            (in_focus(frame_id(k)), pixels)
         })
         .collect();
     assumed.push("every frame exposed alike (imlow carries no exposure)".into());
-    let float = imlow.values.is_float();
-    if stated.dark_level.is_none() && !float {
-        assumed.push("no dark level stated (--dark-level): imlow taken as dark-subtracted".into());
-    }
-    let eight_bit = matches!(imlow.values, crate::mat::Values::U8(_));
+    let camera = camera_for(frames.first().map(|f| &f.1), "imlow", stated, &mut assumed);
     Ok(Imported {
         system,
         led: LedSection {
             na: Some(nas),
             ..LedSection::listed(height_mm)
         },
-        camera: CameraSection {
-            dark_level: stated.dark_level.unwrap_or(0.0),
-            bit_depth: stated
-                .bit_depth
-                .or(eight_bit.then_some(8))
-                .filter(|_| !float),
-            ..CameraSection::default()
-        },
+        camera,
         frames,
         assumed,
     })
-}
-
-/// Frame k's LED id.
-fn id(k: usize) -> LedIndex {
-    LedIndex::new((k / 256) as u8, (k % 256) as u8)
 }

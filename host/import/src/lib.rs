@@ -297,3 +297,45 @@ pub(crate) fn system_section(
         pixel_size_um: values[3],
     })
 }
+
+/// Frame k's LED id where a source numbers its frames only: (k / 256, k mod 256).
+pub(crate) fn frame_id(k: usize) -> fpm_physics::LedIndex {
+    fpm_physics::LedIndex::new((k / 256) as u8, (k % 256) as u8)
+}
+
+/// An in-focus frame under `led`, exposed as every other (sources that carry no
+/// exposure).
+pub(crate) fn in_focus(led: fpm_physics::LedIndex) -> FrameEntry {
+    FrameEntry {
+        file: String::new(),
+        led,
+        defocus_um: 0.0,
+        exposure_ms: 1.0,
+    }
+}
+
+/// `[camera]` for frames like `first` (what `what` names): the stated dark level and
+/// bit depth, 8 bits for 8-bit frames, none for float (HDR) ones; an unstated dark
+/// level on raw counts is an assumption said.
+pub(crate) fn camera_for(
+    first: Option<&Pixels>,
+    what: &str,
+    stated: &Stated,
+    assumed: &mut Vec<String>,
+) -> CameraSection {
+    let float = matches!(first, Some(Pixels::F32(_)));
+    let eight_bit = matches!(first, Some(Pixels::U8(_)));
+    if stated.dark_level.is_none() && !float {
+        assumed.push(format!(
+            "no dark level stated (--dark-level): {what} taken as dark-subtracted"
+        ));
+    }
+    CameraSection {
+        dark_level: stated.dark_level.unwrap_or(0.0),
+        bit_depth: stated
+            .bit_depth
+            .or(eight_bit.then_some(8))
+            .filter(|_| !float),
+        ..CameraSection::default()
+    }
+}

@@ -16,13 +16,15 @@
 
 use std::path::Path;
 
-use fpm_host::dataset::{CameraSection, FrameEntry, LedSection, Pixels};
-use fpm_physics::{LedIndex, LedList, ListedLed};
+use fpm_host::dataset::{LedSection, Pixels};
+use fpm_physics::{LedList, ListedLed};
 
 use crate::h5::H5File;
 use crate::mat::Values;
 use crate::stack::{self, Layout};
-use crate::{system_section, Format, ImportError, Imported, Stated};
+use crate::{
+    camera_for, frame_id, in_focus, system_section, Format, ImportError, Imported, Stated,
+};
 
 /// Read a PtyLab FPM HDF5 file.
 pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
@@ -116,7 +118,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         .iter()
         .enumerate()
         .map(|(k, &(y, x))| ListedLed {
-            led: id(k),
+            led: frame_id(k),
             x_mm: x * 1e3,
             y_mm: y * 1e3,
             z_mm: 0.0,
@@ -141,42 +143,26 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
             "orientation {orientation} applied to the frames (not to the encoder), as PtyLab does"
         ));
     }
-    let frames = (0..n)
+    let frames: Vec<_> = (0..n)
         .map(|k| {
-            let entry = FrameEntry {
-                file: String::new(),
-                led: id(k),
-                defocus_um: 0.0,
-                exposure_ms: 1.0,
-            };
-            (
-                entry,
-                oriented(
-                    stack::frame(&values, Layout::NumpyNhw, (h, w), k),
-                    orientation,
-                ),
-            )
+            let pixels = stack::frame(&values, Layout::NumpyNhw, (h, w), k);
+            (in_focus(frame_id(k)), oriented(pixels, orientation))
         })
         .collect();
     assumed.push("every frame exposed alike (the file carries no exposure)".into());
-    if stated.dark_level.is_none() && !values.is_float() {
-        assumed.push("no dark level stated (--dark-level): ptychogram taken as dark-subtracted (PtyLab's loader takes nothing off)".into());
-    }
-    let eight_bit = matches!(values, Values::U8(_));
+    let camera = camera_for(
+        frames.first().map(|f| &f.1),
+        "ptychogram (PtyLab's loader takes nothing off)",
+        stated,
+        &mut assumed,
+    );
     Ok(Imported {
         system,
         led: LedSection {
             position: Some(list),
             ..LedSection::listed(height_mm)
         },
-        camera: CameraSection {
-            dark_level: stated.dark_level.unwrap_or(0.0),
-            bit_depth: stated
-                .bit_depth
-                .or(eight_bit.then_some(8))
-                .filter(|_| !values.is_float()),
-            ..CameraSection::default()
-        },
+        camera,
         frames,
         assumed,
     })
@@ -203,9 +189,4 @@ fn oriented(p: Pixels, orientation: u8) -> Pixels {
         Pixels::U16(a) => Pixels::U16(turn(a, orientation)),
         Pixels::F32(a) => Pixels::F32(turn(a, orientation)),
     }
-}
-
-/// Frame k's LED id.
-fn id(k: usize) -> LedIndex {
-    LedIndex::new((k / 256) as u8, (k % 256) as u8)
 }

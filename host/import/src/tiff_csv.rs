@@ -13,10 +13,10 @@
 
 use std::path::{Path, PathBuf};
 
-use fpm_host::dataset::{CameraSection, FrameEntry, LedNa, LedNas, LedSection, Pixels};
+use fpm_host::dataset::{FrameEntry, LedNa, LedNas, LedSection, Pixels};
 use fpm_physics::{LedIndex, LedList, ListedLed};
 
-use crate::{system_section, Format, ImportError, Imported, Stated};
+use crate::{camera_for, system_section, Format, ImportError, Imported, Stated};
 
 /// The columns this format knows.
 const COLUMNS: [&str; 10] = [
@@ -198,24 +198,15 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
             Ok((entry, pixels))
         })
         .collect::<Result<Vec<_>, ImportError>>()?;
-    let float = matches!(frames.first(), Some((_, Pixels::F32(_))));
-    let eight_bit = matches!(frames.first(), Some((_, Pixels::U8(_))));
     if !has("exposure_ms") {
         assumed.push("no exposure_ms column: every frame exposed alike".into());
     }
-    let camera = CameraSection {
-        dark_level: stated.dark_level.unwrap_or(0.0),
-        bit_depth: stated
-            .bit_depth
-            .or(eight_bit.then_some(8))
-            .filter(|_| !float),
-        ..CameraSection::default()
-    };
-    if stated.dark_level.is_none() && !float {
-        assumed.push(
-            "no dark level stated (--dark-level): the frames are taken as dark-subtracted".into(),
-        );
-    }
+    let camera = camera_for(
+        frames.first().map(|f| &f.1),
+        "the frames",
+        stated,
+        &mut assumed,
+    );
     let system = system_section(Format::TiffCsv, [None; 4], stated, &mut assumed)?;
     Ok(Imported {
         system,
@@ -447,9 +438,7 @@ impl Table {
                 if self.rows.len() > 256 * 256 {
                     return Err(ImportError::file(path, "more than 65536 rows"));
                 }
-                Ok((0..self.rows.len())
-                    .map(|k| LedIndex::new((k / 256) as u8, (k % 256) as u8))
-                    .collect())
+                Ok((0..self.rows.len()).map(crate::frame_id).collect())
             }
             _ => Err(ImportError::field(
                 path,

@@ -19,12 +19,12 @@
 use std::path::Path;
 
 use fpm_host::dataset::Pixels;
-use fpm_host::dataset::{CameraSection, FrameEntry, LedSection};
+use fpm_host::dataset::{CameraSection, LedSection};
 use fpm_physics::LedIndex;
 
 use crate::mat::MatFile;
 use crate::stack::{self, Layout};
-use crate::{system_section, Format, ImportError, Imported, Stated};
+use crate::{in_focus, system_section, Format, ImportError, Imported, Stated};
 
 /// The reference code's array: 15 × 15 LEDs.
 const ARRAY: usize = 15;
@@ -173,12 +173,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         .into_iter()
         .enumerate()
         .map(|(k, (xi, yi))| {
-            let entry = FrameEntry {
-                file: String::new(),
-                led: LedIndex::new((centre + yi) as u8, (centre + xi) as u8),
-                defocus_um: 0.0,
-                exposure_ms: 1.0,
-            };
+            let entry = in_focus(LedIndex::new((centre + yi) as u8, (centre + xi) as u8));
             let amplitude = stack::frame(&stack.values, Layout::MatlabHwn, (h, w), k);
             (entry, Pixels::F32(amplitude.to_f32().mapv(|a| a * a)))
         })

@@ -245,6 +245,39 @@ pub fn fpm_stdout(args: &[&str]) -> String {
 }
 
 /// `fpm acquire` against controller `port` and camera `camera` (its frame service
+/// `fpm simulate acquisition --out OUT` of a `size`² field, `seed`, the array where
+/// the dataset says it is (centred, unturned), and `extra` options.
+pub fn simulate_centred(out: &Path, size: &str, seed: &str, extra: &[&str]) {
+    let out = out.to_string_lossy();
+    let mut args = vec![
+        "simulate",
+        "acquisition",
+        "--out",
+        &out,
+        "--size",
+        size,
+        "--seed",
+        seed,
+        "--dx-mm",
+        "0",
+        "--dy-mm",
+        "0",
+        "--theta-deg",
+        "0",
+    ];
+    args.extend_from_slice(extra);
+    fpm_stdout(&args);
+}
+
+/// A float32 image file (a reconstruction's or DPC's output).
+pub fn read_f32(path: &Path) -> fpm_physics::Image {
+    match fpm_host::dataset::image_io::read(path) {
+        Ok(fpm_host::dataset::image_io::Pixels::F32(a)) => a,
+        Ok(other) => panic!("{} is not float32: {} bits", path.display(), other.bits()),
+        Err(e) => panic!("{}: {}", path.display(), e.reason()),
+    }
+}
+
 /// id), `step_ms` per LED, into `out`.
 pub fn acquire_command(port: &str, camera: &str, step_ms: u32, out: &Path) -> Command {
     let mut cmd = Command::new(fpm_bin());

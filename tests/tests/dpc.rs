@@ -7,41 +7,17 @@ use std::path::Path;
 
 use fpm_host::dataset::image_io;
 use fpm_host::dpc::{low_passed_phase, phase_difference};
-use fpm_tests::{fpm_stdout, TempDir};
+use fpm_tests::{fpm_stdout, read_f32, simulate_centred, TempDir};
 
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
-fn read_f32(path: &Path) -> ndarray::Array2<f32> {
-    match image_io::read(path).unwrap() {
-        image_io::Pixels::F32(a) => a,
-        other => panic!("{} is not float32: {} bits", path.display(), other.bits()),
-    }
 }
 
 #[test]
 fn dpc_recovers_a_weak_phase_object_and_agrees_with_fpm_at_its_resolution() {
     let dir = TempDir::new("dpc");
     let sim = dir.0.join("sim");
-    fpm_stdout(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &sim.to_string_lossy(),
-        "--size",
-        "128",
-        "--seed",
-        "6",
-        "--sample",
-        "weak-phase",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-    ]);
+    simulate_centred(&sim, "128", "6", &["--sample", "weak-phase"]);
     let out = dir.0.join("dpc");
     let report: serde_json::Value = serde_json::from_str(&fpm_stdout(&[
         "dpc",

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-use fpm_tests::{fpm_bin, fpm_stdout, python_venv, TempDir};
+use fpm_tests::{fpm_bin, fpm_stdout, python_venv, simulate_centred, TempDir};
 
 fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
@@ -73,22 +73,7 @@ fn import_refused(format: &str, src: &Path, out: &Path, extra: &[&str]) -> Strin
 /// A 128² acquisition of a centred 21 × 21 array (92 mm, 2.5 mm pitch) with its truth.
 fn simulated(dir: &TempDir) -> PathBuf {
     let sim = dir.0.join("sim");
-    fpm_stdout(&[
-        "simulate",
-        "acquisition",
-        "--out",
-        &sim.to_string_lossy(),
-        "--size",
-        "128",
-        "--seed",
-        "5",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-    ]);
+    simulate_centred(&sim, "128", "5", &[]);
     sim
 }
 

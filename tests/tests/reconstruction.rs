@@ -6,7 +6,7 @@ use std::process::Command;
 
 use fpm_host::dataset::image_io;
 use fpm_physics::fft::{bin_frequency, Fft2};
-use fpm_tests::{fpm_bin, fpm_stdout, TempDir};
+use fpm_tests::{fpm_bin, fpm_stdout, read_f32, TempDir};
 use ndarray::{s, Array2};
 use rustfft::num_complex::Complex32;
 
@@ -39,13 +39,6 @@ fn band_energy(region: Array2<f32>, pixel_um: f64, lo: f64, hi: f64) -> f64 {
         }
     }
     e / (w * h) as f64
-}
-
-fn read_f32(path: &Path) -> Array2<f32> {
-    match image_io::read(path).unwrap() {
-        image_io::Pixels::F32(a) => a,
-        other => panic!("{} is not float32: {} bits", path.display(), other.bits()),
-    }
 }
 
 #[test]

@@ -63,6 +63,31 @@ pub fn run(a: DpcArgs) -> Result<()> {
             tracing::warn!("{name} not written: {e:#}");
         }
     }
+    let page = a.out.join("report.html");
+    let outputs = [
+        ("phase.tif", "the phase, radians (OME-TIFF)"),
+        ("absorption.tif", "the absorption μ (OME-TIFF)"),
+        ("dpc.json", "this report, machine-readable"),
+    ]
+    .map(|(f, what)| (f.to_string(), what.to_string()))
+    .to_vec();
+    let context = fpm_report::pages::dpc::Context {
+        report: r,
+        dataset: &a.dataset.display().to_string(),
+        previews: vec![
+            (a.out.join("phase.png"), "phase (radians)"),
+            (a.out.join("absorption.png"), "absorption"),
+        ],
+        reproduce: &fpm_report::html::command_line(),
+        outputs,
+    };
+    // The page is an extra: a failure is a warning, never the run's.
+    if let Err(e) = fpm_report::pages::dpc::write(&context, &page) {
+        tracing::warn!("{} not written: {e:#}", page.display());
+    }
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(r)?);
         return Ok(());
@@ -86,6 +111,10 @@ pub fn run(a: DpcArgs) -> Result<()> {
     println!(
         "wrote phase.tif, absorption.tif (OME-TIFF, pixel size in µm), PNG previews and dpc.json to {}",
         a.out.display()
+    );
+    println!(
+        "wrote {} (the report: open it in a browser)",
+        page.display()
     );
     Ok(())
 }

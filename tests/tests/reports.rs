@@ -1,4 +1,4 @@
-//! The HTML reports of `fpm calibrate` and `fpm reconstruct` in a real browser
+//! The HTML reports of `fpm calibrate`, `fpm reconstruct` and `fpm dpc` in a real browser
 //! (Debian's headless Chromium): each page renders (not blank, every image decodes),
 //! carries the run's numbers as its JSON states them, and stands alone (no script,
 //! nothing fetched). The acquisition's report is checked the same way in `demo.rs`.
@@ -189,4 +189,32 @@ fn a_large_reconstruction_is_shown_shrunk_in_its_report() {
         page < full,
         "the page ({page} B) embeds less than the full amplitude.png and phase.png ({full} B)"
     );
+}
+
+#[test]
+fn the_dpc_report_of_real_data_renders_and_says_the_sample_is_not_weak() {
+    let dir = TempDir::new("report-dpc");
+    let out = dir.0.join("dpc");
+    let usaf = data_dir().join("zuo-usaf-11x11");
+    fpm_stdout(&[
+        "dpc",
+        &usaf.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+    ]);
+    // The phase and absorption previews.
+    let r = rendered_report(&out.join("report.html"), 2, &dir.0);
+    let report = json(&out.join("dpc.json"));
+    for half in report["halves"].as_array().unwrap() {
+        let row = format!(
+            "<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+            half["half"].as_str().unwrap(),
+            half["leds"].as_array().unwrap().len()
+        );
+        assert!(r.dom.contains(&row), "{row} not on the page");
+    }
+    // The USAF target's opaque bars are no weak object: the page says so, with what
+    // to do instead.
+    assert!(r.dom.contains("not weak") && r.dom.contains("fpm reconstruct"));
+    assert!(r.dom.contains("fpm dpc"), "no command line");
 }

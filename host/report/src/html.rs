@@ -54,7 +54,7 @@ pre{background:#f5f5f5;border:1px solid #ddd;padding:.6em;overflow-x:auto;white-
 .ok{background:#e8f6f0;border-left:4px solid #009e73;padding:.4em .8em;margin:.4em 0}\
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}\
 figcaption{font-size:.9em;color:#555}.pair{display:flex;gap:1em;flex-wrap:wrap}\
-.pair figure{flex:1 1 300px}footer{margin-top:3em;font-size:.8em;color:#777}";
+.pair figure{flex:1 1 300px}.scaled img{width:100%;image-rendering:pixelated}footer{margin-top:3em;font-size:.8em;color:#777}";
 
 impl Page {
     /// A page titled `title`.
@@ -134,6 +134,17 @@ impl Page {
     /// Several PNG figures side by side.
     pub fn figures(&mut self, figures: &[(&[u8], &str, &str)]) {
         self.body.push_str("<div class=\"pair\">\n");
+        for (png, alt, caption) in figures {
+            self.body.push_str(&figure_html(png, alt, caption, &[]));
+        }
+        self.body.push_str("</div>\n");
+    }
+
+    /// Several PNG figures side by side, each drawn as wide as its column with its
+    /// pixels kept square and sharp: camera-sized images (a 128² DPC phase) that
+    /// would otherwise be thumbnails.
+    pub fn figures_scaled(&mut self, figures: &[(&[u8], &str, &str)]) {
+        self.body.push_str("<div class=\"pair scaled\">\n");
         for (png, alt, caption) in figures {
             self.body.push_str(&figure_html(png, alt, caption, &[]));
         }

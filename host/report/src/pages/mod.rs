@@ -3,6 +3,7 @@
 //! failure to write one as a warning, never fail the run for it.
 
 pub mod calibration;
+pub mod dpc;
 pub mod reconstruction;
 
 use std::path::Path;

@@ -7,6 +7,7 @@ from ._fpm import (
     Streaming as Streaming,
     __version__ as __version__,
     calibrate as calibrate,
+    dpc as dpc,
     reconstruct as reconstruct,
     simulate_acquisition as simulate_acquisition,
     simulate_calibration as simulate_calibration,

@@ -202,6 +202,16 @@ def calibrate(
 ) -> Calibration:
     """pdcFPM calibration of the LED array from a defocus dataset."""
 
+def dpc(
+    dataset: Dataset,
+    reg_phase: Optional[float] = None,
+    reg_absorption: Optional[float] = None,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """A weak object's phase (radians) and absorption from the four half-circle
+    patterns of the dataset's in-focus bright-field frames (`fpm dpc`), with the
+    report (its `warnings` say when the sample is not weak). Tikhonov weights default
+    to 1e-3."""
+
 def reconstruct(
     dataset: Dataset,
     *,

@@ -10,6 +10,7 @@ use pyo3::prelude::*;
 mod calibrate;
 mod convert;
 mod dataset;
+mod dpc;
 mod reconstruct;
 mod simulate;
 mod streaming;
@@ -26,6 +27,7 @@ fn _fpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<streaming::Streaming>()?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct::reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(dpc::dpc, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate_acquisition, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate_calibration, m)?)?;
     Ok(())

@@ -139,9 +139,7 @@ fn simulate_acquisition(dir: &TempDir, extra: &[&str]) {
 /// A simulated acquisition with the array where the dataset says it is (for tests that
 /// are not about geometry): `size`² frames, `seed`.
 fn simulate_centred(dir: &TempDir, size: &str, seed: &str) {
-    let mut args = vec!["--size", size, "--seed", seed];
-    args.extend_from_slice(CENTRED);
-    simulate_acquisition(dir, &args);
+    fpm_tests::simulate_centred(&dir.0, size, seed, &[]);
 }
 
 /// The array where the dataset says it is.

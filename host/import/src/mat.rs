@@ -106,10 +106,16 @@ const HDF5_MAGIC: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
 impl MatFile {
     /// Read `path` (v5 or v7.3, told apart by the HDF5 signature at byte 512).
     pub fn open(path: &Path) -> Result<Self, ImportError> {
-        let bytes = std::fs::read(path).map_err(|e| ImportError::io(path, e))?;
-        if bytes.get(512..520) == Some(HDF5_MAGIC.as_slice()) || bytes.starts_with(HDF5_MAGIC) {
+        // Only the header tells the versions apart: a v7.3 file (often the large
+        // one) is not read whole just to find out.
+        let mut head = Vec::with_capacity(520);
+        std::fs::File::open(path)
+            .and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 520), &mut head))
+            .map_err(|e| ImportError::io(path, e))?;
+        if head.get(512..520) == Some(HDF5_MAGIC.as_slice()) || head.starts_with(HDF5_MAGIC) {
             return Self::open_v73(path);
         }
+        let bytes = std::fs::read(path).map_err(|e| ImportError::io(path, e))?;
         if bytes.len() < 128 || !bytes.starts_with(b"MATLAB 5.0 MAT-file") {
             return Err(ImportError::file(
                 path,

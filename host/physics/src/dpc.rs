@@ -161,6 +161,11 @@ pub struct Dpc {
     /// Per pattern and bin: the weights of Ĩ_k in M and in Φ.
     to_absorption: Vec<Vec<Complex32>>,
     to_phase: Vec<Vec<Complex32>>,
+    /// Work buffers kept between updates (a live preview solves at the camera's rate):
+    /// the absorption and phase spectra, and one frame's.
+    m: Vec<Complex32>,
+    p: Vec<Complex32>,
+    spectrum: Vec<Complex32>,
 }
 
 /// Absorption μ and phase φ (radians) of a weak object, on the frames' grid; both
@@ -212,6 +217,9 @@ impl Dpc {
             fft: Fft2::new(width, height),
             to_absorption,
             to_phase,
+            m: vec![Complex32::default(); n],
+            p: vec![Complex32::default(); n],
+            spectrum: vec![Complex32::default(); n],
         }
     }
 
@@ -223,16 +231,16 @@ impl Dpc {
             return None;
         }
         let n = w * h;
-        let mut m = vec![Complex32::default(); n];
-        let mut p = vec![Complex32::default(); n];
-        let mut spectrum = vec![Complex32::default(); n];
+        let (m, p, spectrum) = (&mut self.m, &mut self.p, &mut self.spectrum);
+        m.fill(Complex32::default());
+        p.fill(Complex32::default());
         for (j, frame) in frames.iter().enumerate() {
             let mean = frame.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
             let scale = if mean.abs() > 0.0 { 1.0 / mean } else { 0.0 } as f32;
             for (s, &v) in spectrum.iter_mut().zip(frame.iter()) {
                 *s = Complex32::new(v * scale - 1.0, 0.0);
             }
-            self.fft.forward(&mut spectrum);
+            self.fft.forward(spectrum);
             for b in 0..n {
                 m[b] += self.to_absorption[j][b] * spectrum[b];
                 p[b] += self.to_phase[j][b] * spectrum[b];
@@ -240,12 +248,12 @@ impl Dpc {
         }
         m[0] = Complex32::default();
         p[0] = Complex32::default();
-        self.fft.inverse(&mut m);
-        self.fft.inverse(&mut p);
+        self.fft.inverse(m);
+        self.fft.inverse(p);
         let real = |v: &[Complex32]| Image::from_shape_fn((h, w), |(r, c)| v[r * w + c].re);
         Some(WeakObject {
-            absorption: real(&m),
-            phase: real(&p),
+            absorption: real(m),
+            phase: real(p),
         })
     }
 }

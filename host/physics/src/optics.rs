@@ -341,18 +341,14 @@ impl LedGeometry {
     /// A ring array (`rings`, radii `pitch_mm` apart) at `height_mm`, nominally placed.
     pub fn ring_array(rings: Rings, pitch_mm: f64, height_mm: f64) -> Self {
         Self {
-            rows: rings.len(),
-            cols: rings.widest(),
-            pitch_mm,
-            height_mm,
-            center: LedIndex::new(0, 0),
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_deg: 0.0,
-            tilt_x_deg: 0.0,
-            tilt_y_deg: 0.0,
             rings: Some(rings),
-            list: None,
+            ..Self::grid(
+                rings.len(),
+                rings.widest(),
+                pitch_mm,
+                height_mm,
+                LedIndex::new(0, 0),
+            )
         }
     }
 
@@ -368,18 +364,14 @@ impl LedGeometry {
                 .unwrap_or(1)
         };
         Self {
-            rows: bound(|l| l.led.row),
-            cols: bound(|l| l.led.col),
-            pitch_mm: pitch_mm.unwrap_or_else(|| list.typical_spacing_mm()),
-            height_mm,
-            center: list.nearest_origin(),
-            dx_mm: 0.0,
-            dy_mm: 0.0,
-            theta_deg: 0.0,
-            tilt_x_deg: 0.0,
-            tilt_y_deg: 0.0,
-            rings: None,
             list: Some(list),
+            ..Self::grid(
+                bound(|l| l.led.row),
+                bound(|l| l.led.col),
+                pitch_mm.unwrap_or_else(|| list.typical_spacing_mm()),
+                height_mm,
+                list.nearest_origin(),
+            )
         }
     }
 

@@ -43,6 +43,7 @@ pub fn scan(
         .zip(&pixels)
         .map(|(&k, p)| LitFrame {
             led: ds.manifest.frames[k].led,
+            also: &ds.manifest.frames[k].also,
             measured: ds.measured(k, p),
         })
         .collect();

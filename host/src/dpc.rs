@@ -77,11 +77,11 @@ pub struct DpcResult {
 pub fn dpc_of(ds: &Dataset, reg: Regularisation) -> Result<DpcResult> {
     let system = ds.manifest.system();
     let geometry = ds.manifest.geometry();
-    let frames: Vec<(LedIndex, Image)> = (0..ds.frames.len())
+    let frames: Vec<(Vec<LedIndex>, Image)> = (0..ds.frames.len())
         .filter(|&k| ds.frames[k].entry.defocus_um == 0.0)
         .map(|k| {
             let e = ds.frames[k].entry.exposure_ms as f32;
-            (ds.frames[k].entry.led, ds.corrected(k) / e)
+            (ds.frames[k].entry.leds().collect(), ds.corrected(k) / e)
         })
         .collect();
     let halves = dpc::half_circle_frames(&geometry, &system, &frames);

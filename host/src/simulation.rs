@@ -7,9 +7,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use fpm_physics::simulate::{
-    acquire_from, CalibrationScene, Camera, ObjectField, SampleKind, SimFrame,
+    acquire_from, acquire_sets, CalibrationScene, Camera, ObjectField, SampleKind, SimFrame,
 };
-use fpm_physics::{LedGeometry, LedIndex, System};
+use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rand::{Rng, SeedableRng};
 use rand_distr::Distribution;
 
@@ -192,6 +192,11 @@ pub struct AcquisitionSet {
     pub display_gamma: Option<f64>,
     /// What the sample is made of.
     pub sample: SampleKind,
+    /// LEDs lit together in each frame (1: one LED per frame;
+    /// [`fpm_physics::multiplex::sets`] chooses them). Each frame is exposed for the
+    /// sum of its LEDs' single-LED exposures, or less where the sum would saturate: the
+    /// scan never takes more exposure time than the one-LED scan.
+    pub multiplex: usize,
 }
 
 impl Default for AcquisitionSet {
@@ -203,6 +208,7 @@ impl Default for AcquisitionSet {
             entrance_pupil_mm: None,
             display_gamma: None,
             sample: SampleKind::Cells,
+            multiplex: 1,
         }
     }
 }
@@ -215,6 +221,9 @@ pub struct Written {
     /// The truth, as in `truth.json`.
     pub truth: Truth,
 }
+
+/// Most LEDs [`AcquisitionSet::multiplex`] lights in one frame.
+pub const MAX_MULTIPLEX: usize = 64;
 
 /// The paper's array at its nominal place: what a simulated dataset states.
 fn nominal() -> LedGeometry {
@@ -297,26 +306,44 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         set.sample,
     );
     let truth = scene.truth;
-    let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
+    if !(1..=MAX_MULTIPLEX).contains(&set.multiplex) {
+        anyhow::bail!(
+            "multiplex {}: light 1 to {MAX_MULTIPLEX} LEDs per frame",
+            set.multiplex
+        );
+    }
     let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;
-    let frames = acquire_from(
-        &system,
-        &|led| {
-            positions
-                .iter()
-                .find(|p| p.led == led)
-                .map(|p| (p.position_mm[0], p.position_mm[1], p.position_mm[2]))
-                .unwrap_or_else(|| truth.led_position_3d_mm(led))
-        },
-        &object,
-        &shots,
-        &camera,
-        |img| match set.dark_field_peak_dn {
-            Some(peak) => camera.dim_dark_field_exposure(img, peak),
-            None => camera.auto_exposure(img),
-        },
-        scene.seed,
-    );
+    let board = |led| {
+        positions
+            .iter()
+            .find(|p: &&TrueLed| p.led == led)
+            .map(|p| (p.position_mm[0], p.position_mm[1], p.position_mm[2]))
+            .unwrap_or_else(|| truth.led_position_3d_mm(led))
+    };
+    let single = |img: &Image| match set.dark_field_peak_dn {
+        Some(peak) => camera.dim_dark_field_exposure(img, peak),
+        None => camera.auto_exposure(img),
+    };
+    let frames = if set.multiplex == 1 {
+        let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
+        acquire_from(
+            &system, &board, &object, &shots, &camera, single, scene.seed,
+        )
+    } else {
+        let sets = fpm_physics::multiplex::sets(&truth, &system, set.multiplex, scene.seed);
+        acquire_sets(
+            &system,
+            &board,
+            &object,
+            &sets,
+            &camera,
+            |sum, each| {
+                let budget: f64 = each.iter().map(single).sum();
+                budget.min(camera.unsaturated_exposure(sum))
+            },
+            scene.seed,
+        )
+    };
     write_frames(out, &system, &camera, &frames)?;
     write_truth_images(out, &object)?;
     let truth = Truth {
@@ -361,6 +388,7 @@ fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame
         .map(|f| FrameEntry {
             file: String::new(),
             led: f.led,
+            also: f.also.clone(),
             defocus_um: f.defocus_um,
             exposure_ms: f.exposure_ms,
         })

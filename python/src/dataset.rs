@@ -176,6 +176,7 @@ impl Dataset {
         };
         let entries = (0..n)
             .map(|k| FrameEntry {
+                also: vec![],
                 file: String::new(),
                 led: LedIndex::new(leds[k].0, leds[k].1),
                 defocus_um: defocus[k],

@@ -41,6 +41,7 @@ pub struct Streaming {
 impl Kept {
     fn lit(&self, dark_level: f32) -> LitFrame<'_> {
         LitFrame {
+            also: &[],
             led: self.led,
             measured: Measured {
                 counts: self.counts.view(),

@@ -40,6 +40,7 @@ fn manifest(frames: usize) -> Manifest {
         source: None,
         frames: (0..frames)
             .map(|k| FrameEntry {
+                also: vec![],
                 file: String::new(),
                 led: LedIndex::new((k % 21) as u8, ((k * 7) % 21) as u8),
                 defocus_um: if k == 0 { 0.0 } else { -35.5 },
@@ -195,7 +196,7 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
     );
 
     let e = broken("led", |d| {
-        edit_toml(d, |t| t.replacen("led = [\n    1,", "led = [\n    21,", 1))
+        edit_toml(d, |t| t.replacen("led = [1,", "led = [21,", 1))
     });
     assert!(
         e.contains("frame 1") && e.contains("outside the 21x21 array"),
@@ -264,7 +265,6 @@ fn bad_datasets_fail_naming_the_key_or_frame() {
                 let ringed = format!("center = [0, 0]\n{extra}");
                 t.replace("rows = 21\ncols = 21\n", rows)
                     .replace("center = [10, 10]\n", &ringed)
-                    .replace("center = [\n    10,\n    10,\n]\n", &ringed)
             })
         }
     };
@@ -383,6 +383,7 @@ fn calibration_with(
     let dir = TempDir::new(tag);
     let mut m = manifest(0);
     m.frames.push(FrameEntry {
+        also: vec![],
         file: String::new(),
         led: LedIndex::new(10, 10),
         defocus_um: 0.0,
@@ -391,6 +392,7 @@ fn calibration_with(
     for r in 8..=12 {
         for c in 8..=12 {
             m.frames.push(FrameEntry {
+                also: vec![],
                 file: String::new(),
                 led: LedIndex::new(r, c),
                 defocus_um: 200.0,
@@ -434,6 +436,7 @@ fn calibration_refuses_datasets_without_a_feature_or_light() {
     let dir = TempDir::new("noref");
     let mut m = manifest(0);
     m.frames.push(FrameEntry {
+        also: vec![],
         file: String::new(),
         led: LedIndex::new(9, 9),
         defocus_um: 200.0,
@@ -514,7 +517,7 @@ fn an_na_list_places_each_led_where_its_angle_points_at_the_stated_height() {
         let camera = t.find("[camera]").unwrap();
         let section = "[led]\nheight_mm = 50.0\n\n[[led.na]]\nled = [0, 0]\nna = [0.0, 0.0]\n\n\
                        [[led.na]]\nled = [0, 1]\nna = [0.1, -0.2]\n\n";
-        let frames = t[camera..].replace("led = [\n    0,\n    0,\n]", "led = [0, 1]");
+        let frames = t[camera..].replace("led = [0, 0]", "led = [0, 1]");
         format!("{}{section}{frames}", &t[..led])
     });
     let ds = Dataset::load(&dir.0).unwrap();
@@ -545,23 +548,13 @@ fn bad_led_lists_fail_naming_the_key_or_frame() {
         )
     };
     // The frames light (0, 0), (1, 7), (2, 14): LED (1, 7) listed twice, (2, 14) as (2, 15).
-    let e = write_listed("twice", &|t| {
-        t.replacen(
-            "led = [\n    1,\n    8,\n]",
-            "led = [\n    1,\n    7,\n]",
-            1,
-        )
-    });
+    let e = write_listed("twice", &|t| t.replacen("led = [1, 8]", "led = [1, 7]", 1));
     assert!(
         e.contains("led.position") && e.contains("(1, 7) is listed twice"),
         "{e}"
     );
     let e = write_listed("unlisted", &|t| {
-        t.replacen(
-            "led = [\n    2,\n    14,\n]",
-            "led = [\n    22,\n    14,\n]",
-            1,
-        )
+        t.replacen("led = [2, 14]", "led = [22, 14]", 1)
     });
     assert!(
         e.contains("frame 2") && e.contains("not one of the listed LEDs"),
@@ -582,7 +575,7 @@ fn bad_led_lists_fail_naming_the_key_or_frame() {
     let e = write_listed("units", &|t| t.replacen("x_mm = ", "x_mm = \"", 1));
     assert!(e.contains("x_mm"), "{e}");
     let e = write_listed("centre", &|t| {
-        t.replace("center = [\n    10,\n    10,\n]", "center = [30, 30]")
+        t.replace("center = [10, 10]", "center = [30, 30]")
     });
     assert!(
         e.contains("led.center") && e.contains("not one of the listed"),

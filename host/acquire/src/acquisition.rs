@@ -1131,6 +1131,7 @@ fn dataset(
     for (shot, defocus_um) in shots {
         bit_depth.get_or_insert(shot.header.bit_depth);
         entries.push(FrameEntry {
+            also: vec![],
             file: String::new(),
             led: shot.led,
             defocus_um,

@@ -58,6 +58,7 @@ impl<'a> ShotView<'a> {
     /// the camera reported.
     pub fn lit_frame(&self, dark_level: f32) -> LitFrame<'a> {
         LitFrame {
+            also: &[],
             led: self.led,
             measured: Measured {
                 counts: Counts::U16(self.pixels),

@@ -79,6 +79,7 @@ impl Journal {
     /// Write a labelled frame of the capture and its line.
     pub fn frame(&mut self, shot: &ShotView<'_>) -> Result<()> {
         let entry = FrameEntry {
+            also: vec![],
             file: String::new(),
             led: shot.led,
             defocus_um: 0.0,
@@ -118,6 +119,7 @@ impl Journal {
         checksum: u64,
     ) -> Result<()> {
         let entry = FrameEntry {
+            also: vec![],
             file: String::new(),
             led,
             defocus_um: 0.0,

@@ -307,6 +307,7 @@ pub(crate) fn frame_id(k: usize) -> fpm_physics::LedIndex {
 /// exposure).
 pub(crate) fn in_focus(led: fpm_physics::LedIndex) -> FrameEntry {
     FrameEntry {
+        also: vec![],
         file: String::new(),
         led,
         defocus_um: 0.0,

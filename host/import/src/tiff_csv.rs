@@ -182,6 +182,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         .enumerate()
         .map(|(k, (_, pixels))| {
             let entry = FrameEntry {
+                also: vec![],
                 file: String::new(),
                 led: ids[k],
                 defocus_um: if has("defocus_um") {

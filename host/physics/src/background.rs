@@ -78,7 +78,10 @@ pub fn correct<'a>(
         w as f64 * system.sample_pixel_um() / 2.0,
         h as f64 * system.sample_pixel_um() / 2.0,
     );
-    if !geometry.is_dark_field_everywhere(frame.led, half_um, system) {
+    if !frame
+        .leds()
+        .all(|led| geometry.is_dark_field_everywhere(led, half_um, system))
+    {
         return (frame, None);
     }
     match estimate(&frame.measured) {

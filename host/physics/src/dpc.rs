@@ -258,26 +258,35 @@ impl Dpc {
     }
 }
 
-/// Four half-circle frames made from single-LED frames: each the sum of its half's
-/// bright-field frames (intensities per ms), as the patterns would light them at once
-/// (LEDs add incoherently). `frames` pairs each LED with its image.
+/// The four half-circle frames, each the sum of the frames (intensities per ms) lit
+/// only by LEDs of its half's bright-field disc: single-LED frames summed as the
+/// pattern would light them at once (LEDs add incoherently), or a frame the pattern
+/// itself lit (several LEDs, all of that half). `frames` pairs each frame's LEDs with
+/// its image; a frame with LEDs in more than one half, or outside the bright field,
+/// takes no part. Returns each half with the LEDs its sum holds.
 pub fn half_circle_frames(
     geometry: &LedGeometry,
     system: &System,
-    frames: &[(LedIndex, Image)],
+    frames: &[(Vec<LedIndex>, Image)],
 ) -> Vec<(Half, Vec<LedIndex>, Image)> {
-    let leds: Vec<LedIndex> = frames.iter().map(|f| f.0).collect();
+    let mut every: Vec<LedIndex> = frames.iter().flat_map(|f| f.0.iter().copied()).collect();
+    every.sort();
+    every.dedup();
     Half::ALL
         .iter()
         .filter_map(|&half| {
-            let lit = half_circle(geometry, system, &leds, half);
+            let disc = half_circle(geometry, system, &every, half);
             let first = frames.first()?;
             let mut sum = Image::zeros(first.1.dim());
-            for (led, img) in frames {
-                if lit.contains(led) {
+            let mut lit = vec![];
+            for (leds, img) in frames {
+                if !leds.is_empty() && leds.iter().all(|l| disc.contains(l)) {
                     sum += img;
+                    lit.extend_from_slice(leds);
                 }
             }
+            lit.sort();
+            lit.dedup();
             Some((half, lit, sum))
         })
         .collect()

@@ -295,10 +295,24 @@ impl Measured<'_> {
 /// A measured frame with the LED (row, col) that lit it.
 #[derive(Debug, Clone, Copy)]
 pub struct LitFrame<'a> {
-    /// LED (row, col).
+    /// LED (row, col): the first of a multiplexed frame's.
     pub led: LedIndex,
+    /// The other LEDs lit in the same frame (multiplexed illumination); empty for one.
+    pub also: &'a [LedIndex],
     /// The frame.
     pub measured: Measured<'a>,
+}
+
+impl LitFrame<'_> {
+    /// Every LED that lit the frame.
+    pub fn leds(&self) -> impl Iterator<Item = LedIndex> + '_ {
+        std::iter::once(self.led).chain(self.also.iter().copied())
+    }
+
+    /// Whether more than one LED lit it.
+    pub fn is_multiplexed(&self) -> bool {
+        !self.also.is_empty()
+    }
 }
 
 #[cfg(test)]

@@ -26,6 +26,7 @@ pub mod frame;
 pub mod image;
 pub mod led_list;
 pub mod metrics;
+pub mod multiplex;
 pub mod optics;
 pub mod reconstruct;
 pub mod simulate;

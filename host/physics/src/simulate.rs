@@ -480,6 +480,16 @@ impl Camera {
         self.exposure_for(peak, fill, 1.0, 1000.0)
     }
 
+    /// The longest exposure (ms, to 0.01 ms) that keeps `intensity`'s brightest
+    /// pixel within 80 % of full scale, however short: a multiplexed frame whose LEDs
+    /// together outshine the bright-field floor of [`Self::auto_exposure`].
+    pub fn unsaturated_exposure(&self, intensity: &Image) -> f64 {
+        let peak = intensity.iter().copied().fold(0.0f32, f32::max) as f64;
+        let usable = (self.max_dn() - self.dark_level_dn) * 0.8;
+        let ms = usable / (peak.max(1e-9) * self.electrons_per_ms * self.gain_dn_per_e);
+        ((ms * 100.0).floor() / 100.0).clamp(0.01, 1000.0)
+    }
+
     /// The dark-subtracted level at which pixels saturate.
     pub fn saturation(&self) -> f32 {
         (self.max_dn() - self.dark_level_dn) as f32
@@ -548,8 +558,10 @@ impl Camera {
 /// One simulated frame.
 #[derive(Debug, Clone)]
 pub struct SimFrame {
-    /// LED (row, col) lit.
+    /// LED (row, col) lit: the first of a multiplexed frame's.
     pub led: LedIndex,
+    /// The other LEDs lit in the same frame (multiplexed illumination); empty for one.
+    pub also: Vec<LedIndex>,
     /// Sample displacement toward the LEDs, µm.
     pub defocus_um: f64,
     /// Exposure, ms.
@@ -577,6 +589,7 @@ impl SimFrame {
     pub fn lit(&self, camera: &Camera) -> LitFrame<'_> {
         LitFrame {
             led: self.led,
+            also: &self.also,
             measured: self.measured(camera),
         }
     }
@@ -650,7 +663,54 @@ pub fn acquire_from(
                 );
                 SimFrame {
                     led,
+                    also: vec![],
                     defocus_um,
+                    exposure_ms,
+                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                }
+            },
+        )
+        .collect()
+}
+
+/// Frames each lit by a set of LEDs at once (multiplexed illumination), in focus,
+/// from a board that places each LED itself (as [`acquire_from`]): the LEDs are
+/// mutually incoherent, so a frame's intensity is the sum of the intensities each LED
+/// alone gives, each rendered by the full wave-optics model, and the sum is recorded
+/// once with the camera's noise. `exposure(sum, each)` gives each frame's exposure
+/// from the summed intensity and each LED's own.
+pub fn acquire_sets(
+    system: &System,
+    board: &(dyn Fn(LedIndex) -> (f64, f64, f64) + Sync),
+    object: &ObjectField,
+    sets: &[Vec<LedIndex>],
+    camera: &Camera,
+    exposure: impl Fn(&Image, &[Image]) -> f64 + Sync,
+    seed: u64,
+) -> Vec<SimFrame> {
+    use rayon::prelude::*;
+    sets.par_iter()
+        .enumerate()
+        .filter(|(_, set)| !set.is_empty())
+        .map_init(
+            || Renderer::new(object),
+            |renderer, (k, set)| {
+                let each: Vec<Image> = set
+                    .iter()
+                    .map(|&led| renderer.render_from(system, board(led), object, 0.0))
+                    .collect();
+                let mut intensity = each[0].clone();
+                for one in &each[1..] {
+                    intensity += one;
+                }
+                let exposure_ms = exposure(&intensity, &each);
+                let mut rng = rand::rngs::StdRng::seed_from_u64(
+                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
+                );
+                SimFrame {
+                    led: set[0],
+                    also: set[1..].to_vec(),
+                    defocus_um: 0.0,
                     exposure_ms,
                     counts: camera.record(&intensity, exposure_ms, &mut rng),
                 }
@@ -823,6 +883,7 @@ mod tests {
             );
             let frame = |counts: Array2<u16>| SimFrame {
                 led: LedIndex::new(0, 0),
+                also: vec![],
                 defocus_um: 0.0,
                 exposure_ms: ms,
                 counts,

@@ -103,7 +103,11 @@ pub fn geometry_case(
     let shot_refs: Vec<Shot> = frames
         .iter()
         .zip(&images)
-        .map(|(f, image)| Shot { led: f.led, image })
+        .map(|(f, image)| Shot {
+            led: f.led,
+            also: &f.also,
+            image,
+        })
         .collect();
 
     // Truth, band-limited to the true synthetic aperture, on its own grid.

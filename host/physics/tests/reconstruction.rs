@@ -188,6 +188,7 @@ fn tiled_streaming_is_as_good_as_offline_tiles() {
     let lit: Vec<LitFrame> = frames
         .iter()
         .map(|f| LitFrame {
+            also: &[],
             led: f.led,
             measured: Measured {
                 counts: Counts::U16(f.counts.view()),

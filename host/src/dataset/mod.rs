@@ -280,18 +280,120 @@ pub struct SourceSection {
 
 /// One `[[frame]]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "StoredFrame", into = "StoredFrame")]
 pub struct FrameEntry {
     /// Image path relative to the dataset directory.
     pub file: String,
-    /// (row, col) lit.
+    /// (row, col) lit: the first of a multiplexed frame's LEDs (`leds = [...]`).
     pub led: LedIndex,
+    /// The other LEDs lit in the same frame (multiplexed illumination, docs/dataset.md
+    /// §5.4); empty for a frame lit by one LED.
+    pub also: Vec<LedIndex>,
     /// Sample displacement toward the LEDs, µm.
-    #[serde(default)]
     pub defocus_um: f64,
     /// Exposure, ms; intensities are divided by it.
-    #[serde(default = "one")]
     pub exposure_ms: f64,
+}
+
+impl FrameEntry {
+    /// A frame lit by `led` alone, in focus, exposed for 1 ms.
+    pub fn single(file: impl Into<String>, led: LedIndex) -> Self {
+        Self {
+            file: file.into(),
+            led,
+            also: vec![],
+            defocus_um: 0.0,
+            exposure_ms: 1.0,
+        }
+    }
+
+    /// Every LED that lit the frame.
+    pub fn leds(&self) -> impl Iterator<Item = LedIndex> + '_ {
+        std::iter::once(self.led).chain(self.also.iter().copied())
+    }
+
+    /// Whether more than one LED lit it.
+    pub fn is_multiplexed(&self) -> bool {
+        !self.also.is_empty()
+    }
+}
+
+/// A `[[frame]]` as written: `led = [r, c]` for one LED, or `leds = [[r, c], ...]` for
+/// several lit at once.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StoredFrame {
+    file: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    led: Option<LedIndex>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    leds: Option<Vec<LedIndex>>,
+    #[serde(default)]
+    defocus_um: f64,
+    #[serde(default = "one")]
+    exposure_ms: f64,
+}
+
+impl TryFrom<StoredFrame> for FrameEntry {
+    type Error = String;
+
+    fn try_from(f: StoredFrame) -> Result<Self, String> {
+        let (led, also) = match (f.led, f.leds) {
+            (Some(led), None) => (led, vec![]),
+            (None, Some(leds)) => {
+                let Some((&first, rest)) = leds.split_first() else {
+                    return Err(format!(
+                        "frame {}: leds = [] lights nothing: list the LEDs lit, or use led = [row, col]",
+                        f.file
+                    ));
+                };
+                let mut seen = std::collections::HashSet::new();
+                if let Some(twice) = leds.iter().find(|l| !seen.insert(**l)) {
+                    return Err(format!(
+                        "frame {}: LED {twice} is listed twice in leds",
+                        f.file
+                    ));
+                }
+                (first, rest.to_vec())
+            }
+            (Some(_), Some(_)) => {
+                return Err(format!(
+                    "frame {}: give led (one LED) or leds (several), not both",
+                    f.file
+                ))
+            }
+            (None, None) => {
+                return Err(format!(
+                    "frame {}: missing led = [row, col] (or leds = [[row, col], ...])",
+                    f.file
+                ))
+            }
+        };
+        Ok(Self {
+            file: f.file,
+            led,
+            also,
+            defocus_um: f.defocus_um,
+            exposure_ms: f.exposure_ms,
+        })
+    }
+}
+
+impl From<FrameEntry> for StoredFrame {
+    fn from(f: FrameEntry) -> Self {
+        let (led, leds) = if f.also.is_empty() {
+            (Some(f.led), None)
+        } else {
+            (None, Some(f.leds().collect()))
+        };
+        Self {
+            file: f.file,
+            led,
+            leds,
+            defocus_um: f.defocus_um,
+            exposure_ms: f.exposure_ms,
+        }
+    }
 }
 
 /// The whole `dataset.toml`.
@@ -326,7 +428,8 @@ impl Manifest {
             path: path.clone(),
             reason,
         };
-        let text = toml::to_string_pretty(self).map_err(|e| werr(e.to_string()))?;
+        // Not `to_string_pretty`: it spreads a multiplexed frame's `leds` over 20 lines.
+        let text = toml::to_string(self).map_err(|e| werr(e.to_string()))?;
         std::fs::write(&path, text).map_err(|e| werr(e.to_string()))
     }
 
@@ -570,6 +673,7 @@ impl Dataset {
             .filter(|&k| self.frames[k].entry.defocus_um == 0.0)
             .map(|k| LitFrame {
                 led: self.frames[k].entry.led,
+                also: &self.frames[k].entry.also,
                 measured: self.measured(k),
             })
             .collect()
@@ -720,9 +824,24 @@ impl Dataset {
     }
 }
 
-/// A frame's file name: `frames/rRR_cCC.tif`, with `_z±Z` for defocused frames.
+/// A frame's file name: `frames/rRR_cCC.tif`, with `_z±Z` for defocused frames; a
+/// frame lit by several LEDs `frames/rRR_cCC_xN_HHHHHHHH.tif` (its first LED, how many,
+/// and a hash of the whole set, so that two sets sharing a first LED differ).
 pub fn frame_file_name(entry: &FrameEntry) -> String {
-    if entry.defocus_um == 0.0 {
+    if entry.is_multiplexed() {
+        // FNV-1a over the set's (row, col) bytes: stable across runs and platforms.
+        let hash = entry.leds().fold(0x811c_9dc5u32, |h, l| {
+            [l.row, l.col]
+                .iter()
+                .fold(h, |h, &b| (h ^ b as u32).wrapping_mul(0x0100_0193))
+        });
+        format!(
+            "frames/r{:02}_c{:02}_x{}_{hash:08x}.tif",
+            entry.led.row,
+            entry.led.col,
+            entry.also.len() + 1
+        )
+    } else if entry.defocus_um == 0.0 {
         format!("frames/r{:02}_c{:02}.tif", entry.led.row, entry.led.col)
     } else {
         format!(
@@ -1031,23 +1150,28 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             file: f.file.clone(),
             reason,
         };
-        if !geometry.contains(f.led) {
+        if let Some(led) = f.leds().find(|&led| !geometry.contains(led)) {
             return Err(bad(match (m.led.rings, listed) {
-                (_, true) => format!("LED {} is not one of the listed LEDs", f.led),
+                (_, true) => format!("LED {led} is not one of the listed LEDs"),
                 (Some(rings), false) => format!(
-                    "LED {} is not on the rings (ring {} holds {} LEDs)",
-                    f.led,
-                    f.led.r(),
-                    rings.count(f.led.r())
+                    "LED {led} is not on the rings (ring {} holds {} LEDs)",
+                    led.r(),
+                    rings.count(led.r())
                 ),
                 (None, false) => format!(
-                    "LED {} is outside the {}x{} array",
-                    f.led, geometry.rows, geometry.cols
+                    "LED {led} is outside the {}x{} array",
+                    geometry.rows, geometry.cols
                 ),
             }));
         }
         if !f.defocus_um.is_finite() {
             return Err(bad(format!("defocus_um = {} is not finite", f.defocus_um)));
+        }
+        if f.is_multiplexed() && f.defocus_um != 0.0 {
+            return Err(bad(format!(
+                "defocus_um = {} with several LEDs: calibration frames are lit by one LED each (leave defocus_um out of multiplexed frames)",
+                f.defocus_um
+            )));
         }
         if !(f.exposure_ms.is_finite() && f.exposure_ms > 0.0) {
             return Err(bad(format!(

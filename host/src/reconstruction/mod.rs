@@ -489,6 +489,7 @@ pub fn reconstruct_with_system(
     if frames.is_empty() {
         return Err(no_in_focus_frames(&ds.dir));
     }
+    refuse_refinement_of_multiplexed(&ds.dir, request, frames.iter().any(|f| f.is_multiplexed()))?;
     let Request {
         geometry,
         settings,
@@ -507,10 +508,27 @@ pub fn reconstruct_with_system(
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 
+/// LED refinement moves each frame's one LED to fit its frame: a frame lit by several
+/// cannot say which of them is off.
+fn refuse_refinement_of_multiplexed(
+    dir: &Path,
+    request: &Request<'_>,
+    multiplexed: bool,
+) -> Result<()> {
+    if multiplexed && request.settings.refine_leds.is_some() {
+        anyhow::bail!(
+            "{}: --refine-leds needs frames lit by one LED each, and this dataset has frames lit by several (leds = [...]): leave --refine-leds out, or calibrate the array (fpm calibrate) and reconstruct with --calibration",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// Frame `k` of `ds` as lit, from `pixels` (all or some of its rows).
-fn lit<'a>(ds: &DatasetOnDisk, k: usize, pixels: &'a Pixels) -> LitFrame<'a> {
+fn lit<'a>(ds: &'a DatasetOnDisk, k: usize, pixels: &'a Pixels) -> LitFrame<'a> {
     LitFrame {
         led: ds.manifest.frames[k].led,
+        also: &ds.manifest.frames[k].also,
         measured: ds.measured(k, pixels),
     }
 }
@@ -530,6 +548,10 @@ pub fn reconstruct_on_disk(
     if indices.is_empty() {
         return Err(no_in_focus_frames(&ds.dir));
     }
+    let multiplexed = indices
+        .iter()
+        .any(|&k| ds.manifest.frames[k].is_multiplexed());
+    refuse_refinement_of_multiplexed(&ds.dir, request, multiplexed)?;
     let Request {
         geometry,
         settings,
@@ -539,13 +561,16 @@ pub fn reconstruct_on_disk(
     } = *request;
     let context = || format!("reconstructing {}", ds.dir.display());
     let start = Instant::now();
-    let leds: Vec<LedIndex> = indices.iter().map(|&k| ds.manifest.frames[k].led).collect();
-    let mut run = Banded::new(system, *geometry, settings, passes, ds.dim(), tile, leds)
-        .with_context(context)?;
-    let mut edges = match indices
+    let lit_by = indices
         .iter()
-        .find(|&&k| ds.manifest.frames[k].led == geometry.center)
-    {
+        .map(|&k| ds.manifest.frames[k].leds().collect())
+        .collect();
+    let mut run = Banded::new(system, *geometry, settings, passes, ds.dim(), tile, lit_by)
+        .with_context(context)?;
+    let mut edges = match indices.iter().find(|&&k| {
+        let f = &ds.manifest.frames[k];
+        f.led == geometry.center && !f.is_multiplexed()
+    }) {
         Some(&k) => {
             let pixels = ds.frame(k)?;
             Some(BlockReader::new(

@@ -91,7 +91,12 @@ pub fn defocus_on_disk(
     system: &System,
     geometry: &LedGeometry,
 ) -> Result<Option<DefocusEstimate>> {
-    let indices = ds.in_focus();
+    // A shift is one LED's: frames lit by several take no part.
+    let indices: Vec<usize> = ds
+        .in_focus()
+        .into_iter()
+        .filter(|&k| !ds.manifest.frames[k].is_multiplexed())
+        .collect();
     let leds: Vec<LedIndex> = indices.iter().map(|&k| ds.manifest.frames[k].led).collect();
     let Some(&first) = geometry.nearest_first(&leds, (0.0, 0.0), system).first() else {
         return Ok(None);

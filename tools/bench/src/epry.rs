@@ -177,7 +177,11 @@ fn streaming_latency(size: usize, upsample: usize, finish_passes: usize) -> Resu
     let shot_refs: Vec<Shot> = frames
         .iter()
         .zip(&images)
-        .map(|(f, image)| Shot { led: f.led, image })
+        .map(|(f, image)| Shot {
+            led: f.led,
+            also: &f.also,
+            image,
+        })
         .collect();
     let t = Instant::now();
     let mut done = streaming

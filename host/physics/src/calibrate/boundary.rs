@@ -393,7 +393,9 @@ impl BlockReader {
         reference_led: LedIndex,
         side_px: usize,
     ) -> Option<Self> {
-        let reference = frames.iter().find(|f| f.led == reference_led)?;
+        let reference = frames
+            .iter()
+            .find(|f| f.led == reference_led && !f.is_multiplexed())?;
         let mut reader = Self::new(system, reference, side_px);
         for f in frames {
             reader.read(f);
@@ -414,9 +416,10 @@ impl BlockReader {
         }
     }
 
-    /// Frame `f` (one of a size other than the reference's is left out).
+    /// Frame `f` (one of a size other than the reference's, or lit by several LEDs,
+    /// is left out: an edge is one LED's).
     pub fn read(&mut self, f: &LitFrame<'_>) {
-        if f.measured.dim() != self.dim {
+        if f.measured.dim() != self.dim || f.is_multiplexed() {
             return;
         }
         let means = self

@@ -106,11 +106,11 @@ fn central_square<'a>(frames: &[LitFrame<'a>], side: usize) -> Vec<LitFrame<'a>>
                 width: side,
             };
             LitFrame {
-                led: f.led,
                 measured: Measured {
                     counts: f.measured.counts.region(region),
                     ..f.measured
                 },
+                ..*f
             }
         })
         .collect()
@@ -135,12 +135,12 @@ fn decoded<'a>(
     frames
         .iter()
         .map(|f| LitFrame {
-            led: f.led,
             measured: Measured {
                 response,
                 dark_level: response.decode(dark_counts),
                 ..f.measured
             },
+            ..*f
         })
         .collect()
 }

@@ -29,7 +29,7 @@ pub use epry::{
 };
 pub use flatten::{flatten_background_phase, Flatten, Flattening};
 pub use gamma::{GammaCandidate, GammaScan};
-pub use offline::{run, run_amplitudes, Amplitudes, Field, Outcome, Shot};
+pub use offline::{run, run_amplitudes, Amplitudes, Field, Lit, Outcome, Shot};
 pub use refine::{BoardFit, Refine, RefinedLeds};
 pub use schedule::StepSchedule;
 pub use streaming::Streaming;

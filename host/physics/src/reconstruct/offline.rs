@@ -13,6 +13,8 @@ use crate::Image;
 pub struct Shot<'a> {
     /// LED (row, col).
     pub led: LedIndex,
+    /// The other LEDs lit in the same frame (multiplexed illumination); empty for one.
+    pub also: &'a [LedIndex],
     /// Intensity.
     pub image: &'a Image,
 }
@@ -103,11 +105,19 @@ pub fn run(
     progress: impl FnMut(usize, usize),
 ) -> Option<Outcome> {
     let leds: Vec<LedIndex> = shots.iter().map(|s| s.led).collect();
-    let order = geometry.nearest_first(&leds, field.centre_um, system);
+    let also: Vec<Vec<LedIndex>> = shots.iter().map(|s| s.also.to_vec()).collect();
+    let lit = Lit {
+        leds: &leds,
+        also: &also,
+    };
+    let order = lit.nearest_first(geometry, field.centre_um, system);
     let initial = *order.first()?;
     let scale = match field.clear_level {
         Some(level) => Some(level).filter(|l| *l > 0.0)?,
-        None => shots[initial].image.mean().filter(|m| *m > 0.0)?,
+        None => {
+            let mean = shots[initial].image.mean().filter(|m| *m > 0.0)?;
+            mean / lit.bright_field_count(initial, geometry, field.centre_um, system) as f32
+        }
     };
     let amplitudes: Vec<Image> = shots
         .iter()
@@ -115,18 +125,90 @@ pub fn run(
         .collect();
     let frames = Amplitudes {
         leds: &leds,
+        also: &also,
         images: &amplitudes,
         bands: &[],
     };
     run_amplitudes(system, geometry, field, frames, settings, passes, progress)
 }
 
+/// Which LEDs lit each frame: `leds[k]` and, for a multiplexed frame, `also[k]`
+/// (`also` empty, or an empty entry: one LED).
+#[derive(Debug, Clone, Copy)]
+pub struct Lit<'a> {
+    /// One LED of each frame (the first listed).
+    pub leds: &'a [LedIndex],
+    /// The other LEDs of each frame, in the same order (empty: none has any).
+    pub also: &'a [Vec<LedIndex>],
+}
+
+impl Lit<'_> {
+    /// Every LED of frame `k`.
+    pub fn of(&self, k: usize) -> impl Iterator<Item = LedIndex> + '_ {
+        let also: &[LedIndex] = self.also.get(k).map(Vec::as_slice).unwrap_or(&[]);
+        std::iter::once(self.leds[k]).chain(also.iter().copied())
+    }
+
+    /// Frame `k`'s LED nearest the axis seen from `at_um`: the one that places a
+    /// multiplexed frame in the nearest-first order and seeds the object.
+    pub fn nearest(
+        &self,
+        k: usize,
+        geometry: &LedGeometry,
+        at_um: (f64, f64),
+        system: &System,
+    ) -> LedIndex {
+        let radius = |led: &LedIndex| {
+            let f = geometry.pupil_frequency(*led, at_um.0, at_um.1, system);
+            f.0.hypot(f.1)
+        };
+        self.of(k)
+            .min_by(|a, b| radius(a).total_cmp(&radius(b)).then(a.cmp(b)))
+            .unwrap_or(self.leds[k])
+    }
+
+    /// The frames' indices nearest-first ([`LedGeometry::nearest_first`]), a
+    /// multiplexed frame placed by its LED nearest the axis.
+    pub fn nearest_first(
+        &self,
+        geometry: &LedGeometry,
+        at_um: (f64, f64),
+        system: &System,
+    ) -> Vec<usize> {
+        let nearest: Vec<LedIndex> = (0..self.leds.len())
+            .map(|k| self.nearest(k, geometry, at_um, system))
+            .collect();
+        geometry.nearest_first(&nearest, at_um, system)
+    }
+
+    /// How many of frame `k`'s LEDs light the bright field seen from `at_um` (at least
+    /// one): over clear glass a multiplexed frame is that many single-LED frames'
+    /// intensity, so its level divided by this is the clear level.
+    pub fn bright_field_count(
+        &self,
+        k: usize,
+        geometry: &LedGeometry,
+        at_um: (f64, f64),
+        system: &System,
+    ) -> usize {
+        self.of(k)
+            .filter(|&led| {
+                let f = geometry.pupil_frequency(led, at_um.0, at_um.1, system);
+                f.0.hypot(f.1) < system.cutoff()
+            })
+            .count()
+            .max(1)
+    }
+}
+
 /// Amplitudes already normalised to the clear level (√(I / clear)), one per LED: the
 /// form in which tiles hand over their share of each frame.
 #[derive(Debug, Clone, Copy)]
 pub struct Amplitudes<'a> {
-    /// The LEDs.
+    /// The LEDs (the first of a multiplexed frame's).
     pub leds: &'a [LedIndex],
+    /// The other LEDs of each multiplexed frame, in the same order (empty: none).
+    pub also: &'a [Vec<LedIndex>],
     /// Their amplitudes, in the same order.
     pub images: &'a [Image],
     /// The intensity band each one's noise allows, I / clear level
@@ -146,24 +228,35 @@ pub fn run_amplitudes(
 ) -> Option<Outcome> {
     let Amplitudes {
         leds,
+        also,
         images: amplitudes,
         bands,
     } = frames;
-    let order = geometry.nearest_first(leds, field.centre_um, system);
+    let lit = Lit { leds, also };
+    let order = lit.nearest_first(geometry, field.centre_um, system);
     let initial = *order.first()?;
-    let mut epry = Epry::new(system, &amplitudes[initial].mapv(|a| a * a), settings);
+    // A multiplexed first frame seeds the object with its intensity per bright LED.
+    let per_led = 1.0 / lit.bright_field_count(initial, geometry, field.centre_um, system) as f32;
+    let seed = amplitudes[initial].mapv(|a| a * a * per_led);
+    let mut epry = Epry::new(system, &seed, settings);
     epry.set_free_border(field.free_border);
+    let seed_led = lit.nearest(initial, geometry, field.centre_um, system);
     epry.apply_illumination_curvature(
         system.wavelength_um,
-        illumination_radius_um(system, geometry, leds[initial], field.centre_um),
+        illumination_radius_um(system, geometry, seed_led, field.centre_um),
     );
     let (cx, cy) = field.centre_um;
+    let frequency = |led| geometry.pupil_frequency(led, cx, cy, system);
+    let others: Vec<Vec<(f64, f64)>> = (0..leds.len())
+        .map(|k| lit.of(k).skip(1).map(frequency).collect())
+        .collect();
     let frames: Vec<PassFrame<'_>> = order
         .iter()
         .map(|&k| PassFrame {
             amplitude: &amplitudes[k],
             band: bands.get(k).copied().unwrap_or(0.0),
-            frequency: geometry.pupil_frequency(leds[k], cx, cy, system),
+            frequency: frequency(leds[k]),
+            also: &others[k],
         })
         .collect();
     // The pupil is learned from the second pass on, once the object has a first shape.

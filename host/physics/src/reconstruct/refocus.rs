@@ -154,9 +154,11 @@ impl ShiftReader {
     }
 
     /// Measure `frame`'s shift against the reference, if its LED is bright-field at the
-    /// field's centre (others are skipped: their frames hold other frequencies).
+    /// field's centre (others are skipped: their frames hold other frequencies, and a
+    /// frame lit by several LEDs holds several shifts).
     pub fn read(&mut self, frame: &LitFrame<'_>) {
         if frame.led == self.reference
+            || frame.is_multiplexed()
             || !self
                 .geometry
                 .is_bright_field(frame.led, 0.0, 0.0, &self.system)
@@ -258,9 +260,11 @@ pub fn estimate(
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
 ) -> Option<DefocusEstimate> {
-    let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
+    // A shift is one LED's: frames lit by several take no part.
+    let single: Vec<&LitFrame<'_>> = frames.iter().filter(|f| !f.is_multiplexed()).collect();
+    let leds: Vec<LedIndex> = single.iter().map(|f| f.led).collect();
     let first = *geometry.nearest_first(&leds, (0.0, 0.0), system).first()?;
-    let mut reader = ShiftReader::new(system, geometry, &frames[first])?;
+    let mut reader = ShiftReader::new(system, geometry, single[first])?;
     for f in frames {
         reader.read(f);
     }

@@ -86,6 +86,9 @@ pub(crate) struct PassFrame<'a> {
     pub band: f32,
     /// The illumination frequency the geometry gives it, cycles/µm.
     pub frequency: (f64, f64),
+    /// The other LEDs lit in the same frame (multiplexed illumination), their
+    /// frequencies likewise; empty for a frame lit by one LED.
+    pub also: &'a [(f64, f64)],
 }
 
 /// `passes` passes over `frames`, in the order
@@ -103,6 +106,7 @@ pub(crate) fn passes_over(
 ) -> Passes {
     let mut errors = Vec::with_capacity(passes);
     let mut schedule = StepSchedule::default();
+    let mut lit = Vec::new();
     let mut search = epry.settings().refine_leds.map(|r| {
         Search::new(
             r,
@@ -115,6 +119,21 @@ pub(crate) fn passes_over(
         let (mut e, mut counted) = (0.0, 0usize);
         for (j, frame) in frames.iter().enumerate() {
             let (img, given) = (frame.amplitude, frame.frequency);
+            if !frame.also.is_empty() {
+                // Several LEDs: their frequencies as the geometry gives them (a
+                // multiplexed frame cannot tell which of its LEDs is off).
+                lit.clear();
+                lit.push(given);
+                lit.extend_from_slice(frame.also);
+                let learn = epry.settings().update_pupil && pass >= learn_from;
+                let error = epry.update_multiplexed(img, frame.band, &lit, learn);
+                if error.is_finite() {
+                    e += error;
+                    counted += 1;
+                }
+                progress(pass * frames.len() + j + 1, passes * frames.len());
+                continue;
+            }
             // Bright-field by the geometry's frequency: refinement moves a frame by a
             // fraction of a bin, and which frames teach the pupil should not flicker.
             let learn = epry.settings().update_pupil

@@ -8,7 +8,7 @@
 use crate::optics::LedIndex;
 use rustfft::num_complex::Complex32;
 
-use super::offline::{illumination_radius_um, Amplitudes, Field, Outcome, Shot};
+use super::offline::{illumination_radius_um, Amplitudes, Field, Lit, Outcome, Shot};
 use super::schedule::{passes_over, PassFrame};
 use super::{amplitude, Epry, Settings};
 use crate::frame::{Measured, Region};
@@ -199,8 +199,10 @@ impl Streaming {
             .iter()
             .map(|s| amplitude(&(s.image / scale)))
             .collect();
+        let also: Vec<Vec<LedIndex>> = shots.iter().map(|s| s.also.to_vec()).collect();
         let frames = Amplitudes {
             leds: &leds,
+            also: &also,
             images: &amplitudes,
             bands: &[],
         };
@@ -217,19 +219,23 @@ impl Streaming {
         let mut epry = self.epry.take()?;
         let Amplitudes {
             leds,
+            also,
             images: amplitudes,
             bands,
         } = frames;
-        let order = self
-            .geometry
-            .nearest_first(leds, self.field.centre_um, &self.system);
+        let lit = Lit { leds, also };
+        let order = lit.nearest_first(&self.geometry, self.field.centre_um, &self.system);
         let initial = *order.first()?;
+        let others: Vec<Vec<(f64, f64)>> = (0..leds.len())
+            .map(|k| lit.of(k).skip(1).map(|l| self.frequency(l)).collect())
+            .collect();
         let frames: Vec<PassFrame<'_>> = order
             .iter()
             .map(|&k| PassFrame {
                 amplitude: &amplitudes[k],
                 band: bands.get(k).copied().unwrap_or(0.0),
                 frequency: self.frequency(leds[k]),
+                also: &others[k],
             })
             .collect();
         // Every frame has already updated the object once as it arrived.

@@ -6,11 +6,15 @@ use fpm_physics::simulate::SimFrame;
 use fpm_physics::{Image, LedGeometry, System};
 
 /// Each simulated frame with its image (in the frames' order).
-pub fn shots<'a>(frames: &[SimFrame], images: &'a [Image]) -> Vec<Shot<'a>> {
+pub fn shots<'a>(frames: &'a [SimFrame], images: &'a [Image]) -> Vec<Shot<'a>> {
     frames
         .iter()
         .zip(images)
-        .map(|(f, image)| Shot { led: f.led, image })
+        .map(|(f, image)| Shot {
+            led: f.led,
+            also: &f.also,
+            image,
+        })
         .collect()
 }
 

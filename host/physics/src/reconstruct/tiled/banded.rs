@@ -26,7 +26,12 @@ pub struct Banded {
     passes: usize,
     layout: TileLayout,
     leds: Vec<LedIndex>,
+    /// The other LEDs of each multiplexed frame (empty: none).
+    also: Vec<Vec<LedIndex>>,
     nearest: usize,
+    /// How many bright-field LEDs light the frame nearest the axis (the clear level is
+    /// one LED's).
+    nearest_count: usize,
     /// Per frame once observed: its dark level, floor, whether the floor is soft and
     /// its noise band, after its background.
     corrections: Vec<Option<(f32, f32, bool, f32)>>,
@@ -38,8 +43,9 @@ pub struct Banded {
 }
 
 impl Banded {
-    /// A run over frames of `width × height` lit by `leds` (in the order they will be
-    /// given), cut as `tile` says ([`TileLayout::new`]).
+    /// A run over frames of `width × height`, frame `k` lit by the LEDs `lit[k]` (in
+    /// the order the frames will be given; several for a multiplexed frame), cut as
+    /// `tile` says ([`TileLayout::new`]).
     pub fn new(
         system: System,
         geometry: LedGeometry,
@@ -47,9 +53,22 @@ impl Banded {
         passes: usize,
         (height, width): (usize, usize),
         tile: Option<usize>,
-        leds: Vec<LedIndex>,
+        lit: Vec<Vec<LedIndex>>,
     ) -> Result<Self, TiledError> {
-        let nearest = nearest_to_axis(&system, &geometry, &leds)?;
+        if lit.iter().any(Vec::is_empty) {
+            return Err(TiledError::NoFrames);
+        }
+        let leds: Vec<LedIndex> = lit.iter().map(|set| set[0]).collect();
+        let also: Vec<Vec<LedIndex>> = lit.into_iter().map(|set| set[1..].to_vec()).collect();
+        let lit = Lit {
+            leds: &leds,
+            also: &also,
+        };
+        let nearest = *lit
+            .nearest_first(&geometry, (0.0, 0.0), &system)
+            .first()
+            .ok_or(TiledError::NoFrames)?;
+        let nearest_count = lit.bright_field_count(nearest, &geometry, (0.0, 0.0), &system);
         let layout = TileLayout::new(width, height, tile, &system, &geometry);
         let assembly = Assembly::new(&system, &geometry, &layout, settings);
         Ok(Self {
@@ -60,7 +79,9 @@ impl Banded {
             passes,
             layout,
             leds,
+            also,
             nearest,
+            nearest_count,
             backgrounds: vec![],
             clear_level: None,
             assembly,
@@ -103,7 +124,7 @@ impl Banded {
             });
         }
         if k == self.nearest {
-            self.clear_level = Some(reference_level(k, frame)?);
+            self.clear_level = Some(reference_level(k, frame)? / self.nearest_count as f32);
         }
         let (corrected, background) = correct(
             *frame,
@@ -158,10 +179,11 @@ impl Banded {
         let wanted = (band.rows.len(), self.layout.width);
         let mut frames = Vec::with_capacity(rows.len());
         for (index, (f, &led)) in rows.iter().zip(&self.leds).enumerate() {
-            if f.led != led {
+            if f.led != led || self.also.get(index).is_some_and(|a| a.as_slice() != f.also) {
                 return Err(bad(format!(
-                    "frame {index} is lit by LED {:?}, the run has LED {led:?} there",
-                    f.led
+                    "frame {index} is lit by LEDs {:?}, the run has LED {led:?} and {:?} there",
+                    f.leds().collect::<Vec<_>>(),
+                    self.also.get(index)
                 )));
             }
             if f.measured.dim() != wanted {
@@ -174,6 +196,7 @@ impl Banded {
                 .ok_or_else(|| bad(format!("frame {index} (LED {led:?}) was not observed")))?;
             frames.push(LitFrame {
                 led,
+                also: f.also,
                 measured: Measured {
                     dark_level,
                     floor,
@@ -192,6 +215,7 @@ impl Banded {
             settings: self.settings,
             layout: &self.layout,
             leds: &self.leds,
+            also: &self.also,
             clear_level,
             passes: self.passes,
             tick: &tick,

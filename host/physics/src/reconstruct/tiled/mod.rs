@@ -27,7 +27,7 @@ use rustfft::num_complex::Complex32;
 
 use super::contrast::{ContrastFit, ContrastSums};
 use super::flatten::{flatten_background_phase, Flattening};
-use super::offline::{run_amplitudes, Amplitudes, Field, Outcome};
+use super::offline::{run_amplitudes, Amplitudes, Field, Lit, Outcome};
 use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
 use super::Settings;
@@ -141,22 +141,22 @@ pub fn clear_level(
     frames: &[LitFrame<'_>],
 ) -> Result<(usize, f32), TiledError> {
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
-    let nearest = nearest_to_axis(system, geometry, &leds)?;
-    Ok((nearest, reference_level(nearest, &frames[nearest])?))
-}
-
-/// The index of the LED nearest the axis among `leds`: the frame the clear level is
-/// read from.
-fn nearest_to_axis(
-    system: &System,
-    geometry: &LedGeometry,
-    leds: &[LedIndex],
-) -> Result<usize, TiledError> {
-    geometry
-        .nearest_first(leds, (0.0, 0.0), system)
+    let also: Vec<Vec<LedIndex>> = frames.iter().map(|f| f.also.to_vec()).collect();
+    let lit = Lit {
+        leds: &leds,
+        also: &also,
+    };
+    let nearest = *lit
+        .nearest_first(geometry, (0.0, 0.0), system)
         .first()
-        .copied()
-        .ok_or(TiledError::NoFrames)
+        .ok_or(TiledError::NoFrames)?;
+    // A multiplexed frame over clear glass is as bright as its bright-field LEDs
+    // together: the level is one LED's.
+    let count = lit.bright_field_count(nearest, geometry, (0.0, 0.0), system);
+    Ok((
+        nearest,
+        reference_level(nearest, &frames[nearest])? / count as f32,
+    ))
 }
 
 /// The clear level from frame `index`, the one nearest the axis: its whole-frame mean
@@ -241,6 +241,7 @@ struct TileJob<'a> {
     settings: Settings,
     layout: &'a TileLayout,
     leds: &'a [LedIndex],
+    also: &'a [Vec<LedIndex>],
     clear_level: f32,
     passes: usize,
     tick: &'a (dyn Fn(usize, usize) + Sync),
@@ -279,6 +280,7 @@ impl TileJob<'_> {
                 let field = self.layout.field(k, pixel_um, Some(self.clear_level));
                 let frames = Amplitudes {
                     leds: self.leds,
+                    also: self.also,
                     images: &amplitudes,
                     bands: &bands,
                 };
@@ -301,9 +303,12 @@ impl TileJob<'_> {
                 let (cx, cy) = field.centre_um;
                 let mut bright_field = ContrastSums::default();
                 for (k, amplitude) in amplitudes.iter().enumerate() {
-                    if self
-                        .geometry
-                        .is_bright_field(self.leds[k], cx, cy, self.system)
+                    // One LED's frames only: the contrast fit models one exit wave.
+                    let single = self.also.get(k).is_none_or(Vec::is_empty);
+                    if single
+                        && self
+                            .geometry
+                            .is_bright_field(self.leds[k], cx, cy, self.system)
                     {
                         outcome.epry.add_contrast(
                             amplitude,
@@ -315,7 +320,16 @@ impl TileJob<'_> {
                 let result = TileResult {
                     tile: t,
                     centre_um: field.centre_um,
-                    initial_led: self.leds[outcome.initial],
+                    initial_led: Lit {
+                        leds: self.leds,
+                        also: self.also,
+                    }
+                    .nearest(
+                        outcome.initial,
+                        self.geometry,
+                        field.centre_um,
+                        self.system,
+                    ),
                     errors: outcome.errors.clone(),
                     ms: began.elapsed().as_secs_f64() * 1e3,
                     frequencies: outcome.frequencies.clone(),
@@ -466,6 +480,7 @@ fn solve(
     } = fixed;
     let (frames, backgrounds) = corrected(system, geometry, frames, settings);
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
+    let also: Vec<Vec<LedIndex>> = frames.iter().map(|f| f.also.to_vec()).collect();
     let total = layout.tiles.len() * passes * frames.len();
     let done = AtomicUsize::new(0);
     let tick = |_: usize, _: usize| progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
@@ -475,6 +490,7 @@ fn solve(
         settings,
         layout: &layout,
         leds: &leds,
+        also: &also,
         clear_level,
         passes,
         tick: &tick,

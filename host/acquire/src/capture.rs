@@ -255,7 +255,7 @@ pub fn capture(
     mut on_frame: impl FnMut(ShotView<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
     let &Sequence {
-        id: sequence_id,
+        id,
         leds,
         color,
         exposure_us,
@@ -267,19 +267,72 @@ pub fn capture(
             color,
         })
         .collect();
+    let (frames, mut report) = capture_steps(
+        dev,
+        camera,
+        id,
+        &steps,
+        exposure_us,
+        stop,
+        |step, header, pixels| {
+            on_frame(ShotView {
+                led: leds[step],
+                header,
+                pixels,
+            })
+        },
+    )?;
+    report.missing = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.is_none())
+        .map(|(s, _)| leds[s])
+        .collect();
+    let shots = frames
+        .into_iter()
+        .zip(leds)
+        .filter_map(|(f, &led)| {
+            f.map(|(header, pixels)| Shot {
+                led,
+                header,
+                pixels,
+            })
+        })
+        .collect();
+    Ok((shots, report))
+}
+
+/// A step's frame: the camera's header and the pixels.
+pub type StepFrame = (FrameHeader, Array2<u16>);
+
+/// [`capture`] for any steps (patterns, several LEDs, dark frames): one frame per
+/// step, each labelled with its step's index. `on_frame(step, header, pixels)` as
+/// there. Returns each step's frame (None: missing) in step order, and the report
+/// (its `missing` left empty: what a step lit is the caller's to name).
+#[allow(clippy::too_many_arguments)] // the sequence's parts and the two callbacks
+pub fn capture_steps(
+    dev: &Controller,
+    camera: &ServiceNames,
+    sequence_id: u32,
+    steps: &[Step],
+    exposure_us: u32,
+    stop: impl Fn() -> bool,
+    mut on_frame: impl for<'b> FnMut(usize, &'b FrameHeader, ArrayView2<'b, u16>),
+) -> Result<(Vec<Option<StepFrame>>, CaptureReport)> {
+    let n = steps.len();
     let timing = timing(exposure_us);
     let period_ns = (timing.settle_us as u64 + exposure_us as u64) * 1000;
     // A frame's window, a tolerance early to two late (label::pair), spans one nominal
     // period: shorter than any step, which adds the trigger delay and the LED update.
     let tolerance = (period_ns / 3).max(1_000_000);
     let drain = FrameDrain::start(camera)?;
-    dev.upload_sequence(sequence_id, &steps, timing)?;
+    dev.upload_sequence(sequence_id, steps, timing)?;
     let mut events = dev.subscribe()?;
     let start = Instant::now();
     dev.start_sequence(sequence_id)?;
     // Arrival times are ns since `start`, taken before the sequence started.
     let since_start = || start.elapsed().as_nanos() as i64;
-    let mut labeller = Labeller::new(leds.len(), tolerance);
+    let mut labeller = Labeller::new(n, tolerance);
     let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
     let mut ended = None;
     let mut last_frame = Instant::now();
@@ -310,17 +363,13 @@ pub fn capture(
         let labels = labeller.labels();
         for l in &labels {
             let (header, pixels) = &received[l.frame];
-            on_frame(ShotView {
-                led: leds[l.step],
-                header,
-                pixels: pixels.view(),
-            });
+            on_frame(l.step, header, pixels.view());
         }
         if !labels.is_empty() {
             // Time spent streaming is not the camera being idle.
             last_frame = Instant::now();
         }
-        let complete = received.len() >= leds.len();
+        let complete = received.len() >= n;
         // Frames still on their way are waited for; after a cancel only briefly (the
         // LEDs it lit last, a few periods), and not at all once a frame has come for
         // every step the controller finished and a period has passed without another:
@@ -348,8 +397,7 @@ pub fn capture(
         }
         if ended.is_none()
             && start.elapsed()
-                > Duration::from_nanos(period_ns * (leds.len() as u64 + 50))
-                    + Duration::from_secs(30)
+                > Duration::from_nanos(period_ns * (n as u64 + 50)) + Duration::from_secs(30)
         {
             bail!("the capture sequence did not end in time");
         }
@@ -372,32 +420,19 @@ pub fn capture(
     // acquiring go now, with their final label.
     for l in late {
         let (header, pixels) = &received[l.frame];
-        on_frame(ShotView {
-            led: leds[l.step],
-            header,
-            pixels: pixels.view(),
-        });
+        on_frame(l.step, header, pixels.view());
     }
-    let mut shots = Vec::with_capacity(matched.len());
-    let mut labelled = vec![false; leds.len()];
-    for &(step, _) in &matched {
-        labelled[step] = true;
+    let mut frames: Vec<Option<StepFrame>> = (0..n).map(|_| None).collect();
+    for &(step, fi) in &matched {
+        if let Some(slot) = frames.get_mut(step) {
+            *slot = Some((received[fi].0, std::mem::take(&mut received[fi].1)));
+        }
     }
-    for (step, fi) in matched {
-        shots.push(Shot {
-            led: leds[step],
-            header: received[fi].0,
-            pixels: std::mem::take(&mut received[fi].1),
-        });
-    }
-    let missing = (0..leds.len())
-        .filter(|&s| !labelled[s])
-        .map(|s| leds[s])
-        .collect::<Vec<_>>();
+    let labelled = frames.iter().filter(|f| f.is_some()).count();
     let report = CaptureReport {
-        requested: leds.len(),
-        labelled: shots.len(),
-        missing,
+        requested: n,
+        labelled,
+        missing: vec![],
         extra_frames: p.extra_frames.len(),
         ambiguous_frames: p.ambiguous_frames.len(),
         clock_offset_ns: p.clock_offset_ns,
@@ -405,7 +440,7 @@ pub fn capture(
         stamp_spread_ms: p.residual_spread_ns as f64 / 1e6,
         clock_problem: p.clock_problem.clone(),
         seconds,
-        frames_per_s: shots.len() as f64 / seconds.max(1e-9),
+        frames_per_s: labelled as f64 / seconds.max(1e-9),
         relabelled,
         outcome: match (&failure, ended.map(|e| e.outcome)) {
             (Some(f), _) => f.clone(),
@@ -416,7 +451,7 @@ pub fn capture(
         failed: failure.is_some(),
         sequences: 1,
     };
-    Ok((shots, report))
+    Ok((frames, report))
 }
 
 /// Give the labeller the controller's step reports waiting now; the end of the sequence

@@ -201,7 +201,11 @@ pub fn run(a: VirtualCamera) -> Result<()> {
             // One exposure for the whole calibration set, as a user would set it.
             camera.exposure_for(2.5, 0.85, 1.0, 1000.0)
         } else {
-            camera.auto_exposure(&intensity)
+            // Several LEDs at once (a DPC half-circle, a multiplexed set) can outshine
+            // the 2 ms floor of one LED's auto-exposure: a camera goes shorter.
+            camera
+                .auto_exposure(&intensity)
+                .min(camera.unsaturated_exposure(&intensity))
         };
         let counts = camera.record(&sensor.crop(&intensity), exposure_ms, &mut rng);
         std::thread::sleep(Duration::from_secs_f64(a.readout_ms.max(0.0) / 1e3));

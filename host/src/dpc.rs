@@ -9,7 +9,7 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use fpm_physics::dpc::{self, Dpc, Regularisation, Transfer, WeakObject};
 use fpm_physics::metrics::resample_to;
-use fpm_physics::{Image, LedIndex};
+use fpm_physics::{Image, LedIndex, System};
 use serde::Serialize;
 
 use crate::dataset::{image_io, Dataset};
@@ -109,7 +109,7 @@ pub fn dpc_of(ds: &Dataset, reg: Regularisation) -> Result<DpcResult> {
     let object = solver
         .solve(&images)
         .context("the half-circle frames differ in size")?;
-    let versus_truth = score_phase(ds, &object.phase, pixel_um, 2.0 * system.cutoff());
+    let versus_truth = score_phase(&ds.dir, &object.phase, pixel_um, 2.0 * system.cutoff());
     let halves: Vec<HalfReport> = halves
         .iter()
         .map(|(half, leds, img)| HalfReport {
@@ -215,15 +215,15 @@ pub fn phase_difference(phase: &Image, truth: &Image) -> PhaseScore {
     }
 }
 
-/// The DPC phase against the truth beside `ds` (an extra: None without a truth or one
+/// The DPC phase against the simulator's truth in `dir` (an extra: None without a truth or one
 /// that cannot be used, with a warning naming why).
-fn score_phase(
-    ds: &Dataset,
+pub fn score_phase(
+    dir: &Path,
     phase: &Image,
     pixel_um: f64,
     max_frequency: f64,
 ) -> Option<PhaseScore> {
-    let truth = match crate::truth::Truth::find(&ds.dir) {
+    let truth = match crate::truth::Truth::find(dir) {
         Ok(Some(t)) => t,
         Ok(None) => return None,
         Err(e) => {
@@ -233,8 +233,8 @@ fn score_phase(
     };
     let pitch = truth.object_pixel_um?;
     let object = match image_io::read_complex(
-        &ds.dir.join("truth_amplitude.tif"),
-        &ds.dir.join("truth_phase.tif"),
+        &dir.join("truth_amplitude.tif"),
+        &dir.join("truth_phase.tif"),
     ) {
         Ok(o) => o,
         Err(e) => {
@@ -260,19 +260,29 @@ fn score_phase(
 /// Write `absorption.tif` and `phase.tif` (OME-TIFF, the pixel size in µm) and
 /// `dpc.json` into `out`.
 pub fn write(result: &DpcResult, ds: &Dataset, out: &Path) -> Result<()> {
+    write_object(&result.object, &ds.manifest.system(), out)?;
+    std::fs::write(
+        out.join("dpc.json"),
+        serde_json::to_string_pretty(&result.report)?,
+    )?;
+    Ok(())
+}
+
+/// Write a weak object's `absorption.tif` and `phase.tif` (OME-TIFF, the pixel size in
+/// µm, `system`'s optics) into `out`: `fpm dpc`'s and the live preview's.
+pub fn write_object(object: &WeakObject, system: &System, out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let system = ds.manifest.system();
-    let pixel_um = result.report.pixel_um;
+    let pixel_um = system.sample_pixel_um();
     for (name, description, img) in [
         (
             "phase",
             "DPC phase of a weak object (Tikhonov, half-circle patterns), radians, mean removed, up to 2 NA/lambda",
-            &result.object.phase,
+            &object.phase,
         ),
         (
             "absorption",
             "DPC absorption mu of a weak object (o = 1 - mu + i phi), mean removed",
-            &result.object.absorption,
+            &object.absorption,
         ),
     ] {
         let xml = crate::ome::ome_xml(&crate::ome::OmeImage {
@@ -288,9 +298,5 @@ pub fn write(result: &DpcResult, ds: &Dataset, out: &Path) -> Result<()> {
         image_io::write_tiff_f32_described(&path, img, &xml, pixel_um, Default::default())
             .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.reason()))?;
     }
-    std::fs::write(
-        out.join("dpc.json"),
-        serde_json::to_string_pretty(&result.report)?,
-    )?;
     Ok(())
 }

@@ -22,6 +22,7 @@ pub mod acquisition;
 pub mod board_geometry;
 pub mod capture;
 pub mod controller;
+pub mod dpc;
 pub mod journal;
 pub mod label;
 pub mod labeller;

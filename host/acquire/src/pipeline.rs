@@ -33,7 +33,7 @@ pub const CAMERA_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// Whether a camera publishes on `names`, waiting up to [`CAMERA_WAIT`] for one to come
 /// up: a sequence over every LED with no camera would take minutes to fail.
-fn wait_for_camera(names: &ServiceNames) -> Result<()> {
+pub(crate) fn wait_for_camera(names: &ServiceNames) -> Result<()> {
     let subscriber = fpm_frames::FrameSubscriber::create(names)?;
     if !subscriber.wait_for_publisher(CAMERA_WAIT) {
         bail!(
@@ -82,6 +82,16 @@ fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json:
 /// The nominal array as the controller describes it.
 pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
     board_geometry::nominal(&dev.info().geometry)
+}
+
+/// Where the board's LEDs are: its stored calibration placing its grid, or the
+/// nominal grid when it stores none.
+pub fn board_geometry(dev: &Controller) -> LedGeometry {
+    let nominal = nominal_geometry(dev);
+    match stored_calibration(dev) {
+        Some(c) => board_geometry::geometry(&nominal, &c),
+        None => nominal,
+    }
 }
 
 /// The calibration stored on the board, if any. A board that cannot say (older

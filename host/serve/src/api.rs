@@ -27,7 +27,7 @@ use tokio_stream::StreamExt;
 use utoipa::{OpenApi, ToSchema};
 
 use crate::jobs::{
-    AcquireRequest, CalibrateRequest, JobRequest, ReconstructRequest, ResumeRequest,
+    AcquireRequest, CalibrateRequest, DpcRequest, JobRequest, ReconstructRequest, ResumeRequest,
     SequenceRequest,
 };
 use crate::store::{Job, JobState};
@@ -166,6 +166,7 @@ impl IntoResponse for ApiError {
         ReconstructRequest,
         SequenceRequest,
         ResumeRequest,
+        DpcRequest,
         ApiError,
         Event
     ))
@@ -332,6 +333,12 @@ async fn submit(
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
         }
         JobRequest::Resume(r) => r.out = Some(resumable(&state, r.job)?),
+        JobRequest::Dpc(d) => {
+            // The LEDs' places are the board's, read when the job runs: here only the
+            // request's own values are checked.
+            d.plan(&state.shared.camera, fpm_physics::LedGeometry::paper())
+                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        }
     }
     let id = state
         .worker

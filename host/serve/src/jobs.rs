@@ -14,7 +14,8 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 /// The kinds a request may have, as an error lists them.
-const KINDS: &str = "\"acquire\", \"calibrate\", \"reconstruct\", \"sequence\" or \"resume\"";
+const KINDS: &str =
+    "\"acquire\", \"calibrate\", \"reconstruct\", \"sequence\", \"resume\" or \"dpc\"";
 
 /// A job to queue.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -36,6 +37,126 @@ pub enum JobRequest {
     /// failed): its frames are kept, only the LEDs they lack are lit, into its output
     /// directory, with its settings.
     Resume(ResumeRequest),
+    /// A live DPC preview (Tian & Waller 2015): the controller's four half-circle
+    /// patterns at the objective's NA, `rounds` times, each round's phase and
+    /// absorption the job's snapshot as soon as its fourth frame arrives; the last
+    /// round written (phase.tif, absorption.tif, dpc.json). To find the sample and
+    /// focus before a calibration or a scan.
+    Dpc(DpcRequest),
+}
+
+/// A live DPC preview's settings: every field may be left out.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DpcRequest {
+    /// Output directory (absolute) for the last round. Absent: a new directory under
+    /// the service's runs directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
+    /// Rounds of four frames (1–256).
+    #[serde(default = "one_round")]
+    pub rounds: usize,
+    /// How long each pattern stays lit, ms.
+    #[serde(default = "step_ms")]
+    pub step_ms: f64,
+    /// LED colour, [r, g, b] (0–255).
+    #[serde(default = "color")]
+    pub color: [u8; 3],
+    /// The camera's dark level, counts.
+    #[serde(default = "dark_level")]
+    pub dark_level: f64,
+    /// Illumination wavelength, µm.
+    #[serde(default = "wavelength_um")]
+    pub wavelength_um: f64,
+    /// Objective NA (the patterns' outer NA).
+    #[serde(default = "na")]
+    pub na: f64,
+    /// Objective magnification.
+    #[serde(default = "magnification")]
+    pub magnification: f64,
+    /// Camera pixel, µm.
+    #[serde(default = "pixel_um")]
+    pub pixel_um: f64,
+    /// Tikhonov weight of the phase (as `fpm dpc --reg-phase`).
+    #[serde(default = "reg")]
+    pub reg_phase: f64,
+    /// Tikhonov weight of the absorption.
+    #[serde(default = "reg")]
+    pub reg_absorption: f64,
+}
+
+fn one_round() -> usize {
+    1
+}
+
+fn reg() -> f64 {
+    fpm_physics::dpc::Regularisation::default().phase
+}
+
+impl DpcRequest {
+    /// The plan on the rig, the LEDs placed by `geometry` (the board's stored
+    /// calibration, or its nominal grid).
+    pub fn plan(
+        &self,
+        camera: &ServiceNames,
+        geometry: fpm_physics::LedGeometry,
+    ) -> Result<fpm_acquire::dpc::LivePlan> {
+        let Some(out) = &self.out else {
+            bail!("out: missing (the service places a job without one under its runs directory)");
+        };
+        if !out.is_absolute() {
+            bail!(
+                "out {}: give an absolute path (the service's working directory is not the client's)",
+                out.display()
+            );
+        }
+        let max = fpm_acquire::dpc::MAX_ROUNDS;
+        if !(1..=max).contains(&self.rounds) {
+            bail!("rounds {}: give 1 to {max}", self.rounds);
+        }
+        if !(self.step_ms.is_finite() && self.step_ms > 0.0) {
+            bail!("step_ms {}: give a positive time in ms", self.step_ms);
+        }
+        for (key, v) in [
+            ("reg_phase", self.reg_phase),
+            ("reg_absorption", self.reg_absorption),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{key} {v}: give a positive weight (1e-3 by default)");
+            }
+        }
+        let system = System {
+            wavelength_um: self.wavelength_um,
+            na: self.na,
+            magnification: self.magnification,
+            pixel_size_um: self.pixel_um,
+            entrance_pupil_mm: None,
+        };
+        if let Some((key, v, why)) = system.out_of_range() {
+            let key = if key == "pixel_size_um" {
+                "pixel_um"
+            } else {
+                key
+            };
+            bail!("{key} {v}: {why}");
+        }
+        let [r, g, b] = self.color;
+        Ok(fpm_acquire::dpc::LivePlan {
+            camera: camera.clone(),
+            out: out.clone(),
+            system,
+            geometry,
+            rounds: self.rounds,
+            step_ms: self.step_ms,
+            color: Rgb { r, g, b },
+            dark_level: self.dark_level,
+            reg: fpm_physics::dpc::Regularisation {
+                phase: self.reg_phase,
+                absorption: self.reg_absorption,
+            },
+        })
+    }
 }
 
 /// Which job to complete.
@@ -87,6 +208,9 @@ impl JobRequest {
             "resume" => serde_path_to_error::deserialize(value)
                 .map(JobRequest::Resume)
                 .map_err(named),
+            "dpc" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Dpc)
+                .map_err(named),
             other => Err(format!("kind \"{other}\": unknown; give {KINDS}")),
         }
     }
@@ -99,6 +223,7 @@ impl JobRequest {
             JobRequest::Reconstruct(_) => "reconstruct",
             JobRequest::Sequence(_) => "sequence",
             JobRequest::Resume(_) => "resume",
+            JobRequest::Dpc(_) => "dpc",
         }
     }
 
@@ -110,6 +235,7 @@ impl JobRequest {
             JobRequest::Reconstruct(r) => r.out.as_deref(),
             JobRequest::Sequence(s) => s.out.as_deref(),
             JobRequest::Resume(r) => r.out.as_deref(),
+            JobRequest::Dpc(d) => d.out.as_deref(),
         }
     }
 
@@ -122,6 +248,7 @@ impl JobRequest {
             JobRequest::Reconstruct(r) => &mut r.out,
             JobRequest::Sequence(s) => &mut s.out,
             JobRequest::Resume(_) => return,
+            JobRequest::Dpc(d) => &mut d.out,
         };
         if out.is_some() {
             return;

@@ -214,7 +214,7 @@ pub fn acquisition_of(store: &Store, id: i64) -> Result<AcquireRequest, SteerErr
         match request {
             JobRequest::Acquire(a) => return Ok(a),
             JobRequest::Sequence(s) => return Ok(s.as_acquisition()),
-            JobRequest::Calibrate(_) | JobRequest::Reconstruct(_) => {
+            JobRequest::Calibrate(_) | JobRequest::Reconstruct(_) | JobRequest::Dpc(_) => {
                 return Err(SteerError::Conflict(format!(
                     "job {at} does not acquire: queue it again rather than resume it"
                 )))
@@ -472,6 +472,12 @@ fn run_job(
             &r,
             Path::new(&job.out),
         ),
+        JobRequest::Dpc(d) => {
+            let (dev, _stage) = open()?;
+            let plan = d.plan(&rig.camera, fpm_acquire::pipeline::board_geometry(&dev))?;
+            fpm_acquire::dpc::live(&dev, &plan, watcher, &control)
+                .and_then(|s| serde_json::to_value(s).map_err(Into::into))
+        }
         JobRequest::Resume(r) => {
             let a = acquisition_of(&shared.store, r.job)?;
             let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;

@@ -18,6 +18,8 @@ pub type GammaRequest = Option<bool>;
 pub type GammaResult = Result<bool, DeviceError>;
 /// Reply of [`SequenceStartEndpoint`].
 pub type StartResult = Result<SequenceStarted, DeviceError>;
+/// Reply of [`LedSetDefineEndpoint`].
+pub type LedSetsResult = Result<LedSetsDefined, DeviceError>;
 
 endpoints! {
     list = ENDPOINT_LIST;
@@ -41,6 +43,9 @@ endpoints! {
     | GeometryEndpoint       | ()                | StoredCalibration | "fpm/board/geometry"     |
     | GeometrySetEndpoint    | CalibrationUpdate | StoreResult       | "fpm/board/geometry/set" |
     | GammaEndpoint          | GammaRequest      | GammaResult       | "fpm/light/gamma"        |
+    // 1.2
+    | LedSetDefineEndpoint   | LedSetDefine      | LedSetsResult     | "fpm/light/set/define"   |
+    | SequenceSetStepsEndpoint | SetStepChunk    | StepsResult       | "fpm/seq/set-steps"      |
 }
 
 topics! {
@@ -50,6 +55,8 @@ topics! {
     | -------          | ---------   | ----           |
     | StepTopic        | StepEvent   | "fpm/seq/step" |
     | SequenceEndTopic | SequenceEnd | "fpm/seq/end"  |
+    // 1.2
+    | SetStepTopic     | SetStepEvent | "fpm/seq/set-step" |
 }
 
 topics! {
@@ -69,7 +76,7 @@ mod tests {
     /// message keys collide at 8 bytes.
     #[test]
     fn keys_are_unique() {
-        let mut keys: [Key; 19] = [
+        let mut keys: [Key; 22] = [
             VersionEndpoint::REQ_KEY,
             InfoEndpoint::REQ_KEY,
             StatusEndpoint::REQ_KEY,
@@ -87,7 +94,10 @@ mod tests {
             GeometryEndpoint::REQ_KEY,
             GeometrySetEndpoint::REQ_KEY,
             GammaEndpoint::REQ_KEY,
+            LedSetDefineEndpoint::REQ_KEY,
+            SequenceSetStepsEndpoint::REQ_KEY,
             StepTopic::TOPIC_KEY,
+            SetStepTopic::TOPIC_KEY,
             SequenceEndTopic::TOPIC_KEY,
         ];
         keys.sort_by_key(|k| k.to_bytes());
@@ -96,8 +106,8 @@ mod tests {
         }
         assert_eq!(
             ENDPOINT_LIST.endpoints.len(),
-            17 + 2,
-            "17 ours + 2 standard"
+            19 + 2,
+            "19 ours + 2 standard"
         );
     }
 
@@ -184,6 +194,30 @@ mod tests {
         for i in 0..MAX_LEDS_PER_LIST {
             leds.push(LedIndex::new(i as u8, 255)).unwrap();
         }
+        let set = LedSetDefine {
+            index: u16::MAX,
+            leds: leds.clone(),
+        };
+        let used = postcard::to_slice(&set, &mut buf).expect("set fits").len();
+        assert!(used + 13 <= MAX_FRAME_LEN, "set takes {used} bytes");
+        let mut set_steps = heapless::Vec::new();
+        for _ in 0..MAX_STEPS_PER_CHUNK {
+            set_steps
+                .push(SetStep {
+                    set: u16::MAX,
+                    color: Rgb::WHITE,
+                })
+                .unwrap();
+        }
+        let chunk = SetStepChunk {
+            id: u32::MAX,
+            offset: u16::MAX,
+            steps: set_steps,
+        };
+        let used = postcard::to_slice(&chunk, &mut buf)
+            .expect("set chunk fits")
+            .len();
+        assert!(used + 13 <= MAX_FRAME_LEN, "set chunk takes {used} bytes");
         let list = SetLeds {
             leds,
             color: Rgb::WHITE,

@@ -21,6 +21,7 @@ pub mod board;
 pub mod calibration;
 pub mod error;
 pub mod icd;
+pub mod led_sets;
 pub mod light;
 pub mod limits;
 pub mod sequence;
@@ -29,6 +30,7 @@ pub use board::*;
 pub use calibration::*;
 pub use error::*;
 pub use icd::*;
+pub use led_sets::*;
 pub use light::*;
 pub use sequence::*;
 
@@ -47,8 +49,10 @@ use serde::{Deserialize, Serialize};
 /// firmware" instead of an unknown key.
 ///
 /// History: 1.0 lighting, budget, sequences; 1.1 the stored board geometry
-/// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`).
-pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_1;
+/// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`); 1.2 LED sets lit
+/// whole by sequence steps (`fpm/light/set/define`, `fpm/seq/set-steps`,
+/// `fpm/seq/set-step`: [`led_sets`]).
+pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_2;
 
 /// USB vendor id the controller enumerates with (pid.codes, the open-hardware vendor id).
 /// Hosts find boards by it (`fpm device list`); the udev rule in `udev/` matches it.

@@ -24,3 +24,9 @@ pub const MAX_LEDS: usize = 1024;
 
 /// Longest board name in [`crate::DeviceInfo`].
 pub const MAX_NAME_LEN: usize = 32;
+
+/// Most LED sets the table holds ([`crate::LedSetDefine`]).
+pub const MAX_LED_SETS: usize = 256;
+
+/// Most LEDs the LED sets hold together (each LED of a 1024-LED board in one set).
+pub const MAX_LED_SET_LEDS: usize = MAX_LEDS;

@@ -11,10 +11,11 @@ use crate::board::{BoardConfig, FIRMWARE_VERSION};
 use crate::budget::Output;
 use crate::chain::{chain_index, led_at};
 use crate::hw::{FrameSink, LedStrip, TriggerOut};
+use crate::led_sets::LedSets;
 use crate::leds::LedState;
 use crate::link::{encode, Feed, FrameReceiver};
 use crate::patterns;
-use crate::sequence::{Action, Engine};
+use crate::sequence::{Action, Done, Engine, Stored};
 use crate::storage::CalibrationStore;
 use embedded_storage::nor_flash::NorFlash;
 
@@ -33,6 +34,7 @@ pub struct Device<S: LedStrip, T: TriggerOut, F: NorFlash> {
     leds: LedState,
     budget: BudgetConfig,
     engine: Engine,
+    sets: LedSets,
     rx: FrameReceiver,
     stats: LinkStats,
     topic_seq: u32,
@@ -72,6 +74,7 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             trigger,
             calibration,
             engine: Engine::new(),
+            sets: LedSets::new(),
             rx: FrameReceiver::new(),
             stats: LinkStats::default(),
             topic_seq: 0,
@@ -182,7 +185,8 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
                     }
                 }
                 Action::Trigger(active) => self.set_trigger(active),
-                Action::StepDone(event) => self.publish::<StepTopic>(&event, out),
+                Action::StepDone(Done::Step(event)) => self.publish::<StepTopic>(&event, out),
+                Action::StepDone(Done::Set(event)) => self.publish::<SetStepTopic>(&event, out),
                 Action::End(end) => self.finish(end, now, out),
                 Action::WaitUntil(t) => {
                     let grace = self
@@ -245,6 +249,8 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             SequenceStatusEndpoint => seq_status,
             GeometryEndpoint => geometry,
             GeometrySetEndpoint => set_geometry,
+            LedSetDefineEndpoint => define_set,
+            SequenceSetStepsEndpoint => seq_set_steps,
         }
         self.stats.unknown_keys = self.stats.unknown_keys.wrapping_add(1);
         self.send(ERROR_KEY, hdr.seq_no, &WireError::UnknownKey, out);
@@ -472,9 +478,35 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
     }
 
     fn seq_steps(&mut self, req: StepChunk, _: u64, _: &mut impl FrameSink) -> StepsResult {
-        let (board, leds, budget) = (&self.board, &mut self.leds, self.budget);
-        self.engine
-            .load(&req, |i, step| check_step(board, leds, budget, i, step))
+        let mut steps: heapless::Vec<Stored, { limits::MAX_STEPS_PER_CHUNK }> =
+            heapless::Vec::new();
+        for &s in &req.steps {
+            // As many as the chunk holds: room for each.
+            let _ = steps.push(Stored::Step(s));
+        }
+        self.load_steps(req.id, req.offset, &steps)
+    }
+
+    fn seq_set_steps(&mut self, req: SetStepChunk, _: u64, _: &mut impl FrameSink) -> StepsResult {
+        let mut steps: heapless::Vec<Stored, { limits::MAX_STEPS_PER_CHUNK }> =
+            heapless::Vec::new();
+        for &s in &req.steps {
+            let _ = steps.push(Stored::Set(s));
+        }
+        self.load_steps(req.id, req.offset, &steps)
+    }
+
+    fn load_steps(&mut self, id: u32, offset: u16, steps: &[Stored]) -> StepsResult {
+        let (board, leds, budget, sets) = (&self.board, &mut self.leds, self.budget, &self.sets);
+        self.engine.load(id, offset, steps, |i, step| {
+            check_step(board, sets, leds, budget, i, step)
+        })
+    }
+
+    fn define_set(&mut self, req: LedSetDefine, _: u64, _: &mut impl FrameSink) -> LedSetsResult {
+        // A running sequence may be lighting these sets.
+        self.not_running()?;
+        self.sets.define(&req, &self.board.geometry)
     }
 
     fn seq_start(&mut self, id: u32, now: u64, out: &mut impl FrameSink) -> StartResult {
@@ -483,7 +515,14 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
         }
         // Brightness or budget may have changed since the upload: check again.
         for (i, step) in self.engine.steps().iter().enumerate() {
-            check_step(&self.board, &mut self.leds, self.budget, i as u16, step)?;
+            check_step(
+                &self.board,
+                &self.sets,
+                &mut self.leds,
+                self.budget,
+                i as u16,
+                step,
+            )?;
         }
         self.engine.start(id, now)?;
         self.awaiting_latch = None;
@@ -541,7 +580,7 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
                 loaded: step,
                 total: step,
             })?;
-        render(&self.board, &mut self.leds, s.illumination, s.color)?;
+        render_stored(&self.board, &self.sets, &mut self.leds, &s)?;
         let refuse = BudgetConfig {
             policy: BudgetPolicy::Refuse,
             ..self.budget
@@ -643,16 +682,42 @@ fn render(
     Ok(())
 }
 
-/// A sequence step must name LEDs on the board and fit the budget at the current
-/// brightness (sequences never scale, so every frame sees the same light per LED).
+/// Stage what a loaded step lights, everything else off: its illumination, or its
+/// set of the table (which must be defined).
+fn render_stored(
+    board: &BoardConfig,
+    sets: &LedSets,
+    leds: &mut LedState,
+    step: &Stored,
+) -> Result<(), DeviceError> {
+    match step {
+        Stored::Step(s) => render(board, leds, s.illumination, s.color),
+        Stored::Set(s) => {
+            let members = sets.get(s.set).ok_or(sets.missing(s.set))?;
+            let g = &board.geometry;
+            let staged = leds.stage(false);
+            for &led in members {
+                if let Some(px) = chain_index(g, led).and_then(|i| staged.get_mut(i as usize)) {
+                    *px = s.color;
+                }
+            }
+            Ok(())
+        }
+    }
+}
+
+/// A sequence step must name LEDs on the board (a set, one defined) and fit the budget
+/// at the current brightness (sequences never scale, so every frame sees the same
+/// light per LED).
 fn check_step(
     board: &BoardConfig,
+    sets: &LedSets,
     leds: &mut LedState,
     budget: BudgetConfig,
     index: u16,
-    step: &Step,
+    step: &Stored,
 ) -> Result<(), DeviceError> {
-    render(board, leds, step.illumination, step.color)?;
+    render_stored(board, sets, leds, step)?;
     let need = leds.staged_current_ua(leds.output(), board.channel_current_ua);
     if need > budget.limit_ma as u64 * 1000 {
         return Err(DeviceError::OverBudget {

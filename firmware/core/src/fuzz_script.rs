@@ -112,6 +112,8 @@ fn valid_body(path: &str, raw: &[u8], out: &mut [u8]) -> Option<usize> {
         GeometryEndpoint,
         GeometrySetEndpoint,
         GammaEndpoint,
+        LedSetDefineEndpoint,
+        SequenceSetStepsEndpoint,
     );
     None
 }

@@ -34,6 +34,7 @@ mod device;
 #[allow(clippy::panic)] // panicking is how it reports a broken invariant to the fuzzer
 pub mod fuzz_script;
 pub mod hw;
+pub mod led_sets;
 pub mod leds;
 pub mod link;
 pub mod patterns;

@@ -4,10 +4,29 @@
 
 use fpm_protocol::{
     limits::MAX_SEQUENCE_STEPS, DeviceError, Edge, Param, SequenceDefine, SequenceEnd,
-    SequenceOutcome, SequenceState, SequenceStatus, SequenceTiming, Step, StepChunk, StepEvent,
-    StepsLoaded,
+    SequenceOutcome, SequenceState, SequenceStatus, SequenceTiming, SetStep, SetStepEvent, Step,
+    StepEvent, StepsLoaded,
 };
 use heapless::Vec;
+
+/// One loaded step: a 1.0 step (an LED, a pattern, dark) or one lighting a set of the
+/// LED set table (1.2). A sequence may hold both.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Stored {
+    /// Uploaded with `fpm/seq/steps`.
+    Step(Step),
+    /// Uploaded with `fpm/seq/set-steps`.
+    Set(SetStep),
+}
+
+/// A finished step's report, on the topic its kind is reported on.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Done {
+    /// `fpm/seq/step`.
+    Step(StepEvent),
+    /// `fpm/seq/set-step`.
+    Set(SetStepEvent),
+}
 
 /// What the device must do next for a running sequence.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,7 +39,7 @@ pub enum Action {
     /// Drive the trigger output active (`true`) or idle (`false`).
     Trigger(bool),
     /// A step finished: publish it.
-    StepDone(StepEvent),
+    StepDone(Done),
     /// The run ended: publish it (and clear the LEDs if the timing says so).
     End(SequenceEnd),
     /// Nothing to do before this time (`None`: only an event can change anything).
@@ -56,7 +75,7 @@ pub struct Engine {
     id: u32,
     total: u16,
     timing: Option<SequenceTiming>,
-    steps: Vec<Step, MAX_SEQUENCE_STEPS>,
+    steps: Vec<Stored, MAX_SEQUENCE_STEPS>,
     run: Option<Run>,
     completed: u16,
     last_outcome: Option<SequenceOutcome>,
@@ -93,7 +112,7 @@ impl Engine {
     }
 
     /// The uploaded steps.
-    pub fn steps(&self) -> &[Step] {
+    pub fn steps(&self) -> &[Stored] {
         &self.steps
     }
 
@@ -151,38 +170,40 @@ impl Engine {
         Ok(self.status())
     }
 
-    /// Load a chunk of steps, each checked by `check(index, step)` first. A failing
-    /// chunk loads nothing.
+    /// Load a chunk of steps of sequence `id` from `offset`, each checked by
+    /// `check(index, step)` first. A failing chunk loads nothing.
     pub fn load(
         &mut self,
-        chunk: &StepChunk,
-        mut check: impl FnMut(u16, &Step) -> Result<(), DeviceError>,
+        id: u32,
+        offset: u16,
+        steps: &[Stored],
+        mut check: impl FnMut(u16, &Stored) -> Result<(), DeviceError>,
     ) -> Result<StepsLoaded, DeviceError> {
         if self.run.is_some() {
             return Err(DeviceError::Busy);
         }
-        if self.timing.is_none() || chunk.id != self.id {
+        if self.timing.is_none() || id != self.id {
             return Err(DeviceError::WrongSequence {
-                requested: chunk.id,
+                requested: id,
                 defined: if self.timing.is_some() { self.id } else { 0 },
             });
         }
         let loaded = self.steps.len() as u16;
-        let len = chunk.steps.len() as u16;
-        let end = chunk.offset as u32 + len as u32;
-        if chunk.offset > loaded || end > self.total as u32 {
+        let len = steps.len() as u16;
+        let end = offset as u32 + len as u32;
+        if offset > loaded || end > self.total as u32 {
             return Err(DeviceError::ChunkOutOfRange {
-                offset: chunk.offset,
+                offset,
                 len,
                 loaded,
                 total: self.total,
             });
         }
-        for (i, step) in chunk.steps.iter().enumerate() {
-            check(chunk.offset + i as u16, step)?;
+        for (i, step) in steps.iter().enumerate() {
+            check(offset + i as u16, step)?;
         }
-        for (i, step) in chunk.steps.iter().enumerate() {
-            let idx = chunk.offset as usize + i;
+        for (i, step) in steps.iter().enumerate() {
+            let idx = offset as usize + i;
             if let Some(slot) = self.steps.get_mut(idx) {
                 *slot = *step;
             } else if self.steps.push(*step).is_err() {
@@ -356,20 +377,37 @@ impl Engine {
                     if now >= done && run.pulse_end.is_none() {
                         let step = run.step;
                         let end_us = done.max(run.pulse_end_at);
-                        let s = self.steps.get(step as usize).copied().unwrap_or(Step {
-                            illumination: fpm_protocol::Illumination::Dark,
-                            color: fpm_protocol::Rgb::OFF,
-                        });
-                        let event = StepEvent {
-                            sequence_id: self.id,
-                            step,
-                            illumination: s.illumination,
-                            color: s.color,
-                            leds_on: run.leds_on,
-                            light_on_us: run.light_on,
-                            trigger_us: run.trigger_at,
-                            trigger_in_us: run.edge_at,
-                            end_us,
+                        let s = self
+                            .steps
+                            .get(step as usize)
+                            .copied()
+                            .unwrap_or(Stored::Step(Step {
+                                illumination: fpm_protocol::Illumination::Dark,
+                                color: fpm_protocol::Rgb::OFF,
+                            }));
+                        let event = match s {
+                            Stored::Step(s) => Done::Step(StepEvent {
+                                sequence_id: self.id,
+                                step,
+                                illumination: s.illumination,
+                                color: s.color,
+                                leds_on: run.leds_on,
+                                light_on_us: run.light_on,
+                                trigger_us: run.trigger_at,
+                                trigger_in_us: run.edge_at,
+                                end_us,
+                            }),
+                            Stored::Set(s) => Done::Set(SetStepEvent {
+                                sequence_id: self.id,
+                                step,
+                                set: s.set,
+                                color: s.color,
+                                leds_on: run.leds_on,
+                                light_on_us: run.light_on,
+                                trigger_us: run.trigger_at,
+                                trigger_in_us: run.edge_at,
+                                end_us,
+                            }),
                         };
                         run.step = step + 1;
                         run.phase = Phase::Light(end_us);

@@ -465,14 +465,18 @@ fn next_event(
         match events.next(Duration::from_millis(1)) {
             // The report is sent when the step ends: its trigger was that much earlier
             // (device time), and that is what a frame's arrival is compared with.
-            Ok(SequenceEvent::Step(s)) => labeller.step(
-                StepTime {
-                    step: s.step as usize,
-                    trigger_ns: s.trigger_us * 1000,
-                },
-                since_start() - (s.end_us.saturating_sub(s.trigger_us) * 1000) as i64,
-            ),
             Ok(SequenceEvent::End(e)) => return Ok(Some(e)),
+            Ok(step) => {
+                if let Some((_, index, trigger_us, end_us)) = step.step_times() {
+                    labeller.step(
+                        StepTime {
+                            step: index as usize,
+                            trigger_ns: trigger_us * 1000,
+                        },
+                        since_start() - (end_us.saturating_sub(trigger_us) * 1000) as i64,
+                    )
+                }
+            }
             Err(ControllerError::Timeout { .. }) => return Ok(None),
             Err(e) => return Err(e),
         }

@@ -47,6 +47,7 @@ fn drain(events: &mut fpm_acquire::controller::SequenceEvents) -> (Vec<StepEvent
     loop {
         match events.next(Duration::from_secs(5)).expect("sequence event") {
             SequenceEvent::Step(s) => steps.push(s),
+            SequenceEvent::SetStep(s) => panic!("no LED set was uploaded: {s:?}"),
             SequenceEvent::End(e) => return (steps, e),
         }
     }
@@ -771,4 +772,104 @@ fn a_partial_shift_stops_at_the_last_changed_led() {
         let led = led_at_chain(k);
         assert!(lit.contains(&format!("({},{})", led.row, led.col)), "{lit}");
     }
+}
+
+/// Protocol 1.2: a table of LED sets, each lit whole by a sequence step that names it
+/// (multiplexed illumination), reported on its own topic; the 1.0 sequence path is
+/// untouched beside it.
+#[test]
+fn led_sets_are_lit_whole_by_the_steps_that_name_them() {
+    let (_dir, emu) = emulator("sets", &["--no-camera"]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    assert!(dev.info().protocol.supports(PROTOCOL_1_2));
+    let led = |r, c| LedIndex::new(r, c);
+    let sets = vec![
+        vec![led(10, 10), led(3, 4), led(17, 2), led(5, 19)],
+        vec![led(0, 0)],
+        (0..8).map(|c| led(20, c)).collect::<Vec<_>>(),
+    ];
+    let defined = dev.define_led_sets(&sets).unwrap();
+    assert_eq!((defined.sets, defined.leds), (3, 13));
+    let color = Rgb::new(0, 0, 40);
+    let order = [0u16, 1, 2, 0];
+    let steps: Vec<SetStep> = order.iter().map(|&set| SetStep { set, color }).collect();
+    let loaded = dev.upload_set_sequence(21, &steps, timing(None)).unwrap();
+    assert_eq!(loaded.loaded, 4);
+    let mut events = dev.subscribe().unwrap();
+    let started = dev.start_sequence(21).unwrap();
+    let mut got = vec![];
+    let end = loop {
+        match events.next(Duration::from_secs(5)).expect("sequence event") {
+            SequenceEvent::SetStep(s) => got.push(s),
+            SequenceEvent::Step(s) => panic!("a set step reported as a 1.0 step: {s:?}"),
+            SequenceEvent::End(e) => break e,
+        }
+    };
+    assert_eq!(end.outcome, SequenceOutcome::Done);
+    assert_eq!(end.completed, 4);
+    let mut prev_end = started.started_us;
+    for (i, ev) in got.iter().enumerate() {
+        assert_eq!((ev.sequence_id, ev.step as usize), (21, i));
+        assert_eq!(ev.set, order[i]);
+        assert_eq!(ev.color, color);
+        assert_eq!(
+            ev.leds_on as usize,
+            sets[order[i] as usize].len(),
+            "step {i}"
+        );
+        assert!(ev.light_on_us > prev_end && ev.trigger_us >= ev.light_on_us + 300);
+        prev_end = ev.end_us;
+    }
+    assert_eq!(dev.status().unwrap().leds_on, 0, "cleared at the end");
+
+    // A step naming a set the table does not hold is refused when uploaded, naming
+    // its index and how many there are; so is a set defined out of order.
+    let missing = [SetStep { set: 3, color }];
+    assert_eq!(
+        dev.upload_set_sequence(22, &missing, timing(None))
+            .unwrap_err()
+            .device_error(),
+        Some(DeviceError::TooMany {
+            requested: 4,
+            max: 3
+        })
+    );
+    let skipped = LedSetDefine {
+        index: 5,
+        leds: heapless::Vec::from_slice(&[led(1, 1)]).unwrap(),
+    };
+    assert!(matches!(
+        dev.request::<LedSetDefineEndpoint>(&skipped).unwrap(),
+        Err(DeviceError::ChunkOutOfRange {
+            offset: 5,
+            loaded: 3,
+            ..
+        })
+    ));
+    // Each step is held to the current budget: eight LEDs in white exceed 100 mA.
+    dev.set_budget(BudgetConfig {
+        limit_ma: 100,
+        policy: BudgetPolicy::Refuse,
+    })
+    .unwrap();
+    let white = [SetStep {
+        set: 2,
+        color: Rgb::WHITE,
+    }];
+    assert!(matches!(
+        dev.upload_set_sequence(23, &white, timing(None))
+            .unwrap_err()
+            .device_error(),
+        Some(DeviceError::OverBudget { step: Some(0), .. })
+    ));
+    // The 1.0 path still runs beside the table.
+    let one = [Step {
+        illumination: Illumination::Led(led(10, 10)),
+        color,
+    }];
+    dev.upload_sequence(24, &one, timing(None)).unwrap();
+    let mut events = dev.subscribe().unwrap();
+    dev.start_sequence(24).unwrap();
+    let (steps, end) = drain(&mut events);
+    assert_eq!((steps.len(), end.outcome), (1, SequenceOutcome::Done));
 }

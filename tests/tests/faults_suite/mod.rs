@@ -56,7 +56,7 @@ fn emulator_killed_mid_sequence_is_reported_at_once_and_a_restart_reconnects() {
     // the event timeout.
     let err = loop {
         match events.next(Duration::from_secs(10)) {
-            Ok(SequenceEvent::Step(_)) => continue,
+            Ok(SequenceEvent::Step(_) | SequenceEvent::SetStep(_)) => continue,
             Ok(SequenceEvent::End(e)) => panic!("a killed device cannot end its sequence: {e:?}"),
             Err(e) => break e,
         }
@@ -105,7 +105,7 @@ fn emulator_killed_mid_sequence_is_reported_at_once_and_a_restart_reconnects() {
     let mut n = 0;
     loop {
         match events.next(TIMEOUT).unwrap() {
-            SequenceEvent::Step(_) => n += 1,
+            SequenceEvent::Step(_) | SequenceEvent::SetStep(_) => n += 1,
             SequenceEvent::End(e) => {
                 assert_eq!(e.outcome, SequenceOutcome::Done);
                 break;

@@ -91,6 +91,7 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
     loop {
         match events.next(Duration::from_secs(5)).expect("sequence event") {
             SequenceEvent::Step(s) => triggers.push(s.trigger_us),
+            SequenceEvent::SetStep(s) => panic!("no LED set was uploaded: {s:?}"),
             SequenceEvent::End(e) => {
                 assert_eq!(e.outcome, SequenceOutcome::Done);
                 break;

@@ -348,20 +348,8 @@ impl Controller {
         steps: &[Step],
         timing: SequenceTiming,
     ) -> Result<StepsLoaded> {
-        let max = self.info.limits.max_sequence_steps as usize;
-        if steps.len() > max || steps.is_empty() {
-            return Err(ControllerError::Invalid(format!(
-                "a sequence needs 1 to {max} steps, this one has {}",
-                steps.len()
-            )));
-        }
-        self.checked::<SequenceDefineEndpoint, _>(&SequenceDefine {
-            id,
-            steps: steps.len() as u16,
-            timing,
-        })?;
-        let per_chunk =
-            (self.info.limits.max_steps_per_chunk as usize).clamp(1, limits::MAX_STEPS_PER_CHUNK);
+        self.define_sequence(id, steps.len(), timing)?;
+        let per_chunk = self.steps_per_chunk();
         let mut loaded = StepsLoaded {
             loaded: 0,
             total: steps.len() as u16,
@@ -376,6 +364,85 @@ impl Controller {
             loaded = self.checked::<SequenceStepsEndpoint, _>(&req)?;
         }
         Ok(loaded)
+    }
+
+    /// Fill the LED set table with `sets`, in order (protocol ≥ 1.2): what
+    /// [`Self::upload_set_sequence`]'s steps name by index. Replaces the table.
+    pub fn define_led_sets(&self, sets: &[Vec<LedIndex>]) -> Result<LedSetsDefined> {
+        self.require(PROTOCOL_1_2, LedSetDefineEndpoint::PATH)?;
+        let max_list = (self.info.limits.max_leds_per_list as usize).min(limits::MAX_LEDS_PER_LIST);
+        if sets.is_empty() || sets.len() > limits::MAX_LED_SETS {
+            return Err(ControllerError::Invalid(format!(
+                "a table needs 1 to {} LED sets, this one has {}",
+                limits::MAX_LED_SETS,
+                sets.len()
+            )));
+        }
+        let mut defined = LedSetsDefined { sets: 0, leds: 0 };
+        for (index, set) in sets.iter().enumerate() {
+            if set.is_empty() || set.len() > max_list {
+                return Err(ControllerError::Invalid(format!(
+                    "LED set {index} has {} LEDs: give 1 to {max_list}",
+                    set.len()
+                )));
+            }
+            let req = LedSetDefine {
+                index: index as u16,
+                leds: heapless::Vec::from_slice(set)
+                    .map_err(|_| ControllerError::Invalid("LED set too long".into()))?,
+            };
+            defined = self.checked::<LedSetDefineEndpoint, _>(&req)?;
+        }
+        Ok(defined)
+    }
+
+    /// Define and upload a sequence whose steps each light a set of the table
+    /// ([`Self::define_led_sets`]; protocol ≥ 1.2). Its steps are reported as
+    /// [`SequenceEvent::SetStep`].
+    pub fn upload_set_sequence(
+        &self,
+        id: u32,
+        steps: &[SetStep],
+        timing: SequenceTiming,
+    ) -> Result<StepsLoaded> {
+        self.require(PROTOCOL_1_2, SequenceSetStepsEndpoint::PATH)?;
+        self.define_sequence(id, steps.len(), timing)?;
+        let per_chunk = self.steps_per_chunk();
+        let mut loaded = StepsLoaded {
+            loaded: 0,
+            total: steps.len() as u16,
+        };
+        for (k, chunk) in steps.chunks(per_chunk).enumerate() {
+            let req = SetStepChunk {
+                id,
+                offset: (k * per_chunk) as u16,
+                steps: heapless::Vec::from_slice(chunk)
+                    .map_err(|_| ControllerError::Invalid("step chunk too long".into()))?,
+            };
+            loaded = self.checked::<SequenceSetStepsEndpoint, _>(&req)?;
+        }
+        Ok(loaded)
+    }
+
+    /// Announce sequence `id` of `steps` steps.
+    fn define_sequence(&self, id: u32, steps: usize, timing: SequenceTiming) -> Result<()> {
+        let max = self.info.limits.max_sequence_steps as usize;
+        if steps > max || steps == 0 {
+            return Err(ControllerError::Invalid(format!(
+                "a sequence needs 1 to {max} steps, this one has {steps}"
+            )));
+        }
+        self.checked::<SequenceDefineEndpoint, _>(&SequenceDefine {
+            id,
+            steps: steps as u16,
+            timing,
+        })?;
+        Ok(())
+    }
+
+    /// Steps per upload chunk: the device's limit within the protocol's.
+    fn steps_per_chunk(&self) -> usize {
+        (self.info.limits.max_steps_per_chunk as usize).clamp(1, limits::MAX_STEPS_PER_CHUNK)
     }
 
     /// Start the uploaded sequence.
@@ -396,14 +463,19 @@ impl Controller {
     /// Subscribe to step and end events. Subscribe before starting a sequence so no
     /// event is missed.
     pub fn subscribe(&self) -> Result<SequenceEvents> {
-        let (steps, ends) = self.runtime.block_on(async {
+        let (steps, set_steps, ends) = self.runtime.block_on(async {
             let steps = self.client.subscribe_multi::<StepTopic>(EVENT_DEPTH).await;
+            let set_steps = self
+                .client
+                .subscribe_multi::<SetStepTopic>(EVENT_DEPTH)
+                .await;
             let ends = self.client.subscribe_multi::<SequenceEndTopic>(16).await;
-            (steps, ends)
+            (steps, set_steps, ends)
         });
-        match (steps, ends) {
-            (Ok(steps), Ok(ends)) => Ok(SequenceEvents {
+        match (steps, set_steps, ends) {
+            (Ok(steps), Ok(set_steps), Ok(ends)) => Ok(SequenceEvents {
                 steps,
+                set_steps,
                 ends,
                 runtime: self.runtime.clone(),
                 closed: ClosedProbe(self.client.clone()),
@@ -440,12 +512,26 @@ fn placeholder_info() -> DeviceInfo {
 
 struct ClosedProbe(HostClient<WireError>);
 
+impl SequenceEvent {
+    /// A finished step's (sequence id, index, trigger time µs, end time µs), whichever
+    /// topic it came on; None for the end.
+    pub fn step_times(&self) -> Option<(u32, u16, u64, u64)> {
+        match self {
+            SequenceEvent::Step(s) => Some((s.sequence_id, s.step, s.trigger_us, s.end_us)),
+            SequenceEvent::SetStep(s) => Some((s.sequence_id, s.step, s.trigger_us, s.end_us)),
+            SequenceEvent::End(_) => None,
+        }
+    }
+}
+
 /// One message of the sequence topics.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum SequenceEvent {
     /// A step finished.
     Step(StepEvent),
+    /// A step lighting an LED set finished (protocol ≥ 1.2).
+    SetStep(SetStepEvent),
     /// The run ended.
     End(SequenceEnd),
 }
@@ -453,6 +539,7 @@ pub enum SequenceEvent {
 /// A subscription to sequence progress.
 pub struct SequenceEvents {
     steps: MultiSubscription<StepEvent>,
+    set_steps: MultiSubscription<SetStepEvent>,
     ends: MultiSubscription<SequenceEnd>,
     runtime: Arc<tokio::runtime::Runtime>,
     closed: ClosedProbe,
@@ -474,6 +561,7 @@ impl SequenceEvents {
                 tokio::select! {
                     biased;
                     s = self.steps.recv() => s.map(SequenceEvent::Step),
+                    s = self.set_steps.recv() => s.map(SequenceEvent::SetStep),
                     e = self.ends.recv() => e.map(SequenceEvent::End),
                     _ = closed.wait_closed() => Err(MultiSubRxError::IoClosed),
                 }

@@ -63,12 +63,17 @@ impl Controller {
             let event = events.next(per_step)?;
             on_event(&event);
             match event {
-                SequenceEvent::Step(s) if s.sequence_id != id || s.step != expected => bail!(
-                    "expected step {expected} of sequence {id}, got step {} of sequence {}: events were lost",
-                    s.step,
-                    s.sequence_id
-                ),
-                SequenceEvent::Step(_) => expected += 1,
+                SequenceEvent::Step(_) | SequenceEvent::SetStep(_) => {
+                    let Some((sequence, step, _, _)) = event.step_times() else {
+                        continue;
+                    };
+                    if sequence != id || step != expected {
+                        bail!(
+                            "expected step {expected} of sequence {id}, got step {step} of sequence {sequence}: events were lost"
+                        );
+                    }
+                    expected += 1;
+                }
                 SequenceEvent::End(end) => {
                     if let SequenceOutcome::Failed(e) = end.outcome {
                         bail!("the sequence failed at step {}: {e}", end.completed);

@@ -60,6 +60,13 @@ pub struct AcquireArgs {
     /// the geometry it used. Give the optics it was acquired with.
     #[arg(long, conflicts_with = "calibrate")]
     pub resume: bool,
+    /// Light this many LEDs together in each frame (multiplexed illumination, about
+    /// that many times fewer frames): every LED once, bright and dark field apart,
+    /// LEDs of similar NA at random angles sharing a frame, through the controller's
+    /// LED sets (protocol 1.2). Uses the calibration stored on the board (calibrate
+    /// first with --calibrate --store-geometry); reconstructs once the frames are in.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub multiplex: u16,
     /// Reconstruct while the frames arrive (streaming EPRY).
     #[arg(long)]
     pub reconstruct: bool,
@@ -172,6 +179,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         flatten: a.flatten.flatten(),
         snapshot_every: 0,
         leds: None,
+        multiplex: a.multiplex.into(),
     };
     let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");

@@ -271,7 +271,7 @@ pub fn capture(
         dev,
         camera,
         id,
-        &steps,
+        Lighting::Steps(&steps),
         exposure_us,
         stop,
         |step, header, pixels| {
@@ -305,7 +305,32 @@ pub fn capture(
 /// A step's frame: the camera's header and the pixels.
 pub type StepFrame = (FrameHeader, Array2<u16>);
 
-/// [`capture`] for any steps (patterns, several LEDs, dark frames): one frame per
+/// What a sequence's steps light: 1.0 steps (LEDs, patterns, dark), or sets of the
+/// controller's LED set table (protocol ≥ 1.2, [`Controller::define_led_sets`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Lighting<'a> {
+    /// One LED, a pattern or nothing per step.
+    Steps(&'a [Step]),
+    /// One LED set per step.
+    Sets(&'a [fpm_protocol::SetStep]),
+}
+
+impl Lighting<'_> {
+    /// Steps.
+    pub fn len(&self) -> usize {
+        match self {
+            Lighting::Steps(s) => s.len(),
+            Lighting::Sets(s) => s.len(),
+        }
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// [`capture`] for any steps (patterns, LED sets, dark frames): one frame per
 /// step, each labelled with its step's index. `on_frame(step, header, pixels)` as
 /// there. Returns each step's frame (None: missing) in step order, and the report
 /// (its `missing` left empty: what a step lit is the caller's to name).
@@ -314,7 +339,7 @@ pub fn capture_steps(
     dev: &Controller,
     camera: &ServiceNames,
     sequence_id: u32,
-    steps: &[Step],
+    steps: Lighting<'_>,
     exposure_us: u32,
     stop: impl Fn() -> bool,
     mut on_frame: impl for<'b> FnMut(usize, &'b FrameHeader, ArrayView2<'b, u16>),
@@ -326,7 +351,10 @@ pub fn capture_steps(
     // period: shorter than any step, which adds the trigger delay and the LED update.
     let tolerance = (period_ns / 3).max(1_000_000);
     let drain = FrameDrain::start(camera)?;
-    dev.upload_sequence(sequence_id, steps, timing)?;
+    match steps {
+        Lighting::Steps(s) => dev.upload_sequence(sequence_id, s, timing)?,
+        Lighting::Sets(s) => dev.upload_set_sequence(sequence_id, s, timing)?,
+    };
     let mut events = dev.subscribe()?;
     let start = Instant::now();
     dev.start_sequence(sequence_id)?;

@@ -19,7 +19,7 @@ use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
 use crate::acquisition::{Phase, Progress, Snapshot};
-use crate::capture::capture_steps;
+use crate::capture::{capture_steps, Lighting};
 use crate::controller::Controller;
 use crate::pipeline::{Control, Watcher};
 
@@ -223,7 +223,7 @@ pub fn live(
         dev,
         &plan.camera,
         id,
-        &steps,
+        Lighting::Steps(&steps),
         exposure_us,
         || control.is_cancelled(),
         |step, header: &FrameHeader, pixels| {

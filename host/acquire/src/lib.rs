@@ -26,6 +26,7 @@ pub mod dpc;
 pub mod journal;
 pub mod label;
 pub mod labeller;
+pub mod multiplexed;
 pub mod page;
 pub mod pipeline;
 pub mod stage;

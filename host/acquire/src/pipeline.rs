@@ -84,6 +84,11 @@ pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
     board_geometry::nominal(&dev.info().geometry)
 }
 
+/// The calibration stored on the board, if any (see [`stored_calibration`]).
+pub fn stored_board_calibration(dev: &Controller) -> Option<BoardCalibration> {
+    stored_calibration(dev)
+}
+
 /// Where the board's LEDs are: its stored calibration placing its grid, or the
 /// nominal grid when it stores none.
 pub fn board_geometry(dev: &Controller) -> LedGeometry {
@@ -196,6 +201,9 @@ pub fn acquire(
     watcher: impl Watcher,
     control: &Control,
 ) -> Result<AcquireSummary> {
+    if plan.multiplex > 1 {
+        return crate::multiplexed::acquire(dev, plan, watcher, control);
+    }
     run(dev, stage, plan, None, watcher, control)
 }
 
@@ -212,6 +220,12 @@ pub fn resume(
     control: &Control,
 ) -> Result<AcquireSummary> {
     let out = &plan.out;
+    if plan.multiplex > 1 {
+        bail!(
+            "{}: a multiplexed acquisition cannot be resumed (its frames are not journalled yet): acquire again",
+            out.display()
+        );
+    }
     crate::journal::recover(out)?;
     if !out.join("dataset.toml").is_file() {
         bail!(

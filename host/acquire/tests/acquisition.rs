@@ -214,6 +214,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         flatten: Flatten::Keep,
         snapshot_every: 0,
         leds: None,
+        multiplex: 1,
     };
     match slide {
         Some(s) => Plan {

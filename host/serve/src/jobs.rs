@@ -335,6 +335,10 @@ pub struct AcquireRequest {
     /// array, nearest the axis first.
     #[serde(default)]
     pub leds: Option<Vec<[u8; 2]>>,
+    /// LEDs lit together in each frame (1: one each; more: a multiplexed acquisition
+    /// through the controller's LED sets, from its stored calibration).
+    #[serde(default = "one_round")]
+    pub multiplex: usize,
 }
 
 /// A calibration on the rig: every field may be left out (`fpm acquire --calibrate`'s
@@ -412,6 +416,7 @@ impl CalibrateRequest {
             flatten_background: false,
             snapshot_every: 0,
             leds: None,
+            multiplex: 1,
         };
         Ok(Plan {
             capture: false,
@@ -628,6 +633,7 @@ impl SequenceRequest {
             flatten_background: false,
             snapshot_every: 0,
             leds: Some(self.leds.clone()),
+            multiplex: 1,
         }
     }
 }
@@ -730,6 +736,7 @@ impl AcquireRequest {
                 .leds
                 .as_ref()
                 .map(|l| l.iter().map(|&[r, c]| LedIndex::new(r, c)).collect()),
+            multiplex: self.multiplex,
         };
         // The system's own names, as the request names them.
         plan.validate().map_err(|e| {

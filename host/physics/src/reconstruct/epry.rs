@@ -563,8 +563,10 @@ impl Epry {
                 }
             }
         }
-        // Per-bin normalisation (Σ_j |P_j|² at each bin instead of its largest) was
-        // tried: 0.19 against 0.12 at k = 4, its small pupil-edge weights unstable.
+        // Tried instead (k = 4 / 8, 128², docs/results.md): per-bin Σ_j |P_j|² 0.19 /
+        // 0.24 (small weights at the pupil's edge), per bin floored at one wave's
+        // largest 0.136 / 0.276, one wave's largest alone 0.115 / 0.97 (diverged); this
+        // one 0.123 / 0.212.
         let a_step = self.step_scale * self.settings.alpha / pmax.max(1e-12);
         let b_step = self.step_scale * self.settings.beta / omax.max(1e-12);
         for (j, &learn) in learns.iter().enumerate() {

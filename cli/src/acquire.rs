@@ -60,13 +60,18 @@ pub struct AcquireArgs {
     /// the geometry it used. Give the optics it was acquired with.
     #[arg(long, conflicts_with = "calibrate")]
     pub resume: bool,
-    /// Light this many LEDs together in each frame (multiplexed illumination, about
-    /// that many times fewer frames): every LED once, bright and dark field apart,
-    /// LEDs of similar NA at random angles sharing a frame, through the controller's
-    /// LED sets (protocol 1.2). Uses the calibration stored on the board (calibrate
-    /// first with --calibrate --store-geometry); reconstructs once the frames are in.
+    /// Light this many dark-field LEDs together in each frame (multiplexed
+    /// illumination, about that many times fewer dark-field frames): every LED once,
+    /// bright and dark field apart, LEDs of similar NA at random angles sharing a
+    /// frame, through the controller's LED sets (protocol 1.2). Uses the calibration
+    /// stored on the board (calibrate first with --calibrate --store-geometry);
+    /// reconstructs once the frames are in.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     pub multiplex: u16,
+    /// Bright-field LEDs per frame (1: one at a time, the default: summed, their
+    /// overlapping windows cannot be told apart as well).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub multiplex_bright: u16,
     /// Reconstruct while the frames arrive (streaming EPRY).
     #[arg(long)]
     pub reconstruct: bool,
@@ -179,7 +184,10 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         flatten: a.flatten.flatten(),
         snapshot_every: 0,
         leds: None,
-        multiplex: a.multiplex.into(),
+        multiplex: fpm_physics::multiplex::Multiplex {
+            dark_field: a.multiplex.into(),
+            bright_field: a.multiplex_bright.into(),
+        },
     };
     let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");

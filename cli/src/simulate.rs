@@ -137,13 +137,17 @@ pub struct AcquisitionArgs {
     /// absorbing).
     #[arg(long, value_enum, default_value_t = Sample::Cells)]
     sample: Sample,
-    /// Light this many LEDs together in each frame (multiplexed illumination): every
-    /// LED once, bright and dark field apart, LEDs of similar NA at random angles
-    /// sharing a frame; each frame exposed for the sum of its LEDs' single-LED
-    /// exposures, or less where that would saturate. The dataset lists each frame's
-    /// LEDs (`leds = [...]`).
+    /// Light this many dark-field LEDs together in each frame (multiplexed
+    /// illumination): every LED once, bright and dark field apart, LEDs of similar NA
+    /// at random angles sharing a frame; each frame exposed for the sum of its LEDs'
+    /// single-LED exposures, or less where that would saturate. The dataset lists each
+    /// frame's LEDs (`leds = [...]`).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
     multiplex: u16,
+    /// Bright-field LEDs per frame (1: one at a time, the default: summed, their
+    /// overlapping windows cannot be told apart as well).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    multiplex_bright: u16,
 }
 
 /// `--sample`.
@@ -247,7 +251,10 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         entrance_pupil_mm: a.entrance_pupil_mm,
         display_gamma: a.display_gamma,
         sample: a.sample.into(),
-        multiplex: a.multiplex.into(),
+        multiplex: fpm_physics::multiplex::Multiplex {
+            dark_field: a.multiplex.into(),
+            bright_field: a.multiplex_bright.into(),
+        },
     };
     let bar = indicatif::ProgressBar::new_spinner()
         .with_message(format!("rendering {} frames", s.scene().truth.leds().len()));

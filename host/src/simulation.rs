@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use fpm_physics::multiplex::Multiplex;
 use fpm_physics::simulate::{
     acquire_from, acquire_sets, CalibrationScene, Camera, ObjectField, SampleKind, SimFrame,
 };
@@ -192,11 +193,11 @@ pub struct AcquisitionSet {
     pub display_gamma: Option<f64>,
     /// What the sample is made of.
     pub sample: SampleKind,
-    /// LEDs lit together in each frame (1: one LED per frame;
-    /// [`fpm_physics::multiplex::sets`] chooses them). Each frame is exposed for the
+    /// LEDs lit together in each frame, dark field and bright field
+    /// ([`fpm_physics::multiplex::sets`] chooses them). Each frame is exposed for the
     /// sum of its LEDs' single-LED exposures, or less where the sum would saturate: the
     /// scan never takes more exposure time than the one-LED scan.
-    pub multiplex: usize,
+    pub multiplex: Multiplex,
 }
 
 impl Default for AcquisitionSet {
@@ -208,7 +209,7 @@ impl Default for AcquisitionSet {
             entrance_pupil_mm: None,
             display_gamma: None,
             sample: SampleKind::Cells,
-            multiplex: 1,
+            multiplex: Multiplex::ONE,
         }
     }
 }
@@ -306,12 +307,9 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         set.sample,
     );
     let truth = scene.truth;
-    if !(1..=MAX_MULTIPLEX).contains(&set.multiplex) {
-        anyhow::bail!(
-            "multiplex {}: light 1 to {MAX_MULTIPLEX} LEDs per frame",
-            set.multiplex
-        );
-    }
+    set.multiplex
+        .check(MAX_MULTIPLEX)
+        .map_err(anyhow::Error::msg)?;
     let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;
     let board = |led| {
         positions
@@ -324,7 +322,7 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         Some(peak) => camera.dim_dark_field_exposure(img, peak),
         None => camera.auto_exposure(img),
     };
-    let frames = if set.multiplex == 1 {
+    let frames = if set.multiplex.is_one() {
         let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
         acquire_from(
             &system, &board, &object, &shots, &camera, single, scene.seed,

@@ -69,10 +69,11 @@ fn loaded<'py>(
 /// returns (Dataset, truth dict). `entrance_pupil_mm`: image through an objective
 /// that is not telecentric (the dataset cannot state it; the truth does). `sample`:
 /// "cells" (absorbing and phase cells with bar groups), "weak-phase" (unstained
-/// cells) or "stained" (dense, strongly absorbing). `multiplex`: LEDs lit together in
-/// each frame (`fpm simulate acquisition --multiplex`).
+/// cells) or "stained" (dense, strongly absorbing). `multiplex`, `multiplex_bright`:
+/// dark-field and bright-field LEDs lit together in each frame (`fpm simulate
+/// acquisition --multiplex --multiplex-bright`).
 #[pyfunction]
-#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None, sample = "cells", multiplex = 1))]
+#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, upsample = 2, dark_field_peak_dn = None, led_jitter_mm = 0.0, entrance_pupil_mm = None, display_gamma = None, sample = "cells", multiplex = 1, multiplex_bright = 1))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn simulate_acquisition<'py>(
     py: Python<'py>,
@@ -93,6 +94,7 @@ pub fn simulate_acquisition<'py>(
     display_gamma: Option<f64>,
     sample: &str,
     multiplex: usize,
+    multiplex_bright: usize,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
     let sample: SampleKind = serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
@@ -120,7 +122,10 @@ pub fn simulate_acquisition<'py>(
         entrance_pupil_mm,
         display_gamma,
         sample,
-        multiplex,
+        multiplex: fpm_physics::multiplex::Multiplex {
+            dark_field: multiplex,
+            bright_field: multiplex_bright,
+        },
     };
     let written = py
         .detach(|| simulation::write_acquisition(&scene, &set, &out))

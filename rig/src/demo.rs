@@ -317,7 +317,7 @@ fn plan(demo: &Demo, rig: &str, out: &Path) -> Plan {
         flatten: Flatten::Auto,
         snapshot_every: 0,
         leds: None,
-        multiplex: 1,
+        multiplex: fpm_physics::multiplex::Multiplex::ONE,
     }
 }
 

@@ -609,13 +609,13 @@ fn a_live_acquisition_through_a_non_telecentric_objective_states_its_pupil() {
     );
 }
 
-/// `fpm acquire --multiplex 4` on the virtual rig: the controller's LED sets (protocol
+/// `fpm acquire --multiplex 4` and `8` on the virtual rig: the controller's LED sets (protocol
 /// 1.2) light every LED once, four at a time, the virtual camera renders each frame as
 /// the sum of its LEDs' intensities, and the dataset lists each frame's LEDs; it
 /// reconstructs against the hidden sample near the one-LED acquisition of the same
-/// rig, from a quarter of the frames.
+/// rig, from a third (K = 4) or a fifth (K = 8) of the frames.
 #[test]
-fn a_multiplexed_acquisition_lights_every_led_once_in_a_quarter_of_the_frames() {
+fn a_multiplexed_acquisition_lights_every_led_once_in_a_third_of_the_frames_or_fewer() {
     let id = format!("acq-mux-{}", std::process::id());
     let dir = TempDir::new("acquire-mux");
     let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
@@ -640,7 +640,7 @@ fn a_multiplexed_acquisition_lights_every_led_once_in_a_quarter_of_the_frames() 
         String::from_utf8_lossy(&set.stderr)
     );
     let mut scores = vec![];
-    for k in ["1", "4"] {
+    for k in ["1", "4", "8"] {
         let out = dir.0.join(format!("k{k}"));
         let started = std::time::Instant::now();
         let run = acquire_command(&emu, &id, &out)
@@ -675,9 +675,16 @@ fn a_multiplexed_acquisition_lights_every_led_once_in_a_quarter_of_the_frames() 
         assert_eq!(report["geometry_source"], "board");
         scores.push((ds.frames.len(), nrmse));
     }
+    // The bright field one LED at a time, the dark field K at a time: 144 and 95.
     assert_eq!(scores[0].0, 441);
-    assert!(scores[1].0 <= 441 / 4 + 4, "{scores:?}");
-    // Measured 0.166 (one LED per frame, streamed) and 0.304 (1.83x; the simulator's
-    // 64² set: 1.35x); the run 3.5x faster (11.2 s against 3.2 s). docs/results.md.
-    assert!(scores[1].1 <= 2.2 * scores[0].1, "{scores:?}");
+    assert!(
+        scores[1].0 <= 441 / 3 && scores[2].0 <= 441 / 4,
+        "{scores:?}"
+    );
+    // Measured 0.166 (one LED per frame, streamed), 0.236 (K = 4, 1.42x) and 0.211
+    // (K = 8, 1.27x; the simulator's 64² sets: 1.35x, 1.17x; at 128² 0.90x, 0.98x);
+    // the runs 11.1, 4.0 and 2.6 s. docs/results.md.
+    for &(frames, nrmse) in &scores[1..] {
+        assert!(nrmse <= 1.5 * scores[0].1, "{frames} frames: {scores:?}");
+    }
 }

@@ -40,10 +40,15 @@ fn multiplexed_frames_reconstruct_near_the_single_led_scan_and_ignoring_their_ot
 {
     let tmp = TempDir::new("multiplex");
     let mut scores = vec![];
-    for k in ["1", "2", "4"] {
+    for k in ["1", "4", "8"] {
         let data = tmp.0.join(format!("k{k}"));
         simulate_centred(&data, "128", "1", &["--multiplex", k]);
-        let frames = Dataset::load(&data).unwrap().frames.len();
+        let ds = Dataset::load(&data).unwrap();
+        let frames = ds.frames.len();
+        let lit: usize = ds.frames.iter().map(|f| f.entry.leds().count()).sum();
+        assert_eq!(lit, 441, "every LED once");
+        let widest = ds.frames.iter().map(|f| f.entry.leds().count()).max();
+        assert_eq!(widest, Some(k.parse().unwrap()));
         let score = nrmse(&data, &tmp.0.join(format!("r{k}")));
         eprintln!(
             "k = {k}: {frames} frames, {:.0} ms exposure in all, complex NRMSE {score:.4}",
@@ -56,9 +61,10 @@ fn multiplexed_frames_reconstruct_near_the_single_led_scan_and_ignoring_their_ot
         total_exposure_ms(&tmp.0.join("k4")) <= total_exposure_ms(&tmp.0.join("k1")),
         "the multiplexed scan may not take more exposure than the single-LED one"
     );
-    // Measured 0.085 (one LED), 0.083 (k = 2), 0.123 (k = 4): docs/results.md.
-    assert!(scores[1] <= 1.15 * single, "k = 2: {scores:?}");
-    assert!(scores[2] <= 1.6 * single, "k = 4: {scores:?}");
+    // Measured 0.085 (one LED, 441 frames), 0.076 (K = 4, 144 frames), 0.083 (K = 8,
+    // 95 frames): docs/results.md. The goal: within 1.3x.
+    assert!(scores[1] <= 1.3 * single, "K = 4: {scores:?}");
+    assert!(scores[2] <= 1.3 * single, "K = 8: {scores:?}");
 
     // The same frames read as if only their first LED had lit them.
     let data = tmp.0.join("k4");
@@ -75,8 +81,8 @@ fn multiplexed_frames_reconstruct_near_the_single_led_scan_and_ignoring_their_ot
     }
     let wrong = nrmse(&first_only, &tmp.0.join("r-first-only"));
     eprintln!("k = 4 read as one LED per frame: complex NRMSE {wrong:.4}");
-    // Measured 0.242, 1.97x.
-    assert!(wrong > 1.5 * scores[2], "{wrong} vs {}", scores[2]);
+    // Measured 0.115, 1.51x.
+    assert!(wrong > 1.3 * scores[1], "{wrong} vs {}", scores[1]);
 }
 
 #[test]
@@ -118,8 +124,12 @@ fn a_frame_lit_by_several_leds_is_read_back_and_refused_where_one_led_is_needed(
     ] {
         let mut t = format!("{}{}{}", &text[..first], broken, &text[line_end..]);
         if broken.contains("defocus_um = 50.0") {
-            // Only the first frame's in-focus line goes.
-            t = t.replacen("defocus_um = 0.0\n", "", 1);
+            // That frame's own in-focus line goes.
+            t = t.replacen(
+                "defocus_um = 50.0\ndefocus_um = 0.0\n",
+                "defocus_um = 50.0\n",
+                1,
+            );
         }
         std::fs::write(data.join("dataset.toml"), &t).unwrap();
         let err = Dataset::load(&data).unwrap_err().to_string();

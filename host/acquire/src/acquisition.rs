@@ -77,9 +77,10 @@ pub struct Plan {
     /// Light only these LEDs, in this order (a raw sequence); None: every LED of the
     /// array, nearest the axis first.
     pub leds: Option<Vec<LedIndex>>,
-    /// LEDs lit together in each frame (1: one LED per frame; more: a multiplexed
-    /// acquisition, [`crate::multiplexed`], through the controller's LED sets).
-    pub multiplex: usize,
+    /// LEDs lit together in each frame, dark field and bright field (one each: one
+    /// LED per frame; more: a multiplexed acquisition, [`crate::multiplexed`], through
+    /// the controller's LED sets).
+    pub multiplex: fpm_physics::multiplex::Multiplex,
 }
 
 /// What an acquisition does when nothing else is said: `fpm acquire`'s flags and the
@@ -126,19 +127,15 @@ impl Plan {
                 bail!("leds: LED [{}, {}] twice", twice.row, twice.col);
             }
         }
-        let max = crate::multiplexed::MAX_MULTIPLEX;
-        if !(1..=max).contains(&self.multiplex) {
-            bail!(
-                "multiplex {}: light 1 to {max} LEDs per frame",
-                self.multiplex
-            );
-        }
-        if self.multiplex > 1 {
+        self.multiplex
+            .check(crate::multiplexed::MAX_MULTIPLEX)
+            .map_err(anyhow::Error::msg)?;
+        if !self.multiplex.is_one() {
             if self.calibrate {
-                bail!("multiplex {} with calibrate: a calibration takes one LED per frame; calibrate first and store it on the board (calibrate with store_geometry), then acquire multiplexed from it", self.multiplex);
+                bail!("multiplex with calibrate: a calibration takes one LED per frame; calibrate first and store it on the board (calibrate with store_geometry), then acquire multiplexed from it");
             }
             if self.leds.is_some() {
-                bail!("multiplex {} with leds: a multiplexed acquisition lights every LED, in sets it chooses", self.multiplex);
+                bail!("multiplex with leds: a multiplexed acquisition lights every LED, in sets it chooses");
             }
         }
         if !self.capture && self.reconstruct {

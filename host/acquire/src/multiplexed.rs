@@ -1,7 +1,8 @@
-//! A multiplexed acquisition (`fpm acquire --multiplex K`): every LED lit once, K at a
-//! time, in the sets [`fpm_physics::multiplex::sets`] chooses, through the controller's
-//! LED set table (protocol ≥ 1.2) — about K times fewer frames than one LED each
-//! (Tian et al. 2014). The dataset lists each frame's LEDs (`leds = [...]`); the
+//! A multiplexed acquisition (`fpm acquire --multiplex K`): every LED lit once, K
+//! dark-field LEDs at a time (the bright field as `--multiplex-bright` says, one by
+//! default), in the sets [`fpm_physics::multiplex::sets`] chooses, through the
+//! controller's LED set table (protocol ≥ 1.2) — about K times fewer dark-field frames
+//! than one LED each (Tian et al. 2014). The dataset lists each frame's LEDs (`leds = [...]`); the
 //! reconstruction runs once the frames are in (the streaming one takes one LED per
 //! frame).
 

@@ -201,7 +201,7 @@ pub fn acquire(
     watcher: impl Watcher,
     control: &Control,
 ) -> Result<AcquireSummary> {
-    if plan.multiplex > 1 {
+    if !plan.multiplex.is_one() {
         return crate::multiplexed::acquire(dev, plan, watcher, control);
     }
     run(dev, stage, plan, None, watcher, control)
@@ -220,7 +220,7 @@ pub fn resume(
     control: &Control,
 ) -> Result<AcquireSummary> {
     let out = &plan.out;
-    if plan.multiplex > 1 {
+    if !plan.multiplex.is_one() {
         bail!(
             "{}: a multiplexed acquisition cannot be resumed (its frames are not journalled yet): acquire again",
             out.display()

@@ -214,7 +214,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         flatten: Flatten::Keep,
         snapshot_every: 0,
         leds: None,
-        multiplex: 1,
+        multiplex: fpm_physics::multiplex::Multiplex::ONE,
     };
     match slide {
         Some(s) => Plan {

@@ -335,10 +335,13 @@ pub struct AcquireRequest {
     /// array, nearest the axis first.
     #[serde(default)]
     pub leds: Option<Vec<[u8; 2]>>,
-    /// LEDs lit together in each frame (1: one each; more: a multiplexed acquisition
-    /// through the controller's LED sets, from its stored calibration).
+    /// Dark-field LEDs lit together in each frame (1: one each; more: a multiplexed
+    /// acquisition through the controller's LED sets, from its stored calibration).
     #[serde(default = "one_round")]
     pub multiplex: usize,
+    /// Bright-field LEDs lit together in each frame (default 1).
+    #[serde(default = "one_round")]
+    pub multiplex_bright: usize,
 }
 
 /// A calibration on the rig: every field may be left out (`fpm acquire --calibrate`'s
@@ -417,6 +420,7 @@ impl CalibrateRequest {
             snapshot_every: 0,
             leds: None,
             multiplex: 1,
+            multiplex_bright: 1,
         };
         Ok(Plan {
             capture: false,
@@ -634,6 +638,7 @@ impl SequenceRequest {
             snapshot_every: 0,
             leds: Some(self.leds.clone()),
             multiplex: 1,
+            multiplex_bright: 1,
         }
     }
 }
@@ -736,7 +741,10 @@ impl AcquireRequest {
                 .leds
                 .as_ref()
                 .map(|l| l.iter().map(|&[r, c]| LedIndex::new(r, c)).collect()),
-            multiplex: self.multiplex,
+            multiplex: fpm_physics::multiplex::Multiplex {
+                dark_field: self.multiplex,
+                bright_field: self.multiplex_bright,
+            },
         };
         // The system's own names, as the request names them.
         plan.validate().map_err(|e| {

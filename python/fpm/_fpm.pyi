@@ -76,7 +76,11 @@ class Dataset:
         """The LED array as the dataset states it: rows, cols, pitch_mm, height_mm,
         center, dx_mm, dy_mm, theta_deg, tilt_x_deg, tilt_y_deg."""
     @property
-    def leds(self) -> list[Led]: ...
+    def leds(self) -> list[Led]:
+        """Each frame's LED (a multiplexed frame's first)."""
+    @property
+    def frame_leds(self) -> list[list[Led]]:
+        """Every LED lit for each frame (several for a multiplexed dataset)."""
     @property
     def led_positions_mm(self) -> list[tuple[float, float, float]]:
         """Each frame's LED as the dataset places it: (x, y, z) mm, z its distance
@@ -256,8 +260,13 @@ def simulate_acquisition(
     entrance_pupil_mm: Optional[float] = None,
     display_gamma: Optional[float] = None,
     sample: str = "cells",
+    multiplex: int = 1,
+    multiplex_bright: int = 1,
 ) -> Tuple[Dataset, dict[str, Json]]:
     """A full simulated acquisition written into `out`: (dataset, truth).
+
+    `multiplex`, `multiplex_bright`: dark-field and bright-field LEDs lit together in
+    each frame (`fpm simulate acquisition --multiplex --multiplex-bright`).
 
     `sample`: "cells" (absorbing and phase cells with bar groups), "weak-phase"
     (unstained cells) or "stained" (dense, strongly absorbing cells).

@@ -223,13 +223,25 @@ impl Dataset {
         to_py(py, &self.inner.manifest.geometry())
     }
 
-    /// The LED (row, col) lit for each frame.
+    /// The LED (row, col) lit for each frame (a multiplexed frame's first; all of
+    /// them: `frame_leds`).
     #[getter]
     fn leds(&self) -> Vec<(u8, u8)> {
         self.inner
             .frames
             .iter()
             .map(|f| (f.entry.led.row, f.entry.led.col))
+            .collect()
+    }
+
+    /// Every LED (row, col) lit for each frame: one for most datasets, several for a
+    /// multiplexed one (`leds = [...]` in dataset.toml).
+    #[getter]
+    fn frame_leds(&self) -> Vec<Vec<(u8, u8)>> {
+        self.inner
+            .frames
+            .iter()
+            .map(|f| f.entry.leds().map(|l| (l.row, l.col)).collect())
             .collect()
     }
 

@@ -348,22 +348,9 @@ impl Controller {
         steps: &[Step],
         timing: SequenceTiming,
     ) -> Result<StepsLoaded> {
-        self.define_sequence(id, steps.len(), timing)?;
-        let per_chunk = self.steps_per_chunk();
-        let mut loaded = StepsLoaded {
-            loaded: 0,
-            total: steps.len() as u16,
-        };
-        for (k, chunk) in steps.chunks(per_chunk).enumerate() {
-            let req = StepChunk {
-                id,
-                offset: (k * per_chunk) as u16,
-                steps: heapless::Vec::from_slice(chunk)
-                    .map_err(|_| ControllerError::Invalid("step chunk too long".into()))?,
-            };
-            loaded = self.checked::<SequenceStepsEndpoint, _>(&req)?;
-        }
-        Ok(loaded)
+        self.upload_chunks(id, steps, timing, |offset, steps| {
+            self.checked::<SequenceStepsEndpoint, _>(&StepChunk { id, offset, steps })
+        })
     }
 
     /// Fill the LED set table with `sets`, in order (protocol ≥ 1.2): what
@@ -406,43 +393,44 @@ impl Controller {
         timing: SequenceTiming,
     ) -> Result<StepsLoaded> {
         self.require(PROTOCOL_1_2, SequenceSetStepsEndpoint::PATH)?;
-        self.define_sequence(id, steps.len(), timing)?;
-        let per_chunk = self.steps_per_chunk();
+        self.upload_chunks(id, steps, timing, |offset, steps| {
+            self.checked::<SequenceSetStepsEndpoint, _>(&SetStepChunk { id, offset, steps })
+        })
+    }
+
+    /// Define sequence `id` of `steps` and send them in chunks of what the device
+    /// takes, each with `send(offset, chunk)`. Returns the final load state.
+    fn upload_chunks<T: Clone>(
+        &self,
+        id: u32,
+        steps: &[T],
+        timing: SequenceTiming,
+        send: impl Fn(u16, heapless::Vec<T, { limits::MAX_STEPS_PER_CHUNK }>) -> Result<StepsLoaded>,
+    ) -> Result<StepsLoaded> {
+        let max = self.info.limits.max_sequence_steps as usize;
+        if steps.len() > max || steps.is_empty() {
+            return Err(ControllerError::Invalid(format!(
+                "a sequence needs 1 to {max} steps, this one has {}",
+                steps.len()
+            )));
+        }
+        self.checked::<SequenceDefineEndpoint, _>(&SequenceDefine {
+            id,
+            steps: steps.len() as u16,
+            timing,
+        })?;
+        let per_chunk =
+            (self.info.limits.max_steps_per_chunk as usize).clamp(1, limits::MAX_STEPS_PER_CHUNK);
         let mut loaded = StepsLoaded {
             loaded: 0,
             total: steps.len() as u16,
         };
         for (k, chunk) in steps.chunks(per_chunk).enumerate() {
-            let req = SetStepChunk {
-                id,
-                offset: (k * per_chunk) as u16,
-                steps: heapless::Vec::from_slice(chunk)
-                    .map_err(|_| ControllerError::Invalid("step chunk too long".into()))?,
-            };
-            loaded = self.checked::<SequenceSetStepsEndpoint, _>(&req)?;
+            let chunk = heapless::Vec::from_slice(chunk)
+                .map_err(|_| ControllerError::Invalid("step chunk too long".into()))?;
+            loaded = send((k * per_chunk) as u16, chunk)?;
         }
         Ok(loaded)
-    }
-
-    /// Announce sequence `id` of `steps` steps.
-    fn define_sequence(&self, id: u32, steps: usize, timing: SequenceTiming) -> Result<()> {
-        let max = self.info.limits.max_sequence_steps as usize;
-        if steps > max || steps == 0 {
-            return Err(ControllerError::Invalid(format!(
-                "a sequence needs 1 to {max} steps, this one has {steps}"
-            )));
-        }
-        self.checked::<SequenceDefineEndpoint, _>(&SequenceDefine {
-            id,
-            steps: steps as u16,
-            timing,
-        })?;
-        Ok(())
-    }
-
-    /// Steps per upload chunk: the device's limit within the protocol's.
-    fn steps_per_chunk(&self) -> usize {
-        (self.info.limits.max_steps_per_chunk as usize).clamp(1, limits::MAX_STEPS_PER_CHUNK)
     }
 
     /// Start the uploaded sequence.

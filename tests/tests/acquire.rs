@@ -29,6 +29,23 @@ const ON_AXIS_AT_92_MM: [&str; 8] = [
     "92",
 ];
 
+/// Store a board calibration (`fpm device geometry --set`, JSON `placement`) on the
+/// controller, as an earlier calibration would have.
+fn store_on_board(emu: &Emulator, dir: &Path, placement: &str) {
+    let calibration = dir.join("board-calibration.json");
+    std::fs::write(&calibration, placement).unwrap();
+    let set = Command::new(fpm_bin())
+        .args(["device", "--port", &emu.port(), "geometry", "--set"])
+        .arg(&calibration)
+        .output()
+        .unwrap();
+    assert!(
+        set.status.success(),
+        "{}",
+        String::from_utf8_lossy(&set.stderr)
+    );
+}
+
 fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> VirtualCameraProcess {
     let mut args = vec!["--readout-ms", "1"];
     args.extend(extra);
@@ -64,21 +81,10 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
     );
     // The board was calibrated earlier and remembers it (`fpm device geometry --set`):
     // the acquisition starts from that geometry without being told.
-    let calibration = dir.0.join("board-calibration.json");
-    std::fs::write(
-        &calibration,
+    store_on_board(
+        &emu,
+        &dir.0,
         r#"{"dx_mm": 1.3, "dy_mm": -0.7, "theta_deg": 3.0, "height_mm": 90.0}"#,
-    )
-    .unwrap();
-    let set = Command::new(fpm_bin())
-        .args(["device", "--port", &emu.port(), "geometry", "--set"])
-        .arg(&calibration)
-        .output()
-        .unwrap();
-    assert!(
-        set.status.success(),
-        "{}",
-        String::from_utf8_lossy(&set.stderr)
     );
     let out = dir.0.join("data");
     let run = acquire_command(&emu, &id, &out).output().unwrap();
@@ -623,21 +629,10 @@ fn a_multiplexed_acquisition_lights_every_led_once_in_a_third_of_the_frames_or_f
     let mut extra = ON_AXIS_AT_92_MM.to_vec();
     extra.extend(["--size", "64"]);
     let _cam = camera(&id, &truth_dir, &extra);
-    let calibration = dir.0.join("board-calibration.json");
-    std::fs::write(
-        &calibration,
+    store_on_board(
+        &emu,
+        &dir.0,
         r#"{"dx_mm": 0.0, "dy_mm": 0.0, "theta_deg": 0.0, "height_mm": 92.0}"#,
-    )
-    .unwrap();
-    let set = Command::new(fpm_bin())
-        .args(["device", "--port", &emu.port(), "geometry", "--set"])
-        .arg(&calibration)
-        .output()
-        .unwrap();
-    assert!(
-        set.status.success(),
-        "{}",
-        String::from_utf8_lossy(&set.stderr)
     );
     let mut scores = vec![];
     for k in ["1", "4", "8"] {

@@ -69,7 +69,6 @@ fn parse_roi(s: &str) -> Result<Roi, String> {
 
 /// Run `fpm calibrate`.
 pub fn run(a: CalibrateArgs) -> Result<()> {
-    let ds = Dataset::load(&a.dir)?;
     let options = Options {
         roi: a.roi,
         bias_correction: !a.no_bias_correction,
@@ -77,6 +76,10 @@ pub fn run(a: CalibrateArgs) -> Result<()> {
         fit_tilt: !a.no_tilt,
         ..Options::default()
     };
+    if fpm_host::color::is_color(&a.dir) {
+        return color(&a, &options);
+    }
+    let ds = Dataset::load(&a.dir)?;
     let file = calibrate_dataset(&ds, &options)?;
     let c = &file.calibration;
     let out = a.out.unwrap_or_else(|| a.dir.join("calibration.json"));
@@ -197,4 +200,57 @@ fn write_page(
         outputs,
     };
     fpm_report::pages::calibration::write(&context, page)
+}
+
+/// Calibrate a colour calibration set: each channel as its own set (its
+/// calibration.json and report beside its frames, as `fpm calibrate CHANNEL_DIR`
+/// writes them), and one colour calibration.json holding them all with the dies'
+/// offsets they imply.
+fn color(a: &CalibrateArgs, options: &Options) -> Result<()> {
+    use fpm_host::color::{ColorCalibration, ColorDataset};
+    if a.plot.is_some() {
+        anyhow::bail!("--plot: a colour set writes each channel's chart into its own report (CHANNEL/calibration.html)");
+    }
+    let ds = ColorDataset::open(&a.dir)?;
+    let cal = ColorCalibration::calibrate(&ds, options)?;
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| a.dir.join("calibration.json"));
+    let json = serde_json::to_string_pretty(&cal.to_json()?)?;
+    std::fs::write(&out, &json)?;
+    for ((name, file), channel) in cal.channels.iter().zip(&ds.channels) {
+        let own = channel.dir.join("calibration.json");
+        std::fs::write(&own, serde_json::to_string_pretty(file)?)?;
+        if let Ok(data) = Dataset::load(&channel.dir) {
+            let page = own.with_extension("html");
+            if let Err(e) = write_page(file, &data, options, &own, None, &page) {
+                tracing::warn!("no HTML report for channel {name}: {e:#}");
+            }
+        }
+    }
+    if a.json {
+        println!("{json}");
+    } else {
+        for ((name, file), die) in cal.channels.iter().zip(&cal.die_offsets) {
+            println!("{name}:");
+            print_calibration(file, a.no_tilt);
+            if *name != cal.reference {
+                println!(
+                    "  its dies sit ({:+.3}, {:+.3}) ± {:.3} mm from the {} dies (board axes)",
+                    die.offset_mm[0], die.offset_mm[1], die.sigma_mm[0], cal.reference
+                );
+            }
+        }
+        println!(
+            "wrote {} (give it to `fpm reconstruct --calibration` with the colour acquisition)",
+            out.display()
+        );
+    }
+    for (name, file) in &cal.channels {
+        for w in warnings(&file.calibration) {
+            eprintln!("warning: {name}: {w}");
+        }
+    }
+    Ok(())
 }

@@ -302,6 +302,9 @@ impl ReconstructArgs {
 
 /// Reconstruct the dataset in `dir` into `out` and print what it did.
 fn one(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
+    if fpm_host::color::is_color(dir) {
+        return color(a, dir, out);
+    }
     let gamma_bar = crate::progress::counter(
         &format!("reading the camera gamma of {}", dir.display()),
         "candidates",
@@ -435,4 +438,108 @@ fn print_refined(r: &fpm_host::refinement::RefinedLedsReport, out: &Path) {
             out.join(fpm_host::refinement::BOARD_FILE).display()
         );
     }
+}
+
+/// Reconstruct a colour dataset: every channel into `out/<name>/` as `fpm reconstruct`
+/// of its dataset would, then the registered colour images, preview and report into
+/// `out`.
+fn color(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
+    use fpm_host::color::{self, ColorDataset, ColorGeometry};
+    let ds = ColorDataset::open(dir)?;
+    let geometry = match &a.calibration {
+        Some(path) => ColorGeometry::File(path.clone()),
+        None => ColorGeometry::Nominal,
+    };
+    let bar = crate::progress::counter(
+        &format!("reconstructing {}", dir.display()),
+        "frame updates",
+    );
+    let current = std::sync::Mutex::new(String::new());
+    let run = color::reconstruct(&ds, &a.job(), &geometry, &|name, event| {
+        if let Ok(mut c) = current.lock() {
+            if *c != name {
+                *c = name.to_string();
+                bar.reset();
+                bar.set_message(format!("reconstructing {} ({name})", dir.display()));
+            }
+        }
+        match event {
+            JobEvent::Updates { done, total } => crate::progress::advance(&bar, done, total),
+            JobEvent::FromDisk { bytes } => eprintln!(
+                "{name}: the frames take {:.1} GB, over --frame-memory-gb {}: reading them from disk band by band",
+                bytes as f64 / 1e9,
+                a.frame_memory_gb
+            ),
+            JobEvent::WeighingEdgeHeight { stated_mm, edge_mm } => eprintln!(
+                "{name}: the bright/dark-field edge puts the LEDs at {edge_mm:.1} mm, not the dataset's {stated_mm:.1} mm: reconstructing at it too"
+            ),
+            JobEvent::GammaCandidates { .. } => {}
+        }
+    })?;
+    bar.finish_and_clear();
+    let command = fpm_report::html::command_line();
+    for c in &run.channels {
+        let written = fpm_report::reconstruction::write(
+            &c.finished,
+            &out.join(&c.name),
+            a.output(),
+            &command,
+        )?;
+        if let Err(e) = &written.page {
+            tracing::warn!("no HTML report for channel {}: {e:#}", c.name);
+        }
+    }
+    color::write_outputs(&run, out, a.output())?;
+    let page = fpm_report::color::write_page(&run.report, out, &command);
+    let report = &run.report;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    } else {
+        println!(
+            "{} channels, registered to {}, LEDs placed by {}:",
+            report.channels.len(),
+            report.reference,
+            report.geometry
+        );
+        for c in &report.channels {
+            let truth = c.versus_truth.map_or(String::new(), |s| {
+                format!(", complex NRMSE {:.3} against its truth", s.complex_nrmse)
+            });
+            let shift = c
+                .shift_um
+                .map_or("not registered (no texture)".to_string(), |[x, y]| {
+                    format!("shifted ({x:+.2}, {y:+.2}) µm")
+                });
+            println!(
+                "  {} ({:.1} nm): final error {:.4}, {shift}{truth} ({}/)",
+                c.name,
+                c.wavelength_um * 1e3,
+                c.final_error.unwrap_or(f64::NAN),
+                out.join(&c.output).display()
+            );
+        }
+        println!(
+            "wrote amplitude/phase OME-TIFFs with one channel per wavelength (or {}), {} (sRGB, white-balanced on the clear background) and report.json to {}",
+            fpm_host::reconstruction::ZARR_NAME,
+            color::PREVIEW_NAME,
+            out.display()
+        );
+        if let Ok(page) = &page {
+            println!(
+                "wrote {} (the report: open it in a browser)",
+                page.display()
+            );
+        }
+    }
+    for w in report
+        .warnings
+        .iter()
+        .chain(report.channels.iter().flat_map(|c| c.warnings.iter()))
+    {
+        eprintln!("warning: {}", w.message);
+    }
+    if let Err(e) = page {
+        tracing::warn!("no HTML report: {e:#}");
+    }
+    Ok(())
 }

@@ -68,6 +68,157 @@ pub struct SceneArgs {
     /// text.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    color: ColorArgs,
+}
+
+/// Colour: a scan per LED colour.
+#[derive(Args, Debug, Clone)]
+pub struct ColorArgs {
+    /// Simulate a colour acquisition: a whole scan per colour, written as a colour
+    /// dataset (OUT/dataset.toml joining OUT/<colour>/). Colours: red, green, blue (the
+    /// WS2812B's 622.5, 523.5, 466 nm, FWHM 18, 33, 25 nm, dies 0.7 mm apart along the
+    /// board's x, focal shift +4/0/-4 µm), each optionally NAME:WAVELENGTH_UM
+    #[arg(long, value_delimiter = ',', value_name = "COLOUR[:UM]")]
+    colors: Vec<String>,
+    /// With --colors: where a colour's die sits in the LED package, board x,y in mm
+    /// (repeat per colour, e.g. red=-0.8,0); `--die-offset-mm all=0,0` puts every die
+    /// at the package's centre
+    #[arg(long, value_name = "COLOUR=X,Y", allow_hyphen_values = true)]
+    die_offset_mm: Vec<String>,
+    /// With --colors: the objective's focal shift at a colour, µm (repeat, e.g.
+    /// blue=-6)
+    #[arg(long, value_name = "COLOUR=UM", allow_hyphen_values = true)]
+    focal_shift_um: Vec<String>,
+    /// With --colors: wavelengths rendered per colour for its LED's spectrum (1: the
+    /// centre line only)
+    #[arg(long, default_value_t = 5)]
+    spectral_samples: usize,
+}
+
+impl ColorArgs {
+    /// The colour set asked for, if any.
+    fn color_set(&self) -> Result<Option<simulation::ColorSet>> {
+        if self.colors.is_empty() {
+            if !self.die_offset_mm.is_empty() || !self.focal_shift_um.is_empty() {
+                anyhow::bail!("--die-offset-mm and --focal-shift-um apply with --colors");
+            }
+            return Ok(None);
+        }
+        let mut channels = vec![];
+        for item in &self.colors {
+            let (name, wavelength) = match item.split_once(':') {
+                Some((n, w)) => (n.trim(), Some(w.trim())),
+                None => (item.trim(), None),
+            };
+            let mut channel = fpm_physics::color::ws2812b_channel(name).ok_or_else(|| {
+                anyhow::anyhow!("--colors {item}: {name:?} is not red, green or blue")
+            })?;
+            if let Some(w) = wavelength {
+                channel.wavelength_um = w.parse().map_err(|_| {
+                    anyhow::anyhow!("--colors {item}: {w:?} is not a wavelength in µm")
+                })?;
+            }
+            if channels
+                .iter()
+                .any(|c: &fpm_physics::color::Channel| c.name == channel.name)
+            {
+                anyhow::bail!("--colors: {} is given twice", channel.name);
+            }
+            channels.push(channel);
+        }
+        let mut set_per =
+            |flag: &str,
+             items: &[String],
+             apply: &mut dyn FnMut(&mut fpm_physics::color::Channel, &str) -> Result<()>|
+             -> Result<()> {
+                for item in items {
+                    let (name, value) = item
+                        .split_once('=')
+                        .ok_or_else(|| anyhow::anyhow!("{flag} {item}: give COLOUR=VALUE"))?;
+                    let mut hit = false;
+                    for c in channels
+                        .iter_mut()
+                        .filter(|c| name == "all" || c.name == name)
+                    {
+                        apply(c, value).map_err(|e| anyhow::anyhow!("{flag} {item}: {e}"))?;
+                        hit = true;
+                    }
+                    if !hit {
+                        anyhow::bail!("{flag} {item}: {name:?} is not one of --colors (or all)");
+                    }
+                }
+                Ok(())
+            };
+        set_per("--die-offset-mm", &self.die_offset_mm, &mut |c, v| {
+            let xy: Vec<f64> = v
+                .split(',')
+                .map(|p| p.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow::anyhow!("{v:?} is not X,Y in mm"))?;
+            match xy.as_slice() {
+                [x, y] => {
+                    c.die_offset_mm = [*x, *y];
+                    Ok(())
+                }
+                _ => anyhow::bail!("{v:?} is not X,Y in mm"),
+            }
+        })?;
+        set_per("--focal-shift-um", &self.focal_shift_um, &mut |c, v| {
+            c.focal_shift_um = v
+                .trim()
+                .parse()
+                .map_err(|_| anyhow::anyhow!("{v:?} is not a distance in µm"))?;
+            Ok(())
+        })?;
+        Ok(Some(simulation::ColorSet {
+            channels,
+            spectral_samples: self.spectral_samples,
+        }))
+    }
+}
+
+/// Print what a colour simulation wrote.
+fn print_color_written(
+    s: &SceneArgs,
+    written: &[(String, simulation::Written)],
+    seconds: f64,
+) -> Result<()> {
+    if s.json {
+        let channels: Vec<_> = written
+            .iter()
+            .map(
+                |(name, w)| serde_json::json!({"name": name, "frames": w.frames, "truth": w.truth}),
+            )
+            .collect();
+        let json = serde_json::json!({
+            "out": s.out,
+            "size": [s.size, s.size],
+            "seconds": seconds,
+            "channels": channels,
+        });
+        println!("{}", serde_json::to_string_pretty(&json)?);
+        return Ok(());
+    }
+    println!(
+        "wrote a colour dataset to {} in {seconds:.2} s ({}x{} frames):",
+        s.out.display(),
+        s.size,
+        s.size
+    );
+    for (name, w) in written {
+        let p = &w.truth.placement;
+        println!(
+            "  {name}: {} frames in {}/ (its LEDs, the {name} dies: Δx {:.3} mm, Δy {:.3} mm, θ {:.2}°, h {:.2} mm; truth.json)",
+            w.frames,
+            name,
+            p.dx_mm,
+            p.dy_mm,
+            p.theta_deg,
+            p.height_mm
+        );
+    }
+    Ok(())
 }
 
 /// Camera noise.
@@ -222,6 +373,10 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
         feature_at_um: (a.feature_x_um, a.feature_y_um),
     };
     let start = Instant::now();
+    if let Some(color) = s.color.color_set()? {
+        let written = simulation::write_color_calibration(&scene, &set, &color, &s.out)?;
+        return print_color_written(s, &written, start.elapsed().as_secs_f64());
+    }
     let written = simulation::write_calibration_set(&scene, &set, &s.out)?;
     let truth = &written.truth;
     if s.json {
@@ -256,10 +411,17 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
             bright_field: a.multiplex_bright.into(),
         },
     };
-    let bar = indicatif::ProgressBar::new_spinner()
-        .with_message(format!("rendering {} frames", s.scene().truth.leds().len()));
+    let color = s.color.color_set()?;
+    let frames = s.scene().truth.leds().len() * color.as_ref().map_or(1, |c| c.channels.len());
+    let bar =
+        indicatif::ProgressBar::new_spinner().with_message(format!("rendering {frames} frames"));
     bar.enable_steady_tick(std::time::Duration::from_millis(120));
     let start = Instant::now();
+    if let Some(color) = color {
+        let written = simulation::write_color_acquisition(&s.scene(), &set, &color, &s.out);
+        bar.finish_and_clear();
+        return print_color_written(s, &written?, start.elapsed().as_secs_f64());
+    }
     let written = simulation::write_acquisition(&s.scene(), &set, &s.out);
     bar.finish_and_clear();
     let written = written?;

@@ -150,6 +150,9 @@ impl PlacementFile {
         let object = value.as_object().context(
             "a calibration file is a JSON object with dx_mm, dy_mm, theta_deg, height_mm",
         )?;
+        if object.contains_key("channels") && !object.contains_key("dx_mm") {
+            bail!("a colour calibration (one placement per channel): give it with the colour dataset it was made for, or give one channel's own calibration.json");
+        }
         let mut numbers = [0.0; 4];
         let mut missing = vec![];
         let mut invalid = vec![];

@@ -7,6 +7,7 @@
 
 pub mod calibration;
 pub mod camera_gamma;
+pub mod color;
 pub mod dataset;
 pub mod dpc;
 pub mod ome;

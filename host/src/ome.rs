@@ -33,7 +33,24 @@ fn escape(text: &str) -> String {
 /// The OME-XML of one single-plane float32 image stored in IFD 0. ASCII only: the
 /// units are the schema's defaults (µm for sizes, nm for wavelengths).
 pub fn ome_xml(image: &OmeImage<'_>) -> String {
+    ome_xml_channels(image, &[(image.name, image.wavelength_um)])
+}
+
+/// The OME-XML of one image of several float32 planes, one per channel (name and
+/// wavelength, µm), stored in IFDs 0, 1, …: a colour reconstruction's.
+pub fn ome_xml_channels(image: &OmeImage<'_>, channels: &[(&str, f64)]) -> String {
     let name = escape(image.name);
+    let channel_xml: String = channels
+        .iter()
+        .enumerate()
+        .map(|(k, (c, wavelength_um))| {
+            format!(
+                r#"<Channel ID="Channel:0:{k}" Name="{}" SamplesPerPixel="1" IlluminationType="Transmitted" ExcitationWavelength="{}"/>"#,
+                escape(c),
+                wavelength_um * 1e3
+            )
+        })
+        .collect();
     let (w, h) = image.size;
     format!(
         concat!(
@@ -51,11 +68,10 @@ pub fn ome_xml(image: &OmeImage<'_>) -> String {
             r#"<InstrumentRef ID="Instrument:0"/>"#,
             r#"<ObjectiveSettings ID="Objective:0"/>"#,
             r#"<Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="float" "#,
-            r#"SizeX="{w}" SizeY="{h}" SizeC="1" SizeZ="1" SizeT="1" "#,
+            r#"SizeX="{w}" SizeY="{h}" SizeC="{c}" SizeZ="1" SizeT="1" "#,
             r#"PhysicalSizeX="{pixel}" PhysicalSizeY="{pixel}">"#,
-            r#"<Channel ID="Channel:0:0" Name="{name}" SamplesPerPixel="1" "#,
-            r#"IlluminationType="Transmitted" ExcitationWavelength="{nm}"/>"#,
-            r#"<TiffData IFD="0" PlaneCount="1"/>"#,
+            r#"{channels}"#,
+            r#"<TiffData IFD="0" PlaneCount="{c}"/>"#,
             r#"</Pixels></Image></OME>"#
         ),
         version = env!("CARGO_PKG_VERSION"),
@@ -66,7 +82,8 @@ pub fn ome_xml(image: &OmeImage<'_>) -> String {
         w = w,
         h = h,
         pixel = image.pixel_um,
-        nm = image.wavelength_um * 1e3,
+        c = channels.len(),
+        channels = channel_xml,
     )
 }
 

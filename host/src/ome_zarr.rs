@@ -71,28 +71,49 @@ fn window(image: ArrayView2<'_, f32>) -> (f32, f32) {
 /// Write `object` (sampled at `pixel_um`) as the OME-Zarr group `dir`: channel 0 the
 /// amplitude, channel 1 the phase (radians), levels `0`, `1`, … each half the last.
 pub fn write(dir: &Path, object: &Array2<Complex32>, pixel_um: f64) -> Result<()> {
+    write_objects(dir, &[("", object)], pixel_um)
+}
+
+/// Write several complex images of one field (a colour reconstruction's channels,
+/// each named) as one OME-Zarr group: the amplitudes first (channels 0…k−1, labelled
+/// `amplitude <name>`), then the phases (k…2k−1); one name `""` gives plain
+/// `amplitude` and `phase`, as [`write`].
+pub fn write_objects(
+    dir: &Path,
+    objects: &[(&str, &Array2<Complex32>)],
+    pixel_um: f64,
+) -> Result<()> {
     if dir.exists() {
         std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut amplitude = object.mapv(|z| z.norm());
-    let mut complex = object.clone();
+    let k = objects.len();
+    let mut levels: Vec<(Array2<f32>, Array2<Complex32>)> = objects
+        .iter()
+        .map(|(_, o)| (o.mapv(|z| z.norm()), (*o).clone()))
+        .collect();
     let mut datasets = vec![];
     let mut windows = vec![];
+    let (h0, w0) = levels.first().map_or((0, 0), |l| l.1.dim());
     for level in 0.. {
-        let (h, w) = complex.dim();
+        let (h, w) = levels.first().map_or((h0, w0), |l| l.1.dim());
         let level_dir = dir.join(level.to_string());
-        let phase = complex.mapv(|z| z.arg());
-        if level == 0 {
-            windows = vec![window(amplitude.view()), window(phase.view())];
+        let mut phase_windows = vec![];
+        for (i, (amplitude, complex)) in levels.iter().enumerate() {
+            let phase = complex.mapv(|z| z.arg());
+            if level == 0 {
+                windows.push(window(amplitude.view()));
+                phase_windows.push(window(phase.view()));
+            }
+            write_chunks(&level_dir, i, amplitude.view())?;
+            write_chunks(&level_dir, k + i, phase.view())?;
         }
-        write_chunks(&level_dir, 0, amplitude.view())?;
-        write_chunks(&level_dir, 1, phase.view())?;
+        windows.extend(phase_windows);
         write_json(
             &level_dir.join(".zarray"),
             &json!({
                 "zarr_format": 2,
-                "shape": [2, h, w],
+                "shape": [2 * k, h, w],
                 "chunks": [1, CHUNK, CHUNK],
                 "dtype": "<f4",
                 "compressor": {"id": "zlib", "level": 5},
@@ -110,11 +131,24 @@ pub fn write(dir: &Path, object: &Array2<Complex32>, pixel_um: f64) -> Result<()
         if h.max(w) <= CHUNK || h < 2 || w < 2 {
             break;
         }
-        let (a, c) = halve(amplitude.view(), complex.view());
-        amplitude = a;
-        complex = c;
+        levels = levels
+            .iter()
+            .map(|(a, c)| halve(a.view(), c.view()))
+            .collect();
     }
     write_json(&dir.join(".zgroup"), &json!({"zarr_format": 2}))?;
+    let label = |what: &str, name: &str| {
+        if name.is_empty() {
+            what.to_string()
+        } else {
+            format!("{what} {name}")
+        }
+    };
+    let labels: Vec<String> = objects
+        .iter()
+        .map(|(n, _)| label("amplitude", n))
+        .chain(objects.iter().map(|(n, _)| label("phase", n)))
+        .collect();
     let channel = |label: &str, (lo, hi): (f32, f32)| {
         json!({
             "label": label,
@@ -123,6 +157,17 @@ pub fn write(dir: &Path, object: &Array2<Complex32>, pixel_um: f64) -> Result<()
             "window": {"start": lo, "end": hi, "min": lo, "max": hi},
         })
     };
+    let metadata: Vec<String> = labels
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            if i >= k {
+                format!("{l} (radians)")
+            } else {
+                l.clone()
+            }
+        })
+        .collect();
     write_json(
         &dir.join(".zattrs"),
         &json!({
@@ -136,11 +181,11 @@ pub fn write(dir: &Path, object: &Array2<Complex32>, pixel_um: f64) -> Result<()
                 ],
                 "datasets": datasets,
                 "type": "2x2 mean (amplitude: mean |z|; phase: arg of the mean z)",
-                "metadata": {"channels": ["amplitude", "phase (radians)"]},
+                "metadata": {"channels": metadata},
             }],
             "omero": {
                 "version": "0.4",
-                "channels": [channel("amplitude", windows[0]), channel("phase", windows[1])],
+                "channels": labels.iter().zip(&windows).map(|(l, w)| channel(l, *w)).collect::<Vec<_>>(),
                 "rdefs": {"model": "greyscale"},
             },
         }),

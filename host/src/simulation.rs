@@ -6,14 +6,17 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use fpm_physics::color::Channel;
 use fpm_physics::multiplex::Multiplex;
 use fpm_physics::simulate::{
-    acquire_from, acquire_sets, CalibrationScene, Camera, ObjectField, SampleKind, SimFrame,
+    acquire_from, acquire_sets, acquire_spectral, CalibrationScene, Camera, ObjectField,
+    SampleKind, SimFrame,
 };
 use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rand::{Rng, SeedableRng};
 use rand_distr::Distribution;
 
+use crate::color::{ChannelEntry, ColorDataset, ColorManifest, ColorSection};
 use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use crate::truth::{write_truth_images, TrueLed, Truth};
 
@@ -236,6 +239,16 @@ fn nominal() -> LedGeometry {
 
 /// Write `scene`'s calibration set into `out` (dataset.toml, frames/, truth.json).
 pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) -> Result<Written> {
+    write_calibration_set_at(scene, set, System::paper().wavelength_um, out)
+}
+
+/// [`write_calibration_set`] in light of `wavelength_um`.
+fn write_calibration_set_at(
+    scene: &Scene,
+    set: &CalibrationSet,
+    wavelength_um: f64,
+    out: &Path,
+) -> Result<Written> {
     scene.validate()?;
     if !(set.defocus_um.is_finite() && set.feature_um.is_finite() && set.feature_um > 0.0) {
         anyhow::bail!(
@@ -245,6 +258,7 @@ pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) ->
         );
     }
     let mut sim = CalibrationScene::paper(scene.truth, scene.seed);
+    sim.system.wavelength_um = wavelength_um;
     sim.defocus_um = set.defocus_um;
     sim.feature_um = set.feature_um;
     sim.feature_at_um = set.feature_at_um;
@@ -269,6 +283,155 @@ pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) ->
 /// truth_amplitude.tif, truth_phase.tif). Frames are auto-exposed as a camera would:
 /// the brightest pixel at 80 % of full scale, from 2 ms (bright field) up to 1 s.
 pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Result<Written> {
+    write_acquisition_lit(scene, set, None, out)
+}
+
+/// Colour: the LED colours lit in turn ([`fpm_physics::color`]) and how finely their
+/// spectra are sampled.
+#[derive(Debug, Clone)]
+pub struct ColorSet {
+    /// The channels, each acquired as a whole scan of its own.
+    pub channels: Vec<Channel>,
+    /// Wavelengths rendered per channel to stand for its LED's spectrum (1: its
+    /// centre line only).
+    pub spectral_samples: usize,
+}
+
+/// Most wavelengths rendered per channel.
+pub const MAX_SPECTRAL_SAMPLES: usize = 15;
+
+impl ColorSet {
+    fn validate(&self) -> Result<()> {
+        if self.channels.is_empty() {
+            anyhow::bail!("colors: name at least one channel (red, green, blue)");
+        }
+        if !(1..=MAX_SPECTRAL_SAMPLES).contains(&self.spectral_samples) {
+            anyhow::bail!(
+                "spectral_samples {}: must be 1-{MAX_SPECTRAL_SAMPLES}",
+                self.spectral_samples
+            );
+        }
+        for c in &self.channels {
+            if !(c.wavelength_um.is_finite() && (0.2..=2.0).contains(&c.wavelength_um)) {
+                anyhow::bail!(
+                    "channel {}: wavelength {} µm: give a wavelength in µm (0.2-2)",
+                    c.name,
+                    c.wavelength_um
+                );
+            }
+            if !(c.fwhm_nm.is_finite() && (0.0..=200.0).contains(&c.fwhm_nm)) {
+                anyhow::bail!(
+                    "channel {}: FWHM {} nm: must be 0-200 nm",
+                    c.name,
+                    c.fwhm_nm
+                );
+            }
+            if !c.die_offset_mm.iter().all(|v| v.is_finite()) || !c.focal_shift_um.is_finite() {
+                anyhow::bail!(
+                    "channel {}: die offset and focal shift must be finite",
+                    c.name
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Write a colour acquisition into `out`: each channel a whole acquisition of its own
+/// (`out/<name>/`, with its truth at its central wavelength) and the colour dataset's
+/// `dataset.toml` joining them. Each channel's LEDs are its dies (the true board moved
+/// by the channel's die offset), its frames the sum over its spectrum, its sample the
+/// same cells as the others' in its own light, its focus shifted by the objective's
+/// chromatic focal shift; its dataset states the board's nominal place, as a user who
+/// has not calibrated each colour would.
+pub fn write_color_acquisition(
+    scene: &Scene,
+    set: &AcquisitionSet,
+    color: &ColorSet,
+    out: &Path,
+) -> Result<Vec<(String, Written)>> {
+    color.validate()?;
+    if !set.multiplex.is_one() {
+        anyhow::bail!("multiplex: a colour acquisition lights one LED per frame (multiplexed colour frames are not simulated)");
+    }
+    write_channels(color, out, |k, channel, dir| {
+        write_acquisition_lit(scene, set, Some((channel, color.spectral_samples, k)), dir)
+    })
+}
+
+/// Write a colour pdcFPM calibration set into `out`: one calibration set per channel
+/// (`out/<name>/`: the same hole, each colour's dies as its LEDs, at its central
+/// wavelength) and the colour dataset's `dataset.toml`.
+pub fn write_color_calibration(
+    scene: &Scene,
+    set: &CalibrationSet,
+    color: &ColorSet,
+    out: &Path,
+) -> Result<Vec<(String, Written)>> {
+    color.validate()?;
+    write_channels(color, out, |k, channel, dir| {
+        let lit = Scene {
+            truth: channel.geometry(&scene.truth),
+            seed: channel_seed(scene.seed, k),
+            ..*scene
+        };
+        write_calibration_set_at(&lit, set, channel.wavelength_um, dir)
+    })
+}
+
+/// The noise seed of channel `k` (the sample keeps the scene's own seed: every colour
+/// sees the same sample).
+fn channel_seed(seed: u64, k: usize) -> u64 {
+    seed ^ 0xC010_0000u64.wrapping_mul(k as u64 + 1)
+}
+
+fn write_channels(
+    color: &ColorSet,
+    out: &Path,
+    write: impl Fn(usize, &Channel, &Path) -> Result<Written>,
+) -> Result<Vec<(String, Written)>> {
+    let mut written = vec![];
+    for (k, channel) in color.channels.iter().enumerate() {
+        let dir = out.join(&channel.name);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        written.push((channel.name.clone(), write(k, channel, &dir)?));
+    }
+    let manifest = ColorManifest {
+        color: ColorSection { reference: None },
+        channels: color
+            .channels
+            .iter()
+            .map(|c| ChannelEntry {
+                name: c.name.clone(),
+                dataset: c.name.clone(),
+            })
+            .collect(),
+    };
+    ColorDataset::write_manifest(out, &manifest)?;
+    ColorDataset::open(out)?;
+    Ok(written)
+}
+
+/// [`write_acquisition`], lit by one colour channel (its spectrum sampled so finely,
+/// and its index for the noise seed) or, without one, by the single-colour
+/// simulator's line at the paper's wavelength.
+fn write_acquisition_lit(
+    scene: &Scene,
+    set: &AcquisitionSet,
+    channel: Option<(&Channel, usize, usize)>,
+    out: &Path,
+) -> Result<Written> {
+    let lit;
+    let scene = match channel {
+        Some((c, _, _)) => {
+            lit = Scene {
+                truth: c.geometry(&scene.truth),
+                ..*scene
+            };
+            &lit
+        }
+        None => scene,
+    };
     scene.validate()?;
     if !UPSAMPLE.contains(&set.upsample) {
         anyhow::bail!(
@@ -292,20 +455,25 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
     }
     let system = System {
         entrance_pupil_mm: set.entrance_pupil_mm,
+        wavelength_um: channel.map_or(System::paper().wavelength_um, |c| c.0.wavelength_um),
         ..System::paper()
     };
     let camera = Camera {
         display_gamma: set.display_gamma,
         ..scene.camera()
     };
-    let object = ObjectField::sample(
-        &system,
-        scene.size,
-        48,
-        set.upsample,
-        scene.seed,
-        set.sample,
-    );
+    let sample_at = |wavelength_um: f64| {
+        ObjectField::sample_in_light(
+            &system,
+            scene.size,
+            48,
+            set.upsample,
+            scene.seed,
+            set.sample,
+            wavelength_um,
+        )
+    };
+    let object = sample_at(system.wavelength_um);
     let truth = scene.truth;
     set.multiplex
         .check(MAX_MULTIPLEX)
@@ -322,7 +490,24 @@ pub fn write_acquisition(scene: &Scene, set: &AcquisitionSet, out: &Path) -> Res
         Some(peak) => camera.dim_dark_field_exposure(img, peak),
         None => camera.auto_exposure(img),
     };
-    let frames = if set.multiplex.is_one() {
+    let frames = if let Some((c, samples, k)) = channel {
+        let lights: Vec<(f64, f64, ObjectField)> = c
+            .spectrum(samples)
+            .into_iter()
+            .map(|(l, w)| (l, w, sample_at(l)))
+            .collect();
+        let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
+        acquire_spectral(
+            &system,
+            &board,
+            &lights,
+            c.focal_shift_um,
+            &shots,
+            &camera,
+            single,
+            channel_seed(scene.seed, k),
+        )
+    } else if set.multiplex.is_one() {
         let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
         acquire_from(
             &system, &board, &object, &shots, &camera, single, scene.seed,

@@ -19,6 +19,7 @@
 pub mod background;
 pub mod bayer;
 pub mod calibrate;
+pub mod color;
 pub mod coverage;
 pub mod dpc;
 pub mod fft;

@@ -128,6 +128,24 @@ impl ObjectField {
         seed: u64,
         kind: SampleKind,
     ) -> Self {
+        Self::sample_in_light(system, camera, pad, upsample, seed, kind, 0.47)
+    }
+
+    /// [`Self::sample`] as light of `wavelength_um` sees it: the same cells and bars,
+    /// the cells' dye absorbing as [`crate::color::stain_absorption`] says and their
+    /// phase scaled as 1/λ (a fixed optical path); the metal bars absorb alike at every
+    /// wavelength. At 0.47 µm it is [`Self::sample`].
+    pub fn sample_in_light(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        seed: u64,
+        kind: SampleKind,
+        wavelength_um: f64,
+    ) -> Self {
+        let stain = crate::color::stain_absorption(wavelength_um);
+        let phase_scale = crate::color::phase_at(1.0, wavelength_um);
         let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(1.0, 0.0));
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let extent = (o.n as f64) * o.pitch_um() / 2.0;
@@ -156,8 +174,8 @@ impl ObjectField {
                 for &(cx, cy, rad, a, p) in &cells {
                     let d2 = ((x - cx).powi(2) + (y - cy).powi(2)) / (rad * rad);
                     let w = (-d2 * d2).exp();
-                    absorb += a * w;
-                    phase += p * w;
+                    absorb += a * w * stain;
+                    phase += p * w * phase_scale;
                 }
                 // bars: a column of groups along x, in the upper-left quadrant
                 let gx = x + field_half * 0.7;
@@ -719,9 +737,82 @@ pub fn acquire_sets(
         .collect()
 }
 
+/// One colour channel's frames, one per shot (LED and defocus), from a board that
+/// places each LED itself: the LED's light is not one line but a spectrum, so each
+/// frame is the sum, weighted by the spectrum, of the full wave-optics model's
+/// intensities at each of its wavelengths (`lights`: wavelength µm, weight, and the
+/// sample as that wavelength sees it), recorded once with the camera's noise. Each
+/// shot's defocus has `focal_shift_um` added (the objective's chromatic focal shift).
+/// Deterministic for a seed, as [`acquire_from`].
+#[allow(clippy::too_many_arguments)]
+pub fn acquire_spectral(
+    system: &System,
+    board: &(dyn Fn(LedIndex) -> (f64, f64, f64) + Sync),
+    lights: &[(f64, f64, ObjectField)],
+    focal_shift_um: f64,
+    shots: &[(LedIndex, f64)],
+    camera: &Camera,
+    exposure: impl Fn(&Image) -> f64 + Sync,
+    seed: u64,
+) -> Vec<SimFrame> {
+    use rayon::prelude::*;
+    let Some((_, _, first)) = lights.first() else {
+        return vec![];
+    };
+    shots
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || Renderer::new(first),
+            |renderer, (k, &(led, defocus_um))| {
+                let mut intensity: Option<Image> = None;
+                for (wavelength_um, weight, object) in lights {
+                    let at = System {
+                        wavelength_um: *wavelength_um,
+                        ..*system
+                    };
+                    let one =
+                        renderer.render_from(&at, board(led), object, defocus_um + focal_shift_um)
+                            * (*weight as f32);
+                    intensity = Some(match intensity {
+                        Some(sum) => sum + one,
+                        None => one,
+                    });
+                }
+                let intensity = intensity.unwrap_or_default();
+                let exposure_ms = exposure(&intensity);
+                let mut rng = rand::rngs::StdRng::seed_from_u64(
+                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
+                );
+                SimFrame {
+                    led,
+                    also: vec![],
+                    defocus_um,
+                    exposure_ms,
+                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                }
+            },
+        )
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sample_in_light_of_047_um_is_the_sample() {
+        let s = System::paper();
+        let a = ObjectField::sample(&s, 32, 8, 2, 3, SampleKind::Stained);
+        let b = ObjectField::sample_in_light(&s, 32, 8, 2, 3, SampleKind::Stained, 0.47);
+        assert_eq!(a.field, b.field);
+        let red = ObjectField::sample_in_light(&s, 32, 8, 2, 3, SampleKind::Stained, 0.6225);
+        let mean_amp = |o: &ObjectField| o.field.iter().map(|c| c.norm()).sum::<f32>();
+        assert!(
+            mean_amp(&red) > mean_amp(&a),
+            "the stain absorbs less red than blue"
+        );
+    }
 
     fn system() -> System {
         System::paper()

@@ -8,6 +8,7 @@
 //! job that made the numbers.
 
 pub mod charts;
+pub mod color;
 pub mod colour_bar;
 pub mod comparison;
 pub mod html;

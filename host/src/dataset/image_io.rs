@@ -305,43 +305,61 @@ pub fn write_tiff_f32_described(
     pixel_um: f64,
     options: TiffOptions,
 ) -> Result<(), ImageError> {
+    write_tiff_f32_planes_described(path, &[img], description, pixel_um, options)
+}
+
+/// [`write_tiff_f32_described`] for several planes of one size (an OME-TIFF's
+/// channels, one IFD each; the description goes into the first).
+pub fn write_tiff_f32_planes_described(
+    path: &Path,
+    planes: &[&Array2<f32>],
+    description: &str,
+    pixel_um: f64,
+    options: TiffOptions,
+) -> Result<(), ImageError> {
     use tiff::encoder::{Compression, DeflateLevel, TiffEncoder, TiffKind};
     fn write<K: TiffKind>(
         mut enc: TiffEncoder<BufWriter<File>, K>,
-        img: &Array2<f32>,
+        planes: &[&Array2<f32>],
         description: &str,
         pixel_um: f64,
     ) -> tiff::TiffResult<()> {
         use tiff::encoder::{colortype, Rational};
         use tiff::tags::{ResolutionUnit, Tag};
-        let (h, w) = img.dim();
-        let standard = img.as_standard_layout();
-        let data = standard.as_slice().unwrap_or_default();
-        let mut image = enc.new_image::<colortype::Gray32Float>(w as u32, h as u32)?;
-        image
-            .encoder()
-            .write_tag(Tag::ImageDescription, description)?;
-        if pixel_um.is_finite() && pixel_um > 0.0 {
-            let per_cm = Rational {
-                n: (1e7 / pixel_um).round().min(u32::MAX as f64) as u32,
-                d: 1000,
-            };
-            image.resolution(ResolutionUnit::Centimeter, per_cm);
+        for (k, img) in planes.iter().enumerate() {
+            let (h, w) = img.dim();
+            let standard = img.as_standard_layout();
+            let data = standard.as_slice().unwrap_or_default();
+            let mut image = enc.new_image::<colortype::Gray32Float>(w as u32, h as u32)?;
+            if k == 0 {
+                image
+                    .encoder()
+                    .write_tag(Tag::ImageDescription, description)?;
+            }
+            if pixel_um.is_finite() && pixel_um > 0.0 {
+                let per_cm = Rational {
+                    n: (1e7 / pixel_um).round().min(u32::MAX as f64) as u32,
+                    d: 1000,
+                };
+                image.resolution(ResolutionUnit::Centimeter, per_cm);
+            }
+            image.write_data(data)?;
         }
-        image.write_data(data)
+        Ok(())
     }
     let compression = if options.compress {
         Compression::Deflate(DeflateLevel::Balanced)
     } else {
         Compression::Uncompressed
     };
-    let big = (img.len() as u64) * 4 > BIG_TIFF_ABOVE_BYTES || options.big;
+    let bytes: u64 = planes.iter().map(|p| p.len() as u64 * 4).sum();
+    let big = bytes > BIG_TIFF_ABOVE_BYTES || options.big;
     let file = create(path)?;
     if big {
         let enc = TiffEncoder::new_big(file).map_err(write_failed(path))?;
         write(
             enc.with_compression(compression),
-            img,
+            planes,
             description,
             pixel_um,
         )
@@ -349,7 +367,7 @@ pub fn write_tiff_f32_described(
         let enc = TiffEncoder::new(file).map_err(write_failed(path))?;
         write(
             enc.with_compression(compression),
-            img,
+            planes,
             description,
             pixel_um,
         )

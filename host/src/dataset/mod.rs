@@ -877,6 +877,12 @@ pub(crate) fn read_manifest(dir: &Path) -> Result<(PathBuf, Manifest), DatasetEr
         path: path.clone(),
         reason: e.to_string(),
     })?;
+    if let Ok(table) = text.parse::<toml::Table>() {
+        if table.contains_key("color") {
+            let reason = "a colour dataset (one dataset per channel, docs/dataset.md §5.7): `fpm reconstruct` and `fpm calibrate` take it whole; for one channel alone give its directory (a [[channel]]'s dataset)".to_string();
+            return Err(DatasetError::Manifest { path, reason });
+        }
+    }
     let manifest: Manifest = toml::from_str(&text).map_err(|e| DatasetError::Manifest {
         path: path.clone(),
         reason: e.to_string(),

@@ -34,6 +34,11 @@ pub enum Check {
     DarkFieldBackground,
     /// `--flatten-background` found little clear background.
     FlattenBackground,
+    /// A colour run placed every colour's LEDs with one calibration.
+    ColorOneCalibration,
+    /// A colour channel lies farther from the reference than chromatic aberration
+    /// moves it.
+    ColorShift,
 }
 
 impl Check {
@@ -51,6 +56,8 @@ impl Check {
             Self::EntrancePupil => "entrance-pupil",
             Self::DarkFieldBackground => "dark-field-background",
             Self::FlattenBackground => "flatten-background",
+            Self::ColorOneCalibration => "color-one-calibration",
+            Self::ColorShift => "color-shift",
         }
     }
 }

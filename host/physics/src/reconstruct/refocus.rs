@@ -311,7 +311,7 @@ impl Plane {
 
 /// The correlation's peak, sub-pixel (a parabola through it and its neighbours along
 /// each axis), as the frame's shift in pixels (signed).
-fn peak(correlation: &[Complex32], n: usize) -> Option<(f64, f64)> {
+pub(crate) fn peak(correlation: &[Complex32], n: usize) -> Option<(f64, f64)> {
     let (best, _) = correlation
         .iter()
         .enumerate()
@@ -332,7 +332,7 @@ fn peak(correlation: &[Complex32], n: usize) -> Option<(f64, f64)> {
 }
 
 /// FFT bin `k` of an `n`-point grid as a signed index.
-fn signed(k: usize, n: usize) -> i64 {
+pub(crate) fn signed(k: usize, n: usize) -> i64 {
     if k < n / 2 {
         k as i64
     } else {

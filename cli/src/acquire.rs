@@ -91,6 +91,21 @@ pub struct AcquireArgs {
     /// its uncertainty carries this (`--stage virtual` is exact: give 0).
     #[arg(long, default_value_t = defaults::DEFOCUS_SIGMA_UM)]
     pub defocus_sigma_um: f64,
+    /// Acquire in colour: a whole scan per LED colour (red, green, blue: each lit
+    /// alone, each with its own wavelength — the WS2812B's 622.5 and 523.5 nm, and
+    /// 470 nm for blue as --wavelength-um assumes — or NAME:UM), one after another,
+    /// written as a colour dataset (OUT/dataset.toml joining OUT/<colour>/). With
+    /// --calibrate each colour is calibrated (its dies sit apart), OUT/calibration.json
+    /// holding them all; with --reconstruct the colour image goes to
+    /// OUT/reconstruction/
+    #[arg(long, value_delimiter = ',', value_name = "COLOUR[:UM]")]
+    pub colors: Vec<String>,
+    /// With --colors: the colour the sample was focused in (the stage's zero): each
+    /// other colour's focus is measured from it (the objective's chromatic focal
+    /// shift, which would otherwise bias its calibrated LED height) and its image
+    /// registered to it
+    #[arg(long, default_value = "green", requires = "colors")]
+    pub focus_color: String,
     /// LED colour: a name, `#rrggbb` or `r,g,b` (0–255).
     #[arg(long, default_value = "0,0,255", value_parser = crate::color::parse)]
     pub color: Rgb,
@@ -128,6 +143,9 @@ pub struct AcquireArgs {
 
 /// Run `fpm acquire`.
 pub fn run(a: AcquireArgs) -> Result<()> {
+    if !a.colors.is_empty() {
+        return colors(&a);
+    }
     let summary = acquire(&a)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
@@ -139,6 +157,12 @@ pub fn run(a: AcquireArgs) -> Result<()> {
 
 /// The acquisition, returning its summary.
 pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
+    let (dev, mut stage) = open_rig(a)?;
+    run_plan(&dev, stage.as_mut(), &plan(a), a.resume)
+}
+
+/// The LED controller and the focus stage `a` names.
+fn open_rig(a: &AcquireArgs) -> Result<(Controller, Box<dyn FocusStage>)> {
     let timeout = Duration::from_secs(2);
     let port = match &a.port {
         Some(port) => port.clone(),
@@ -152,7 +176,7 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         Ok(n) => tracing::info!("removed the shared memory of {n} crashed process(es)"),
         Err(e) => tracing::warn!("could not check for stale shared memory: {e}"),
     }
-    let mut stage: Box<dyn FocusStage> = match a.stage {
+    let stage: Box<dyn FocusStage> = match a.stage {
         StageKind::Manual => Box::new(ManualStage),
         StageKind::Virtual => Box::new(VirtualStage::open(
             a.rig
@@ -160,7 +184,12 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
                 .context("--stage virtual needs --rig NAME")?,
         )?),
     };
-    let plan = Plan {
+    Ok((dev, stage))
+}
+
+/// The plan `a` describes.
+fn plan(a: &AcquireArgs) -> Plan {
+    Plan {
         camera: ServiceNames::for_camera(&a.frames),
         out: a.out.clone(),
         calibrate: a.calibrate,
@@ -188,7 +217,16 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
             dark_field: a.multiplex.into(),
             bright_field: a.multiplex_bright.into(),
         },
-    };
+    }
+}
+
+/// Run `plan` on the rig, with a progress bar; Ctrl-C cancels it.
+fn run_plan(
+    dev: &Controller,
+    stage: &mut dyn FocusStage,
+    plan: &Plan,
+    resume: bool,
+) -> Result<AcquireSummary> {
     let cancel = cancel_on_signal()?;
     let bar = crate::progress::frames("acquiring");
     let on_progress = |p: &Progress| {
@@ -196,9 +234,9 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
         bar.set_position(p.frames as u64);
     };
     let control = Control::cancelled_by(cancel);
-    let summary = match a.resume {
-        false => pipeline::acquire(&dev, stage.as_mut(), &plan, on_progress, &control),
-        true => pipeline::resume(&dev, stage.as_mut(), &plan, on_progress, &control),
+    let summary = match resume {
+        false => pipeline::acquire(dev, stage, plan, on_progress, &control),
+        true => pipeline::resume(dev, stage, plan, on_progress, &control),
     };
     bar.finish_and_clear();
     summary
@@ -261,4 +299,201 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
         "wrote the dataset and acquisition.json to {}",
         out.display()
     );
+}
+
+/// `--colors`: each colour's name, LED value and wavelength, µm.
+fn parse_colors(items: &[String]) -> Result<Vec<(String, Rgb, f64)>> {
+    let mut out: Vec<(String, Rgb, f64)> = vec![];
+    for item in items {
+        let (name, wavelength) = match item.split_once(':') {
+            Some((n, w)) => (n.trim(), Some(w.trim())),
+            None => (item.trim(), None),
+        };
+        let channel = fpm_physics::color::ws2812b_channel(name)
+            .with_context(|| format!("--colors {item}: {name:?} is not red, green or blue"))?;
+        let rgb = match channel.name.as_str() {
+            "red" => Rgb::new(255, 0, 0),
+            "green" => Rgb::new(0, 255, 0),
+            _ => Rgb::new(0, 0, 255),
+        };
+        let wavelength_um = match wavelength {
+            Some(w) => w
+                .parse::<f64>()
+                .ok()
+                .filter(|w| w.is_finite() && (0.2..=2.0).contains(w))
+                .with_context(|| {
+                    format!("--colors {item}: {w:?} is not a wavelength in µm (0.2-2)")
+                })?,
+            None => channel.wavelength_um,
+        };
+        if out.iter().any(|(n, _, _)| *n == channel.name) {
+            anyhow::bail!("--colors: {} is given twice", channel.name);
+        }
+        out.push((channel.name, rgb, wavelength_um));
+    }
+    Ok(out)
+}
+
+/// `fpm acquire --colors`: a scan per colour, one after another (each its own
+/// sequence: the board relights every LED anyway, and a colour's frames then share one
+/// exposure rule and one calibration), then the colour dataset, the colour calibration
+/// and, asked for, the colour image.
+fn colors(a: &AcquireArgs) -> Result<()> {
+    use fpm_host::color::{
+        ChannelEntry, ColorCalibration, ColorDataset, ColorGeometry, ColorManifest, ColorSection,
+    };
+    let channels = parse_colors(&a.colors)?;
+    if a.resume {
+        anyhow::bail!("--resume with --colors: a colour acquisition is not resumable yet; acquire the colours again");
+    }
+    if a.multiplex > 1 || a.multiplex_bright > 1 {
+        anyhow::bail!("--multiplex with --colors: a colour acquisition lights one LED per frame");
+    }
+    if !channels.iter().any(|(c, _, _)| {
+        fpm_physics::color::ws2812b_channel(&a.focus_color).is_some_and(|f| f.name == *c)
+    }) {
+        anyhow::bail!(
+            "--focus-color {}: not one of --colors ({}); name the colour the sample was focused in",
+            a.focus_color,
+            channels
+                .iter()
+                .map(|c| c.0.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let start = std::time::Instant::now();
+    let (dev, mut stage) = open_rig(a)?;
+    let mut summaries = vec![];
+    for (name, rgb, wavelength_um) in &channels {
+        eprintln!("{name} ({:.1} nm)", wavelength_um * 1e3);
+        let mut plan = plan(a);
+        plan.color = *rgb;
+        plan.system.wavelength_um = *wavelength_um;
+        plan.out = a.out.join(name);
+        plan.reconstruct = false;
+        let summary = run_plan(&dev, stage.as_mut(), &plan, false)
+            .with_context(|| format!("acquiring {name}"))?;
+        summaries.push((name.clone(), *wavelength_um, summary));
+    }
+    let focus = fpm_physics::color::ws2812b_channel(&a.focus_color)
+        .map(|c| c.name)
+        .filter(|n| channels.iter().any(|(c, _, _)| c == n))
+        .with_context(|| {
+            format!(
+                "--focus-color {}: not one of --colors ({})",
+                a.focus_color,
+                channels
+                    .iter()
+                    .map(|c| c.0.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?;
+    let manifest = ColorManifest {
+        color: ColorSection {
+            reference: Some(focus),
+        },
+        channels: channels
+            .iter()
+            .map(|(name, _, _)| ChannelEntry {
+                name: name.clone(),
+                dataset: name.clone(),
+            })
+            .collect(),
+    };
+    ColorDataset::write_manifest(&a.out, &manifest)?;
+    let ds = ColorDataset::open(&a.out)?;
+    let acquired_s = start.elapsed().as_secs_f64();
+    let calibration = a.out.join("calibration.json");
+    if a.calibrate {
+        let mut files = vec![];
+        for c in &ds.channels {
+            let path = c.dir.join("calibration.json");
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            let file: fpm_host::calibration::CalibrationFile = serde_json::from_str(&text)
+                .with_context(|| format!("parsing {}", path.display()))?;
+            files.push((c.name.clone(), file));
+        }
+        let cal = ColorCalibration::from_files(files, ds.reference);
+        std::fs::write(&calibration, serde_json::to_string_pretty(&cal.to_json()?)?)?;
+    }
+    let json_channels: Vec<_> = summaries
+        .iter()
+        .map(|(name, w, s)| serde_json::json!({"name": name, "wavelength_um": w, "summary": s}))
+        .collect();
+    if !a.json {
+        for (name, _, s) in &summaries {
+            print!("{name}: ");
+            print_summary(s, &a.out.join(name));
+        }
+        println!(
+            "acquired {} colours in {acquired_s:.1} s; wrote the colour dataset to {}{}",
+            summaries.len(),
+            a.out.display(),
+            if a.calibrate {
+                format!(
+                    " and each colour's calibration to {}",
+                    calibration.display()
+                )
+            } else {
+                String::new()
+            }
+        );
+    }
+    let mut report = None;
+    if a.reconstruct {
+        let geometry = if a.calibrate {
+            ColorGeometry::File(calibration.clone())
+        } else {
+            match summaries
+                .first()
+                .map(|(_, _, s)| (&s.geometry, &s.geometry_source))
+            {
+                Some((g, GeometrySource::Board)) => {
+                    ColorGeometry::Given(*g, "the board's stored calibration".into())
+                }
+                _ => ColorGeometry::Nominal,
+            }
+        };
+        let job = fpm_host::reconstruction::Job {
+            passes: a.passes,
+            tile: a.tile,
+            settings: fpm_physics::reconstruct::Settings {
+                flatten: a.flatten.flatten(),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let bar = crate::progress::counter("reconstructing the colours", "frame updates");
+        let run = fpm_host::color::reconstruct(&ds, &job, &geometry, &|_, event| {
+            if let fpm_host::reconstruction::JobEvent::Updates { done, total } = event {
+                crate::progress::advance(&bar, done, total);
+            }
+        })?;
+        bar.finish_and_clear();
+        crate::reconstruct::write_and_print_color(
+            &run,
+            &a.out.join("reconstruction"),
+            Default::default(),
+            if a.json {
+                crate::reconstruct::Print::Nothing
+            } else {
+                crate::reconstruct::Print::Text
+            },
+        )?;
+        report = Some(run.report);
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "channels": json_channels,
+                "seconds": acquired_s,
+                "reconstruction": report,
+            }))?
+        );
+    }
+    Ok(())
 }

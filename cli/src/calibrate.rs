@@ -232,13 +232,22 @@ fn color(a: &CalibrateArgs, options: &Options) -> Result<()> {
     if a.json {
         println!("{json}");
     } else {
-        for ((name, file), die) in cal.channels.iter().zip(&cal.die_offsets) {
+        for (((name, file), die), focus) in cal
+            .channels
+            .iter()
+            .zip(&cal.die_offsets)
+            .zip(&cal.focal_shifts)
+        {
             println!("{name}:");
             print_calibration(file, a.no_tilt);
             if *name != cal.reference {
                 println!(
                     "  its dies sit ({:+.3}, {:+.3}) ± {:.3} mm from the {} dies (board axes)",
                     die.offset_mm[0], die.offset_mm[1], die.sigma_mm[0], cal.reference
+                );
+                println!(
+                    "  its focus lies {:+.1} ± {:.1} µm from {}'s (its own fit put the LEDs at {:.2} mm; the board's h, {}'s, is kept)",
+                    focus.shift_um, focus.sigma_um, cal.reference, focus.height_fitted_mm, cal.reference
                 );
             }
         }

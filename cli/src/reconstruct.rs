@@ -477,24 +477,44 @@ fn color(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
         }
     })?;
     bar.finish_and_clear();
+    let print = if a.json { Print::Json } else { Print::Text };
+    write_and_print_color(&run, out, a.output(), print)
+}
+
+/// How a colour run is printed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Print {
+    /// As text.
+    Text,
+    /// Its report as JSON.
+    Json,
+    /// Not at all (the caller prints), warnings aside.
+    Nothing,
+}
+
+/// Write a colour run's outputs into `out` (each channel's own in `out/<name>/`) and
+/// print what it did (`json`: its report).
+pub(crate) fn write_and_print_color(
+    run: &fpm_host::color::ColorRun,
+    out: &Path,
+    output: OutputOptions,
+    print: Print,
+) -> Result<()> {
+    use fpm_host::color;
     let command = fpm_report::html::command_line();
     for c in &run.channels {
-        let written = fpm_report::reconstruction::write(
-            &c.finished,
-            &out.join(&c.name),
-            a.output(),
-            &command,
-        )?;
+        let written =
+            fpm_report::reconstruction::write(&c.finished, &out.join(&c.name), output, &command)?;
         if let Err(e) = &written.page {
             tracing::warn!("no HTML report for channel {}: {e:#}", c.name);
         }
     }
-    color::write_outputs(&run, out, a.output())?;
+    color::write_outputs(run, out, output)?;
     let page = fpm_report::color::write_page(&run.report, out, &command);
     let report = &run.report;
-    if a.json {
+    if print == Print::Json {
         println!("{}", serde_json::to_string_pretty(report)?);
-    } else {
+    } else if print == Print::Text {
         println!(
             "{} channels, registered to {}, LEDs placed by {}:",
             report.channels.len(),

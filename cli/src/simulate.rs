@@ -77,7 +77,7 @@ pub struct SceneArgs {
 pub struct ColorArgs {
     /// Simulate a colour acquisition: a whole scan per colour, written as a colour
     /// dataset (OUT/dataset.toml joining OUT/<colour>/). Colours: red, green, blue (the
-    /// WS2812B's 622.5, 523.5, 466 nm, FWHM 18, 33, 25 nm, dies 0.7 mm apart along the
+    /// WS2812B's 622.5, 523.5, 470 nm, FWHM 18, 33, 25 nm, dies 0.7 mm apart along the
     /// board's x, focal shift +4/0/-4 µm), each optionally NAME:WAVELENGTH_UM
     #[arg(long, value_delimiter = ',', value_name = "COLOUR[:UM]")]
     colors: Vec<String>,

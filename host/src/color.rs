@@ -244,6 +244,25 @@ pub struct ColorCalibration {
     pub channels: Vec<(String, crate::calibration::CalibrationFile)>,
     /// Each die's place relative to the reference's, in the board's axes, with 1σ.
     pub die_offsets: Vec<DieOffset>,
+    /// Each colour's focus relative to the reference's, read from its fitted LED
+    /// height (below), with 1σ.
+    pub focal_shifts: Vec<FocalShift>,
+}
+
+/// A colour's focus against the reference colour's (the objective's chromatic focal
+/// shift). The stage's defocus is set from the focus in one light; a colour focusing
+/// δ farther away sees the feature defocused by z + δ, and its pdcFPM fit, which takes
+/// z, puts the LEDs at h·z/(z + δ) instead of h. The board is one plane, so every
+/// colour keeps the reference's h and the ratio gives δ = z·(h_ref/h_c − 1).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct FocalShift {
+    /// δ, µm (toward the LEDs positive, as a dataset's `defocus_um`).
+    pub shift_um: f64,
+    /// Its 1σ, µm (the two heights' fit errors; the stage's own defocus error is
+    /// common to both and cancels).
+    pub sigma_um: f64,
+    /// The LED height this colour's own fit gave, mm (replaced by the reference's).
+    pub height_fitted_mm: f64,
 }
 
 /// One colour's die relative to the reference colour's.
@@ -265,7 +284,57 @@ impl ColorCalibration {
                 .with_context(|| format!("calibrating channel {}", c.name))?;
             channels.push((c.name.clone(), file));
         }
-        let reference = &channels[ds.reference].1.calibration;
+        Ok(Self::from_files(channels, ds.reference))
+    }
+
+    /// The colour calibration of each channel's own calibration (by name, in the
+    /// dataset's order; `reference` indexes the reference channel).
+    pub fn from_files(
+        mut channels: Vec<(String, crate::calibration::CalibrationFile)>,
+        reference: usize,
+    ) -> Self {
+        let reference_index = reference;
+        let reference_name = channels[reference].0.clone();
+        let reference_file = channels[reference].1.clone();
+        let reference = &reference_file.calibration;
+        let h = reference.placement.height_mm;
+        let focal_shifts: Vec<FocalShift> = channels
+            .iter()
+            .map(|(_, f)| {
+                let c = &f.calibration;
+                let hc = c.placement.height_mm;
+                let z = c.defocus_um;
+                // The height's fit error alone: its σ less the defocus's share.
+                let fit_sigma = |cal: &fpm_physics::calibrate::Calibration| {
+                    let total = cal.uncertainty.height_mm;
+                    let from_defocus = cal.placement.height_mm / cal.defocus_um.abs().max(1e-9)
+                        * cal.defocus_sigma_um;
+                    (total * total - from_defocus * from_defocus)
+                        .max(0.0)
+                        .sqrt()
+                };
+                let rel = ((fit_sigma(c) / hc).powi(2) + (fit_sigma(reference) / h).powi(2)).sqrt();
+                FocalShift {
+                    shift_um: z * (h / hc - 1.0),
+                    sigma_um: (z * h / hc * rel).abs(),
+                    height_fitted_mm: hc,
+                }
+            })
+            .collect();
+        // Each colour's in-focus reference frame was δ from its focus too, so its
+        // feature sat δ·p₀/h off (p₀: the centre LED's place), which the fit took as
+        // the board's offset: Δ_fit = Δ − δ/(z + δ)·p₀. Put it back, then keep the
+        // board's one h.
+        for ((_, f), shift) in channels.iter_mut().zip(&focal_shifts) {
+            let z = f.calibration.defocus_um;
+            let (x0, y0, _) = f.geometry().led_position_3d_mm(f.nominal.center);
+            let k = shift.shift_um / (z + shift.shift_um);
+            f.calibration.placement.dx_mm += k * x0;
+            f.calibration.placement.dy_mm += k * y0;
+            f.calibration.placement.height_mm = h;
+            f.calibration.uncertainty.height_mm = reference.uncertainty.height_mm;
+        }
+        let reference = &channels[reference_index].1.calibration;
         let (s, co) = reference.placement.theta_deg.to_radians().sin_cos();
         let die_offsets = channels
             .iter()
@@ -284,11 +353,12 @@ impl ColorCalibration {
                 }
             })
             .collect();
-        Ok(Self {
-            reference: ds.channels[ds.reference].name.clone(),
+        Self {
+            reference: reference_name,
             channels,
             die_offsets,
-        })
+            focal_shifts,
+        }
     }
 
     /// The JSON of `calibration.json`: `{"color": {"reference"}, "channels": {name:
@@ -296,14 +366,22 @@ impl ColorCalibration {
     pub fn to_json(&self) -> Result<serde_json::Value> {
         let mut channels = serde_json::Map::new();
         let mut dies = serde_json::Map::new();
-        for ((name, file), die) in self.channels.iter().zip(&self.die_offsets) {
+        let mut focus = serde_json::Map::new();
+        for (((name, file), die), shift) in self
+            .channels
+            .iter()
+            .zip(&self.die_offsets)
+            .zip(&self.focal_shifts)
+        {
             channels.insert(name.clone(), serde_json::to_value(file)?);
             dies.insert(name.clone(), serde_json::to_value(die)?);
+            focus.insert(name.clone(), serde_json::to_value(shift)?);
         }
         Ok(serde_json::json!({
             "color": {"reference": self.reference},
             "channels": channels,
             "die_offsets": dies,
+            "focal_shifts": focus,
         }))
     }
 }
@@ -341,6 +419,9 @@ pub enum ColorGeometry {
     /// own; a single one is used for every channel (the dies' offsets then go
     /// uncorrected, which the report warns of).
     File(PathBuf),
+    /// One placement for every channel (the board's stored calibration, named here):
+    /// the dies' offsets go uncorrected, which the report warns of.
+    Given(fpm_physics::LedGeometry, String),
 }
 
 /// One channel reconstructed, and where it lies against the reference.
@@ -425,20 +506,26 @@ pub fn reconstruct(
     use crate::reconstruction::{Check, GeometryChoice, Warning};
     let per_channel = match geometry {
         ColorGeometry::File(path) => read_color_placements(path)?,
-        ColorGeometry::Nominal => None,
+        _ => None,
     };
     let mut warnings = vec![];
+    let one_for_all = |what: String| {
+        Warning {
+        check: Check::ColorOneCalibration,
+        message: format!(
+            "one calibration ({what}) placed every colour's LEDs: an RGB LED's dies sit ~0.5-1 mm apart, so the other colours' LEDs are off by that much; calibrate each colour (`fpm calibrate` on a colour calibration set, or `fpm acquire --colors ... --calibrate`) and give that calibration.json"
+        ),
+    }
+    };
     let geometry_name = match (geometry, &per_channel) {
         (ColorGeometry::Nominal, _) => "nominal",
         (ColorGeometry::File(_), Some(_)) => "per-channel calibration",
         (ColorGeometry::File(path), None) => {
-            warnings.push(Warning {
-                check: Check::ColorOneCalibration,
-                message: format!(
-                    "one calibration ({}) placed every colour's LEDs: an RGB LED's dies sit ~0.5-1 mm apart, so the other colours' LEDs are off by that much; calibrate each colour (`fpm calibrate` on a colour calibration set) and give that calibration.json",
-                    path.display()
-                ),
-            });
+            warnings.push(one_for_all(path.display().to_string()));
+            "one calibration for every channel"
+        }
+        (ColorGeometry::Given(_, name), _) => {
+            warnings.push(one_for_all(name.clone()));
             "one calibration for every channel"
         }
     };
@@ -462,6 +549,7 @@ pub fn reconstruct(
                 )
             }
             (None, ColorGeometry::File(path)) => GeometryChoice::File(path.clone()),
+            (None, ColorGeometry::Given(g, name)) => GeometryChoice::Given(*g, name.clone()),
             (None, ColorGeometry::Nominal) => job.geometry.clone(),
         };
         let channel_job = crate::reconstruction::Job {

@@ -239,14 +239,15 @@ fn nominal() -> LedGeometry {
 
 /// Write `scene`'s calibration set into `out` (dataset.toml, frames/, truth.json).
 pub fn write_calibration_set(scene: &Scene, set: &CalibrationSet, out: &Path) -> Result<Written> {
-    write_calibration_set_at(scene, set, System::paper().wavelength_um, out)
+    write_calibration_set_at(scene, set, (System::paper().wavelength_um, 0.0), out)
 }
 
-/// [`write_calibration_set`] in light of `wavelength_um`.
+/// [`write_calibration_set`] in light of a wavelength (µm) whose focus lies a focal
+/// shift (µm) from the one the stage was zeroed in.
 fn write_calibration_set_at(
     scene: &Scene,
     set: &CalibrationSet,
-    wavelength_um: f64,
+    (wavelength_um, focal_shift_um): (f64, f64),
     out: &Path,
 ) -> Result<Written> {
     scene.validate()?;
@@ -264,7 +265,7 @@ fn write_calibration_set_at(
     sim.feature_at_um = set.feature_at_um;
     sim.camera_px = scene.size;
     sim.camera = scene.camera();
-    let frames = sim.acquire();
+    let frames = sim.acquire_focused_off(focal_shift_um);
     write_frames(out, &sim.system, &sim.camera, &frames)?;
     let truth = Truth {
         defocus_um: Some(set.defocus_um),
@@ -375,7 +376,12 @@ pub fn write_color_calibration(
             seed: channel_seed(scene.seed, k),
             ..*scene
         };
-        write_calibration_set_at(&lit, set, channel.wavelength_um, dir)
+        write_calibration_set_at(
+            &lit,
+            set,
+            (channel.wavelength_um, channel.focal_shift_um),
+            dir,
+        )
     })
 }
 

@@ -131,6 +131,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     let camera = Camera::realistic();
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
+    let dies = Dies::new(&system, &hidden, size, a.seed);
     let mut rig = RigListener::create(&a.rig)?;
     let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), width * height)?;
     if let Some(dir) = &a.truth_dir {
@@ -144,6 +145,27 @@ pub fn run(a: VirtualCamera) -> Result<()> {
             })?,
         )?;
         write_truth_field(dir, &sensor.crop_truth(&sample))?;
+        // Each colour's own truth (its dies' placement, the sample in its light) in
+        // `dir/<colour>/`, for colour acquisitions; the top level is blue's (and white's).
+        for die in &dies.colors {
+            let sub = dir.join(&die.channel.name);
+            std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
+            write_truth_field(&sub, &sensor.crop_truth(&die.sample))?;
+            std::fs::write(
+                sub.join("truth.json"),
+                serde_json::to_string_pretty(&Truth {
+                    placement: die.geometry.placement(),
+                    defocus_um: None,
+                    feature_um: None,
+                    feature_at_um: None,
+                    object_pixel_um: Some(die.sample.pitch_um()),
+                    seed: Some(a.seed),
+                    leds: None,
+                    entrance_pupil_mm: a.entrance_pupil_mm,
+                    sample: None,
+                })?,
+            )?;
+        }
         // Last: its presence tells a launcher that the camera is listening.
         std::fs::write(
             dir.join("truth.json"),
@@ -184,18 +206,60 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         } else {
             (&sample, &mut renderers.0)
         };
-        // Lit LEDs add incoherently; white light is taken at the system's wavelength.
+        // Lit LEDs add incoherently. White (or grey) light is taken at the system's
+        // wavelength from the LED's place, as blue is; red and green come from their
+        // own dies, at their own wavelengths and focus.
         let mut intensity = fpm_physics::Image::zeros((size, size));
+        let on_target = stage.slide == Stage::CALIBRATION_TARGET;
         for led in pulse.lit() {
-            let weight = led.rgb.iter().map(|&v| v as f32).fold(0.0, f32::max) / 255.0;
-            let i = renderer.render(
+            let index = fpm_physics::LedIndex::new(led.row, led.col);
+            let [r, g, b] = led.rgb;
+            let white = r == g && g == b;
+            let mut add = |weight: f32,
+                           at: &System,
+                           geometry: &LedGeometry,
+                           object: &ObjectField,
+                           defocus_um: f64,
+                           renderer: &mut Renderer| {
+                if weight > 0.0 {
+                    let i = renderer.render(at, geometry, object, index, defocus_um);
+                    intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
+                }
+            };
+            if white {
+                add(
+                    r as f32 / 255.0,
+                    &system,
+                    &hidden,
+                    object,
+                    stage.defocus_um,
+                    renderer,
+                );
+                continue;
+            }
+            add(
+                b as f32 / 255.0,
                 &system,
                 &hidden,
                 object,
-                fpm_physics::LedIndex::new(led.row, led.col),
                 stage.defocus_um,
+                renderer,
             );
-            intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
+            for (die, value) in dies.colors.iter().zip([r, g]) {
+                let at = System {
+                    wavelength_um: die.channel.wavelength_um,
+                    ..system
+                };
+                let sample_here = if on_target { object } else { &die.sample };
+                add(
+                    value as f32 / 255.0,
+                    &at,
+                    &die.geometry,
+                    sample_here,
+                    stage.defocus_um + die.focal_shift_um,
+                    renderer,
+                );
+            }
         }
         let exposure_ms = if stage.slide == Stage::CALIBRATION_TARGET {
             // One exposure for the whole calibration set, as a user would set it.
@@ -241,6 +305,59 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     }
     tracing::info!("virtual camera stopped after {frame_number} frames");
     Ok(())
+}
+
+/// The virtual board's red and green dies, beside its blue one (which the board's grid
+/// places, as single-colour runs have always taken it): the WS2812B's wavelengths,
+/// die offsets and focal shifts ([`fpm_physics::color::ws2812b`]) relative to blue's.
+struct Dies {
+    /// Red, then green.
+    colors: Vec<Die>,
+}
+
+struct Die {
+    channel: fpm_physics::color::Channel,
+    /// The hidden array as this colour's dies sit.
+    geometry: LedGeometry,
+    /// The sample in this colour's light.
+    sample: ObjectField,
+    /// Focus relative to blue's, µm.
+    focal_shift_um: f64,
+}
+
+impl Dies {
+    fn new(system: &System, hidden: &LedGeometry, size: usize, seed: u64) -> Self {
+        let table = fpm_physics::color::ws2812b();
+        let blue = table.iter().find(|c| c.name == "blue").cloned();
+        let colors = table
+            .into_iter()
+            .filter(|c| c.name != "blue")
+            .map(|mut channel| {
+                if let Some(blue) = &blue {
+                    channel.die_offset_mm = [
+                        channel.die_offset_mm[0] - blue.die_offset_mm[0],
+                        channel.die_offset_mm[1] - blue.die_offset_mm[1],
+                    ];
+                    channel.focal_shift_um -= blue.focal_shift_um;
+                }
+                Die {
+                    geometry: channel.geometry(hidden),
+                    sample: ObjectField::sample_in_light(
+                        system,
+                        size,
+                        32,
+                        2,
+                        seed,
+                        fpm_physics::simulate::SampleKind::Cells,
+                        channel.wavelength_um,
+                    ),
+                    focal_shift_um: channel.focal_shift_um,
+                    channel,
+                }
+            })
+            .collect();
+        Self { colors }
+    }
 }
 
 /// Where a `width × height` sensor sits on the square `size²` rendered field: centred,

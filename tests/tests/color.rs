@@ -176,7 +176,7 @@ fn each_colour_reconstructs_near_its_single_colour_run_once_its_dies_are_calibra
         text.contains(r#"SizeC="3""#),
         "amplitude.tif is not a 3-channel OME-TIFF"
     );
-    for nm in ["622.5", "523.5", "466"] {
+    for nm in ["622.5", "523.5", "470"] {
         assert!(
             text.contains(&format!(r#"ExcitationWavelength="{nm}""#)),
             "{nm} nm"

@@ -6,9 +6,11 @@
 //!
 //! The WS2812B datasheets give dominant wavelengths of R 620–625, G 522–525 and
 //! B 465–467 nm; the Waller lab's FPM code assumes 624.4, 518.0 and 476.4 nm. We take
-//! the datasheets' middles (622.5, 523.5, 466 nm) and typical InGaN/AlInGaP LED
-//! widths (FWHM 18, 33, 25 nm); a user's own values replace them (`--colors
-//! red=0.630`, the dataset's `wavelength_um`).
+//! the datasheets' middles for red and green (622.5, 523.5 nm) and, for blue, the
+//! 470 nm every single-colour acquisition of this project has assumed (between the
+//! datasheets and the Waller lab's), with typical AlInGaP/InGaN LED widths (FWHM 18,
+//! 33, 25 nm); a user's own values replace them (`--colors red:0.630`, the dataset's
+//! `wavelength_um`).
 
 use ndarray::{Array2, ArrayView2};
 use rustfft::num_complex::Complex32;
@@ -55,7 +57,7 @@ pub fn ws2812b() -> Vec<Channel> {
         },
         Channel {
             name: "blue".into(),
-            wavelength_um: nm(466.0),
+            wavelength_um: nm(470.0),
             fwhm_nm: 25.0,
             die_offset_mm: [0.7, 0.0],
             focal_shift_um: -4.0,

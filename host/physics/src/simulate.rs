@@ -1069,6 +1069,14 @@ impl CalibrationScene {
     /// defocused hole focuses light to about twice the clear-field level, so a clear
     /// field is put at a third of full scale and nothing saturates.
     pub fn acquire(&self) -> Vec<SimFrame> {
+        self.acquire_focused_off(0.0)
+    }
+
+    /// [`Self::acquire`] in light whose focus lies `focus_offset_um` from the one the
+    /// stage's zero was set in (a colour other than the one focused: chromatic focal
+    /// shift): every frame is rendered that much farther defocused, and labelled with
+    /// the stage's defocus, as a rig records it.
+    pub fn acquire_focused_off(&self, focus_offset_um: f64) -> Vec<SimFrame> {
         let px = self.system.sample_pixel_um();
         // Margin: the defocused feature moves and blurs by up to this much.
         let reach_um = self.defocus_um.abs() * (0.25 + self.system.na) + 10.0;
@@ -1090,14 +1098,23 @@ impl CalibrationScene {
             }
             None => self.camera.exposure_for(peak_intensity, 0.85, 1.0, 1000.0),
         };
-        acquire(
+        let shots: Vec<(LedIndex, f64)> = self
+            .shots()
+            .into_iter()
+            .map(|(led, z)| (led, z + focus_offset_um))
+            .collect();
+        let mut frames = acquire(
             &self.system,
             &self.truth,
             &object,
-            &self.shots(),
+            &shots,
             &self.camera,
             |_| exposure,
             self.seed,
-        )
+        );
+        for f in &mut frames {
+            f.defocus_um -= focus_offset_um;
+        }
+        frames
     }
 }

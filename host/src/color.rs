@@ -1,4 +1,4 @@
-//! Colour datasets (docs/dataset.md §5.7): one single-wavelength dataset per colour
+//! Colour datasets (docs/dataset.md §5.9): one single-wavelength dataset per colour
 //! channel, each in its own directory and each a dataset any reader of the format
 //! loads, joined by a `dataset.toml` that holds only `[color]` and `[[channel]]`.
 //! Each channel keeps its own wavelength, LED positions (the dies of an RGB LED sit

@@ -15,6 +15,7 @@ naming the file, key or frame; a calibration or reconstruction that cannot run r
 
 from ._fpm import (
     Calibration,
+    ColorResult,
     Dataset,
     DatasetError,
     FpmError,
@@ -26,12 +27,14 @@ from ._fpm import (
     reconstruct,
     simulate_acquisition,
     simulate_calibration,
+    simulate_color_acquisition,
 )
 from .client import Client, ServiceError
 
 __all__ = [
     "Calibration",
     "Client",
+    "ColorResult",
     "Dataset",
     "DatasetError",
     "FpmError",
@@ -44,4 +47,5 @@ __all__ = [
     "reconstruct",
     "simulate_acquisition",
     "simulate_calibration",
+    "simulate_color_acquisition",
 ]

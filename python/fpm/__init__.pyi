@@ -1,5 +1,6 @@
 from ._fpm import (
     Calibration as Calibration,
+    ColorResult as ColorResult,
     Dataset as Dataset,
     DatasetError as DatasetError,
     FpmError as FpmError,
@@ -11,5 +12,6 @@ from ._fpm import (
     reconstruct as reconstruct,
     simulate_acquisition as simulate_acquisition,
     simulate_calibration as simulate_calibration,
+    simulate_color_acquisition as simulate_color_acquisition,
 )
 from .client import Client as Client, ServiceError as ServiceError

@@ -166,6 +166,40 @@ class Result:
         format="ome-zarr", as one OME-Zarr pyramid (image.ome.zarr); pupil TIFFs, PNG
         previews and report.json into `dir`."""
 
+class ColorResult:
+    """A colour reconstruction: every channel with its own wavelength, LEDs and pupil,
+    registered to the reference channel."""
+
+    @property
+    def names(self) -> list[str]: ...
+    @property
+    def wavelengths_um(self) -> list[float]: ...
+    @property
+    def channels(self) -> dict[str, Result]:
+        """Each channel's own reconstruction (before registration)."""
+    @property
+    def amplitude(self) -> npt.NDArray[np.float32]:
+        """(channel, y, x), registered."""
+    @property
+    def phase(self) -> npt.NDArray[np.float32]:
+        """(channel, y, x), radians, registered."""
+    @property
+    def rgb(self) -> npt.NDArray[np.uint8]:
+        """(y, x, 3) sRGB preview, white-balanced on the clear background."""
+    @property
+    def pixel_um(self) -> float: ...
+    @property
+    def report(self) -> dict[str, Json]:
+        """As the colour report.json: per channel its wavelength, geometry, shift,
+        clear level and `versus_truth`."""
+    @property
+    def warnings(self) -> list[str]: ...
+    def save(
+        self, dir: Union[str, PathLike[str]], *, format: str = "tiff", compress: bool = False
+    ) -> None:
+        """amplitude/phase with one channel per wavelength, color.png, report.json, and
+        each channel's own outputs in `dir/<name>/`."""
+
 class Streaming:
     """A reconstruction fed frame by frame while the acquisition runs."""
 
@@ -217,7 +251,7 @@ def dpc(
     to 1e-3."""
 
 def reconstruct(
-    dataset: Dataset,
+    dataset: Union[Dataset, str, PathLike[str]],
     *,
     geometry: Union[Calibration, dict[str, Any], str, PathLike[str], None] = None,
     upsample: int = 4,
@@ -234,8 +268,11 @@ def reconstruct(
     entrance_pupil_mm: Optional[float] = None,
     refocus_um: Union[float, str, None] = None,
     progress: Optional[Progress] = None,
-) -> Result:
+) -> Union[Result, ColorResult]:
     """EPRY reconstruction of the dataset's in-focus frames (GIL released).
+
+    `dataset` may be a directory; a colour dataset's gives a ColorResult (`geometry`:
+    the path of its colour calibration.json).
 
     `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
     objectives that are not telecentric (default: telecentric). `refocus_um`: how far
@@ -298,3 +335,22 @@ def simulate_calibration(
     feature_at_um: Tuple[float, float] = (0.0, 0.0),
 ) -> Tuple[Dataset, dict[str, Json]]:
     """A simulated pdcFPM calibration set written into `out`: (dataset, truth)."""
+
+def simulate_color_acquisition(
+    out: Union[str, PathLike[str]],
+    *,
+    colors: Sequence[str] = ("red", "green", "blue"),
+    die_offset_mm: Optional[dict[str, Tuple[float, float]]] = None,
+    focal_shift_um: Optional[dict[str, float]] = None,
+    spectral_samples: int = 5,
+    size: int = 128,
+    seed: int = 1,
+    dx_mm: float = 0.0,
+    dy_mm: float = 0.0,
+    theta_deg: float = 0.0,
+    height_mm: float = 92.0,
+    noise: str = "realistic",
+    sample: str = "cells",
+) -> Tuple[Path, dict[str, Json]]:
+    """A colour acquisition (a scan per colour, each its own dataset) in `out`; its
+    directory and each colour's truth."""

@@ -8,6 +8,7 @@
 use pyo3::prelude::*;
 
 mod calibrate;
+mod color;
 mod convert;
 mod dataset;
 mod dpc;
@@ -24,11 +25,13 @@ fn _fpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<dataset::Dataset>()?;
     m.add_class::<calibrate::Calibration>()?;
     m.add_class::<reconstruct::Reconstruction>()?;
+    m.add_class::<color::ColorResult>()?;
     m.add_class::<streaming::Streaming>()?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct::reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(dpc::dpc, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate_acquisition, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate_calibration, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate::simulate_color_acquisition, m)?)?;
     Ok(())
 }

@@ -231,13 +231,17 @@ pub(crate) fn settings(
 /// pupil starts with that defocus and the image comes out refocused. "auto": as far as
 /// the bright-field frames' shifts say; None (default): that too where the shifts
 /// clearly show a defocus, else as in focus (the report's `refocus` says which).
+/// `dataset` may also be a dataset's directory; a colour dataset's (docs/dataset.md
+/// §5.9) gives a `ColorResult`, every channel reconstructed with its own wavelength,
+/// LEDs and pupil and registered (`geometry`: the path of a colour calibration.json,
+/// or of one calibration for every channel, which the result warns of).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
 #[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 7.5, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(
     py: Python<'_>,
-    dataset: &Bound<'_, Dataset>,
+    dataset: &Bound<'_, PyAny>,
     geometry: Option<&Bound<'_, PyAny>>,
     upsample: usize,
     passes: usize,
@@ -253,7 +257,7 @@ pub fn reconstruct(
     entrance_pupil_mm: Option<f64>,
     refocus_um: Option<&Bound<'_, PyAny>>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<Reconstruction> {
+) -> PyResult<Py<PyAny>> {
     let refocus = match refocus_um {
         None => Refocus::WhereClear,
         Some(v) => match v.extract::<f64>() {
@@ -268,7 +272,54 @@ pub fn reconstruct(
             },
         },
     };
-    let ds = &dataset.get().inner;
+    let loaded;
+    let ds = match dataset.cast::<Dataset>() {
+        Ok(d) => &d.get().inner,
+        Err(_) => {
+            let dir: PathBuf = dataset.extract().map_err(|_| {
+                PyValueError::new_err("dataset: give a Dataset, or a dataset's directory")
+            })?;
+            if fpm_host::color::is_color(&dir) {
+                let calibration = match geometry.filter(|g| !g.is_none()) {
+                    None => None,
+                    Some(g) => Some(g.extract::<PathBuf>().map_err(|_| {
+                        PyValueError::new_err("geometry: a colour dataset takes the path of a calibration.json (a colour one places each colour's LEDs)")
+                    })?),
+                };
+                let job = Job {
+                    entrance_pupil_mm: entrance_pupil(entrance_pupil_mm)?,
+                    settings: settings(
+                        upsample,
+                        fixed_pupil,
+                        background,
+                        floor,
+                        floor_sigma,
+                        noise_band_sigma,
+                        flatten_background,
+                        background_block_um,
+                    )?,
+                    refocus,
+                    passes,
+                    tile,
+                    ..Job::default()
+                };
+                if refine_leds {
+                    return Err(PyValueError::new_err(
+                        "refine_leds: not for a colour dataset; refine each channel's dataset on its own",
+                    ));
+                }
+                job.validate()
+                    .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+                let progress = Progress::new(progress);
+                let result = crate::color::reconstruct(py, dir, job, calibration, &progress);
+                progress.finish()?;
+                return Ok(Py::new(py, result?)?.into_any());
+            }
+            loaded =
+                fpm_host::dataset::Dataset::load(&dir).map_err(crate::convert::dataset_error)?;
+            &loaded
+        }
+    };
     let geometry = geometry_from(geometry, &ds.manifest.geometry())?;
     let job = Job {
         geometry,
@@ -298,7 +349,11 @@ pub fn reconstruct(
     let progress = Progress::new(progress);
     let result = py.detach(|| job.run_in_memory(ds, &|done, total| progress.report(done, total)));
     progress.finish()?;
-    Ok(Reconstruction {
-        inner: result.map_err(failed)?,
-    })
+    Ok(Py::new(
+        py,
+        Reconstruction {
+            inner: result.map_err(failed)?,
+        },
+    )?
+    .into_any())
 }

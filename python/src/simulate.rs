@@ -174,3 +174,93 @@ pub fn simulate_calibration<'py>(
         .map_err(failed)?;
     loaded(py, &out, written)
 }
+
+/// Simulate a colour acquisition (`fpm simulate acquisition --colors`): a whole scan
+/// per colour of `colors` (red, green, blue: the WS2812B's wavelengths, spectra, dies
+/// and focal shifts, `fpm_physics::color::ws2812b`), each written into `out/<colour>/`
+/// with its truth, joined by `out/dataset.toml`. `die_offset_mm`: {colour: (x, y)} in
+/// the board's axes, mm; `focal_shift_um`: {colour: µm}; `spectral_samples`:
+/// wavelengths rendered per colour. Returns (the colour dataset's directory,
+/// {colour: truth dict}); `fpm.reconstruct(path)` reconstructs it.
+#[pyfunction]
+#[pyo3(signature = (out, *, colors = vec!["red".to_string(), "green".to_string(), "blue".to_string()], die_offset_mm = None, focal_shift_um = None, spectral_samples = 5, size = 128, seed = 1, dx_mm = 0.0, dy_mm = 0.0, theta_deg = 0.0, height_mm = 92.0, noise = "realistic", sample = "cells"))]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
+pub fn simulate_color_acquisition<'py>(
+    py: Python<'py>,
+    out: PathBuf,
+    colors: Vec<String>,
+    die_offset_mm: Option<std::collections::HashMap<String, (f64, f64)>>,
+    focal_shift_um: Option<std::collections::HashMap<String, f64>>,
+    spectral_samples: usize,
+    size: usize,
+    seed: u64,
+    dx_mm: f64,
+    dy_mm: f64,
+    theta_deg: f64,
+    height_mm: f64,
+    noise: &str,
+    sample: &str,
+) -> PyResult<(PathBuf, Bound<'py, PyAny>)> {
+    let sample: SampleKind = serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
+        PyValueError::new_err(format!(
+            "sample = '{sample}': give 'cells', 'weak-phase' or 'stained'"
+        ))
+    })?;
+    let mut channels = vec![];
+    for name in &colors {
+        let mut c = fpm_physics::color::ws2812b_channel(name).ok_or_else(|| {
+            PyValueError::new_err(format!("colors: '{name}' is not red, green or blue"))
+        })?;
+        if let Some((x, y)) = die_offset_mm.as_ref().and_then(|m| m.get(&c.name)) {
+            c.die_offset_mm = [*x, *y];
+        }
+        if let Some(f) = focal_shift_um.as_ref().and_then(|m| m.get(&c.name)) {
+            c.focal_shift_um = *f;
+        }
+        channels.push(c);
+    }
+    for (what, keys) in [
+        (
+            "die_offset_mm",
+            die_offset_mm
+                .as_ref()
+                .map(|m| m.keys().cloned().collect::<Vec<_>>()),
+        ),
+        (
+            "focal_shift_um",
+            focal_shift_um.as_ref().map(|m| m.keys().cloned().collect()),
+        ),
+    ] {
+        if let Some(k) = keys
+            .unwrap_or_default()
+            .iter()
+            .find(|k| !channels.iter().any(|c| &c.name == *k))
+        {
+            return Err(PyValueError::new_err(format!(
+                "{what}: '{k}' is not one of colors"
+            )));
+        }
+    }
+    let scene = scene(
+        size,
+        seed,
+        (dx_mm, dy_mm, theta_deg, height_mm),
+        (0.0, 0.0),
+        noise,
+        0.0,
+    )?;
+    let set = AcquisitionSet {
+        sample,
+        ..AcquisitionSet::default()
+    };
+    let color = simulation::ColorSet {
+        channels,
+        spectral_samples,
+    };
+    let written = py
+        .detach(|| simulation::write_color_acquisition(&scene, &set, &color, &out))
+        .map_err(failed)?;
+    let truths: std::collections::BTreeMap<String, _> =
+        written.into_iter().map(|(n, w)| (n, w.truth)).collect();
+    Ok((out, to_py(py, &truths)?))
+}

@@ -879,7 +879,7 @@ pub(crate) fn read_manifest(dir: &Path) -> Result<(PathBuf, Manifest), DatasetEr
     })?;
     if let Ok(table) = text.parse::<toml::Table>() {
         if table.contains_key("color") {
-            let reason = "a colour dataset (one dataset per channel, docs/dataset.md §5.7): `fpm reconstruct` and `fpm calibrate` take it whole; for one channel alone give its directory (a [[channel]]'s dataset)".to_string();
+            let reason = "a colour dataset (one dataset per channel, docs/dataset.md §5.9): `fpm reconstruct` and `fpm calibrate` take it whole; for one channel alone give its directory (a [[channel]]'s dataset)".to_string();
             return Err(DatasetError::Manifest { path, reason });
         }
     }

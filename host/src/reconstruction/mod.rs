@@ -33,6 +33,7 @@ pub use job::{CameraGamma, Finished, GammaScanReason, GeometryChoice, Job, JobEv
 pub use refocus::{RefocusChoice, RefocusReport};
 
 /// What a reconstruction produced.
+#[derive(Clone)]
 pub struct Reconstruction {
     /// HR complex object.
     pub object: Array2<Complex32>,

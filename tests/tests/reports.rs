@@ -218,3 +218,64 @@ fn the_dpc_report_of_real_data_renders_and_says_the_sample_is_not_weak() {
     assert!(r.dom.contains("not weak") && r.dom.contains("fpm reconstruct"));
     assert!(r.dom.contains("fpm dpc"), "no command line");
 }
+
+/// A colour reconstruction's page: the sRGB preview, a row per colour with its
+/// wavelength and score as report.json states them, and the one-calibration warning.
+#[test]
+fn the_colour_report_renders_each_channel_and_warns_of_one_calibration() {
+    let dir = TempDir::new("report-colour");
+    let data = dir.0.join("rgb");
+    let cal = dir.0.join("cal");
+    fpm_tests::simulate_centred(
+        &data,
+        "48",
+        "1",
+        &["--colors", "red,green,blue", "--spectral-samples", "1"],
+    );
+    fpm_stdout(&[
+        "simulate",
+        "calibration",
+        "--out",
+        &cal.to_string_lossy(),
+        "--size",
+        "256",
+        "--dx-mm",
+        "0",
+        "--dy-mm",
+        "0",
+        "--theta-deg",
+        "0",
+        "--colors",
+        "green",
+    ]);
+    fpm_stdout(&["calibrate", &cal.to_string_lossy()]);
+    let out = dir.0.join("out");
+    let green = cal.join("green/calibration.json");
+    fpm_stdout(&[
+        "reconstruct",
+        &data.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--calibration",
+        &green.to_string_lossy(),
+        "--passes",
+        "3",
+    ]);
+    let r = rendered_report(&out.join("report.html"), 1, &dir.0);
+    let report = json(&out.join("report.json"));
+    for c in report["channels"].as_array().unwrap() {
+        let row = format!(
+            "<td class=\"num\">{}</td><td class=\"num\">{:.1} nm</td>",
+            c["name"].as_str().unwrap(),
+            c["wavelength_um"].as_f64().unwrap() * 1e3
+        );
+        assert!(r.dom.contains(&row), "{row} not on the page");
+        let score = format!(
+            "{:.3}",
+            c["versus_truth"]["complex_nrmse"].as_f64().unwrap()
+        );
+        assert!(r.dom.contains(&score), "{score} not on the page");
+    }
+    assert!(r.dom.contains("one calibration") && r.dom.contains("calibrate each colour"));
+    assert!(r.dom.contains("fpm reconstruct"), "no command line");
+}

@@ -301,199 +301,79 @@ fn print_summary(s: &AcquireSummary, out: &Path) {
     );
 }
 
-/// `--colors`: each colour's name, LED value and wavelength, µm.
-fn parse_colors(items: &[String]) -> Result<Vec<(String, Rgb, f64)>> {
-    let mut out: Vec<(String, Rgb, f64)> = vec![];
-    for item in items {
-        let (name, wavelength) = match item.split_once(':') {
-            Some((n, w)) => (n.trim(), Some(w.trim())),
-            None => (item.trim(), None),
-        };
-        let channel = fpm_physics::color::ws2812b_channel(name)
-            .with_context(|| format!("--colors {item}: {name:?} is not red, green or blue"))?;
-        let rgb = match channel.name.as_str() {
-            "red" => Rgb::new(255, 0, 0),
-            "green" => Rgb::new(0, 255, 0),
-            _ => Rgb::new(0, 0, 255),
-        };
-        let wavelength_um = match wavelength {
-            Some(w) => w
-                .parse::<f64>()
-                .ok()
-                .filter(|w| w.is_finite() && (0.2..=2.0).contains(w))
-                .with_context(|| {
-                    format!("--colors {item}: {w:?} is not a wavelength in µm (0.2-2)")
-                })?,
-            None => channel.wavelength_um,
-        };
-        if out.iter().any(|(n, _, _)| *n == channel.name) {
-            anyhow::bail!("--colors: {} is given twice", channel.name);
-        }
-        out.push((channel.name, rgb, wavelength_um));
-    }
-    Ok(out)
-}
-
-/// `fpm acquire --colors`: a scan per colour, one after another (each its own
-/// sequence: the board relights every LED anyway, and a colour's frames then share one
-/// exposure rule and one calibration), then the colour dataset, the colour calibration
-/// and, asked for, the colour image.
+/// `fpm acquire --colors`: a scan per colour ([`fpm_acquire::color`]), then the colour
+/// image when asked for; prints what each colour did.
 fn colors(a: &AcquireArgs) -> Result<()> {
-    use fpm_host::color::{
-        ChannelEntry, ColorCalibration, ColorDataset, ColorGeometry, ColorManifest, ColorSection,
-    };
-    let channels = parse_colors(&a.colors)?;
+    use fpm_acquire::color::{self, ColorPlan};
+    let colors = ColorPlan::parse(&a.colors, &a.focus_color, "--colors")?;
     if a.resume {
         anyhow::bail!("--resume with --colors: a colour acquisition is not resumable yet; acquire the colours again");
     }
-    if a.multiplex > 1 || a.multiplex_bright > 1 {
-        anyhow::bail!("--multiplex with --colors: a colour acquisition lights one LED per frame");
-    }
-    if !channels.iter().any(|(c, _, _)| {
-        fpm_physics::color::ws2812b_channel(&a.focus_color).is_some_and(|f| f.name == *c)
-    }) {
-        anyhow::bail!(
-            "--focus-color {}: not one of --colors ({}); name the colour the sample was focused in",
-            a.focus_color,
-            channels
-                .iter()
-                .map(|c| c.0.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    let start = std::time::Instant::now();
     let (dev, mut stage) = open_rig(a)?;
-    let mut summaries = vec![];
-    for (name, rgb, wavelength_um) in &channels {
-        eprintln!("{name} ({:.1} nm)", wavelength_um * 1e3);
-        let mut plan = plan(a);
-        plan.color = *rgb;
-        plan.system.wavelength_um = *wavelength_um;
-        plan.out = a.out.join(name);
-        plan.reconstruct = false;
-        let summary = run_plan(&dev, stage.as_mut(), &plan, false)
-            .with_context(|| format!("acquiring {name}"))?;
-        summaries.push((name.clone(), *wavelength_um, summary));
-    }
-    let focus = fpm_physics::color::ws2812b_channel(&a.focus_color)
-        .map(|c| c.name)
-        .filter(|n| channels.iter().any(|(c, _, _)| c == n))
-        .with_context(|| {
-            format!(
-                "--focus-color {}: not one of --colors ({})",
-                a.focus_color,
-                channels
-                    .iter()
-                    .map(|c| c.0.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        })?;
-    let manifest = ColorManifest {
-        color: ColorSection {
-            reference: Some(focus),
+    let cancel = cancel_on_signal()?;
+    let control = Control::cancelled_by(cancel);
+    let bar = crate::progress::frames("acquiring");
+    let done = color::acquire(
+        &dev,
+        stage.as_mut(),
+        &plan(a),
+        &colors,
+        |name| {
+            bar.set_message(format!("acquiring {name}"));
+            let bar = bar.clone();
+            move |p: &Progress| {
+                bar.set_length(p.of as u64);
+                bar.set_position(p.frames as u64);
+            }
         },
-        channels: channels
-            .iter()
-            .map(|(name, _, _)| ChannelEntry {
-                name: name.clone(),
-                dataset: name.clone(),
-            })
-            .collect(),
-    };
-    ColorDataset::write_manifest(&a.out, &manifest)?;
-    let ds = ColorDataset::open(&a.out)?;
-    let acquired_s = start.elapsed().as_secs_f64();
-    let calibration = a.out.join("calibration.json");
-    if a.calibrate {
-        let mut files = vec![];
-        for c in &ds.channels {
-            let path = c.dir.join("calibration.json");
-            let text = std::fs::read_to_string(&path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            let file: fpm_host::calibration::CalibrationFile = serde_json::from_str(&text)
-                .with_context(|| format!("parsing {}", path.display()))?;
-            files.push((c.name.clone(), file));
-        }
-        let cal = ColorCalibration::from_files(files, ds.reference);
-        std::fs::write(&calibration, serde_json::to_string_pretty(&cal.to_json()?)?)?;
-    }
-    let json_channels: Vec<_> = summaries
-        .iter()
-        .map(|(name, w, s)| serde_json::json!({"name": name, "wavelength_um": w, "summary": s}))
-        .collect();
-    if !a.json {
-        for (name, _, s) in &summaries {
-            print!("{name}: ");
-            print_summary(s, &a.out.join(name));
-        }
-        println!(
-            "acquired {} colours in {acquired_s:.1} s; wrote the colour dataset to {}{}",
-            summaries.len(),
-            a.out.display(),
-            if a.calibrate {
-                format!(
-                    " and each colour's calibration to {}",
-                    calibration.display()
-                )
-            } else {
-                String::new()
-            }
-        );
-    }
-    let mut report = None;
-    if a.reconstruct {
-        let geometry = if a.calibrate {
-            ColorGeometry::File(calibration.clone())
-        } else {
-            match summaries
-                .first()
-                .map(|(_, _, s)| (&s.geometry, &s.geometry_source))
-            {
-                Some((g, GeometrySource::Board)) => {
-                    ColorGeometry::Given(*g, "the board's stored calibration".into())
-                }
-                _ => ColorGeometry::Nominal,
-            }
-        };
-        let job = fpm_host::reconstruction::Job {
-            passes: a.passes,
-            tile: a.tile,
-            settings: fpm_physics::reconstruct::Settings {
-                flatten: a.flatten.flatten(),
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let bar = crate::progress::counter("reconstructing the colours", "frame updates");
-        let run = fpm_host::color::reconstruct(&ds, &job, &geometry, &|_, event| {
-            if let fpm_host::reconstruction::JobEvent::Updates { done, total } = event {
-                crate::progress::advance(&bar, done, total);
-            }
-        })?;
-        bar.finish_and_clear();
-        crate::reconstruct::write_and_print_color(
-            &run,
-            &a.out.join("reconstruction"),
-            Default::default(),
-            if a.json {
-                crate::reconstruct::Print::Nothing
-            } else {
-                crate::reconstruct::Print::Text
-            },
-        )?;
-        report = Some(run.report);
-    }
+        &control,
+        &fpm_report::html::command_line(),
+    );
+    bar.finish_and_clear();
+    let done = done?;
     if a.json {
+        println!("{}", serde_json::to_string_pretty(&done)?);
+        return Ok(());
+    }
+    for c in &done.channels {
+        print!("{} ({:.1} nm): ", c.name, c.wavelength_um * 1e3);
+        print_summary(&c.summary, &a.out.join(&c.name));
+    }
+    println!(
+        "acquired {} colours in {:.1} s; wrote the colour dataset to {}{}",
+        done.channels.len(),
+        done.seconds,
+        a.out.display(),
+        done.calibration.as_ref().map_or(String::new(), |p| format!(
+            " and each colour's calibration to {}",
+            p.display()
+        ))
+    );
+    if let Some(r) = &done.reconstruction {
+        for c in &r.channels {
+            println!(
+                "  {}: shifted {} to {}{}",
+                c.name,
+                c.shift_um
+                    .map_or("—".to_string(), |[x, y]| format!("({x:+.2}, {y:+.2}) µm")),
+                r.reference,
+                c.versus_truth.map_or(String::new(), |s| format!(
+                    ", complex NRMSE {:.3} against its truth",
+                    s.complex_nrmse
+                ))
+            );
+        }
         println!(
-            "{}",
-            serde_json::to_string_pretty(&serde_json::json!({
-                "channels": json_channels,
-                "seconds": acquired_s,
-                "reconstruction": report,
-            }))?
+            "wrote the colour image to {}",
+            a.out.join("reconstruction").display()
         );
+        for w in r
+            .warnings
+            .iter()
+            .chain(r.channels.iter().flat_map(|c| c.warnings.iter()))
+        {
+            eprintln!("warning: {}", w.message);
+        }
     }
     Ok(())
 }

@@ -477,44 +477,23 @@ fn color(a: &ReconstructArgs, dir: &Path, out: &Path) -> Result<()> {
         }
     })?;
     bar.finish_and_clear();
-    let print = if a.json { Print::Json } else { Print::Text };
-    write_and_print_color(&run, out, a.output(), print)
-}
-
-/// How a colour run is printed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Print {
-    /// As text.
-    Text,
-    /// Its report as JSON.
-    Json,
-    /// Not at all (the caller prints), warnings aside.
-    Nothing,
+    write_and_print_color(&run, out, a.output(), a.json)
 }
 
 /// Write a colour run's outputs into `out` (each channel's own in `out/<name>/`) and
 /// print what it did (`json`: its report).
-pub(crate) fn write_and_print_color(
+fn write_and_print_color(
     run: &fpm_host::color::ColorRun,
     out: &Path,
     output: OutputOptions,
-    print: Print,
+    json: bool,
 ) -> Result<()> {
     use fpm_host::color;
-    let command = fpm_report::html::command_line();
-    for c in &run.channels {
-        let written =
-            fpm_report::reconstruction::write(&c.finished, &out.join(&c.name), output, &command)?;
-        if let Err(e) = &written.page {
-            tracing::warn!("no HTML report for channel {}: {e:#}", c.name);
-        }
-    }
-    color::write_outputs(run, out, output)?;
-    let page = fpm_report::color::write_page(&run.report, out, &command);
+    let page = fpm_report::color::write(run, out, output, &fpm_report::html::command_line())?;
     let report = &run.report;
-    if print == Print::Json {
+    if json {
         println!("{}", serde_json::to_string_pretty(report)?);
-    } else if print == Print::Text {
+    } else {
         println!(
             "{} channels, registered to {}, LEDs placed by {}:",
             report.channels.len(),
@@ -557,9 +536,6 @@ pub(crate) fn write_and_print_color(
         .chain(report.channels.iter().flat_map(|c| c.warnings.iter()))
     {
         eprintln!("warning: {}", w.message);
-    }
-    if let Err(e) = page {
-        tracing::warn!("no HTML report: {e:#}");
     }
     Ok(())
 }

@@ -943,3 +943,43 @@ fn rig_faults_fail_the_job_naming_them_and_the_service_recovers() {
     assert!(status.success(), "{status}");
     assert!(watching.all(|line| !line.starts_with("data:")));
 }
+
+/// An acquire job with `colors`: a whole acquisition per colour into the job's
+/// directory, joined as a colour dataset; a colour the board has not is refused
+/// naming the field.
+#[test]
+fn a_colour_acquisition_runs_as_a_job() {
+    let dir = TempDir::new("serve-colour");
+    let service = Service::start(&dir.0.join("state"));
+    let out = dir.0.join("rgb");
+    let bad = serde_json::json!({"kind": "acquire", "out": out, "colors": ["red", "purple"]});
+    let refused = service.post("/api/jobs", Some(&bad.to_string()));
+    assert_eq!(refused.status, 400, "{}", refused.body);
+    assert!(
+        refused.body.contains("colors") && refused.body.contains("purple"),
+        "{}",
+        refused.body
+    );
+    let body = serde_json::json!({
+        "kind": "acquire", "out": out, "step_ms": 15.0, "colors": ["red", "green"],
+        "focus_color": "green",
+    });
+    let queued = service.post("/api/jobs", Some(&body.to_string()));
+    assert_eq!(queued.status, 202, "{}", queued.body);
+    let id = queued.json().unwrap()["id"].as_i64().unwrap();
+    let job = service.wait(id, Duration::from_secs(180));
+    assert_eq!(job["state"], "done", "{job}");
+    let channels = job["summary"]["channels"].as_array().unwrap();
+    let names: Vec<&str> = channels
+        .iter()
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["red", "green"]);
+    for c in channels {
+        assert_eq!(c["summary"]["frames_in_dataset"], 441, "{c}");
+    }
+    let colour = fpm_host::color::ColorDataset::open(&out).unwrap();
+    assert_eq!(colour.channels[colour.reference].name, "green");
+    let red = Dataset::load(&out.join("red")).unwrap();
+    assert!((red.manifest.system.wavelength_um - 0.6225).abs() < 1e-9);
+}

@@ -21,6 +21,7 @@
 pub mod acquisition;
 pub mod board_geometry;
 pub mod capture;
+pub mod color;
 pub mod controller;
 pub mod dpc;
 pub mod journal;

@@ -102,3 +102,28 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
     page.write(&path)?;
     Ok(path)
 }
+
+/// Write a colour run into `out` for people: each channel's own outputs, previews and
+/// page in `out/<name>/` (as `fpm reconstruct` of its dataset writes them), the colour
+/// images, preview and report.json, and this page. The page is an extra: its error is
+/// returned beside, never fails the write.
+pub fn write(
+    run: &fpm_host::color::ColorRun,
+    out: &Path,
+    output: fpm_host::reconstruction::OutputOptions,
+    reproduce: &str,
+) -> Result<Result<PathBuf>> {
+    for c in &run.channels {
+        let written =
+            crate::reconstruction::write(&c.finished, &out.join(&c.name), output, reproduce)?;
+        if let Err(e) = &written.page {
+            tracing::warn!("no HTML report for channel {}: {e:#}", c.name);
+        }
+    }
+    fpm_host::color::write_outputs(run, out, output)?;
+    let page = write_page(&run.report, out, reproduce);
+    if let Err(e) = &page {
+        tracing::warn!("no HTML report: {e:#}");
+    }
+    Ok(page)
+}

@@ -342,6 +342,14 @@ pub struct AcquireRequest {
     /// Bright-field LEDs lit together in each frame (default 1).
     #[serde(default = "one_round")]
     pub multiplex_bright: usize,
+    /// Acquire in colour: a whole acquisition per colour (`red`, `green`, `blue`, each
+    /// optionally `NAME:UM`), written as a colour dataset (each colour calibrated with
+    /// `calibrate`); `color` and `wavelength_um` then do not apply. Absent: one colour.
+    #[serde(default)]
+    pub colors: Option<Vec<String>>,
+    /// With `colors`: the colour the sample was focused in (default green).
+    #[serde(default)]
+    pub focus_color: Option<String>,
 }
 
 /// A calibration on the rig: every field may be left out (`fpm acquire --calibrate`'s
@@ -421,6 +429,8 @@ impl CalibrateRequest {
             leds: None,
             multiplex: 1,
             multiplex_bright: 1,
+            colors: None,
+            focus_color: None,
         };
         Ok(Plan {
             capture: false,
@@ -639,6 +649,8 @@ impl SequenceRequest {
             leds: Some(self.leds.clone()),
             multiplex: 1,
             multiplex_bright: 1,
+            colors: None,
+            focus_color: None,
         }
     }
 }
@@ -750,6 +762,31 @@ impl AcquireRequest {
         plan.validate().map_err(|e| {
             anyhow::anyhow!("{}", e.to_string().replace("pixel_size_um", "pixel_um"))
         })?;
+        self.color_plan()?;
         Ok(plan)
+    }
+
+    /// The colours asked for (`colors`, `focus_color`), checked; None for one colour.
+    pub fn color_plan(&self) -> Result<Option<fpm_acquire::color::ColorPlan>> {
+        match &self.colors {
+            None => {
+                if self.focus_color.is_some() {
+                    bail!("focus_color applies with colors");
+                }
+                Ok(None)
+            }
+            Some(colors) => {
+                if self.multiplex > 1 || self.multiplex_bright > 1 {
+                    bail!("colors with multiplex: a colour acquisition lights one LED per frame");
+                }
+                if self.leds.is_some() {
+                    bail!(
+                        "colors with leds: a colour acquisition lights every LED in every colour"
+                    );
+                }
+                let focus = self.focus_color.as_deref().unwrap_or("green");
+                fpm_acquire::color::ColorPlan::parse(colors, focus, "colors").map(Some)
+            }
+        }
     }
 }

@@ -452,8 +452,22 @@ fn run_job(
         JobRequest::Acquire(a) => {
             let plan = a.plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
-            fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
-                .map(summary)
+            match a.color_plan()? {
+                None => {
+                    fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
+                        .map(summary)
+                }
+                Some(colors) => fpm_acquire::color::acquire(
+                    &dev,
+                    stage.as_mut(),
+                    &plan,
+                    &colors,
+                    |_| JobWatcher::new(shared, id, publisher),
+                    &control,
+                    &format!("fpm serve: job {id}"),
+                )
+                .and_then(|s| serde_json::to_value(s).map_err(Into::into)),
+            }
         }
         JobRequest::Calibrate(c) => {
             let plan = c.plan(&rig.camera)?;
@@ -480,6 +494,12 @@ fn run_job(
         }
         JobRequest::Resume(r) => {
             let a = acquisition_of(&shared.store, r.job)?;
+            if a.colors.is_some() {
+                bail!(
+                    "job {}: a colour acquisition is not resumable yet; acquire the colours again",
+                    r.job
+                );
+            }
             let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
             let (dev, mut stage) = open()?;
             fpm_acquire::pipeline::resume(&dev, stage.as_mut(), &plan, watcher, &control)

@@ -241,3 +241,83 @@ fn a_colour_acquisition_calibrates_each_colour_and_reconstructs_it() {
     }
     assert!(out.join("reconstruction").join("color.png").is_file());
 }
+
+/// `fpm acquire --multiplex 8` on the virtual rig: the LED sets defined on the
+/// controller (protocol 1.2) and lit whole by one sequence, every LED once in at most
+/// a quarter of the frames, the image reconstructed from them.
+#[test]
+fn a_multiplexed_acquisition_lights_every_led_once_through_the_controllers_led_sets() {
+    let id = format!("vbm-{}-{:?}", std::process::id(), TARGET);
+    let dir = TempDir::new("virtual-rig-multiplex");
+    let emu = TARGET.start(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let truth = dir.0.join("truth");
+    let _camera = VirtualCameraProcess::start(
+        fpm_bin(),
+        &id,
+        &id,
+        &truth,
+        &[
+            "--size",
+            "64",
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--theta-deg",
+            "0",
+            "--height-mm",
+            "92",
+            "--readout-ms",
+            "1",
+        ],
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    // The board's calibration, as an earlier calibration would have stored it.
+    let placement = dir.0.join("placement.json");
+    std::fs::write(
+        &placement,
+        r#"{"dx_mm": 0.0, "dy_mm": 0.0, "theta_deg": 0.0, "height_mm": 92.0}"#,
+    )
+    .unwrap();
+    let set = std::process::Command::new(fpm_bin())
+        .args(["device", "--port", &emu.port(), "geometry", "--set"])
+        .arg(&placement)
+        .output()
+        .unwrap();
+    assert!(
+        set.status.success(),
+        "{}",
+        String::from_utf8_lossy(&set.stderr)
+    );
+    let out = dir.0.join("k8");
+    let run = fpm_tests::acquire_command(&emu.port(), &id, 15, &out)
+        .args(["--multiplex", "8", "--reconstruct", "--passes", "5"])
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    for file in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
+        std::fs::copy(truth.join(file), out.join(file)).unwrap();
+    }
+    let ds = fpm_host::dataset::Dataset::load(&out).unwrap();
+    let mut lit: Vec<_> = ds.frames.iter().flat_map(|f| f.entry.leds()).collect();
+    let count = lit.len();
+    lit.sort();
+    lit.dedup();
+    assert_eq!((lit.len(), count), (441, 441), "every LED once");
+    assert!(ds.frames.len() <= 441 / 4, "{} frames", ds.frames.len());
+    let object = fpm_host::reconstruction::read_object(&out.join("reconstruction")).unwrap();
+    let nrmse = fpm_host::truth::score_reconstruction(&ds, &object, 4)
+        .expect("a truth of the sensor's field")
+        .complex_nrmse;
+    eprintln!(
+        "{:?}: {} frames, complex NRMSE {nrmse:.3}",
+        TARGET,
+        ds.frames.len()
+    );
+    // The host emulator's run of this: 0.211 (tests/tests/acquire.rs, 10 passes).
+    assert!(nrmse < 0.35, "{nrmse}");
+}

@@ -25,6 +25,23 @@ pub struct ColorManifest {
     pub channels: Vec<ChannelEntry>,
 }
 
+impl ColorManifest {
+    /// Channels called `names`, each in the directory of its name, registered to
+    /// `reference` (None: the middle wavelength).
+    pub fn of_names(names: impl IntoIterator<Item = String>, reference: Option<String>) -> Self {
+        Self {
+            color: ColorSection { reference },
+            channels: names
+                .into_iter()
+                .map(|name| ChannelEntry {
+                    dataset: name.clone(),
+                    name,
+                })
+                .collect(),
+        }
+    }
+}
+
 /// `[color]`: what the channels share.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

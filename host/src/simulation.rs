@@ -16,7 +16,7 @@ use fpm_physics::{Image, LedGeometry, LedIndex, System};
 use rand::{Rng, SeedableRng};
 use rand_distr::Distribution;
 
-use crate::color::{ChannelEntry, ColorDataset, ColorManifest, ColorSection};
+use crate::color::{ColorDataset, ColorManifest};
 use crate::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use crate::truth::{write_truth_images, TrueLed, Truth};
 
@@ -402,17 +402,7 @@ fn write_channels(
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         written.push((channel.name.clone(), write(k, channel, &dir)?));
     }
-    let manifest = ColorManifest {
-        color: ColorSection { reference: None },
-        channels: color
-            .channels
-            .iter()
-            .map(|c| ChannelEntry {
-                name: c.name.clone(),
-                dataset: c.name.clone(),
-            })
-            .collect(),
-    };
+    let manifest = ColorManifest::of_names(color.channels.iter().map(|c| c.name.clone()), None);
     ColorDataset::write_manifest(out, &manifest)?;
     ColorDataset::open(out)?;
     Ok(written)

@@ -7,8 +7,7 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 
 use fpm_host::color::{ColorDataset, ColorGeometry, ColorRun};
-use fpm_host::dataset::image_io::TiffOptions;
-use fpm_host::reconstruction::{ImageFormat, Job, OutputOptions};
+use fpm_host::reconstruction::Job;
 use ndarray::{Array2, Array3, Axis};
 use numpy::{IntoPyArray, PyArray3};
 use pyo3::exceptions::PyValueError;
@@ -141,22 +140,7 @@ impl ColorResult {
     /// report.json, and each channel's own outputs in `dir/<name>/`.
     #[pyo3(signature = (dir, *, format = "tiff", compress = false))]
     fn save(&self, py: Python<'_>, dir: PathBuf, format: &str, compress: bool) -> PyResult<()> {
-        let format = match format {
-            "tiff" => ImageFormat::Tiff,
-            "ome-zarr" => ImageFormat::OmeZarr,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "format = '{other}': give 'tiff' or 'ome-zarr'"
-                )))
-            }
-        };
-        let options = OutputOptions {
-            format,
-            tiff: TiffOptions {
-                compress,
-                ..TiffOptions::default()
-            },
-        };
+        let options = crate::reconstruct::output_options(format, compress)?;
         py.detach(|| -> anyhow::Result<()> {
             for c in &self.inner.channels {
                 let out = dir.join(&c.name);

@@ -73,21 +73,9 @@ impl Reconstruction {
     /// report.json into `dir`, as `fpm reconstruct` does.
     #[pyo3(signature = (dir, *, format = "tiff", compress = false))]
     fn save(&self, py: Python<'_>, dir: PathBuf, format: &str, compress: bool) -> PyResult<()> {
-        let format = match format {
-            "tiff" => ImageFormat::Tiff,
-            "ome-zarr" => ImageFormat::OmeZarr,
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "format = '{other}': give 'tiff' or 'ome-zarr'"
-                )))
-            }
-        };
-        let tiff = TiffOptions {
-            compress,
-            ..TiffOptions::default()
-        };
+        let options = output_options(format, compress)?;
         py.detach(|| {
-            write_outputs_with(&self.inner, &dir, OutputOptions { format, tiff })?;
+            write_outputs_with(&self.inner, &dir, options)?;
             fpm_report::preview::reconstruction(&self.inner, &dir)
         })
         .map_err(failed)
@@ -104,6 +92,24 @@ impl Reconstruction {
             r.tiles.len()
         )
     }
+}
+
+/// How `save(format=, compress=)` writes the images.
+pub(crate) fn output_options(format: &str, compress: bool) -> PyResult<OutputOptions> {
+    let format = match format {
+        "tiff" => ImageFormat::Tiff,
+        "ome-zarr" => ImageFormat::OmeZarr,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "format = '{other}': give 'tiff' or 'ome-zarr'"
+            )))
+        }
+    };
+    let tiff = TiffOptions {
+        compress,
+        ..TiffOptions::default()
+    };
+    Ok(OutputOptions { format, tiff })
 }
 
 /// The geometry a reconstruction uses: the dataset's nominal one, a Calibration, a
@@ -272,6 +278,16 @@ pub fn reconstruct(
             },
         },
     };
+    let settings = settings(
+        upsample,
+        fixed_pupil,
+        background,
+        floor,
+        floor_sigma,
+        noise_band_sigma,
+        flatten_background,
+        background_block_um,
+    )?;
     let loaded;
     let ds = match dataset.cast::<Dataset>() {
         Ok(d) => &d.get().inner,
@@ -288,16 +304,7 @@ pub fn reconstruct(
                 };
                 let job = Job {
                     entrance_pupil_mm: entrance_pupil(entrance_pupil_mm)?,
-                    settings: settings(
-                        upsample,
-                        fixed_pupil,
-                        background,
-                        floor,
-                        floor_sigma,
-                        noise_band_sigma,
-                        flatten_background,
-                        background_block_um,
-                    )?,
+                    settings,
                     refocus,
                     passes,
                     tile,
@@ -327,16 +334,7 @@ pub fn reconstruct(
         camera_gamma: None,
         settings: Settings {
             refine_leds: refine_leds.then(Refine::default),
-            ..settings(
-                upsample,
-                fixed_pupil,
-                background,
-                floor,
-                floor_sigma,
-                noise_band_sigma,
-                flatten_background,
-                background_block_um,
-            )?
+            ..settings
         },
         refocus,
         passes,

@@ -50,6 +50,15 @@ fn scene(
     })
 }
 
+/// `sample = "…"` as the simulator's sample kind.
+fn sample_kind(sample: &str) -> PyResult<SampleKind> {
+    serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
+        PyValueError::new_err(format!(
+            "sample = '{sample}': give 'cells', 'weak-phase' or 'stained'"
+        ))
+    })
+}
+
 /// The dataset written into `out`, loaded, and its truth as a dict.
 fn loaded<'py>(
     py: Python<'py>,
@@ -97,11 +106,7 @@ pub fn simulate_acquisition<'py>(
     multiplex_bright: usize,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
-    let sample: SampleKind = serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
-        PyValueError::new_err(format!(
-            "sample = '{sample}': give 'cells', 'weak-phase' or 'stained'"
-        ))
-    })?;
+    let sample = sample_kind(sample)?;
     if let Some(g) = display_gamma.filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0)) {
         return Err(PyValueError::new_err(format!(
             "display_gamma: {g} is not an exponent above 0 and at most 5 (2.2 for sRGB-like images)"
@@ -201,11 +206,7 @@ pub fn simulate_color_acquisition<'py>(
     noise: &str,
     sample: &str,
 ) -> PyResult<(PathBuf, Bound<'py, PyAny>)> {
-    let sample: SampleKind = serde_json::from_value(serde_json::json!(sample)).map_err(|_| {
-        PyValueError::new_err(format!(
-            "sample = '{sample}': give 'cells', 'weak-phase' or 'stained'"
-        ))
-    })?;
+    let sample = sample_kind(sample)?;
     let mut channels = vec![];
     for name in &colors {
         let mut c = fpm_physics::color::ws2812b_channel(name).ok_or_else(|| {

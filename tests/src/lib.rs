@@ -248,26 +248,36 @@ pub fn fpm_stdout(args: &[&str]) -> String {
 /// `fpm simulate acquisition --out OUT` of a `size`² field, `seed`, the array where
 /// the dataset says it is (centred, unturned), and `extra` options.
 pub fn simulate_centred(out: &Path, size: &str, seed: &str, extra: &[&str]) {
+    simulate_centred_set("acquisition", out, size, seed, extra)
+}
+
+/// [`simulate_centred`] of a pdcFPM calibration set (`fpm simulate calibration`).
+pub fn simulate_centred_calibration(out: &Path, size: &str, seed: &str, extra: &[&str]) {
+    simulate_centred_set("calibration", out, size, seed, extra)
+}
+
+fn simulate_centred_set(kind: &str, out: &Path, size: &str, seed: &str, extra: &[&str]) {
     let out = out.to_string_lossy();
     let mut args = vec![
-        "simulate",
-        "acquisition",
-        "--out",
-        &out,
-        "--size",
-        size,
-        "--seed",
-        seed,
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
+        "simulate", kind, "--out", &out, "--size", size, "--seed", seed,
     ];
+    args.extend_from_slice(&ON_AXIS[..6]);
     args.extend_from_slice(extra);
     fpm_stdout(&args);
 }
+
+/// A virtual camera's (or simulator's) array exactly where the controller says,
+/// 92 mm below the sample: for tests about labels, not geometry.
+pub const ON_AXIS: [&str; 8] = [
+    "--dx-mm",
+    "0",
+    "--dy-mm",
+    "0",
+    "--theta-deg",
+    "0",
+    "--height-mm",
+    "92",
+];
 
 /// A float32 image file (a reconstruction's or DPC's output).
 pub fn read_f32(path: &Path) -> fpm_physics::Image {

@@ -16,18 +16,7 @@ fn acquire_command(emu: &Emulator, id: &str, out: &Path) -> Command {
     fpm_tests::acquire_command(&emu.port(), id, 15, out)
 }
 
-/// The array exactly where the controller says, 92 mm below the sample: for tests
-/// about labels, not geometry.
-const ON_AXIS_AT_92_MM: [&str; 8] = [
-    "--dx-mm",
-    "0",
-    "--dy-mm",
-    "0",
-    "--theta-deg",
-    "0",
-    "--height-mm",
-    "92",
-];
+use fpm_tests::ON_AXIS as ON_AXIS_AT_92_MM;
 
 /// Store a board calibration (`fpm device geometry --set`, JSON `placement`) on the
 /// controller, as an earlier calibration would have.

@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use fpm_tests::{fpm_bin, fpm_stdout, simulate_centred, TempDir};
+use fpm_tests::{fpm_bin, fpm_stdout, simulate_centred, simulate_centred_calibration, TempDir};
 
 const COLORS: [&str; 3] = ["red", "green", "blue"];
 const DIES: [&str; 2] = ["red=-0.8,0", "blue=0.8,0"];
@@ -55,26 +55,9 @@ fn each_colour_reconstructs_near_its_single_colour_run_once_its_dies_are_calibra
     let dies: Vec<&str> = DIES.iter().flat_map(|d| ["--die-offset-mm", d]).collect();
     // A colour calibration set and a colour acquisition of a stained sample.
     let cal = tmp.0.join("cal");
-    let mut args = vec![
-        "simulate",
-        "calibration",
-        "--out",
-        cal.to_str().unwrap(),
-        "--size",
-        "256",
-        "--seed",
-        "2",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-        "--colors",
-        "red,green,blue",
-    ];
-    args.extend(&dies);
-    fpm_stdout(&args);
+    let mut extra = vec!["--colors", "red,green,blue"];
+    extra.extend(&dies);
+    simulate_centred_calibration(&cal, "256", "2", &extra);
     let data = tmp.0.join("rgb");
     let mut extra = vec!["--colors", "red,green,blue", "--sample", "stained"];
     extra.extend(&dies);

@@ -232,22 +232,7 @@ fn the_colour_report_renders_each_channel_and_warns_of_one_calibration() {
         "1",
         &["--colors", "red,green,blue", "--spectral-samples", "1"],
     );
-    fpm_stdout(&[
-        "simulate",
-        "calibration",
-        "--out",
-        &cal.to_string_lossy(),
-        "--size",
-        "256",
-        "--dx-mm",
-        "0",
-        "--dy-mm",
-        "0",
-        "--theta-deg",
-        "0",
-        "--colors",
-        "green",
-    ]);
+    fpm_tests::simulate_centred_calibration(&cal, "256", "1", &["--colors", "green"]);
     fpm_stdout(&["calibrate", &cal.to_string_lossy()]);
     let out = dir.0.join("out");
     let green = cal.join("green/calibration.json");

@@ -10,10 +10,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_host::calibration::{CalibrationFile, GeometrySource};
-use fpm_host::color::{
-    ChannelEntry, ColorCalibration, ColorDataset, ColorGeometry, ColorManifest, ColorReport,
-    ColorSection,
-};
+use fpm_host::color::{ColorCalibration, ColorDataset, ColorGeometry, ColorManifest, ColorReport};
 use fpm_protocol::Rgb;
 use serde::Serialize;
 
@@ -149,6 +146,9 @@ pub fn acquire<W: Watcher>(
         one.system.wavelength_um = c.wavelength_um;
         one.out = plan.out.join(&c.name);
         one.reconstruct = false;
+        // The board keeps one geometry: the focus colour's (the reference's), not
+        // whichever colour was calibrated last.
+        one.store_geometry = plan.store_geometry && c.name == colors.focus;
         let summary = pipeline::acquire(dev, stage, &one, watcher_for(&c.name), control)
             .with_context(|| format!("acquiring {}", c.name))?;
         channels.push(ColorChannelSummary {
@@ -157,19 +157,10 @@ pub fn acquire<W: Watcher>(
             summary,
         });
     }
-    let manifest = ColorManifest {
-        color: ColorSection {
-            reference: Some(colors.focus.clone()),
-        },
-        channels: colors
-            .channels
-            .iter()
-            .map(|c| ChannelEntry {
-                name: c.name.clone(),
-                dataset: c.name.clone(),
-            })
-            .collect(),
-    };
+    let manifest = ColorManifest::of_names(
+        colors.channels.iter().map(|c| c.name.clone()),
+        Some(colors.focus.clone()),
+    );
     ColorDataset::write_manifest(&plan.out, &manifest)?;
     let ds = ColorDataset::open(&plan.out)?;
     let seconds = start.elapsed().as_secs_f64();

@@ -676,19 +676,31 @@ pub fn acquire_from(
             |renderer, (k, &(led, defocus_um))| {
                 let intensity = renderer.render_from(system, board(led), object, defocus_um);
                 let exposure_ms = exposure(&intensity);
-                let mut rng = rand::rngs::StdRng::seed_from_u64(
-                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
-                );
                 SimFrame {
                     led,
                     also: vec![],
                     defocus_um,
                     exposure_ms,
-                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                    counts: record(camera, &intensity, exposure_ms, seed, k),
                 }
             },
         )
         .collect()
+}
+
+/// `intensity` recorded by `camera` for `exposure_ms`, with the noise of frame `k`'s
+/// own random stream of `seed` (frames rendered in parallel stay deterministic).
+fn record(
+    camera: &Camera,
+    intensity: &Image,
+    exposure_ms: f64,
+    seed: u64,
+    k: usize,
+) -> Array2<u16> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(
+        seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
+    );
+    camera.record(intensity, exposure_ms, &mut rng)
 }
 
 /// Frames each lit by a set of LEDs at once (multiplexed illumination), in focus,
@@ -722,15 +734,12 @@ pub fn acquire_sets(
                     intensity += one;
                 }
                 let exposure_ms = exposure(&intensity, &each);
-                let mut rng = rand::rngs::StdRng::seed_from_u64(
-                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
-                );
                 SimFrame {
                     led: set[0],
                     also: set[1..].to_vec(),
                     defocus_um: 0.0,
                     exposure_ms,
-                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                    counts: record(camera, &intensity, exposure_ms, seed, k),
                 }
             },
         )
@@ -781,15 +790,12 @@ pub fn acquire_spectral(
                 }
                 let intensity = intensity.unwrap_or_default();
                 let exposure_ms = exposure(&intensity);
-                let mut rng = rand::rngs::StdRng::seed_from_u64(
-                    seed ^ (0x9E37_79B9_7F4A_7C15u64.wrapping_mul(k as u64 + 1)),
-                );
                 SimFrame {
                     led,
                     also: vec![],
                     defocus_um,
                     exposure_ms,
-                    counts: camera.record(&intensity, exposure_ms, &mut rng),
+                    counts: record(camera, &intensity, exposure_ms, seed, k),
                 }
             },
         )

@@ -257,19 +257,10 @@ fn a_multiplexed_acquisition_lights_every_led_once_through_the_controllers_led_s
         &id,
         &truth,
         &[
-            "--size",
-            "64",
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-            "--height-mm",
-            "92",
-            "--readout-ms",
-            "1",
-        ],
+            &fpm_tests::ON_AXIS[..],
+            &["--size", "64", "--readout-ms", "1"],
+        ]
+        .concat(),
     )
     .unwrap_or_else(|e| panic!("{e:#}"));
     // The board's calibration, as an earlier calibration would have stored it.

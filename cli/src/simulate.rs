@@ -105,28 +105,8 @@ impl ColorArgs {
             }
             return Ok(None);
         }
-        let mut channels = vec![];
-        for item in &self.colors {
-            let (name, wavelength) = match item.split_once(':') {
-                Some((n, w)) => (n.trim(), Some(w.trim())),
-                None => (item.trim(), None),
-            };
-            let mut channel = fpm_physics::color::ws2812b_channel(name).ok_or_else(|| {
-                anyhow::anyhow!("--colors {item}: {name:?} is not red, green or blue")
-            })?;
-            if let Some(w) = wavelength {
-                channel.wavelength_um = w.parse().map_err(|_| {
-                    anyhow::anyhow!("--colors {item}: {w:?} is not a wavelength in µm")
-                })?;
-            }
-            if channels
-                .iter()
-                .any(|c: &fpm_physics::color::Channel| c.name == channel.name)
-            {
-                anyhow::bail!("--colors: {} is given twice", channel.name);
-            }
-            channels.push(channel);
-        }
+        let mut channels = fpm_physics::color::parse_channels(&self.colors, "--colors")
+            .map_err(anyhow::Error::msg)?;
         let mut set_per =
             |flag: &str,
              items: &[String],

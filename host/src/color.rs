@@ -461,6 +461,36 @@ pub struct ColorRun {
     pub report: ColorReport,
 }
 
+impl ColorRun {
+    /// The registered channels' amplitudes, in order.
+    pub fn amplitudes(&self) -> Vec<Array2<f32>> {
+        self.channels
+            .iter()
+            .map(|c| c.registered.mapv(|z| z.norm()))
+            .collect()
+    }
+
+    /// The sRGB preview ([`fpm_physics::color::srgb_preview`], each channel
+    /// white-balanced on its clear level): its (rows, cols) and RGB bytes.
+    pub fn preview(&self) -> ((usize, usize), Vec<u8>) {
+        self.preview_from(&self.amplitudes())
+    }
+
+    /// [`Self::preview`] of `amplitudes` ([`Self::amplitudes`], already made).
+    fn preview_from(&self, amplitudes: &[Array2<f32>]) -> ((usize, usize), Vec<u8>) {
+        let views: Vec<(f64, ndarray::ArrayView2<'_, f32>)> = self
+            .report
+            .channels
+            .iter()
+            .zip(amplitudes)
+            .map(|(c, a)| (c.wavelength_um, a.view()))
+            .collect();
+        let white: Vec<f64> = self.report.channels.iter().map(|c| c.clear_level).collect();
+        let dim = amplitudes.first().map_or((0, 0), |a| a.dim());
+        (dim, fpm_physics::color::srgb_preview(&views, &white))
+    }
+}
+
 /// The colour result's `report.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct ColorReport {
@@ -674,11 +704,7 @@ pub fn write_outputs(
         .iter()
         .map(|c| (c.name.as_str(), c.wavelength_um))
         .collect();
-    let amplitudes: Vec<Array2<f32>> = run
-        .channels
-        .iter()
-        .map(|c| c.registered.mapv(|z| z.norm()))
-        .collect();
+    let amplitudes = run.amplitudes();
     match options.format {
         ImageFormat::Tiff => {
             let phases: Vec<Array2<f32>> = run
@@ -726,15 +752,7 @@ pub fn write_outputs(
             )?;
         }
     }
-    let views: Vec<(f64, ndarray::ArrayView2<'_, f32>)> = report
-        .channels
-        .iter()
-        .zip(&amplitudes)
-        .map(|(c, a)| (c.wavelength_um, a.view()))
-        .collect();
-    let white: Vec<f64> = report.channels.iter().map(|c| c.clear_level).collect();
-    let rgb = fpm_physics::color::srgb_preview(&views, &white);
-    let (h, w) = amplitudes[0].dim();
+    let ((h, w), rgb) = run.preview_from(&amplitudes);
     crate::dataset::image_io::write_png_rgb(&out.join(PREVIEW_NAME), w, h, &rgb)?;
     std::fs::write(
         out.join("report.json"),

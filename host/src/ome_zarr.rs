@@ -93,22 +93,20 @@ pub fn write_objects(
         .map(|(_, o)| (o.mapv(|z| z.norm()), (*o).clone()))
         .collect();
     let mut datasets = vec![];
-    let mut windows = vec![];
-    let (h0, w0) = levels.first().map_or((0, 0), |l| l.1.dim());
+    // Display windows of the full-size level: the amplitudes', then the phases'.
+    let mut windows = vec![(0.0, 1.0); 2 * k];
     for level in 0.. {
-        let (h, w) = levels.first().map_or((h0, w0), |l| l.1.dim());
+        let (h, w) = levels.first().map_or((0, 0), |l| l.1.dim());
         let level_dir = dir.join(level.to_string());
-        let mut phase_windows = vec![];
         for (i, (amplitude, complex)) in levels.iter().enumerate() {
             let phase = complex.mapv(|z| z.arg());
             if level == 0 {
-                windows.push(window(amplitude.view()));
-                phase_windows.push(window(phase.view()));
+                windows[i] = window(amplitude.view());
+                windows[k + i] = window(phase.view());
             }
             write_chunks(&level_dir, i, amplitude.view())?;
             write_chunks(&level_dir, k + i, phase.view())?;
         }
-        windows.extend(phase_windows);
         write_json(
             &level_dir.join(".zarray"),
             &json!({

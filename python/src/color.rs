@@ -83,29 +83,7 @@ impl ColorResult {
     /// primary its wavelength is nearest): uint8, (y, x, 3).
     #[getter]
     fn rgb<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<u8>> {
-        let amplitudes: Vec<Array2<f32>> = self
-            .inner
-            .channels
-            .iter()
-            .map(|c| c.registered.mapv(|z| z.norm()))
-            .collect();
-        let views: Vec<(f64, ndarray::ArrayView2<'_, f32>)> = self
-            .inner
-            .report
-            .channels
-            .iter()
-            .zip(&amplitudes)
-            .map(|(c, a)| (c.wavelength_um, a.view()))
-            .collect();
-        let white: Vec<f64> = self
-            .inner
-            .report
-            .channels
-            .iter()
-            .map(|c| c.clear_level)
-            .collect();
-        let (h, w) = amplitudes.first().map_or((0, 0), |a| a.dim());
-        let rgb = fpm_physics::color::srgb_preview(&views, &white);
+        let ((h, w), rgb) = self.inner.preview();
         Array3::from_shape_vec((h, w, 3), rgb)
             .unwrap_or_else(|_| Array3::zeros((0, 0, 3)))
             .into_pyarray(py)

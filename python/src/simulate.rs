@@ -207,18 +207,15 @@ pub fn simulate_color_acquisition<'py>(
     sample: &str,
 ) -> PyResult<(PathBuf, Bound<'py, PyAny>)> {
     let sample = sample_kind(sample)?;
-    let mut channels = vec![];
-    for name in &colors {
-        let mut c = fpm_physics::color::ws2812b_channel(name).ok_or_else(|| {
-            PyValueError::new_err(format!("colors: '{name}' is not red, green or blue"))
-        })?;
+    let mut channels =
+        fpm_physics::color::parse_channels(&colors, "colors").map_err(PyValueError::new_err)?;
+    for c in &mut channels {
         if let Some((x, y)) = die_offset_mm.as_ref().and_then(|m| m.get(&c.name)) {
             c.die_offset_mm = [*x, *y];
         }
         if let Some(f) = focal_shift_um.as_ref().and_then(|m| m.get(&c.name)) {
             c.focal_shift_um = *f;
         }
-        channels.push(c);
     }
     for (what, keys) in [
         (

@@ -131,7 +131,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     let camera = Camera::realistic();
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
-    let dies = Dies::new(&system, &hidden, size, a.seed);
+    let mut dies = Dies::new(&hidden);
     let mut rig = RigListener::create(&a.rig)?;
     let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), width * height)?;
     if let Some(dir) = &a.truth_dir {
@@ -145,27 +145,6 @@ pub fn run(a: VirtualCamera) -> Result<()> {
             })?,
         )?;
         write_truth_field(dir, &sensor.crop_truth(&sample))?;
-        // Each colour's own truth (its dies' placement, the sample in its light) in
-        // `dir/<colour>/`, for colour acquisitions; the top level is blue's (and white's).
-        for die in &dies.colors {
-            let sub = dir.join(&die.channel.name);
-            std::fs::create_dir_all(&sub).with_context(|| format!("creating {}", sub.display()))?;
-            write_truth_field(&sub, &sensor.crop_truth(&die.sample))?;
-            std::fs::write(
-                sub.join("truth.json"),
-                serde_json::to_string_pretty(&Truth {
-                    placement: die.geometry.placement(),
-                    defocus_um: None,
-                    feature_um: None,
-                    feature_at_um: None,
-                    object_pixel_um: Some(die.sample.pitch_um()),
-                    seed: Some(a.seed),
-                    leds: None,
-                    entrance_pupil_mm: a.entrance_pupil_mm,
-                    sample: None,
-                })?,
-            )?;
-        }
         // Last: its presence tells a launcher that the camera is listening.
         std::fs::write(
             dir.join("truth.json"),
@@ -214,50 +193,36 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         for led in pulse.lit() {
             let index = fpm_physics::LedIndex::new(led.row, led.col);
             let [r, g, b] = led.rgb;
-            let white = r == g && g == b;
-            let mut add = |weight: f32,
+            let (blue, dies_lit) = if r == g && g == b {
+                (r, [0, 0])
+            } else {
+                (b, [r, g])
+            };
+            let mut add = |value: u8,
                            at: &System,
                            geometry: &LedGeometry,
                            object: &ObjectField,
-                           defocus_um: f64,
-                           renderer: &mut Renderer| {
-                if weight > 0.0 {
-                    let i = renderer.render(at, geometry, object, index, defocus_um);
-                    intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
-                }
+                           defocus_um: f64| {
+                let i = renderer.render(at, geometry, object, index, defocus_um);
+                let weight = value as f32 / 255.0;
+                intensity.zip_mut_with(&i, |acc, v| *acc += weight * v);
             };
-            if white {
-                add(
-                    r as f32 / 255.0,
-                    &system,
-                    &hidden,
-                    object,
-                    stage.defocus_um,
-                    renderer,
-                );
-                continue;
+            if blue > 0 {
+                add(blue, &system, &hidden, object, stage.defocus_um);
             }
-            add(
-                b as f32 / 255.0,
-                &system,
-                &hidden,
-                object,
-                stage.defocus_um,
-                renderer,
-            );
-            for (die, value) in dies.colors.iter().zip([r, g]) {
+            for (k, value) in dies_lit.into_iter().enumerate().filter(|(_, v)| *v > 0) {
+                let die = dies.lit(k, &system, &a, &sensor, size)?;
                 let at = System {
                     wavelength_um: die.channel.wavelength_um,
                     ..system
                 };
-                let sample_here = if on_target { object } else { &die.sample };
+                let sample_here = if on_target { object } else { die.sample() };
                 add(
-                    value as f32 / 255.0,
+                    value,
                     &at,
                     &die.geometry,
                     sample_here,
-                    stage.defocus_um + die.focal_shift_um,
-                    renderer,
+                    stage.defocus_um + die.channel.focal_shift_um,
                 );
             }
         }
@@ -310,23 +275,30 @@ pub fn run(a: VirtualCamera) -> Result<()> {
 /// The virtual board's red and green dies, beside its blue one (which the board's grid
 /// places, as single-colour runs have always taken it): the WS2812B's wavelengths,
 /// die offsets and focal shifts ([`fpm_physics::color::ws2812b`]) relative to blue's.
+/// A colour's sample is made (and its truth written) when it is first lit, so that a
+/// run in one colour pays for none of it.
 struct Dies {
     /// Red, then green.
     colors: Vec<Die>,
 }
 
 struct Die {
+    /// The colour, its die offset and focal shift relative to blue's.
     channel: fpm_physics::color::Channel,
     /// The hidden array as this colour's dies sit.
     geometry: LedGeometry,
-    /// The sample in this colour's light.
-    sample: ObjectField,
-    /// Focus relative to blue's, µm.
-    focal_shift_um: f64,
+    /// The sample in this colour's light, once lit.
+    sample: Option<ObjectField>,
+}
+
+impl Die {
+    fn sample(&self) -> &ObjectField {
+        self.sample.as_ref().expect("made by Dies::lit")
+    }
 }
 
 impl Dies {
-    fn new(system: &System, hidden: &LedGeometry, size: usize, seed: u64) -> Self {
+    fn new(hidden: &LedGeometry) -> Self {
         let table = fpm_physics::color::ws2812b();
         let blue = table.iter().find(|c| c.name == "blue").cloned();
         let colors = table
@@ -342,21 +314,58 @@ impl Dies {
                 }
                 Die {
                     geometry: channel.geometry(hidden),
-                    sample: ObjectField::sample_in_light(
-                        system,
-                        size,
-                        32,
-                        2,
-                        seed,
-                        fpm_physics::simulate::SampleKind::Cells,
-                        channel.wavelength_um,
-                    ),
-                    focal_shift_um: channel.focal_shift_um,
                     channel,
+                    sample: None,
                 }
             })
             .collect();
         Self { colors }
+    }
+
+    /// Colour `k` (0 red, 1 green), its sample made on first use and its truth (its
+    /// dies' placement, the sample in its light) written into `truth_dir/<colour>/`.
+    fn lit(
+        &mut self,
+        k: usize,
+        system: &System,
+        a: &VirtualCamera,
+        sensor: &Sensor,
+        size: usize,
+    ) -> Result<&Die> {
+        let die = &mut self.colors[k];
+        if die.sample.is_none() {
+            let sample = ObjectField::sample_in_light(
+                system,
+                size,
+                32,
+                2,
+                a.seed,
+                fpm_physics::simulate::SampleKind::Cells,
+                die.channel.wavelength_um,
+            );
+            if let Some(dir) = &a.truth_dir {
+                let sub = dir.join(&die.channel.name);
+                std::fs::create_dir_all(&sub)
+                    .with_context(|| format!("creating {}", sub.display()))?;
+                write_truth_field(&sub, &sensor.crop_truth(&sample))?;
+                std::fs::write(
+                    sub.join("truth.json"),
+                    serde_json::to_string_pretty(&Truth {
+                        placement: die.geometry.placement(),
+                        defocus_um: None,
+                        feature_um: None,
+                        feature_at_um: None,
+                        object_pixel_um: Some(sample.pitch_um()),
+                        seed: Some(a.seed),
+                        leds: None,
+                        entrance_pupil_mm: a.entrance_pupil_mm,
+                        sample: None,
+                    })?,
+                )?;
+            }
+            die.sample = Some(sample);
+        }
+        Ok(die)
     }
 }
 

@@ -43,41 +43,19 @@ impl ColorPlan {
     /// the WS2812B's wavelengths (`fpm_physics::color::ws2812b`) unless given. Errors
     /// name the item (as `what`'s) that is wrong.
     pub fn parse(items: &[String], focus: &str, what: &str) -> Result<Self> {
-        let mut channels: Vec<ColorChannel> = vec![];
-        for item in items {
-            let (name, wavelength) = match item.split_once(':') {
-                Some((n, w)) => (n.trim(), Some(w.trim())),
-                None => (item.trim(), None),
-            };
-            let channel = fpm_physics::color::ws2812b_channel(name)
-                .with_context(|| format!("{what} {item}: {name:?} is not red, green or blue"))?;
-            let rgb = match channel.name.as_str() {
-                "red" => Rgb::new(255, 0, 0),
-                "green" => Rgb::new(0, 255, 0),
-                _ => Rgb::new(0, 0, 255),
-            };
-            let wavelength_um = match wavelength {
-                Some(w) => w
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|w| w.is_finite() && (0.2..=2.0).contains(w))
-                    .with_context(|| {
-                        format!("{what} {item}: {w:?} is not a wavelength in µm (0.2-2)")
-                    })?,
-                None => channel.wavelength_um,
-            };
-            if channels.iter().any(|c| c.name == channel.name) {
-                bail!("{what}: {} is given twice", channel.name);
-            }
-            channels.push(ColorChannel {
-                name: channel.name,
-                rgb,
-                wavelength_um,
-            });
-        }
-        if channels.is_empty() {
-            bail!("{what}: name at least one colour (red, green, blue)");
-        }
+        let channels: Vec<ColorChannel> = fpm_physics::color::parse_channels(items, what)
+            .map_err(anyhow::Error::msg)?
+            .into_iter()
+            .map(|c| ColorChannel {
+                rgb: match c.name.as_str() {
+                    "red" => Rgb::new(255, 0, 0),
+                    "green" => Rgb::new(0, 255, 0),
+                    _ => Rgb::new(0, 0, 255),
+                },
+                wavelength_um: c.wavelength_um,
+                name: c.name,
+            })
+            .collect();
         let focus = fpm_physics::color::ws2812b_channel(focus)
             .map(|c| c.name)
             .filter(|f| channels.iter().any(|c| &c.name == f))

@@ -7,27 +7,18 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use fpm_acquire::acquisition::defaults;
 use fpm_acquire::controller::discover;
 use fpm_acquire::pipeline::{self, AcquireSummary, Control, Plan};
-use fpm_acquire::{Controller, FocusStage, ManualStage, Progress};
+use fpm_acquire::{Controller, FocusStage, Progress};
 use fpm_frames::ServiceNames;
 use fpm_host::calibration::GeometrySource;
 use fpm_physics::System;
 use fpm_protocol::Rgb;
-use fpm_rig::stage::VirtualStage;
 
 use crate::flatten::FlattenArgs;
-
-/// How the focus stage moves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum StageKind {
-    /// Ask the user to move it and wait for Enter.
-    Manual,
-    /// The virtual rig's motorised stage (`--rig`).
-    Virtual,
-}
+use crate::stage::StageArgs;
 
 /// Acquire an FPM dataset: every LED of the array, one frame each, labelled.
 #[derive(Args, Debug, Clone)]
@@ -75,12 +66,9 @@ pub struct AcquireArgs {
     /// Reconstruct while the frames arrive (streaming EPRY).
     #[arg(long)]
     pub reconstruct: bool,
-    /// How to move the focus stage for calibration.
-    #[arg(long, value_enum, default_value_t = StageKind::Manual)]
-    pub stage: StageKind,
-    /// The virtual rig whose stage to move (with `--stage virtual`).
-    #[arg(long)]
-    pub rig: Option<String>,
+    /// The focus stage, moved for calibration.
+    #[command(flatten)]
+    pub stage: StageArgs,
     /// How long each LED stays lit, ms (the camera exposes within it).
     #[arg(long, default_value_t = defaults::STEP_MS)]
     pub step_ms: f64,
@@ -176,15 +164,7 @@ fn open_rig(a: &AcquireArgs) -> Result<(Controller, Box<dyn FocusStage>)> {
         Ok(n) => tracing::info!("removed the shared memory of {n} crashed process(es)"),
         Err(e) => tracing::warn!("could not check for stale shared memory: {e}"),
     }
-    let stage: Box<dyn FocusStage> = match a.stage {
-        StageKind::Manual => Box::new(ManualStage),
-        StageKind::Virtual => Box::new(VirtualStage::open(
-            a.rig
-                .as_deref()
-                .context("--stage virtual needs --rig NAME")?,
-        )?),
-    };
-    Ok((dev, stage))
+    Ok((dev, a.stage.open_focus()?))
 }
 
 /// The plan `a` describes.

@@ -19,6 +19,7 @@ mod reconstruct;
 mod serve;
 mod shell;
 mod simulate;
+mod stage;
 mod units;
 mod virtual_camera;
 
@@ -67,6 +68,9 @@ enum Command {
     Dpc(dpc::DpcArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Motorised stages (GRBL, Marlin, Sangaboard): info, move, home, and an emulator.
+    #[command(subcommand)]
+    Stage(stage::StageCommand),
     /// Run the acquisition service: a local HTTP/JSON API that queues jobs on the rig.
     Serve(serve::ServeArgs),
     /// Measure performance.
@@ -109,6 +113,7 @@ fn main() -> ExitCode {
         Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
+        Command::Stage(cmd) => stage::run(cmd),
         Command::Import(args) => import::run(args),
         Command::Dpc(args) => dpc::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),

@@ -8,13 +8,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use fpm_acquire::controller::discover;
-use fpm_acquire::{FocusStage, ManualStage};
+use fpm_acquire::{FocusStage, StageChoice};
 use fpm_frames::ServiceNames;
 use fpm_rig::process::VirtualRig;
 use fpm_rig::stage::VirtualStage;
 use fpm_serve::{Config, Rig, StageFactory, DEFAULT_PORT};
 
-use crate::acquire::StageKind;
+use crate::stage::StageArgs;
 
 /// Run the acquisition service: a local HTTP/JSON API (OpenAPI at /openapi.json) that
 /// queues jobs on the rig, with an event stream of their progress.
@@ -33,7 +33,7 @@ pub struct ServeArgs {
     pub state_dir: Option<PathBuf>,
     /// Start a virtual rig (emulated controller, virtual camera, virtual stage) as this
     /// service's children, stopped with it.
-    #[arg(long, conflicts_with_all = ["port", "frames", "rig"])]
+    #[arg(long, conflicts_with_all = ["port", "frames", "rig", "stage"])]
     pub r#virtual: bool,
     /// With --virtual: the virtual camera's sensor side, pixels.
     #[arg(long, default_value_t = 256, requires = "virtual")]
@@ -44,12 +44,9 @@ pub struct ServeArgs {
     /// The camera whose frames to take (`fpm/camera/<NAME>/frames` on iceoryx2).
     #[arg(long, default_value = "0")]
     pub frames: String,
-    /// How the focus stage moves for calibration.
-    #[arg(long, value_enum, default_value_t = StageKind::Manual)]
-    pub stage: StageKind,
-    /// The virtual rig whose stage to move (with `--stage virtual`).
-    #[arg(long)]
-    pub rig: Option<String>,
+    /// The focus stage, moved for calibration.
+    #[command(flatten)]
+    pub stage: StageArgs,
 }
 
 /// Run `fpm serve`.
@@ -86,11 +83,12 @@ pub fn run(a: ServeArgs) -> Result<()> {
             None => discover::the_only_board(std::time::Duration::from_secs(2))
                 .map_err(anyhow::Error::msg)?,
         };
-        let stage: StageFactory = match (a.stage, a.rig.clone()) {
-            (StageKind::Manual, _) => Box::new(|| Ok(Box::new(ManualStage) as Box<dyn FocusStage>)),
-            (StageKind::Virtual, Some(rig)) => virtual_stage(rig),
-            (StageKind::Virtual, None) => anyhow::bail!("--stage virtual needs --rig NAME"),
-        };
+        // Each job opens the stage anew (and fails early here if it cannot be named).
+        if a.stage.stage == StageChoice::Virtual && a.stage.rig.is_none() {
+            anyhow::bail!("--stage virtual needs --rig NAME");
+        }
+        let args = a.stage.clone();
+        let stage: StageFactory = Box::new(move || args.open_focus());
         Rig {
             description: format!("controller on {port}, camera {}", a.frames),
             port,

@@ -37,4 +37,6 @@ pub use acquisition::{Acquisition, Action, Event, Phase, Progress, Snapshot};
 pub use capture::{capture, CaptureReport, Sequence, Shot, ShotView};
 pub use controller::Controller;
 pub use pipeline::{acquire, AcquireSummary, Plan, Watcher};
-pub use stage::{FocusStage, ManualStage, Slide, StagePosition};
+pub use stage::{
+    FocusStage, ManualStage, MotorisedFocus, Slide, StageChoice, StagePosition, TowardLeds,
+};

@@ -1,8 +1,12 @@
 //! The focus stage, as the acquisition needs it: put a slide under the objective at a
-//! given defocus. Implementations: [`ManualStage`] (the user turns the knob), the
-//! virtual rig's stage (`fpm-rig`), later motorised stages.
+//! given defocus. Implementations: [`ManualStage`] (the user turns the knob),
+//! [`MotorisedFocus`] (the Z axis of a motorised stage, `fpm_stage`), the virtual rig's
+//! stage (`fpm-rig`).
+
+use std::str::FromStr;
 
 use anyhow::{Context, Result};
+use fpm_stage::{Connection, Stage, Target};
 
 /// Which slide is on the stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -36,6 +40,114 @@ impl StagePosition {
 pub trait FocusStage {
     /// Move to `to` and return once it is there (settled).
     fn move_to(&mut self, to: StagePosition) -> Result<()>;
+}
+
+/// Which focus stage to use: `manual`, `virtual` (the virtual rig's), or a motorised
+/// stage's connection (`gcode:/dev/ttyUSB0`, `sangaboard:/dev/ttyACM1`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StageChoice {
+    Manual,
+    Virtual,
+    Motorised(Connection),
+}
+
+impl FromStr for StageChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "manual" => Ok(Self::Manual),
+            "virtual" => Ok(Self::Virtual),
+            other => other.parse().map(Self::Motorised).map_err(|e| {
+                format!("{e}; or `manual` (asked on the terminal) or `virtual` (the virtual rig's)")
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for StageChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Manual => f.write_str("manual"),
+            Self::Virtual => f.write_str("virtual"),
+            Self::Motorised(c) => c.fmt(f),
+        }
+    }
+}
+
+/// The direction of the stage's Z that moves the sample toward the LEDs (relative to
+/// the objective): depends on whether Z moves the sample or the objective, and on the
+/// microscope being upright or inverted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TowardLeds {
+    Plus,
+    Minus,
+}
+
+impl FromStr for TowardLeds {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "plus" | "+" => Ok(Self::Plus),
+            "minus" | "-" => Ok(Self::Minus),
+            _ => Err(format!("`{s}`: give plus or minus")),
+        }
+    }
+}
+
+/// The Z axis of a motorised stage as the focus stage: the defocus is a Z move from
+/// where the slide was focused. Changing slides still takes a person: each new slide
+/// is asked for on the terminal, focused by the user, and that Z is its focus.
+pub struct MotorisedFocus {
+    stage: Box<dyn Stage>,
+    toward_leds: TowardLeds,
+    /// The slide on the stage and the Z it is in focus at.
+    focused: Option<(Slide, f64)>,
+}
+
+impl MotorisedFocus {
+    /// Drive `stage`'s Z; `toward_leds` is the Z direction that defocuses toward the LEDs.
+    pub fn new(stage: Box<dyn Stage>, toward_leds: TowardLeds) -> Self {
+        Self {
+            stage,
+            toward_leds,
+            focused: None,
+        }
+    }
+
+    /// The Z, µm, that puts the sample `defocus_um` toward the LEDs from `focus_z`.
+    pub fn z_for(&self, focus_z: f64, defocus_um: f64) -> f64 {
+        match self.toward_leds {
+            TowardLeds::Plus => focus_z + defocus_um,
+            TowardLeds::Minus => focus_z - defocus_um,
+        }
+    }
+}
+
+impl FocusStage for MotorisedFocus {
+    fn move_to(&mut self, to: StagePosition) -> Result<()> {
+        let focus_z = match self.focused {
+            Some((slide, z)) if slide == to.slide => z,
+            _ => {
+                let what = match to.slide {
+                    Slide::CalibrationTarget => "the calibration slide",
+                    Slide::Sample => "the sample",
+                };
+                eprintln!("Put {what} on the stage and focus it, then press Enter.");
+                let mut line = String::new();
+                std::io::stdin()
+                    .read_line(&mut line)
+                    .context("waiting for the user to focus the slide")?;
+                let z = self.stage.position()?.z_um;
+                tracing::info!(z_um = z, "focus");
+                self.focused = Some((to.slide, z));
+                z
+            }
+        };
+        let z = self.z_for(focus_z, to.defocus_um);
+        let at = self.stage.move_to(Target::z(z))?;
+        tracing::info!(defocus_um = to.defocus_um, z_um = at.z_um, "stage");
+        Ok(())
+    }
 }
 
 /// A stage moved by hand: the user is asked on the terminal and confirms with Enter.

@@ -20,7 +20,7 @@ mod args;
 mod firmware;
 pub mod flash;
 pub mod hardware;
-mod pty;
+pub mod pty;
 mod run;
 
 pub use args::EmulatorOptions;

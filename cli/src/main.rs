@@ -16,6 +16,7 @@ mod flatten;
 mod import;
 mod progress;
 mod reconstruct;
+mod scan;
 mod serve;
 mod shell;
 mod simulate;
@@ -68,6 +69,9 @@ enum Command {
     Dpc(dpc::DpcArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Join a scan's fields into one slide image: reconstruct each field (those not
+    /// done yet), register them on their overlaps, blend, write OME-Zarr.
+    Stitch(scan::StitchArgs),
     /// Motorised stages (GRBL, Marlin, Sangaboard): info, move, home, and an emulator.
     #[command(subcommand)]
     Stage(stage::StageCommand),
@@ -114,6 +118,7 @@ fn main() -> ExitCode {
         Command::Simulate(cmd) => simulate::run(cmd),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Stage(cmd) => stage::run(cmd),
+        Command::Stitch(args) => scan::stitch(args),
         Command::Import(args) => import::run(args),
         Command::Dpc(args) => dpc::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),

@@ -19,6 +19,9 @@ pub enum SimulateCommand {
     Calibration(CalibrationArgs),
     /// A full acquisition: every LED, in focus, of a complex test sample.
     Acquisition(AcquisitionArgs),
+    /// A whole-slide scan: a grid of fields of one larger slide, each a full
+    /// acquisition, the stage off its commanded positions; the slide's truth kept.
+    Scan(crate::scan::SimulateScanArgs),
 }
 
 /// The hidden (true) LED array and the microscope.
@@ -341,6 +344,7 @@ pub fn run(cmd: SimulateCommand) -> Result<()> {
     match cmd {
         SimulateCommand::Calibration(a) => calibration(a),
         SimulateCommand::Acquisition(a) => acquisition(a),
+        SimulateCommand::Scan(a) => crate::scan::simulate(a),
     }
 }
 

@@ -15,5 +15,6 @@ pub mod ome_zarr;
 pub mod pyramid;
 pub mod reconstruction;
 pub mod refinement;
+pub mod scan;
 pub mod simulation;
 pub mod truth;

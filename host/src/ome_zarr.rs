@@ -83,6 +83,18 @@ pub fn write_objects(
     objects: &[(&str, &Array2<Complex32>)],
     pixel_um: f64,
 ) -> Result<()> {
+    write_placed(dir, objects, pixel_um, (0.0, 0.0))
+}
+
+/// [`write_objects`] with the first pixel at `origin_um` (x, y) in the sample's (or
+/// the slide's) coordinates: a translation after each level's scale, as NGFF 0.4 has
+/// it, so that viewers put a mosaic where the stage had it.
+pub fn write_placed(
+    dir: &Path,
+    objects: &[(&str, &Array2<Complex32>)],
+    pixel_um: f64,
+    origin_um: (f64, f64),
+) -> Result<()> {
     if dir.exists() {
         std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
     }
@@ -122,9 +134,16 @@ pub fn write_objects(
             }),
         )?;
         let scale = pixel_um * (1u64 << level) as f64;
+        // A level's pixel k covers 2^level pixels of level 0: its centre sits half of
+        // that (less half a pixel) further on.
+        let half = 0.5 * (scale - pixel_um);
+        let mut transforms = vec![json!({"type": "scale", "scale": [1.0, scale, scale]})];
+        if origin_um != (0.0, 0.0) {
+            transforms.push(json!({"type": "translation", "translation": [0.0, origin_um.1 + half, origin_um.0 + half]}));
+        }
         datasets.push(json!({
             "path": level.to_string(),
-            "coordinateTransformations": [{"type": "scale", "scale": [1.0, scale, scale]}],
+            "coordinateTransformations": transforms,
         }));
         if h.max(w) <= CHUNK || h < 2 || w < 2 {
             break;

@@ -266,7 +266,7 @@ fn write_calibration_set_at(
     sim.camera_px = scene.size;
     sim.camera = scene.camera();
     let frames = sim.acquire_focused_off(focal_shift_um);
-    write_frames(out, &sim.system, &sim.camera, &frames)?;
+    write_frames(out, &sim.system, &sim.camera, &frames, &nominal())?;
     let truth = Truth {
         defocus_um: Some(set.defocus_um),
         feature_um: Some(set.feature_um),
@@ -523,13 +523,56 @@ fn write_acquisition_lit(
             scene.seed,
         )
     };
-    write_frames(out, &system, &camera, &frames)?;
+    write_frames(out, &system, &camera, &frames, &nominal())?;
     write_truth_images(out, &object)?;
     let truth = Truth {
         object_pixel_um: Some(object.pitch_um()),
         leds: (set.led_jitter_mm > 0.0).then_some(positions),
         entrance_pupil_mm: set.entrance_pupil_mm,
         sample: Some(set.sample),
+        ..scene.truth_file()
+    };
+    write_json(&out.join("truth.json"), &truth)?;
+    Ok(Written {
+        frames: frames.len(),
+        truth,
+    })
+}
+
+/// One full single-LED acquisition of `object` (already made: a field of a larger
+/// slide, say) under `scene`'s array and camera, written as a dataset into `out` with
+/// `object`'s truth beside it.
+pub fn write_acquisition_of(
+    scene: &Scene,
+    system: &System,
+    object: &ObjectField,
+    out: &Path,
+) -> Result<Written> {
+    scene.validate()?;
+    let camera = scene.camera();
+    let truth = scene.truth;
+    let shots: Vec<(LedIndex, f64)> = truth.leds().into_iter().map(|l| (l, 0.0)).collect();
+    let frames = acquire_from(
+        system,
+        &|led| truth.led_position_3d_mm(led),
+        object,
+        &shots,
+        &camera,
+        |img: &Image| camera.auto_exposure(img),
+        scene.seed,
+    );
+    // The dataset states the board's grid at its nominal place.
+    let stated = LedGeometry {
+        rows: truth.rows,
+        cols: truth.cols,
+        center: truth.center,
+        pitch_mm: truth.pitch_mm,
+        ..nominal()
+    };
+    write_frames(out, system, &camera, &frames, &stated)?;
+    write_truth_images(out, object)?;
+    let truth = Truth {
+        object_pixel_um: Some(object.pitch_um()),
         ..scene.truth_file()
     };
     write_json(&out.join("truth.json"), &truth)?;
@@ -561,7 +604,13 @@ fn led_positions(truth: &LedGeometry, jitter_mm: f64, seed: u64) -> Result<Vec<T
 }
 
 /// Write simulated frames as a dataset with the nominal (uncalibrated) array.
-fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame]) -> Result<()> {
+fn write_frames(
+    out: &Path,
+    system: &System,
+    camera: &Camera,
+    frames: &[SimFrame],
+    stated: &LedGeometry,
+) -> Result<()> {
     let entries = frames
         .iter()
         .map(|f| FrameEntry {
@@ -578,7 +627,7 @@ fn write_frames(out: &Path, system: &System, camera: &Camera, frames: &[SimFrame
         gamma: camera.display_gamma,
         ..CameraSection::default()
     };
-    let manifest = Manifest::new(system, &nominal(), section, entries);
+    let manifest = Manifest::new(system, stated, section, entries);
     let images: Vec<_> = frames.iter().map(|f| f.counts.clone()).collect();
     Dataset::write(out, &manifest, &images)?;
     Ok(())

@@ -172,6 +172,28 @@ pub fn score_reconstruction(
     }
 }
 
+/// The illumination frequencies of the in-focus frames of the simulated dataset in
+/// `dir` as its truth placed them (cycles/µm): with the cutoff, the synthetic aperture
+/// a reconstruction of it is scored in.
+pub fn aperture_discs(dir: &Path) -> Result<Vec<(f64, f64)>> {
+    let ds = crate::dataset::DatasetOnDisk::open(dir)?;
+    let truth =
+        Truth::find(dir)?.with_context(|| format!("{} has no truth.json", dir.display()))?;
+    discs(&ds, &truth)
+}
+
+fn discs(ds: &(impl DatasetInfo + ?Sized), truth: &Truth) -> Result<Vec<(f64, f64)>> {
+    let system = ds.manifest().system();
+    let nominal = ds.manifest().geometry();
+    Ok(ds
+        .manifest()
+        .frames
+        .iter()
+        .filter(|f| f.defocus_um == 0.0)
+        .map(|f| truth.illumination_frequency(&nominal, f.led, (0.0, 0.0), system.wavelength_um))
+        .collect())
+}
+
 fn try_score(
     ds: &(impl DatasetInfo + ?Sized),
     reconstruction: &Array2<Complex32>,
@@ -195,14 +217,7 @@ fn try_score(
         );
     }
     let system = ds.manifest().system();
-    let nominal = ds.manifest().geometry();
-    let discs: Vec<(f64, f64)> = ds
-        .manifest()
-        .frames
-        .iter()
-        .filter(|f| f.defocus_um == 0.0)
-        .map(|f| truth.illumination_frequency(&nominal, f.led, (0.0, 0.0), system.wavelength_um))
-        .collect();
+    let discs = discs(ds, &truth)?;
     let rec_pitch = system.sample_pixel_um() / upsample as f64;
     Ok(Some(score(
         reconstruction,

@@ -32,6 +32,7 @@ pub mod optics;
 pub mod reconstruct;
 pub mod simulate;
 pub mod stats;
+pub mod stitch;
 pub mod study;
 pub mod tiles;
 

@@ -137,7 +137,7 @@ pub fn complex_nrmse_low_order_free(
 }
 
 /// docs/dataset.md §6 reconstruction scores.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Scores {
     /// Complex NRMSE (global complex factor removed).
     pub complex_nrmse: f64,

@@ -144,12 +144,52 @@ impl ObjectField {
         kind: SampleKind,
         wavelength_um: f64,
     ) -> Self {
+        Self::cells_in_light(
+            system,
+            camera,
+            pad,
+            upsample,
+            seed,
+            kind,
+            wavelength_um,
+            kind.cells().0,
+        )
+    }
+
+    /// A slide larger than one field (`side`² camera pixels): the cells of `kind` as
+    /// densely as [`Self::sample`] places them on a 256² field, so that every field of
+    /// a scan sees as much as a single-field sample does.
+    pub fn slide(
+        system: &System,
+        side: usize,
+        pad: usize,
+        upsample: usize,
+        seed: u64,
+        kind: SampleKind,
+    ) -> Self {
+        let reference = (256.0 + 2.0 * 48.0) * system.sample_pixel_um();
+        let extent = (side + 2 * pad) as f64 * system.sample_pixel_um();
+        let count = (kind.cells().0 as f64 * (extent / reference).powi(2)).round() as usize;
+        Self::cells_in_light(system, side, pad, upsample, seed, kind, 0.47, count.max(1))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn cells_in_light(
+        system: &System,
+        camera: usize,
+        pad: usize,
+        upsample: usize,
+        seed: u64,
+        kind: SampleKind,
+        wavelength_um: f64,
+        count: usize,
+    ) -> Self {
         let stain = crate::color::stain_absorption(wavelength_um);
         let phase_scale = crate::color::phase_at(1.0, wavelength_um);
         let mut o = Self::blank(system, camera, pad, upsample, Complex32::new(1.0, 0.0));
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let extent = (o.n as f64) * o.pitch_um() / 2.0;
-        let (count, absorption, thickness) = kind.cells();
+        let (_, absorption, thickness) = kind.cells();
         let cells: Vec<(f64, f64, f64, f64, f64)> = (0..count)
             .map(|_| {
                 (
@@ -217,6 +257,61 @@ impl ObjectField {
                 self.field[r * n + c] *= ramp[r] * ramp[c];
             }
         }
+    }
+
+    /// The part of this (larger) sample a `camera`² field with margin `pad` sees when
+    /// its centre is at `centre_um` (the sample position of simulation pixel
+    /// (n/2, n/2) is 0): the sample continues across the window's margin, which is
+    /// faded as every sample's is. The centre is rounded to the simulation grid; the
+    /// centre actually used is returned. `None` if the window leaves the sample.
+    pub fn window(
+        &self,
+        centre_um: (f64, f64),
+        camera: usize,
+        pad: usize,
+    ) -> Option<(Self, (f64, f64))> {
+        let m = (camera + 2 * pad) * self.upsample;
+        let d = self.pitch_um();
+        let col = (centre_um.0 / d).round() as i64 + (self.n / 2) as i64;
+        let row = (centre_um.1 / d).round() as i64 + (self.n / 2) as i64;
+        let (c0, r0) = (col - (m / 2) as i64, row - (m / 2) as i64);
+        if c0 < 0 || r0 < 0 || c0 as usize + m > self.n || r0 as usize + m > self.n {
+            return None;
+        }
+        let (c0, r0) = (c0 as usize, r0 as usize);
+        let mut field = Vec::with_capacity(m * m);
+        for r in r0..r0 + m {
+            field.extend_from_slice(&self.field[r * self.n + c0..r * self.n + c0 + m]);
+        }
+        let mut w = Self {
+            field,
+            n: m,
+            camera,
+            pad,
+            upsample: self.upsample,
+            camera_pixel_um: self.camera_pixel_um,
+        };
+        w.taper_edges();
+        let used = (
+            (col - (self.n / 2) as i64) as f64 * d,
+            (row - (self.n / 2) as i64) as f64 * d,
+        );
+        Some((w, used))
+    }
+
+    /// The sample between `(x0, y0)` (its first pixel's position, µm) and `w × h`
+    /// simulation pixels on, or `None` where that leaves the grid.
+    pub fn region(&self, x0_um: f64, y0_um: f64, w: usize, h: usize) -> Option<Array2<Complex32>> {
+        let d = self.pitch_um();
+        let c0 = (x0_um / d).round() as i64 + (self.n / 2) as i64;
+        let r0 = (y0_um / d).round() as i64 + (self.n / 2) as i64;
+        if c0 < 0 || r0 < 0 || c0 as usize + w > self.n || r0 as usize + h > self.n {
+            return None;
+        }
+        let (c0, r0) = (c0 as usize, r0 as usize);
+        Some(Array2::from_shape_fn((h, w), |(r, c)| {
+            self.field[(r0 + r) * self.n + c0 + c]
+        }))
     }
 
     /// The ground truth on the camera field, cropped from the simulation grid.

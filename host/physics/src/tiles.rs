@@ -151,9 +151,33 @@ impl Mosaic {
 
     /// Add the HR object of `tile`, rotated onto what is already placed.
     pub fn add(&mut self, tile: &Tile, object: &Array2<Complex32>) {
-        let (x0, y0) = (tile.x0 * self.upsample, tile.y0 * self.upsample);
+        let faces = tile.free_border(self.width, self.height, 1).map(|b| b > 0);
+        self.add_at(
+            tile.x0 * self.upsample,
+            tile.y0 * self.upsample,
+            faces,
+            object.view(),
+        );
+    }
+
+    /// Add `object` with its first pixel at HR (`x0`, `y0`), rotated onto what is
+    /// already placed; `faces` (left, right, top, bottom) says which sides overlap a
+    /// neighbour (those get the unblended border and the ramp). The part outside the
+    /// mosaic is dropped.
+    pub fn add_at(
+        &mut self,
+        x0: usize,
+        y0: usize,
+        faces: [bool; 4],
+        object: ndarray::ArrayView2<'_, Complex32>,
+    ) {
+        let (full_h, full_w) = self.sum.dim();
         let (h, w) = object.dim();
-        let [left, right, top, bottom] = tile.free_border(self.width, self.height, 1);
+        let [left, right, top, bottom] = faces.map(usize::from);
+        let (h_in, w_in) = (
+            h.min(full_h.saturating_sub(y0)),
+            w.min(full_w.saturating_sub(x0)),
+        );
         // Along one axis: nothing in the unblended border of a side that faces another
         // tile, then a sin² ramp up to the end of the overlap; frame edges keep full
         // weight.
@@ -180,8 +204,8 @@ impl Mosaic {
         // where both count: the tile's own weight (zero in its free border, whose
         // values nothing constrained, rising over the ramp) times the weight placed.
         let mut c = rustfft::num_complex::Complex64::default();
-        for r in 0..h {
-            for col in 0..w {
+        for r in 0..h_in {
+            for col in 0..w_in {
                 let wsum = self.weight[[y0 + r, x0 + col]];
                 let a = taper(r, h, top, bottom) * taper(col, w, left, right) * wsum;
                 if a > 0.0 {
@@ -196,13 +220,19 @@ impl Mosaic {
         } else {
             Complex32::new(1.0, 0.0)
         };
-        for r in 0..h {
-            for col in 0..w {
+        for r in 0..h_in {
+            for col in 0..w_in {
                 let wt = taper(r, h, top, bottom) * taper(col, w, left, right);
                 self.sum[[y0 + r, x0 + col]] += object[[r, col]] * rotate * wt;
                 self.weight[[y0 + r, x0 + col]] += wt;
             }
         }
+    }
+
+    /// The blended object and where any tile gave it weight.
+    pub fn finish_with_coverage(self) -> (Array2<Complex32>, Array2<bool>) {
+        let covered = self.weight.mapv(|w| w > 0.0);
+        (self.finish(), covered)
     }
 
     /// The blended object (zero where no tile reached).

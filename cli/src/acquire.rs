@@ -151,6 +151,11 @@ pub fn acquire(a: &AcquireArgs) -> Result<AcquireSummary> {
 
 /// The LED controller and the focus stage `a` names.
 fn open_rig(a: &AcquireArgs) -> Result<(Controller, Box<dyn FocusStage>)> {
+    Ok((open_controller(a)?, a.stage.open_focus()?))
+}
+
+/// The LED controller `a` names (or the one board connected).
+pub fn open_controller(a: &AcquireArgs) -> Result<Controller> {
     let timeout = Duration::from_secs(2);
     let port = match &a.port {
         Some(port) => port.clone(),
@@ -164,11 +169,11 @@ fn open_rig(a: &AcquireArgs) -> Result<(Controller, Box<dyn FocusStage>)> {
         Ok(n) => tracing::info!("removed the shared memory of {n} crashed process(es)"),
         Err(e) => tracing::warn!("could not check for stale shared memory: {e}"),
     }
-    Ok((dev, a.stage.open_focus()?))
+    Ok(dev)
 }
 
 /// The plan `a` describes.
-fn plan(a: &AcquireArgs) -> Plan {
+pub fn plan(a: &AcquireArgs) -> Plan {
     Plan {
         camera: ServiceNames::for_camera(&a.frames),
         out: a.out.clone(),
@@ -192,6 +197,7 @@ fn plan(a: &AcquireArgs) -> Plan {
         tile: a.tile,
         flatten: a.flatten.flatten(),
         snapshot_every: 0,
+        geometry: None,
         leds: None,
         multiplex: fpm_physics::multiplex::Multiplex {
             dark_field: a.multiplex.into(),
@@ -224,7 +230,7 @@ fn run_plan(
 
 /// A flag Ctrl-C (or SIGTERM) sets: the acquisition aborts its sequence and writes
 /// what it captured. A second Ctrl-C ends the process at once.
-fn cancel_on_signal() -> Result<Arc<AtomicBool>> {
+pub fn cancel_on_signal() -> Result<Arc<AtomicBool>> {
     let flag = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register_conditional_shutdown(signal, 130, Arc::clone(&flag))?;

@@ -69,6 +69,9 @@ enum Command {
     Dpc(dpc::DpcArgs),
     /// Reconstruct amplitude, phase and pupil (EPRY) from a dataset.
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Scan a slide: a grid of fields, the stage moving from one to the next, each
+    /// acquired (and reconstructed while the next is) and joined into one image.
+    Scan(scan::ScanArgs),
     /// Join a scan's fields into one slide image: reconstruct each field (those not
     /// done yet), register them on their overlaps, blend, write OME-Zarr.
     Stitch(scan::StitchArgs),
@@ -119,6 +122,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Stage(cmd) => stage::run(cmd),
         Command::Stitch(args) => scan::stitch(args),
+        Command::Scan(args) => scan::scan(args),
         Command::Import(args) => import::run(args),
         Command::Dpc(args) => dpc::run(args),
         Command::Reconstruct(args) => reconstruct::run(args),

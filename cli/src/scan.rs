@@ -223,3 +223,105 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// `fpm scan`.
+#[derive(Args, Debug, Clone)]
+pub struct ScanArgs {
+    /// The grid, ROWSxCOLS; field (0, 0) is where the stage is now, the scan runs
+    /// over +x and +y from there.
+    #[arg(long, default_value = "3x3", value_parser = rows_cols)]
+    pub fields: (usize, usize),
+    /// Neighbouring fields overlap by this fraction of a field.
+    #[arg(long, default_value_t = 0.15)]
+    pub overlap: f64,
+    /// The stage's position error, 1σ, µm (for stitching).
+    #[arg(long, default_value_t = 10.0)]
+    pub stage_sigma_um: f64,
+    /// The acquisition of each field (--out is the scan directory; --calibrate
+    /// calibrates at the first field; --reconstruct reconstructs each field while the
+    /// next is acquired, then stitches them).
+    #[command(flatten)]
+    pub acquire: crate::acquire::AcquireArgs,
+}
+
+/// Run `fpm scan`.
+pub fn scan(a: ScanArgs) -> Result<()> {
+    let acq = &a.acquire;
+    if !acq.colors.is_empty() {
+        anyhow::bail!("--colors: a scan is in one colour for now; scan each colour separately");
+    }
+    let dev = crate::acquire::open_controller(acq)?;
+    let mut stage = acq.stage.open_scan()?;
+    let plan = crate::acquire::plan(acq);
+    let job = Job {
+        settings: Settings {
+            flatten: plan.flatten,
+            ..Settings::default()
+        },
+        passes: plan.passes,
+        tile: plan.tile,
+        ..Job::default()
+    };
+    let scan_plan = fpm_acquire::scan::ScanPlan {
+        rows: a.fields.0,
+        cols: a.fields.1,
+        overlap: a.overlap,
+        field: plan,
+        job: job.clone(),
+    };
+    let control = fpm_acquire::pipeline::Control::cancelled_by(crate::acquire::cancel_on_signal()?);
+    let bar = progress::counter("scanning", "fields");
+    let total = a.fields.0 * a.fields.1;
+    let summary = fpm_acquire::scan::run(
+        &dev,
+        stage.as_mut(),
+        &scan_plan,
+        &mut |e| match e {
+            fpm_acquire::scan::ScanEvent::Moving { index, .. } => {
+                progress::advance(&bar, index, total);
+                bar.set_message(format!("field {}: moving", index + 1));
+            }
+            fpm_acquire::scan::ScanEvent::Acquiring {
+                index, progress: p, ..
+            } => {
+                bar.set_message(format!("field {}: {}/{} frames", index + 1, p.frames, p.of));
+            }
+            fpm_acquire::scan::ScanEvent::Skipped { index } => {
+                progress::advance(&bar, index + 1, total)
+            }
+            fpm_acquire::scan::ScanEvent::Reconstructed { .. } => {}
+        },
+        &control,
+    )?;
+    bar.finish_and_clear();
+    let mut report = serde_json::json!({ "scan": summary });
+    if acq.reconstruct {
+        let options = StitchOptions {
+            job,
+            settings: fpm_physics::stitch::Settings {
+                stage_sigma_um: a.stage_sigma_um,
+                ..Default::default()
+            },
+            redo: false,
+        };
+        let stitched = scan::stitch(&acq.out, &options, &|_| {})?;
+        scan::write(&stitched, &acq.out.join("mosaic"))?;
+        report["stitch"] = serde_json::to_value(&stitched.report)?;
+    }
+    if acq.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!(
+        "scanned {} fields ({} acquired now) into {} in {:.1} s: {:.0} fields per hour",
+        summary.fields,
+        summary.acquired,
+        acq.out.display(),
+        summary.seconds,
+        summary.fields_per_hour
+    );
+    if acq.reconstruct {
+        println!("mosaic: {}", acq.out.join("mosaic/mosaic.zarr").display());
+    }
+    Ok(())
+}

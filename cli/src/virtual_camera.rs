@@ -49,6 +49,16 @@ pub struct VirtualCameraArgs {
     /// truth_amplitude.tif, truth_phase.tif), for scoring; truth.json appears last.
     #[arg(long)]
     pub truth_dir: Option<PathBuf>,
+    /// A slide this wide (µm, square) instead of one field's sample: each exposure
+    /// shows the part of it under the stage's X, Y (`fpm scan`), the stage off by its
+    /// hidden error and the slide's surface tilted; the slide's truth, and where each
+    /// field really was, go to --truth-dir.
+    #[arg(long)]
+    pub slide_um: Option<f64>,
+    /// With --slide-um: the stage misses each commanded position by up to this much,
+    /// µm (repeatably: a position error of the lead screws).
+    #[arg(long, default_value_t = 20.0)]
+    pub stage_error_um: f64,
     /// Sensor readout time added after each exposure, ms.
     #[arg(long, default_value_t = 5.0)]
     pub readout_ms: f64,
@@ -84,6 +94,8 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         height_mm: a.height_mm,
         entrance_pupil_mm: a.entrance_pupil_mm,
         truth_dir: a.truth_dir,
+        slide_um: a.slide_um,
+        stage_error_um: a.stage_error_um,
         readout_ms: a.readout_ms,
         drop_frame: a.drop_frame,
         late_ms: a.late_ms,

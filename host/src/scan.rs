@@ -447,7 +447,15 @@ pub fn stitch(
             let p = report["pixel_um"]
                 .as_f64()
                 .with_context(|| format!("{}: no pixel_um", report_path.display()))?;
-            let score = serde_json::from_value(report["versus_truth"].clone()).ok();
+            // Scored when it was reconstructed, or now if its truth came later (a
+            // virtual rig's, written once the field's true place was known).
+            let score = serde_json::from_value(report["versus_truth"].clone())
+                .ok()
+                .or_else(|| {
+                    let upsample = report["upsample"].as_u64()? as usize;
+                    let ds = crate::dataset::DatasetOnDisk::open(&field_dir).ok()?;
+                    crate::truth::score_reconstruction(&ds, &object, upsample)
+                });
             (object, p, score)
         } else {
             let finished = options

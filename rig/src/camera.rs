@@ -46,6 +46,10 @@ pub struct VirtualCamera {
     /// Write the hidden truth here once listening (truth.json, virtual-camera.json,
     /// truth_amplitude.tif, truth_phase.tif), for scoring; truth.json appears last.
     pub truth_dir: Option<PathBuf>,
+    /// A slide this wide, µm: each exposure shows the part under the stage.
+    pub slide_um: Option<f64>,
+    /// The stage's hidden, repeatable XY error: up to this far off, µm.
+    pub stage_error_um: f64,
     /// Sensor readout time added after each exposure, ms.
     pub readout_ms: f64,
     /// Fault injection: never publish the frame with this number (repeatable).
@@ -131,6 +135,10 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     let camera = Camera::realistic();
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
+    let mut slide = match a.slide_um {
+        Some(um) => Some(SlideScene::new(&system, &a, um, size)?),
+        None => None,
+    };
     let mut dies = Dies::new(&hidden);
     let mut rig = RigListener::create(&a.rig)?;
     let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), width * height)?;
@@ -180,10 +188,19 @@ pub fn run(a: VirtualCamera) -> Result<()> {
             continue;
         };
         let stage = rig.stage()?;
-        let (object, renderer) = if stage.slide == Stage::CALIBRATION_TARGET {
-            (&target, &mut renderers.1)
+        // On a slide the field under the stage, and the slide's surface height there.
+        let (object, renderer, surface_um) = if stage.slide == Stage::CALIBRATION_TARGET {
+            (&target, &mut renderers.1, 0.0)
+        } else if let Some(slide) = slide.as_mut() {
+            let (field, renderer, surface) =
+                slide.field_at(stage.x_um, stage.y_um, size, a.truth_dir.as_deref())?;
+            (field, renderer, surface)
         } else {
-            (&sample, &mut renderers.0)
+            (&sample, &mut renderers.0, 0.0)
+        };
+        let stage = fpm_rig_bus::Stage {
+            defocus_um: stage.defocus_um + surface_um,
+            ..stage
         };
         // Lit LEDs add incoherently. White (or grey) light is taken at the system's
         // wavelength from the LED's place, as blue is; red and green come from their
@@ -270,6 +287,122 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     }
     tracing::info!("virtual camera stopped after {frame_number} frames");
     Ok(())
+}
+
+/// A slide larger than one field, the stage's hidden error and the slide's tilt.
+struct SlideScene {
+    slide: ObjectField,
+    seed: u64,
+    stage_error_um: f64,
+    /// The surface's height change per µm in x and y (toward the LEDs), µm/µm.
+    tilt: (f64, f64),
+    /// The field last rendered: its commanded position, the field, its renderer.
+    current: Option<((i64, i64), ObjectField, Renderer)>,
+}
+
+impl SlideScene {
+    fn new(system: &System, a: &VirtualCamera, slide_um: f64, size: usize) -> Result<Self> {
+        let pixel = system.sample_pixel_um();
+        let side = (slide_um / pixel).ceil() as usize;
+        if !(size..=16_384).contains(&side) {
+            anyhow::bail!("--slide-um {slide_um}: give a slide at least one field ({:.0} µm) and at most 16384 pixels wide", size as f64 * pixel);
+        }
+        let pad = 32;
+        let slide = ObjectField::slide(
+            system,
+            side,
+            pad,
+            2,
+            a.seed,
+            fpm_physics::simulate::SampleKind::Cells,
+        );
+        let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x0005_11DE);
+        // A slide lies a little tilted: up to 3 µm per mm.
+        let angle = rng.gen_range(0.0..std::f64::consts::TAU);
+        let tilt = (3e-3 * angle.cos(), 3e-3 * angle.sin());
+        if let Some(dir) = &a.truth_dir {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            let n = slide.n;
+            let half = (n / 2) as f64 * slide.pitch_um();
+            let region = slide
+                .region(-half, -half, n, n)
+                .context("the slide's own grid")?;
+            fpm_host::dataset::image_io::write_tiff_f32(
+                &dir.join("slide_amplitude.tif"),
+                &region.mapv(|c| c.norm()),
+            )?;
+            fpm_host::dataset::image_io::write_tiff_f32(
+                &dir.join("slide_phase.tif"),
+                &region.mapv(|c| c.arg()),
+            )?;
+            std::fs::write(
+                dir.join("slide.json"),
+                serde_json::to_string_pretty(&serde_json::json!({
+                    "pixel_um": slide.pitch_um(),
+                    "origin_um": [-half, -half],
+                    "tilt_um_per_mm": [tilt.0 * 1e3, tilt.1 * 1e3],
+                    "stage_error_um": a.stage_error_um,
+                }))?,
+            )?;
+            let _ = std::fs::remove_file(dir.join("stage.jsonl"));
+        }
+        Ok(Self {
+            slide,
+            seed: a.seed,
+            stage_error_um: a.stage_error_um,
+            tilt,
+            current: None,
+        })
+    }
+
+    /// Where the stage really goes when told (x, y): the same error each time it is
+    /// told the same place (to the µm), up to `stage_error_um`.
+    fn true_position(&self, x: f64, y: f64) -> (f64, f64) {
+        let key = ((x.round() as i64) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ ((y.round() as i64) as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ self.seed;
+        let mut rng = rand::rngs::StdRng::seed_from_u64(key);
+        let r = self.stage_error_um * rng.gen::<f64>().sqrt();
+        let a = rng.gen_range(0.0..std::f64::consts::TAU);
+        (x + r * a.cos(), y + r * a.sin())
+    }
+
+    /// The field under the stage told (x, y), its renderer, and the surface height
+    /// there (µm toward the LEDs); a new position is logged to `truth_dir/stage.jsonl`.
+    fn field_at(
+        &mut self,
+        x: f64,
+        y: f64,
+        size: usize,
+        truth_dir: Option<&std::path::Path>,
+    ) -> Result<(&ObjectField, &mut Renderer, f64)> {
+        let key = ((x * 1e3).round() as i64, (y * 1e3).round() as i64);
+        if self.current.as_ref().is_none_or(|c| c.0 != key) {
+            let real = self.true_position(x, y);
+            let (field, used) = self
+                .slide
+                .window(real, size, 32)
+                .with_context(|| format!("the stage at ({x:.0}, {y:.0}) µm shows no slide (the virtual slide is {:.0} µm wide)", self.slide.camera as f64 * self.slide.camera_pixel_um))?;
+            if let Some(dir) = truth_dir {
+                use std::io::Write;
+                let mut f = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(dir.join("stage.jsonl"))?;
+                writeln!(
+                    f,
+                    "{}",
+                    serde_json::json!({"commanded_um": [x, y], "true_um": [used.0, used.1]})
+                )?;
+            }
+            let renderer = Renderer::new(&field);
+            self.current = Some((key, field, renderer));
+        }
+        let real = self.true_position(x, y);
+        let surface = self.tilt.0 * real.0 + self.tilt.1 * real.1;
+        let (_, field, renderer) = self.current.as_mut().context("the field just made")?;
+        Ok((field, renderer, surface))
+    }
 }
 
 /// The virtual board's red and green dies, beside its blue one (which the board's grid

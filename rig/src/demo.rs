@@ -316,6 +316,7 @@ fn plan(demo: &Demo, rig: &str, out: &Path) -> Plan {
         // The hidden sample is cells and bars on clear glass.
         flatten: Flatten::Auto,
         snapshot_every: 0,
+        geometry: None,
         leds: None,
         multiplex: fpm_physics::multiplex::Multiplex::ONE,
     }
@@ -373,4 +374,245 @@ fn score(
         tracing::warn!("no comparison picture: {e:#}");
     }
     Ok((quality, drawn.is_ok().then_some(picture)))
+}
+
+/// The whole-slide demo (`fpm demo --scan`): the virtual rig with a slide larger than
+/// one field and a stage that misses its positions, a scan of `rows × cols` fields
+/// (calibrated at the first, each reconstructed while the next is acquired), stitched,
+/// and the mosaic scored against the hidden slide beside the fields' own.
+#[derive(Debug, Clone)]
+pub struct ScanDemo {
+    /// Where to write the scan (None: a new directory under /tmp).
+    pub out: Option<PathBuf>,
+    pub seed: u64,
+    /// Sensor side, pixels.
+    pub size: usize,
+    pub rows: usize,
+    pub cols: usize,
+    pub overlap: f64,
+    /// The virtual stage's hidden XY error, up to, µm.
+    pub stage_error_um: f64,
+    /// Light only the central LEDS × LEDS of the array per field (None: all).
+    pub leds: Option<usize>,
+}
+
+impl Default for ScanDemo {
+    fn default() -> Self {
+        Self {
+            out: None,
+            seed: 1,
+            size: MIN_SIZE,
+            rows: 3,
+            cols: 3,
+            overlap: 0.3,
+            stage_error_um: 10.0,
+            leds: None,
+        }
+    }
+}
+
+/// What the scan demo did.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanDemoReport {
+    pub out: PathBuf,
+    pub scan: fpm_acquire::scan::ScanSummary,
+    pub stitch: fpm_host::scan::StitchReport,
+}
+
+/// Run the scan demo; `on_field(done, total)` as fields are acquired.
+pub fn run_scan(
+    demo: &ScanDemo,
+    fpm: &Path,
+    mut on_field: impl FnMut(usize, usize),
+) -> Result<ScanDemoReport> {
+    if !(MIN_SIZE..=1024).contains(&demo.size) {
+        bail!(
+            "--size {}: a scan's fields must be {MIN_SIZE}-1024 px",
+            demo.size
+        );
+    }
+    let rig = format!("scan-{}", std::process::id());
+    let out = demo.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("fpm-scan-demo-{}", std::process::id()))
+    });
+    if out.join("scan.json").exists() {
+        bail!("{} already holds a scan; pick another --out", out.display());
+    }
+    let camera_truth = out.join("rig-truth");
+    let system = plan(&Demo::default(), &rig, &out).system;
+    let field_um = demo.size as f64 * system.sample_pixel_um();
+    // The slide: every field and the stage's error either way, and a margin.
+    let span = |n: usize| field_um * (1.0 + (n as f64 - 1.0) * (1.0 - demo.overlap));
+    let slide_um = span(demo.rows.max(demo.cols)) + 2.0 * demo.stage_error_um + 60.0;
+    let emulator = start_emulator(&Demo::default(), fpm, &rig)?;
+    let (seed, size, slide, error) = (
+        demo.seed.to_string(),
+        demo.size.to_string(),
+        format!("{slide_um:.0}"),
+        demo.stage_error_um.to_string(),
+    );
+    let camera = VirtualCameraProcess::start(
+        fpm,
+        &rig,
+        &rig,
+        &camera_truth,
+        &[
+            "--seed",
+            &seed,
+            "--size",
+            &size,
+            "--slide-um",
+            &slide,
+            "--stage-error-um",
+            &error,
+        ],
+    )?;
+    let dev = Controller::open(&emulator.port(), Duration::from_secs(2))?;
+    let mut stage = VirtualStage::open(&rig)?;
+    // The scan's first field at the slide's centre less half the grid.
+    let start = (
+        -(span(demo.cols) - field_um) / 2.0,
+        -(span(demo.rows) - field_um) / 2.0,
+    );
+    fpm_stage::Stage::move_to(&mut stage, fpm_stage::Target::xy(start.0, start.1))?;
+    let mut field = plan(&Demo::default(), &rig, &out);
+    if let Some(n) = demo.leds {
+        let c = 10i32;
+        let h = (n / 2) as i32;
+        field.leds = Some(
+            (c - h..=c + h)
+                .flat_map(|r| {
+                    (c - h..=c + h).map(move |k| fpm_physics::LedIndex::new(r as u8, k as u8))
+                })
+                .collect(),
+        );
+    }
+    let job = Job {
+        settings: Settings {
+            flatten: field.flatten,
+            ..Settings::default()
+        },
+        passes: 10,
+        ..Job::default()
+    };
+    let scan_plan = fpm_acquire::scan::ScanPlan {
+        rows: demo.rows,
+        cols: demo.cols,
+        overlap: demo.overlap,
+        field,
+        job: job.clone(),
+    };
+    let total = demo.rows * demo.cols;
+    let summary = fpm_acquire::scan::run(
+        &dev,
+        &mut stage,
+        &scan_plan,
+        &mut |e| {
+            if let fpm_acquire::scan::ScanEvent::Moving { index, .. } = e {
+                on_field(index, total)
+            }
+        },
+        &Control::new(),
+    )?;
+    on_field(total, total);
+    drop((camera, dev, emulator));
+    write_scan_truth(&out, &camera_truth)?;
+    let options = fpm_host::scan::StitchOptions {
+        job,
+        settings: fpm_physics::stitch::Settings {
+            stage_sigma_um: demo.stage_error_um.max(1.0) / 2.0,
+            ..Default::default()
+        },
+        redo: false,
+    };
+    let stitched = fpm_host::scan::stitch(&out, &options, &|_| {})?;
+    fpm_host::scan::write(&stitched, &out.join("mosaic"))?;
+    Ok(ScanDemoReport {
+        out,
+        scan: summary,
+        stitch: stitched.report,
+    })
+}
+
+/// The rig's hidden truth as a simulated scan keeps it: `truth/` (the slide, where
+/// each field really was) and each field's own truth (its part of the slide).
+fn write_scan_truth(out: &Path, camera_truth: &Path) -> Result<()> {
+    use fpm_host::dataset::image_io;
+    let manifest = fpm_host::scan::ScanManifest::read(out)?;
+    let slide_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(camera_truth.join("slide.json"))?)?;
+    let pixel = slide_json["pixel_um"]
+        .as_f64()
+        .context("slide.json: pixel_um")?;
+    let origin = [
+        slide_json["origin_um"][0]
+            .as_f64()
+            .context("slide.json: origin_um")?,
+        slide_json["origin_um"][1]
+            .as_f64()
+            .context("slide.json: origin_um")?,
+    ];
+    let moves: Vec<([f64; 2], [f64; 2])> =
+        std::fs::read_to_string(camera_truth.join("stage.jsonl"))?
+            .lines()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .filter_map(|v| {
+                let p = |k: &str, i: usize| v[k][i].as_f64();
+                Some((
+                    [p("commanded_um", 0)?, p("commanded_um", 1)?],
+                    [p("true_um", 0)?, p("true_um", 1)?],
+                ))
+            })
+            .collect();
+    let slide = image_io::read_complex(
+        &camera_truth.join("slide_amplitude.tif"),
+        &camera_truth.join("slide_phase.tif"),
+    )?;
+    let hidden: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(camera_truth.join("truth.json"))?)?;
+    let mut true_um = Vec::new();
+    for f in &manifest.fields {
+        let (_, real) = moves
+            .iter()
+            .rev()
+            .find(|(c, _)| {
+                (c[0] - f.stage_um[0]).abs() < 1e-3 && (c[1] - f.stage_um[1]).abs() < 1e-3
+            })
+            .with_context(|| format!("the rig never rendered field {}", f.dataset))?;
+        true_um.push(*real);
+        // The field's own truth: its part of the slide, at the simulation's pixel.
+        let dir = out.join(&f.dataset);
+        let ds = fpm_host::dataset::DatasetOnDisk::open(&dir)?;
+        let (h, w) = ds.dim();
+        let (th, tw) = (2 * h, 2 * w);
+        let c0 = ((real[0] - origin[0]) / pixel).round() as usize - tw / 2;
+        let r0 = ((real[1] - origin[1]) / pixel).round() as usize - th / 2;
+        let cut = slide
+            .slice(ndarray::s![r0..r0 + th, c0..c0 + tw])
+            .to_owned();
+        fpm_host::truth::write_truth_field(&dir, &cut)?;
+        let mut t = hidden.clone();
+        t["object_pixel_um"] = serde_json::json!(pixel);
+        std::fs::write(dir.join("truth.json"), serde_json::to_string_pretty(&t)?)?;
+    }
+    let truth_dir = out.join("truth");
+    std::fs::create_dir_all(&truth_dir)?;
+    std::fs::copy(
+        camera_truth.join("slide_amplitude.tif"),
+        truth_dir.join("slide_amplitude.tif"),
+    )?;
+    std::fs::copy(
+        camera_truth.join("slide_phase.tif"),
+        truth_dir.join("slide_phase.tif"),
+    )?;
+    let truth = fpm_host::scan::SlideTruth {
+        pixel_um: pixel,
+        origin_um: origin,
+        true_um,
+    };
+    std::fs::write(
+        truth_dir.join("slide.json"),
+        serde_json::to_string_pretty(&truth)?,
+    )?;
+    Ok(())
 }

@@ -20,7 +20,7 @@ fn options() -> StageOptions {
     }
 }
 
-fn open(emulator: &Emulator, kind: Kind, options: StageOptions) -> Box<dyn Stage> {
+fn open(emulator: &Emulator, kind: Kind, options: StageOptions) -> Box<dyn Stage + Send> {
     let protocol = match kind {
         Kind::Sangaboard => Protocol::Sangaboard,
         _ => Protocol::Gcode,
@@ -47,7 +47,7 @@ fn inside(kind: Kind, fraction: [f64; 3]) -> Position {
     Position::from_array(v)
 }
 
-fn ready(kind: Kind, config: Config, options: StageOptions) -> (Emulator, Box<dyn Stage>) {
+fn ready(kind: Kind, config: Config, options: StageOptions) -> (Emulator, Box<dyn Stage + Send>) {
     let emulator = Emulator::start(config, None).expect("starting the emulator");
     let mut stage = open(&emulator, kind, options);
     if stage.info().can_home {

@@ -81,6 +81,10 @@ pub struct Plan {
     /// LED per frame; more: a multiplexed acquisition, [`crate::multiplexed`], through
     /// the controller's LED sets).
     pub multiplex: fpm_physics::multiplex::Multiplex,
+    /// Acquire with the placement in this file (a calibration.json: a scan's first
+    /// field's, for the fields after it) instead of the board's stored one or the
+    /// nominal. Ignored when the run calibrates.
+    pub geometry: Option<PathBuf>,
 }
 
 /// What an acquisition does when nothing else is said: `fpm acquire`'s flags and the
@@ -431,14 +435,29 @@ impl Acquisition {
                 );
             }
         }
+        let given = match (&plan.geometry, plan.calibrate) {
+            (Some(path), false) => Some((
+                fpm_host::calibration::PlacementFile::read(path)
+                    .with_context(|| format!("the placement to acquire with, {}", path.display()))?
+                    .geometry(&rig.nominal),
+                path.clone(),
+            )),
+            _ => None,
+        };
         let (geometry, geometry_source) = match (&rig.stored, plan.calibrate) {
+            _ if given.is_some() => given
+                .clone()
+                .map(|(g, p)| (g, GeometrySource::File(p)))
+                .unwrap_or((rig.nominal, GeometrySource::Controller)),
             (_, true) | (None, false) => (rig.nominal, GeometrySource::Controller),
             (Some(c), false) => (
                 board_geometry::geometry(&rig.nominal, c),
                 GeometrySource::Board,
             ),
         };
-        if !plan.calibrate {
+        if let Some((_, path)) = &given {
+            tracing::info!("acquiring with the placement in {}", path.display());
+        } else if !plan.calibrate {
             match &rig.stored {
                 Some(c) => tracing::info!(
                     "starting from the geometry stored on the board: {}",

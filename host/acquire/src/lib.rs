@@ -30,6 +30,7 @@ pub mod labeller;
 pub mod multiplexed;
 pub mod page;
 pub mod pipeline;
+pub mod scan;
 pub mod stage;
 pub mod summary;
 

@@ -137,16 +137,32 @@ impl FocusStage for MotorisedFocus {
                 std::io::stdin()
                     .read_line(&mut line)
                     .context("waiting for the user to focus the slide")?;
-                let z = self.stage.position()?.z_um;
+                let z = Stage::position(&mut *self.stage)?.z_um;
                 tracing::info!(z_um = z, "focus");
                 self.focused = Some((to.slide, z));
                 z
             }
         };
         let z = self.z_for(focus_z, to.defocus_um);
-        let at = self.stage.move_to(Target::z(z))?;
+        let at = Stage::move_to(&mut *self.stage, Target::z(z))?;
         tracing::info!(defocus_um = to.defocus_um, z_um = at.z_um, "stage");
         Ok(())
+    }
+}
+
+/// The stage itself, for moves over the slide (a scan).
+impl Stage for MotorisedFocus {
+    fn info(&self) -> fpm_stage::StageInfo {
+        self.stage.info()
+    }
+    fn position(&mut self) -> Result<fpm_stage::Position, fpm_stage::StageError> {
+        self.stage.position()
+    }
+    fn move_to(&mut self, target: Target) -> Result<fpm_stage::Position, fpm_stage::StageError> {
+        self.stage.move_to(target)
+    }
+    fn home(&mut self) -> Result<fpm_stage::Position, fpm_stage::StageError> {
+        self.stage.home()
     }
 }
 

@@ -213,6 +213,7 @@ fn plan(case: &Case, out: &Path) -> Plan {
         tile: None,
         flatten: Flatten::Keep,
         snapshot_every: 0,
+        geometry: None,
         leds: None,
         multiplex: fpm_physics::multiplex::Multiplex::ONE,
     };

@@ -749,6 +749,7 @@ impl AcquireRequest {
                 Flatten::Keep
             },
             snapshot_every: self.snapshot_every,
+            geometry: None,
             leds: self
                 .leds
                 .as_ref()

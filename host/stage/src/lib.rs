@@ -327,7 +327,7 @@ pub struct StageInfo {
 }
 
 /// A motorised XYZ stage.
-pub trait Stage: Send {
+pub trait Stage {
     /// What it is.
     fn info(&self) -> StageInfo;
     /// Where it is now.

@@ -81,7 +81,7 @@ impl Connection {
         &self,
         options: StageOptions,
         um_per_step: Option<[f64; 3]>,
-    ) -> Result<Box<dyn Stage>, StageError> {
+    ) -> Result<Box<dyn Stage + Send>, StageError> {
         Ok(match self.protocol {
             Protocol::Gcode => Box::new(MotorStage::new(
                 Gcode::open(&self.port, self.baud)?,

@@ -93,13 +93,17 @@ impl TriggerPulse {
     }
 }
 
-/// Where the virtual focus stage is and which slide is on it.
+/// Where the virtual stage really is and which slide is on it.
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("fpm::rig::Stage/1")]
+#[type_name("fpm::rig::Stage/2")]
 #[repr(C)]
 pub struct Stage {
     /// Sample moved toward the LEDs by this much, µm (0 = in focus).
     pub defocus_um: f64,
+    /// The slide position the stage was told to put under the optical axis, µm (the
+    /// virtual camera adds the stage's hidden error).
+    pub x_um: f64,
+    pub y_um: f64,
     /// Which slide: [`Stage::SAMPLE`] or [`Stage::CALIBRATION_TARGET`].
     pub slide: u32,
     /// Reserved.

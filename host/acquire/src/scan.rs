@@ -1,0 +1,263 @@
+//! A scan of many fields: the stage moves from field to field over a grid, each field
+//! is acquired as an ordinary dataset (`fpm_host::scan`'s layout: `fields/r*c*/` and
+//! `scan.json`), and each field's reconstruction runs on a worker thread while the
+//! stage moves on and the next field is acquired. A scan interrupted part-way is
+//! completed by running it again: fields already acquired (and reconstructed) are
+//! skipped.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use fpm_host::reconstruction::{self, GeometryChoice, Job};
+use fpm_host::scan::{field_name, ScanField, ScanManifest, FORMAT};
+use fpm_stage::{Stage, Target};
+use serde::Serialize;
+
+use crate::acquisition::Plan;
+use crate::acquisition::Progress;
+use crate::pipeline::{self, Control};
+use crate::{Controller, FocusStage};
+
+/// A stage that moves over the slide and focuses: what a scan drives.
+pub trait ScanStage: Stage + FocusStage {}
+impl<T: Stage + FocusStage> ScanStage for T {}
+
+/// What to scan.
+#[derive(Debug, Clone)]
+pub struct ScanPlan {
+    pub rows: usize,
+    pub cols: usize,
+    /// Neighbouring fields overlap by this fraction.
+    pub overlap: f64,
+    /// Each field's acquisition; its `out` is the scan directory, its `calibrate` is
+    /// done at the first field only, its `reconstruct` means a worker thread
+    /// reconstructs each field while the next is acquired.
+    pub field: Plan,
+    /// How each field is reconstructed (its geometry: the first field's calibration
+    /// when it calibrated).
+    pub job: Job,
+}
+
+/// What a scan reports as it goes.
+#[derive(Debug, Clone, Copy)]
+pub enum ScanEvent {
+    /// Moving to field `index` (of `total`), centre (x, y) µm.
+    Moving {
+        index: usize,
+        total: usize,
+        at_um: (f64, f64),
+    },
+    /// Field `index`'s acquisition, so far.
+    Acquiring {
+        index: usize,
+        total: usize,
+        progress: Progress,
+    },
+    /// Field `index` was acquired before: skipped.
+    Skipped { index: usize },
+    /// Field `index` is reconstructed.
+    Reconstructed { index: usize },
+}
+
+/// `OUT/scan-summary.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanSummary {
+    pub fields: usize,
+    /// Acquired in this run (the others were there).
+    pub acquired: usize,
+    pub reconstructed: usize,
+    pub seconds: f64,
+    /// Fields acquired (and reconstructed, if asked) per hour in this run.
+    pub fields_per_hour: f64,
+    /// The field's size on the slide, µm.
+    pub field_um: (f64, f64),
+}
+
+/// Whether a field's dataset is complete (written, no journal of a part-way run).
+fn acquired(dir: &Path) -> bool {
+    dir.join("dataset.toml").is_file() && !dir.join("journal").exists()
+}
+
+/// Whether a field has a reconstruction.
+fn reconstructed(dir: &Path) -> bool {
+    dir.join("reconstruction/report.json").is_file()
+}
+
+/// Run `scan` with the LED controller `dev` and `stage`, the grid's first field where
+/// the stage is now (the scan runs over +x, +y from there, serpentine).
+pub fn run(
+    dev: &Controller,
+    stage: &mut dyn ScanStage,
+    scan: &ScanPlan,
+    on: &mut dyn FnMut(ScanEvent),
+    control: &Control,
+) -> Result<ScanSummary> {
+    if scan.rows == 0 || scan.cols == 0 || scan.rows * scan.cols > 10_000 {
+        bail!("a {}×{} scan: give 1–10000 fields", scan.rows, scan.cols);
+    }
+    if !(0.0..0.9).contains(&scan.overlap) {
+        bail!("overlap {}: give a fraction 0–0.9", scan.overlap);
+    }
+    let out = scan.field.out.clone();
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let started = Instant::now();
+    let origin = Stage::position(stage)?;
+    let total = scan.rows * scan.cols;
+    // The order: serpentine, starting at the stage's position as field (0, 0).
+    let order: Vec<(usize, usize)> = (0..scan.rows)
+        .flat_map(|r| {
+            (0..scan.cols).map(move |k| (r, if r % 2 == 0 { k } else { scan.cols - 1 - k }))
+        })
+        .collect();
+    let mut manifest = match ScanManifest::read(&out) {
+        Ok(m) if m.rows == scan.rows && m.cols == scan.cols => m,
+        Ok(m) => bail!(
+            "{} holds a {}×{} scan; this one is {}×{}: give another --out",
+            out.display(),
+            m.rows,
+            m.cols,
+            scan.rows,
+            scan.cols
+        ),
+        Err(_) => ScanManifest {
+            format: FORMAT.into(),
+            rows: scan.rows,
+            cols: scan.cols,
+            overlap: scan.overlap,
+            fields: Vec::new(),
+        },
+    };
+    let mut field_um: Option<(f64, f64)> = None;
+    let (done_tx, done_rx) = mpsc::channel::<(usize, Result<()>)>();
+    let mut workers: Vec<std::thread::JoinHandle<()>> = Vec::new();
+    let mut acquired_now = 0;
+    let mut reconstructed_now = 0;
+    let mut geometry: Option<PathBuf> = None;
+    for (index, &(row, col)) in order.iter().enumerate() {
+        if control.is_cancelled() {
+            bail!("the scan was cancelled after {index} of {total} fields; run it again to complete it");
+        }
+        let name = field_name(row, col);
+        let dir = out.join(&name);
+        let at = match field_um {
+            // The first field is where the stage is; the grid follows from its size.
+            None => (origin.x_um, origin.y_um),
+            Some((w, h)) => (
+                origin.x_um + col as f64 * w * (1.0 - scan.overlap),
+                origin.y_um + row as f64 * h * (1.0 - scan.overlap),
+            ),
+        };
+        let recorded = manifest
+            .fields
+            .iter()
+            .find(|f| f.row == row && f.col == col)
+            .cloned();
+        if acquired(&dir) && recorded.is_some() {
+            on(ScanEvent::Skipped { index });
+        } else {
+            on(ScanEvent::Moving {
+                index,
+                total,
+                at_um: at,
+            });
+            let placed = Stage::move_to(stage, Target::xy(at.0, at.1))?;
+            let plan = Plan {
+                out: dir.clone(),
+                calibrate: scan.field.calibrate && index == 0,
+                store_geometry: scan.field.store_geometry && index == 0,
+                reconstruct: false,
+                // The fields after the first are acquired with its calibration.
+                geometry: geometry.clone().or_else(|| scan.field.geometry.clone()),
+                ..scan.field.clone()
+            };
+            let mut watch = |p: &Progress| {
+                on(ScanEvent::Acquiring {
+                    index,
+                    total,
+                    progress: *p,
+                })
+            };
+            let resume = dir.join("dataset.toml").is_file() || dir.join("journal").exists();
+            let _summary = if resume {
+                pipeline::resume(dev, stage, &plan, &mut watch, control)
+            } else {
+                pipeline::acquire(dev, stage, &plan, &mut watch, control)
+            }
+            .with_context(|| format!("acquiring field {name}"))?;
+            acquired_now += 1;
+            manifest.fields.retain(|f| !(f.row == row && f.col == col));
+            manifest.fields.push(ScanField {
+                row,
+                col,
+                dataset: name.clone(),
+                stage_um: [at.0, at.1],
+                z_um: Some(placed.z_um),
+            });
+            manifest.write(&out)?;
+        }
+        if index == 0 {
+            let calibration = dir.join("calibration.json");
+            geometry = calibration.is_file().then_some(calibration);
+        }
+        if field_um.is_none() {
+            let ds = fpm_host::dataset::DatasetOnDisk::open(&dir)?;
+            let (h, w) = ds.dim();
+            let pixel = ds.manifest.system().sample_pixel_um();
+            field_um = Some((w as f64 * pixel, h as f64 * pixel));
+        }
+        if scan.field.reconstruct && !reconstructed(&dir) {
+            let job = Job {
+                geometry: geometry
+                    .clone()
+                    .map_or(GeometryChoice::Nominal, GeometryChoice::File),
+                ..scan.job.clone()
+            };
+            let tx = done_tx.clone();
+            // One field reconstructs while the next is acquired; the next waits for
+            // it (two cores: more at once would starve the acquisition).
+            if workers.len() > reconstructed_now {
+                if let Ok((i, r)) = done_rx.recv() {
+                    r.with_context(|| format!("reconstructing field {:?}", order[i]))?;
+                    on(ScanEvent::Reconstructed { index: i });
+                    reconstructed_now += 1;
+                }
+            }
+            workers.push(std::thread::spawn(move || {
+                let r = job.run(&dir, &|_| {}).and_then(|f| {
+                    reconstruction::write_outputs(&f.reconstruction, &dir.join("reconstruction"))
+                });
+                let _ = tx.send((index, r));
+            }));
+        }
+    }
+    drop(done_tx);
+    for (i, r) in done_rx.iter() {
+        r.with_context(|| format!("reconstructing field {:?}", order[i]))?;
+        on(ScanEvent::Reconstructed { index: i });
+        reconstructed_now += 1;
+    }
+    for w in workers {
+        let _ = w.join();
+    }
+    manifest
+        .fields
+        .sort_by_key(|f| order.iter().position(|&o| o == (f.row, f.col)));
+    manifest.write(&out)?;
+    let seconds = started.elapsed().as_secs_f64();
+    let summary = ScanSummary {
+        fields: total,
+        acquired: acquired_now,
+        reconstructed: reconstructed_now,
+        seconds,
+        fields_per_hour: acquired_now as f64 / seconds.max(1e-9) * 3600.0,
+        field_um: field_um.unwrap_or_default(),
+    };
+    std::fs::write(
+        out.join("scan-summary.json"),
+        serde_json::to_string_pretty(&summary)?,
+    )
+    .with_context(|| format!("writing {}", out.join("scan-summary.json").display()))?;
+    Ok(summary)
+}

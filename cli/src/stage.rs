@@ -88,33 +88,32 @@ impl MotorArgs {
 impl StageArgs {
     /// The stage these options name, for a scan: it must move over the slide.
     pub fn open_scan(&self) -> Result<Box<dyn fpm_acquire::scan::ScanStage>> {
-        Ok(match &self.stage {
-            StageChoice::Manual => bail!("a scan needs a motorised stage: give --stage gcode:PORT, sangaboard:PORT, or virtual (with --rig)"),
-            StageChoice::Virtual => Box::new(VirtualStage::open(
-                self.rig
-                    .as_deref()
-                    .context("--stage virtual needs --rig NAME")?,
-            )?),
-            StageChoice::Motorised(c) => Box::new(MotorisedFocus::new(
-                self.motor.open(c)?,
-                self.motor.stage_z_to_leds,
-            )),
-        })
+        self.open_motorised()?.context(
+            "a scan needs a motorised stage: give --stage gcode:PORT, sangaboard:PORT, or virtual (with --rig)",
+        )
     }
 
     /// The focus stage these options name.
     pub fn open_focus(&self) -> Result<Box<dyn FocusStage>> {
+        Ok(match self.open_motorised()? {
+            Some(stage) => stage,
+            None => Box::new(ManualStage),
+        })
+    }
+
+    /// The motorised stage these options name (None: `manual`).
+    fn open_motorised(&self) -> Result<Option<Box<dyn fpm_acquire::scan::ScanStage>>> {
         Ok(match &self.stage {
-            StageChoice::Manual => Box::new(ManualStage),
-            StageChoice::Virtual => Box::new(VirtualStage::open(
+            StageChoice::Manual => None,
+            StageChoice::Virtual => Some(Box::new(VirtualStage::open(
                 self.rig
                     .as_deref()
                     .context("--stage virtual needs --rig NAME")?,
-            )?),
-            StageChoice::Motorised(c) => Box::new(MotorisedFocus::new(
+            )?)),
+            StageChoice::Motorised(c) => Some(Box::new(MotorisedFocus::new(
                 self.motor.open(c)?,
                 self.motor.stage_z_to_leds,
-            )),
+            ))),
         })
     }
 }

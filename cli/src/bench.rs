@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use fpm_bench::{LinkOptions, MemoryOptions};
 
@@ -111,6 +111,23 @@ pub enum BenchCommand {
     /// run: API round trips (1 and 50 clients), event and snapshot latency, cancel, and
     /// its overhead on a 441-LED acquisition against `fpm acquire`.
     Serve(ServeArgs),
+    /// Fields per hour of a whole-slide scan on the virtual rig (calibrated at the
+    /// first field, stitched), each field reconstructed while the next is acquired,
+    /// against the same scan reconstructing the fields after it.
+    Scan {
+        /// The grid, ROWSxCOLS.
+        #[arg(long, default_value = "3x3", value_parser = crate::scan::rows_cols)]
+        fields: (usize, usize),
+        /// Sensor side, pixels (192–1024).
+        #[arg(long, default_value_t = 192)]
+        size: usize,
+        /// Light only the central LEDS × LEDS of the array per field (default: all).
+        #[arg(long)]
+        leds: Option<usize>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// `fpm bench serve`'s flags.
@@ -225,6 +242,25 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             upsample,
             json,
         } => fpm_bench::epry::run(size, upsample, json),
+        BenchCommand::Scan {
+            fields,
+            size,
+            leds,
+            json,
+        } => {
+            let fpm = std::env::current_exe().context("locating the fpm executable")?;
+            fpm_bench::scan::run(
+                &fpm_bench::scan::ScanOptions {
+                    rows: fields.0,
+                    cols: fields.1,
+                    size,
+                    leds,
+                    json,
+                },
+                &fpm,
+            )
+            .map(drop)
+        }
         BenchCommand::Serve(a) => fpm_bench::serve::run(fpm_bench::serve::ServeOptions {
             requests: a.requests,
             clients: a.clients,

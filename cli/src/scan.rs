@@ -50,7 +50,7 @@ pub struct SimulateScanArgs {
     pub json: bool,
 }
 
-fn rows_cols(s: &str) -> Result<(usize, usize), String> {
+pub fn rows_cols(s: &str) -> Result<(usize, usize), String> {
     let (r, c) = s
         .split_once(['x', '×'])
         .ok_or_else(|| format!("`{s}`: give ROWSxCOLS, e.g. 3x3"))?;

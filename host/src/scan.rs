@@ -458,8 +458,31 @@ pub fn stitch(
                 });
             (object, p, score)
         } else {
-            let finished = options
-                .job
+            // A field without a geometry of its own is reconstructed with the scan's
+            // calibration: its own calibration.json, else the first field's (a scan
+            // calibrates once).
+            let job = match &options.job.geometry {
+                reconstruction::GeometryChoice::Nominal => {
+                    let own = field_dir.join("calibration.json");
+                    let first = manifest
+                        .fields
+                        .first()
+                        .map(|f| dir.join(&f.dataset).join("calibration.json"));
+                    match [Some(own), first]
+                        .into_iter()
+                        .flatten()
+                        .find(|p| p.is_file())
+                    {
+                        Some(path) => Job {
+                            geometry: reconstruction::GeometryChoice::File(path),
+                            ..options.job.clone()
+                        },
+                        None => options.job.clone(),
+                    }
+                }
+                _ => options.job.clone(),
+            };
+            let finished = job
                 .run(&field_dir, &|_: JobEvent| {})
                 .with_context(|| format!("reconstructing field {}", f.dataset))?;
             reconstruction::write_outputs(&finished.reconstruction, &out)?;

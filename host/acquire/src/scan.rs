@@ -129,6 +129,24 @@ pub fn run(
             fields: Vec::new(),
         },
     };
+    // A scan completed later keeps its grid: field (0, 0) where it was first taken,
+    // wherever the stage has been since.
+    let origin = match manifest.fields.iter().find(|f| f.row == 0 && f.col == 0) {
+        Some(first) => fpm_stage::Position {
+            x_um: first.stage_um[0],
+            y_um: first.stage_um[1],
+            z_um: first.z_um.unwrap_or(origin.z_um),
+        },
+        None => origin,
+    };
+    if (manifest.overlap - scan.overlap).abs() > 1e-9 && !manifest.fields.is_empty() {
+        bail!(
+            "{} was scanned with {} overlap; this scan asks for {}: give the same --overlap, or another --out",
+            out.display(),
+            manifest.overlap,
+            scan.overlap
+        );
+    }
     let mut field_um: Option<(f64, f64)> = None;
     let (done_tx, done_rx) = mpsc::channel::<(usize, Result<()>)>();
     let mut workers: Vec<std::thread::JoinHandle<()>> = Vec::new();

@@ -668,24 +668,17 @@ fn versus_truth(
     // Scored as each field is ([`crate::truth`]): the truth band-limited to the
     // fields' synthetic aperture, the central part, pixels no field covered masked.
     let mut mosaic = object.clone();
-    let mut masked_truth = under.clone();
-    let (h, w) = object.dim();
-    for r in 0..h {
-        for k in 0..w {
-            if !covered[[r, k]] {
-                mosaic[[r, k]] = Complex32::default();
-            }
-        }
-    }
-    if (scale - 1.0).abs() > 1e-6 {
-        // Different pixels: compare on the mosaic's grid.
-        masked_truth = fpm_physics::metrics::resample_to(&under, t_pitch, (h, w), |_, _| true);
-    }
-    for r in 0..h {
-        for k in 0..w {
-            if !covered[[r, k]] {
-                masked_truth[[r, k]] = Complex32::default();
-            }
+    // On the mosaic's grid (resampled if the truth's pixel differs), and both zero
+    // where no field reached.
+    let mut masked_truth = if (scale - 1.0).abs() > 1e-6 {
+        fpm_physics::metrics::resample_to(&under, t_pitch, object.dim(), |_, _| true)
+    } else {
+        under
+    };
+    for ((m, t), &k) in mosaic.iter_mut().zip(masked_truth.iter_mut()).zip(covered) {
+        if !k {
+            *m = Complex32::default();
+            *t = Complex32::default();
         }
     }
     let fields_nrmse: Vec<f64> = report

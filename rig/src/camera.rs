@@ -89,6 +89,21 @@ impl VirtualCamera {
         stamp.max(0.0) as u64
     }
 
+    /// `truth.json` for a sample seen under the array `geometry`.
+    fn truth(&self, geometry: &LedGeometry, sample: &ObjectField) -> Truth {
+        Truth {
+            placement: geometry.placement(),
+            defocus_um: None,
+            feature_um: None,
+            feature_at_um: None,
+            object_pixel_um: Some(sample.pitch_um()),
+            seed: Some(self.seed),
+            leds: None,
+            entrance_pupil_mm: self.entrance_pupil_mm,
+            sample: None,
+        }
+    }
+
     /// The hidden array: given values, or drawn from the seed.
     pub fn hidden_geometry(&self) -> LedGeometry {
         let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x05EE_D0FA_77A7);
@@ -156,17 +171,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         // Last: its presence tells a launcher that the camera is listening.
         std::fs::write(
             dir.join("truth.json"),
-            serde_json::to_string_pretty(&Truth {
-                placement: hidden.placement(),
-                defocus_um: None,
-                feature_um: None,
-                feature_at_um: None,
-                object_pixel_um: Some(sample.pitch_um()),
-                seed: Some(a.seed),
-                leds: None,
-                entrance_pupil_mm: a.entrance_pupil_mm,
-                sample: None,
-            })?,
+            serde_json::to_string_pretty(&a.truth(&hidden, &sample))?,
         )?;
     }
     tracing::info!(
@@ -483,17 +488,7 @@ impl Dies {
                 write_truth_field(&sub, &sensor.crop_truth(&sample))?;
                 std::fs::write(
                     sub.join("truth.json"),
-                    serde_json::to_string_pretty(&Truth {
-                        placement: die.geometry.placement(),
-                        defocus_um: None,
-                        feature_um: None,
-                        feature_at_um: None,
-                        object_pixel_um: Some(sample.pitch_um()),
-                        seed: Some(a.seed),
-                        leds: None,
-                        entrance_pupil_mm: a.entrance_pupil_mm,
-                        sample: None,
-                    })?,
+                    serde_json::to_string_pretty(&a.truth(&die.geometry, &sample))?,
                 )?;
             }
             die.sample = Some(sample);

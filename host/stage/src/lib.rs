@@ -490,21 +490,6 @@ impl<F: Firmware> Stage for MotorStage<F> {
     }
 }
 
-impl Stage for Box<dyn Stage> {
-    fn info(&self) -> StageInfo {
-        (**self).info()
-    }
-    fn position(&mut self) -> Result<Position, StageError> {
-        (**self).position()
-    }
-    fn move_to(&mut self, target: Target) -> Result<Position, StageError> {
-        (**self).move_to(target)
-    }
-    fn home(&mut self) -> Result<Position, StageError> {
-        (**self).home()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -47,19 +47,11 @@ fn triggered_exposures_arrive_as_frames_with_the_step_timestamps() {
         &id,
         &dir.0.join("truth"),
         &[
-            "--size",
-            "64",
-            "--dx-mm",
-            "0",
-            "--dy-mm",
-            "0",
-            "--theta-deg",
-            "0",
-            "--height-mm",
-            "92",
-            "--readout-ms",
-            "1",
-        ],
+            &["--size", "64"],
+            &fpm_tests::ON_AXIS[..],
+            &["--readout-ms", "1"],
+        ]
+        .concat(),
     )
     .unwrap_or_else(|e| panic!("{e:#}"));
 

@@ -252,23 +252,13 @@ pub fn scan(a: ScanArgs) -> Result<()> {
     }
     let dev = crate::acquire::open_controller(acq)?;
     let mut stage = acq.stage.open_scan()?;
-    let plan = crate::acquire::plan(acq);
-    let job = Job {
-        settings: Settings {
-            flatten: plan.flatten,
-            ..Settings::default()
-        },
-        passes: plan.passes,
-        tile: plan.tile,
-        ..Job::default()
-    };
-    let scan_plan = fpm_acquire::scan::ScanPlan {
-        rows: a.fields.0,
-        cols: a.fields.1,
-        overlap: a.overlap,
-        field: plan,
-        job: job.clone(),
-    };
+    let scan_plan = fpm_acquire::scan::ScanPlan::new(
+        a.fields.0,
+        a.fields.1,
+        a.overlap,
+        crate::acquire::plan(acq),
+        a.stage_sigma_um,
+    );
     let control = fpm_acquire::pipeline::Control::cancelled_by(crate::acquire::cancel_on_signal()?);
     let bar = progress::counter("scanning", "fields");
     let total = a.fields.0 * a.fields.1;
@@ -290,26 +280,20 @@ pub fn scan(a: ScanArgs) -> Result<()> {
                 progress::advance(&bar, index + 1, total)
             }
             fpm_acquire::scan::ScanEvent::Reconstructed { .. } => {}
+            fpm_acquire::scan::ScanEvent::Stitching { done, total } => {
+                progress::advance(&bar, total, total);
+                bar.set_message(if done < total {
+                    format!("stitching: field {}", done + 1)
+                } else {
+                    "stitching: registering and blending".into()
+                });
+            }
         },
         &control,
     )?;
     bar.finish_and_clear();
-    let mut report = serde_json::json!({ "scan": summary });
-    if acq.reconstruct {
-        let options = StitchOptions {
-            job,
-            settings: fpm_physics::stitch::Settings {
-                stage_sigma_um: a.stage_sigma_um,
-                ..Default::default()
-            },
-            redo: false,
-        };
-        let stitched = scan::stitch(&acq.out, &options, &|_| {})?;
-        scan::write(&stitched, &acq.out.join("mosaic"))?;
-        report["stitch"] = serde_json::to_value(&stitched.report)?;
-    }
     if acq.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(());
     }
     println!(
@@ -320,8 +304,15 @@ pub fn scan(a: ScanArgs) -> Result<()> {
         summary.seconds,
         summary.fields_per_hour
     );
-    if acq.reconstruct {
-        println!("mosaic: {}", acq.out.join("mosaic/mosaic.zarr").display());
+    if let (Some(mosaic), Some(stitch)) = (&summary.mosaic, &summary.stitch) {
+        println!(
+            "mosaic: {} (pairs agree to {:.2} µm rms)",
+            mosaic.display(),
+            stitch.residual_rms_um
+        );
+        for w in &stitch.warnings {
+            eprintln!("warning: {w}");
+        }
     }
     Ok(())
 }

@@ -38,6 +38,14 @@ pub struct ServeArgs {
     /// With --virtual: the virtual camera's sensor side, pixels.
     #[arg(long, default_value_t = 256, requires = "virtual")]
     pub virtual_size: usize,
+    /// With --virtual: the sample is a slide this wide, µm, larger than one field, and
+    /// the stage's X and Y move over it (for scans); the stage misses each position by
+    /// up to --virtual-stage-error-um. Absent: one field, wherever the stage is.
+    #[arg(long, requires = "virtual")]
+    pub virtual_slide_um: Option<f64>,
+    /// With --virtual-slide-um: the virtual stage's hidden position error, µm.
+    #[arg(long, default_value_t = 10.0, requires = "virtual_slide_um")]
+    pub virtual_stage_error_um: f64,
     /// The LED controller's serial port (omitted: the one board connected).
     #[arg(long, env = "FPM_PORT")]
     pub port: Option<String>,
@@ -61,12 +69,17 @@ pub fn run(a: ServeArgs) -> Result<()> {
         let fpm = std::env::current_exe().context("locating the fpm executable")?;
         let name = format!("serve-{}", std::process::id());
         let size = a.virtual_size.to_string();
-        let started = VirtualRig::start(
-            &fpm,
-            &name,
-            &state_dir.join("virtual-rig"),
-            &["--size", &size],
-        )?;
+        let mut camera = vec!["--size".to_string(), size.clone()];
+        if let Some(w) = a.virtual_slide_um {
+            camera.extend([
+                "--slide-um".into(),
+                w.to_string(),
+                "--stage-error-um".into(),
+                a.virtual_stage_error_um.to_string(),
+            ]);
+        }
+        let camera: Vec<&str> = camera.iter().map(String::as_str).collect();
+        let started = VirtualRig::start(&fpm, &name, &state_dir.join("virtual-rig"), &camera)?;
         let rig = Rig {
             port: started.emulator.port(),
             camera: ServiceNames::for_camera(&name),

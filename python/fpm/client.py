@@ -170,6 +170,33 @@ class Client:
             body["out"] = str(Path(out).absolute())
         return self._request("POST", "/api/jobs", body)["id"]
 
+    def scan(
+        self,
+        fields,
+        out: Optional[os.PathLike] = None,
+        overlap: float = 0.15,
+        stage_sigma_um: float = 10.0,
+        **acquire: Any,
+    ) -> int:
+        """Queue a scan of ``fields`` = ``(rows, cols)`` fields from where the stage is
+        (+x, +y), neighbours overlapping by ``overlap``, into ``out`` (as for
+        :meth:`acquire`); ``acquire`` is each field's acquisition as for
+        :meth:`acquire` (``calibrate=True`` calibrates at the first field,
+        ``reconstruct=True`` reconstructs each field while the next is acquired and
+        stitches them into ``out/mosaic/mosaic.zarr``). Needs a motorised stage. Its
+        job id; :meth:`resume` completes one that ended part-way."""
+        rows, cols = fields
+        body = {
+            "kind": "scan",
+            "fields": [int(rows), int(cols)],
+            "overlap": float(overlap),
+            "stage_sigma_um": float(stage_sigma_um),
+            "acquire": acquire,
+        }
+        if out is not None:
+            body["out"] = str(Path(out).absolute())
+        return self._request("POST", "/api/jobs", body)["id"]
+
     def reconstruct(
         self, dataset: os.PathLike, out: Optional[os.PathLike] = None, **fields: Any
     ) -> int:

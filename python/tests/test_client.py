@@ -139,6 +139,25 @@ def test_a_raw_sequence_takes_the_leds_given_in_their_order(service, tmp_path):
     assert bad["state"] == "failed" and "[30, 30] is not on the board" in bad["error"], bad
 
 
+def test_a_scan_job_takes_its_fields_as_datasets(service, tmp_path):
+    # Two fields, the centre LED only: the request the client builds runs as a job,
+    # each field an ordinary dataset where scan.json says the stage put it.
+    job = service.scan((1, 2), tmp_path / "scan", overlap=0.3, leds=[[10, 10]], step_ms=15.0)
+    record = service.wait(job, timeout=120)
+    assert record["state"] == "done", record
+    assert record["kind"] == "scan" and record["summary"]["acquired"] == 2
+    manifest = json.loads((tmp_path / "scan" / "scan.json").read_text())
+    fields = {f["dataset"]: f for f in manifest["fields"]}
+    assert set(fields) == {"fields/r0c0", "fields/r0c1"}
+    step = fields["fields/r0c1"]["stage_um"][0] - fields["fields/r0c0"]["stage_um"][0]
+    width = record["summary"]["field_um"][0]
+    assert abs(step - 0.7 * width) < 1e-6 * width, (step, width)
+    for name in fields:
+        assert len(fpm.Dataset.load(tmp_path / "scan" / name).leds) == 1
+    with pytest.raises(fpm.ServiceError, match=r"400: fields"):
+        service.scan((0, 2), tmp_path / "none")
+
+
 def test_a_bad_request_is_refused_naming_its_field(service, tmp_path):
     with pytest.raises(fpm.ServiceError, match=r"400: passes: invalid type"):
         service.acquire(tmp_path / "x", passes="five")

@@ -508,6 +508,8 @@ pub fn run_scan(
         overlap: demo.overlap,
         field,
         job: job.clone(),
+        // Stitched below, once the rig's truth is beside the fields to score it.
+        stitch: None,
     };
     let total = demo.rows * demo.cols;
     let started = Instant::now();

@@ -63,6 +63,10 @@ impl FocusStage for VirtualStage {
         self.publish()?;
         Ok(())
     }
+
+    fn as_scan_stage(&mut self) -> Option<&mut dyn fpm_acquire::scan::ScanStage> {
+        Some(self)
+    }
 }
 
 impl fpm_stage::Stage for VirtualStage {

@@ -118,7 +118,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let bad = [
         (r#"{"kind": "acquire""#.to_string(), "EOF"),
         (r#"{"kind": "acquire", "out": 5}"#.to_string(), "out"),
-        (r#"{"kind": "scan", "out": "/tmp/x"}"#.to_string(), "scan"),
+        (r#"{"kind": "teleport", "out": "/tmp/x"}"#.to_string(), "teleport"),
         (
             serde_json::json!({"kind": "acquire", "out": out, "step_ms": 0.0}).to_string(),
             "step_ms",
@@ -671,7 +671,7 @@ fn bad_request(
         4 => {
             match rng.gen_range(0..8) {
                 0 => body["unknown_field"] = serde_json::json!(1),
-                1 => body["kind"] = serde_json::json!("scan"),
+                1 => body["kind"] = serde_json::json!("teleport"),
                 2 => body["out"] = serde_json::json!(5),
                 3 => body["out"] = serde_json::json!("relative/dir"),
                 4 => body = serde_json::json!({"kind": "resume", "job": 999999}),
@@ -982,4 +982,134 @@ fn a_colour_acquisition_runs_as_a_job() {
     assert_eq!(colour.channels[colour.reference].name, "green");
     let red = Dataset::load(&out.join("red")).unwrap();
     assert!((red.manifest.system.wavelength_um - 0.6225).abs() < 1e-9);
+}
+
+/// A scan job on a virtual rig whose slide is larger than one field: requests out of
+/// range are refused naming their field; a scan cancelled after its first field is
+/// completed by a resume job (that field skipped), every field reconstructed and all
+/// stitched, the fields placed where the virtual stage really put them.
+#[test]
+fn a_scan_runs_as_a_job_and_a_resume_completes_it() {
+    let dir = TempDir::new("serve-scan");
+    let state = dir.0.join("state");
+    let flags = [
+        "--virtual-size",
+        "96",
+        "--virtual-slide-um",
+        "400",
+        "--virtual-stage-error-um",
+        "4",
+    ];
+    let service =
+        Service(VirtualService::start_with(fpm_bin(), &state, &flags, Stdio::inherit()).unwrap());
+    for (body, field) in [
+        (
+            serde_json::json!({"kind": "scan", "fields": [0, 2]}),
+            "fields",
+        ),
+        (
+            serde_json::json!({"kind": "scan", "overlap": 0.95}),
+            "overlap",
+        ),
+        (
+            serde_json::json!({"kind": "scan", "acquire": {"out": dir.0.join("x")}}),
+            "acquire.out",
+        ),
+        (
+            serde_json::json!({"kind": "scan", "acquire": {"step_ms": -1.0}}),
+            "acquire.step_ms",
+        ),
+        (
+            serde_json::json!({"kind": "scan", "acquire": {"colors": ["red"]}}),
+            "acquire.colors",
+        ),
+    ] {
+        let refused = service.post("/api/jobs", Some(&body.to_string()));
+        assert_eq!(refused.status, 400, "{body}: {}", refused.body);
+        assert!(refused.body.contains(field), "{body}: {}", refused.body);
+    }
+    // The central 3 × 3 LEDs: enough to reconstruct fields to register.
+    let leds: Vec<[u8; 2]> = (9..=11)
+        .flat_map(|r| (9..=11).map(move |c| [r, c]))
+        .collect();
+    let out = dir.0.join("scan");
+    let body = serde_json::json!({
+        "kind": "scan", "out": out, "fields": [2, 2], "overlap": 0.4, "stage_sigma_um": 3.0,
+        "acquire": {"leds": leds, "reconstruct": true, "step_ms": 15.0},
+    });
+    let queued = service.post("/api/jobs", Some(&body.to_string()));
+    assert_eq!(queued.status, 202, "{}", queued.body);
+    let id = queued.json().unwrap()["id"].as_i64().unwrap();
+    // Cancelled once the first field is in.
+    let first = out.join("fields/r0c0/dataset.toml");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !first.exists() {
+        assert!(Instant::now() < deadline, "the first field never came");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let cancel = service.post(&format!("/api/jobs/{id}/cancel"), None);
+    assert_eq!(cancel.status, 202, "{}", cancel.body);
+    let job = service.wait(id, Duration::from_secs(120));
+    assert_eq!(job["state"], "cancelled", "{job}");
+    let resumed = service.post(&format!("/api/jobs/{id}/resume"), None);
+    assert_eq!(resumed.status, 202, "{}", resumed.body);
+    let again = resumed.json().unwrap()["id"].as_i64().unwrap();
+    let job = service.wait(again, Duration::from_secs(300));
+    assert_eq!(job["state"], "done", "{job}");
+    let summary = &job["summary"];
+    assert_eq!(summary["fields"], 4, "{summary}");
+    assert_eq!(
+        summary["acquired"], 3,
+        "the first field is not taken again: {summary}"
+    );
+    assert!(out.join("mosaic/mosaic.zarr/.zattrs").is_file());
+    // Where the stage really went (the virtual camera's hidden log) against where the
+    // images put each field, relative to the first field (one translation is unknowable).
+    let moves: Vec<serde_json::Value> =
+        std::fs::read_to_string(state.join("virtual-rig/truth/stage.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+    let truly = |stage: &serde_json::Value| -> [f64; 2] {
+        let m = moves
+            .iter()
+            .rev()
+            .find(|m| {
+                (0..2).all(|i| {
+                    (m["commanded_um"][i].as_f64().unwrap() - stage[i].as_f64().unwrap()).abs()
+                        < 1e-3
+                })
+            })
+            .expect("the stage went there");
+        [
+            m["true_um"][0].as_f64().unwrap(),
+            m["true_um"][1].as_f64().unwrap(),
+        ]
+    };
+    let fields = summary["stitch"]["fields"].as_array().unwrap();
+    assert_eq!(fields.len(), 4);
+    let placed = |f: &serde_json::Value| [0, 1].map(|i| f["placed_um"][i].as_f64().unwrap());
+    let (t0, p0) = (truly(&fields[0]["stage_um"]), placed(&fields[0]));
+    let mut stage_error: f64 = 0.0;
+    for f in fields {
+        let (t, p) = (truly(&f["stage_um"]), placed(f));
+        let s = [0, 1].map(|i| f["stage_um"][i].as_f64().unwrap());
+        let off = |a: [f64; 2], a0: [f64; 2]| {
+            [a[0] - a0[0] - (t[0] - t0[0]), a[1] - a0[1] - (t[1] - t0[1])]
+        };
+        let error = off(p, p0);
+        let stage0 = [0, 1].map(|i| fields[0]["stage_um"][i].as_f64().unwrap());
+        let by_stage = off(s, stage0);
+        eprintln!(
+            "{}: placed off by {error:?} µm, the stage by {by_stage:?}",
+            f["dataset"]
+        );
+        stage_error = stage_error.max(by_stage[0].hypot(by_stage[1]));
+        assert!(error[0].hypot(error[1]) < 1.5, "{f}");
+    }
+    assert!(
+        stage_error > 1.5,
+        "the stage missed by only {stage_error} µm: nothing tested"
+    );
 }

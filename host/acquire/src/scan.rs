@@ -11,7 +11,10 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use fpm_host::reconstruction::{self, GeometryChoice, Job};
-use fpm_host::scan::{field_name, ScanField, ScanManifest, FORMAT};
+use fpm_host::scan::{
+    field_name, ScanField, ScanManifest, StitchEvent, StitchOptions, StitchReport, FORMAT,
+};
+use fpm_physics::stitch;
 use fpm_stage::{Stage, Target};
 use serde::Serialize;
 
@@ -38,6 +41,56 @@ pub struct ScanPlan {
     /// How each field is reconstructed (its geometry: the first field's calibration
     /// when it calibrated).
     pub job: Job,
+    /// With `field.reconstruct`: how the fields are joined once all are in (the
+    /// mosaic in `OUT/mosaic/`); None leaves them unjoined (`fpm stitch` joins them).
+    pub stitch: Option<stitch::Settings>,
+}
+
+impl ScanPlan {
+    /// Check the grid and overlap (the field's plan is checked when it runs).
+    pub fn validate(&self) -> Result<()> {
+        if self.rows == 0 || self.cols == 0 || self.rows * self.cols > 10_000 {
+            bail!("a {}×{} scan: give 1–10000 fields", self.rows, self.cols);
+        }
+        if !(0.0..0.9).contains(&self.overlap) {
+            bail!("overlap {}: give a fraction 0–0.9", self.overlap);
+        }
+        if let Some(s) = &self.stitch {
+            if !(s.stage_sigma_um.is_finite() && s.stage_sigma_um > 0.0) {
+                bail!(
+                    "stage sigma {} µm: give the stage's position error, above 0",
+                    s.stage_sigma_um
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// A `rows`×`cols` scan of `field`'s acquisition, each field reconstructed (when
+    /// `field.reconstruct`) as the acquisition's own reconstruction would be, then
+    /// stitched with the stage's error `stage_sigma_um` (1σ) as the prior.
+    pub fn new(rows: usize, cols: usize, overlap: f64, field: Plan, stage_sigma_um: f64) -> Self {
+        let job = Job {
+            settings: fpm_physics::reconstruct::Settings {
+                flatten: field.flatten,
+                ..Default::default()
+            },
+            passes: field.passes,
+            tile: field.tile,
+            ..Job::default()
+        };
+        Self {
+            rows,
+            cols,
+            overlap,
+            field,
+            job,
+            stitch: Some(stitch::Settings {
+                stage_sigma_um,
+                ..Default::default()
+            }),
+        }
+    }
 }
 
 /// What a scan reports as it goes.
@@ -59,6 +112,9 @@ pub enum ScanEvent {
     Skipped { index: usize },
     /// Field `index` is reconstructed.
     Reconstructed { index: usize },
+    /// Joining the fields: reading back field `done` of `total`, then (`done ==
+    /// total`) registering and blending them.
+    Stitching { done: usize, total: usize },
 }
 
 /// `OUT/scan-summary.json`.
@@ -73,6 +129,25 @@ pub struct ScanSummary {
     pub fields_per_hour: f64,
     /// The field's size on the slide, µm.
     pub field_um: (f64, f64),
+    /// The stitched slide image (OME-Zarr), when the fields were reconstructed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mosaic: Option<PathBuf>,
+    /// How the fields were joined: every pair, the placements, the warnings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stitch: Option<StitchReport>,
+}
+
+/// The reconstruction threads, joined however the scan ends: a scan that stops
+/// part-way (cancelled, failed) leaves no thread writing a field's reconstruction that
+/// a resumed scan would start again.
+struct Workers(Vec<std::thread::JoinHandle<()>>);
+
+impl Drop for Workers {
+    fn drop(&mut self) {
+        for w in self.0.drain(..) {
+            let _ = w.join();
+        }
+    }
 }
 
 /// Whether a field's dataset is complete (written, no journal of a part-way run).
@@ -94,12 +169,7 @@ pub fn run(
     on: &mut dyn FnMut(ScanEvent),
     control: &Control,
 ) -> Result<ScanSummary> {
-    if scan.rows == 0 || scan.cols == 0 || scan.rows * scan.cols > 10_000 {
-        bail!("a {}×{} scan: give 1–10000 fields", scan.rows, scan.cols);
-    }
-    if !(0.0..0.9).contains(&scan.overlap) {
-        bail!("overlap {}: give a fraction 0–0.9", scan.overlap);
-    }
+    scan.validate()?;
     let out = scan.field.out.clone();
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = Instant::now();
@@ -149,7 +219,7 @@ pub fn run(
     }
     let mut field_um: Option<(f64, f64)> = None;
     let (done_tx, done_rx) = mpsc::channel::<(usize, Result<()>)>();
-    let mut workers: Vec<std::thread::JoinHandle<()>> = Vec::new();
+    let mut workers = Workers(Vec::new());
     let mut acquired_now = 0;
     let mut reconstructed_now = 0;
     let mut geometry: Option<PathBuf> = None;
@@ -235,14 +305,14 @@ pub fn run(
             let tx = done_tx.clone();
             // One field reconstructs while the next is acquired; the next waits for
             // it (two cores: more at once would starve the acquisition).
-            if workers.len() > reconstructed_now {
+            if workers.0.len() > reconstructed_now {
                 if let Ok((i, r)) = done_rx.recv() {
                     r.with_context(|| format!("reconstructing field {:?}", order[i]))?;
                     on(ScanEvent::Reconstructed { index: i });
                     reconstructed_now += 1;
                 }
             }
-            workers.push(std::thread::spawn(move || {
+            workers.0.push(std::thread::spawn(move || {
                 let r = job.run(&dir, &|_| {}).and_then(|f| {
                     reconstruction::write_outputs(&f.reconstruction, &dir.join("reconstruction"))
                 });
@@ -256,22 +326,56 @@ pub fn run(
         on(ScanEvent::Reconstructed { index: i });
         reconstructed_now += 1;
     }
-    for w in workers {
-        let _ = w.join();
-    }
+    drop(workers);
     manifest
         .fields
         .sort_by_key(|f| order.iter().position(|&o| o == (f.row, f.col)));
     manifest.write(&out)?;
     let seconds = started.elapsed().as_secs_f64();
-    let summary = ScanSummary {
+    let mut summary = ScanSummary {
         fields: total,
         acquired: acquired_now,
         reconstructed: reconstructed_now,
         seconds,
         fields_per_hour: acquired_now as f64 / seconds.max(1e-9) * 3600.0,
         field_um: field_um.unwrap_or_default(),
+        mosaic: None,
+        stitch: None,
     };
+    if let (true, Some(settings)) = (scan.field.reconstruct, scan.stitch) {
+        if control.is_cancelled() {
+            bail!("the scan was cancelled before its fields were stitched; run it again to stitch them");
+        }
+        let options = StitchOptions {
+            job: Job {
+                geometry: geometry.map_or(GeometryChoice::Nominal, GeometryChoice::File),
+                ..scan.job.clone()
+            },
+            settings,
+            redo: false,
+        };
+        // `stitch` reports from threads (Sync); the scan's reporter is not.
+        let (tx, rx) = mpsc::channel();
+        let stitched = std::thread::scope(|s| {
+            let joined = s.spawn(|| {
+                let tx = std::sync::Mutex::new(tx);
+                fpm_host::scan::stitch(&out, &options, &|e| {
+                    let _ = tx.lock().map(|t| t.send(e));
+                })
+            });
+            for e in rx {
+                on(match e {
+                    StitchEvent::Field { done, total, .. } => ScanEvent::Stitching { done, total },
+                    StitchEvent::Joining => ScanEvent::Stitching { done: total, total },
+                });
+            }
+            joined.join()
+        })
+        .map_err(|_| anyhow::anyhow!("stitching the scan panicked"))?
+        .context("stitching the fields")?;
+        summary.mosaic = Some(fpm_host::scan::write(&stitched, &out.join("mosaic"))?);
+        summary.stitch = Some(stitched.report);
+    }
     std::fs::write(
         out.join("scan-summary.json"),
         serde_json::to_string_pretty(&summary)?,

@@ -40,6 +40,12 @@ impl StagePosition {
 pub trait FocusStage {
     /// Move to `to` and return once it is there (settled).
     fn move_to(&mut self, to: StagePosition) -> Result<()>;
+
+    /// This stage as one that also moves over the slide, for a scan (None: it only
+    /// focuses, as a person turning the knob does).
+    fn as_scan_stage(&mut self) -> Option<&mut dyn crate::scan::ScanStage> {
+        None
+    }
 }
 
 /// Which focus stage to use: `manual`, `virtual` (the virtual rig's), or a motorised
@@ -147,6 +153,10 @@ impl FocusStage for MotorisedFocus {
         let at = Stage::move_to(&mut *self.stage, Target::z(z))?;
         tracing::info!(defocus_um = to.defocus_um, z_um = at.z_um, "stage");
         Ok(())
+    }
+
+    fn as_scan_stage(&mut self) -> Option<&mut dyn crate::scan::ScanStage> {
+        Some(self)
     }
 }
 

@@ -28,10 +28,10 @@ use utoipa::{OpenApi, ToSchema};
 
 use crate::jobs::{
     AcquireRequest, CalibrateRequest, DpcRequest, JobRequest, ReconstructRequest, ResumeRequest,
-    SequenceRequest,
+    ScanRequest, SequenceRequest,
 };
 use crate::store::{Job, JobState};
-use crate::worker::{acquisition_of, CancelError, Event, Handle, Shared, SteerError};
+use crate::worker::{resumable_request, CancelError, Event, Handle, Shared, SteerError};
 
 /// The largest request body, bytes: a job request is a few hundred.
 pub const MAX_BODY: usize = 64 * 1024;
@@ -167,6 +167,7 @@ impl IntoResponse for ApiError {
         SequenceRequest,
         ResumeRequest,
         DpcRequest,
+        ScanRequest,
         ApiError,
         Event
     ))
@@ -333,6 +334,10 @@ async fn submit(
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
         }
         JobRequest::Resume(r) => r.out = Some(resumable(&state, r.job)?),
+        JobRequest::Scan(s) => {
+            s.plan(&state.shared.camera)
+                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        }
         JobRequest::Dpc(d) => {
             // The LEDs' places are the board's, read when the job runs: here only the
             // request's own values are checked.
@@ -389,7 +394,7 @@ async fn cancel(
 }
 
 /// Where job `id`'s frames are, if it can be completed by a resume job: it is an
-/// acquisition (or a resume of one) that ended part-way.
+/// acquisition or a scan (or a resume of one) that ended part-way.
 fn resumable(state: &State, id: i64) -> Result<PathBuf, ApiError> {
     let steer = steer_error;
     let job = state
@@ -398,7 +403,7 @@ fn resumable(state: &State, id: i64) -> Result<PathBuf, ApiError> {
         .get(id)
         .map_err(|e| steer(SteerError::Store(e)))?
         .ok_or_else(|| steer(SteerError::Unknown(id)))?;
-    acquisition_of(&state.shared.store, id).map_err(steer)?;
+    resumable_request(&state.shared.store, id).map_err(steer)?;
     match job.state {
         JobState::Interrupted | JobState::Cancelled | JobState::Failed => Ok(PathBuf::from(job.out)),
         JobState::Done => Err(ApiError::new(

@@ -155,10 +155,21 @@ impl VirtualService {
         size: usize,
         stderr: std::process::Stdio,
     ) -> anyhow::Result<Self> {
+        Self::start_with(fpm, state, &["--virtual-size", &size.to_string()], stderr)
+    }
+
+    /// [`VirtualService::start`] with `fpm serve`'s flags `args` (`--virtual-size`,
+    /// `--virtual-slide-um`, …).
+    pub fn start_with(
+        fpm: &std::path::Path,
+        state: &std::path::Path,
+        args: &[&str],
+        stderr: std::process::Stdio,
+    ) -> anyhow::Result<Self> {
         use anyhow::Context;
         let mut child = std::process::Command::new(fpm)
             .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
-            .args(["--virtual-size", &size.to_string()])
+            .args(args)
             .arg("--state-dir")
             .arg(state)
             .stdout(std::process::Stdio::piped())

@@ -15,7 +15,7 @@ use utoipa::ToSchema;
 
 /// The kinds a request may have, as an error lists them.
 const KINDS: &str =
-    "\"acquire\", \"calibrate\", \"reconstruct\", \"sequence\", \"resume\" or \"dpc\"";
+    "\"acquire\", \"calibrate\", \"reconstruct\", \"sequence\", \"resume\", \"dpc\" or \"scan\"";
 
 /// A job to queue.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -43,6 +43,113 @@ pub enum JobRequest {
     /// round written (phase.tif, absorption.tif, dpc.json). To find the sample and
     /// focus before a calibration or a scan.
     Dpc(DpcRequest),
+    /// A scan of many fields (as `fpm scan`): the stage moves over a grid from where it
+    /// is, each field acquired as `acquire` says into `out/fields/r<row>c<col>/`
+    /// (calibrated at the first field when `acquire.calibrate`), and with
+    /// `acquire.reconstruct` each field reconstructed while the next is acquired and
+    /// all stitched into `out/mosaic/mosaic.zarr`. Needs a motorised stage. A scan
+    /// ended part-way is completed by a `resume` job (fields done are skipped).
+    Scan(ScanRequest),
+}
+
+/// A scan's settings: every field may be left out.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ScanRequest {
+    /// Output directory (absolute): scan.json, the fields' datasets, the mosaic. It
+    /// must not already hold a scan. Absent: a new directory under the service's runs
+    /// directory.
+    #[serde(default)]
+    #[schema(value_type = Option<String>)]
+    pub out: Option<PathBuf>,
+    /// The grid, [rows, columns]; field [0, 0] is where the stage is, the scan runs
+    /// over +x and +y from there.
+    #[serde(default = "three_by_three")]
+    pub fields: [usize; 2],
+    /// Neighbouring fields overlap by this fraction of a field (0–0.9).
+    #[serde(default = "overlap")]
+    pub overlap: f64,
+    /// The stage's position error, 1σ, µm: how far stitching searches and how much
+    /// it trusts the stage.
+    #[serde(default = "stage_sigma_um")]
+    pub stage_sigma_um: f64,
+    /// Each field's acquisition, as an `acquire` job's settings (without `out`, which
+    /// is the scan's, and in one colour).
+    #[serde(default = "field_acquisition")]
+    pub acquire: AcquireRequest,
+}
+
+fn three_by_three() -> [usize; 2] {
+    [3, 3]
+}
+fn overlap() -> f64 {
+    0.15
+}
+fn stage_sigma_um() -> f64 {
+    fpm_physics::stitch::Settings::default().stage_sigma_um
+}
+fn field_acquisition() -> AcquireRequest {
+    // Every field of an acquire request has its default.
+    serde_json::from_value(serde_json::json!({})).expect("an acquire request's defaults")
+}
+
+impl ScanRequest {
+    /// The scan's plan on camera `camera`, checked: a field out of its range is named
+    /// (`acquire.step_ms`, `fields`).
+    pub fn plan(&self, camera: &ServiceNames) -> Result<fpm_acquire::scan::ScanPlan> {
+        let Some(out) = &self.out else {
+            bail!("out: missing (the service places a job without one under its runs directory)");
+        };
+        if out.join("scan.json").exists() {
+            bail!(
+                "out {}: already holds a scan; resume its job to complete it, or pick another directory",
+                out.display()
+            );
+        }
+        self.plan_in(camera, out)
+    }
+
+    /// The plan writing into `out`, which may hold the part-way scan of an earlier run
+    /// of this request (a resume).
+    pub fn plan_in(
+        &self,
+        camera: &ServiceNames,
+        out: &std::path::Path,
+    ) -> Result<fpm_acquire::scan::ScanPlan> {
+        if !out.is_absolute() {
+            bail!(
+                "out {}: give an absolute path (the service's working directory is not the client's)",
+                out.display()
+            );
+        }
+        if self.acquire.out.is_some() {
+            bail!("acquire.out: a scan's fields go under its own out; leave acquire.out out");
+        }
+        if self.acquire.colors.is_some() || self.acquire.focus_color.is_some() {
+            bail!(
+                "acquire.colors: a scan is in one colour for now; scan each colour as its own job"
+            );
+        }
+        let field = self
+            .acquire
+            .plan_in(camera, out)
+            .map_err(|e| anyhow::anyhow!("acquire.{e:#}"))?;
+        let [rows, cols] = self.fields;
+        let plan =
+            fpm_acquire::scan::ScanPlan::new(rows, cols, self.overlap, field, self.stage_sigma_um);
+        plan.validate().map_err(|e| {
+            let e = format!("{e:#}");
+            let field = if e.starts_with("overlap") {
+                ""
+            } else if e.starts_with("stage sigma") {
+                "stage_sigma_um: "
+            } else {
+                "fields: "
+            };
+            anyhow::anyhow!("{field}{e}")
+        })?;
+        Ok(plan)
+    }
 }
 
 /// A live DPC preview's settings: every field may be left out.
@@ -211,6 +318,9 @@ impl JobRequest {
             "dpc" => serde_path_to_error::deserialize(value)
                 .map(JobRequest::Dpc)
                 .map_err(named),
+            "scan" => serde_path_to_error::deserialize(value)
+                .map(JobRequest::Scan)
+                .map_err(named),
             other => Err(format!("kind \"{other}\": unknown; give {KINDS}")),
         }
     }
@@ -224,6 +334,7 @@ impl JobRequest {
             JobRequest::Sequence(_) => "sequence",
             JobRequest::Resume(_) => "resume",
             JobRequest::Dpc(_) => "dpc",
+            JobRequest::Scan(_) => "scan",
         }
     }
 
@@ -236,6 +347,7 @@ impl JobRequest {
             JobRequest::Sequence(s) => s.out.as_deref(),
             JobRequest::Resume(r) => r.out.as_deref(),
             JobRequest::Dpc(d) => d.out.as_deref(),
+            JobRequest::Scan(s) => s.out.as_deref(),
         }
     }
 
@@ -249,6 +361,7 @@ impl JobRequest {
             JobRequest::Sequence(s) => &mut s.out,
             JobRequest::Resume(_) => return,
             JobRequest::Dpc(d) => &mut d.out,
+            JobRequest::Scan(s) => &mut s.out,
         };
         if out.is_some() {
             return;

@@ -20,7 +20,7 @@ use serde::Serialize;
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
-use crate::jobs::{AcquireRequest, JobRequest};
+use crate::jobs::{AcquireRequest, JobRequest, ScanRequest};
 use crate::live::Live;
 use crate::store::{JobState, Store};
 use crate::Rig;
@@ -200,9 +200,18 @@ pub enum SteerError {
     Store(anyhow::Error),
 }
 
-/// The acquisition request a job carries out: its own, or for a `resume` job the
-/// request of the job it completes (followed back through resumes of resumes).
-pub fn acquisition_of(store: &Store, id: i64) -> Result<AcquireRequest, SteerError> {
+/// What a `resume` job completes.
+pub enum Resumable {
+    /// An acquisition: the LEDs its frames lack are lit.
+    Acquisition(AcquireRequest),
+    /// A scan: the fields it lacks are acquired, then all are stitched.
+    Scan(ScanRequest),
+}
+
+/// The request a job carries out, if a resume can complete it: its own, or for a
+/// `resume` job the request of the job it completes (followed back through resumes of
+/// resumes).
+pub fn resumable_request(store: &Store, id: i64) -> Result<Resumable, SteerError> {
     let mut at = id;
     for _ in 0..1000 {
         let job = store
@@ -212,8 +221,9 @@ pub fn acquisition_of(store: &Store, id: i64) -> Result<AcquireRequest, SteerErr
         let request: JobRequest = serde_json::from_value(job.request)
             .map_err(|e| SteerError::Store(anyhow!("job {at}'s stored request: {e}")))?;
         match request {
-            JobRequest::Acquire(a) => return Ok(a),
-            JobRequest::Sequence(s) => return Ok(s.as_acquisition()),
+            JobRequest::Acquire(a) => return Ok(Resumable::Acquisition(a)),
+            JobRequest::Sequence(s) => return Ok(Resumable::Acquisition(s.as_acquisition())),
+            JobRequest::Scan(s) => return Ok(Resumable::Scan(s)),
             JobRequest::Calibrate(_) | JobRequest::Reconstruct(_) | JobRequest::Dpc(_) => {
                 return Err(SteerError::Conflict(format!(
                     "job {at} does not acquire: queue it again rather than resume it"
@@ -492,18 +502,29 @@ fn run_job(
             fpm_acquire::dpc::live(&dev, &plan, watcher, &control)
                 .and_then(|s| serde_json::to_value(s).map_err(Into::into))
         }
-        JobRequest::Resume(r) => {
-            let a = acquisition_of(&shared.store, r.job)?;
-            if a.colors.is_some() {
-                bail!(
-                    "job {}: a colour acquisition is not resumable yet; acquire the colours again",
-                    r.job
-                );
+        JobRequest::Resume(r) => match resumable_request(&shared.store, r.job)? {
+            Resumable::Acquisition(a) => {
+                if a.colors.is_some() {
+                    bail!(
+                        "job {}: a colour acquisition is not resumable yet; acquire the colours again",
+                        r.job
+                    );
+                }
+                let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
+                let (dev, mut stage) = open()?;
+                fpm_acquire::pipeline::resume(&dev, stage.as_mut(), &plan, watcher, &control)
+                    .map(summary)
             }
-            let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
+            Resumable::Scan(s) => {
+                let plan = s.plan_in(&rig.camera, Path::new(&job.out))?;
+                let (dev, mut stage) = open()?;
+                scan(watcher, &dev, stage.as_mut(), &plan, &control)
+            }
+        },
+        JobRequest::Scan(s) => {
+            let plan = s.plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
-            fpm_acquire::pipeline::resume(&dev, stage.as_mut(), &plan, watcher, &control)
-                .map(summary)
+            scan(watcher, &dev, stage.as_mut(), &plan, &control)
         }
     });
     // What the acquisition wrote, also when it failed part-way.
@@ -520,6 +541,50 @@ fn run_job(
         Err(e) => shared.set_state(id, JobState::Failed, Some(format!("{e:#}")), written()),
     }
     *shared.running() = None;
+}
+
+/// Run a scan job: each field's acquisition as the job's progress, the fields moved
+/// to, reconstructed and stitched as `work` events; the scan's summary (with how the
+/// fields were joined) is the job's.
+fn scan(
+    mut watcher: JobWatcher<'_>,
+    dev: &Controller,
+    stage: &mut dyn fpm_acquire::FocusStage,
+    plan: &fpm_acquire::scan::ScanPlan,
+    control: &Control,
+) -> Result<serde_json::Value> {
+    use fpm_acquire::pipeline::Watcher;
+    use fpm_acquire::scan::ScanEvent;
+    let Some(stage) = stage.as_scan_stage() else {
+        bail!("a scan needs a motorised stage: start the service with --stage gcode:PORT or sangaboard:PORT (or --virtual)");
+    };
+    let (shared, id) = (watcher.shared, watcher.job);
+    let work = |what: &'static str, done: usize, total: usize| {
+        shared.publish(Event::Work {
+            job: id,
+            what,
+            done,
+            total,
+        })
+    };
+    let mut reconstructed = 0;
+    let summary = fpm_acquire::scan::run(
+        dev,
+        stage,
+        plan,
+        &mut |e| match e {
+            ScanEvent::Moving { index, total, .. } => work("fields", index, total),
+            ScanEvent::Skipped { index } => work("fields", index + 1, plan.rows * plan.cols),
+            ScanEvent::Acquiring { progress, .. } => watcher.progress(&progress),
+            ScanEvent::Reconstructed { .. } => {
+                reconstructed += 1;
+                work("fields reconstructed", reconstructed, plan.rows * plan.cols)
+            }
+            ScanEvent::Stitching { done, total } => work("stitching", done, total),
+        },
+        control,
+    )?;
+    serde_json::to_value(summary).map_err(Into::into)
 }
 
 /// Run reconstruct job `id` into `out`: progress as `work` events (a few a second),

@@ -129,6 +129,10 @@ pub struct StitchArgs {
     /// Reconstruct every field again, even those with a reconstruction.
     #[arg(long)]
     pub redo: bool,
+    /// Field reconstructions kept in memory at most, MiB (the rest are read again
+    /// from disk as the mosaic is written; at least two rows of fields are kept).
+    #[arg(long, default_value_t = scan::FIELD_MEMORY_BYTES >> 20)]
+    pub field_memory_mib: usize,
     /// The stage's position error, 1σ, µm: how far overlaps are searched (4σ) and how
     /// much the stage's positions weigh against the images'.
     #[arg(long, default_value_t = 10.0)]
@@ -169,20 +173,28 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
             ..Default::default()
         },
         redo: a.redo,
+        field_memory_bytes: a.field_memory_mib << 20,
     };
     let manifest = scan::ScanManifest::read(&a.scan)?;
     let bar = progress::counter("reconstructing", "fields");
     let total = manifest.fields.len();
-    let stitched = scan::stitch(&a.scan, &options, &|e| match e {
+    let out = a.out.clone().unwrap_or_else(|| a.scan.join("mosaic"));
+    let stitched = scan::stitch(&a.scan, &options, &out, &|e| match e {
         StitchEvent::Field { done, .. } => progress::advance(&bar, done, total),
-        StitchEvent::Joining => {
+        StitchEvent::Registering { done, total } => {
+            bar.set_message(format!("registering overlap {} of {total}", done + 1))
+        }
+        StitchEvent::Writing { done, total } => {
             progress::advance(&bar, total, total);
-            bar.set_message("joining");
+            bar.set_message(format!("writing row {done} of {total}"));
         }
     })?;
     bar.finish_and_clear();
-    let out = a.out.clone().unwrap_or_else(|| a.scan.join("mosaic"));
-    let zarr = scan::write(&stitched, &out)?;
+    let page = fpm_report::slide::write_page(&stitched, &out, &fpm_report::html::command_line());
+    if let Err(e) = &page {
+        tracing::warn!("no HTML report: {e:#}");
+    }
+    let zarr = &stitched.mosaic;
     let r = &stitched.report;
     if a.json {
         println!("{}", serde_json::to_string_pretty(r)?);
@@ -220,6 +232,9 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
     }
     for w in &r.warnings {
         println!("warning: {w}");
+    }
+    if let Ok(page) = page {
+        println!("report: {}", page.display());
     }
     Ok(())
 }

@@ -11,9 +11,9 @@
 //! Reader (what napari's OME-Zarr plugin builds its layers from).
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use ndarray::{Array2, ArrayView2};
 use rustfft::num_complex::Complex32;
 use serde_json::json;
@@ -23,33 +23,37 @@ use crate::pyramid::halve;
 /// Chunk side, pixels: a 256² float32 chunk is 256 KiB before compression.
 pub const CHUNK: usize = 256;
 
-/// One channel of one level as Zarr v2 chunks under `level_dir/<c>/<y>/<x>` (edge
-/// chunks padded with NaN, as the `.zarray` fill value says).
-fn write_chunks(level_dir: &Path, channel: usize, image: ArrayView2<'_, f32>) -> Result<()> {
-    let (h, w) = image.dim();
-    for cy in 0..h.div_ceil(CHUNK) {
-        let dir = level_dir.join(channel.to_string()).join(cy.to_string());
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        for cx in 0..w.div_ceil(CHUNK) {
-            let mut raw = Vec::with_capacity(CHUNK * CHUNK * 4);
-            for r in cy * CHUNK..(cy + 1) * CHUNK {
-                for c in cx * CHUNK..(cx + 1) * CHUNK {
-                    let v = if r < h && c < w {
-                        image[[r, c]]
-                    } else {
-                        f32::NAN
-                    };
-                    raw.extend_from_slice(&v.to_le_bytes());
-                }
+/// Chunk row `cy` of one channel of one level (`rows`: at most [`CHUNK`] rows) as
+/// Zarr v2 chunks under `level_dir/<channel>/<cy>/<x>`, padded with NaN (the `.zarray`
+/// fill value).
+fn write_chunks(
+    level_dir: &Path,
+    cy: usize,
+    channel: usize,
+    rows: ArrayView2<'_, f32>,
+) -> Result<()> {
+    let (h, w) = rows.dim();
+    let dir = level_dir.join(channel.to_string()).join(cy.to_string());
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    for cx in 0..w.div_ceil(CHUNK) {
+        let mut raw = Vec::with_capacity(CHUNK * CHUNK * 4);
+        for r in 0..CHUNK {
+            for c in cx * CHUNK..(cx + 1) * CHUNK {
+                let v = if r < h && c < w {
+                    rows[[r, c]]
+                } else {
+                    f32::NAN
+                };
+                raw.extend_from_slice(&v.to_le_bytes());
             }
-            let path = dir.join(cx.to_string());
-            let file = std::fs::File::create(&path)
-                .with_context(|| format!("creating {}", path.display()))?;
-            let mut z = flate2::write::ZlibEncoder::new(file, flate2::Compression::new(5));
-            z.write_all(&raw)
-                .and_then(|_| z.finish().map(drop))
-                .with_context(|| format!("writing {}", path.display()))?;
         }
+        let path = dir.join(cx.to_string());
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        let mut z = flate2::write::ZlibEncoder::new(file, flate2::Compression::new(5));
+        z.write_all(&raw)
+            .and_then(|_| z.finish().map(drop))
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }
@@ -59,10 +63,10 @@ fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// The 0.5 % and 99.5 % points of `image` (the display window napari starts with).
-fn window(image: ArrayView2<'_, f32>) -> (f32, f32) {
-    let mut v: Vec<f32> = image.iter().copied().filter(|x| x.is_finite()).collect();
-    match fpm_physics::stats::quantiles(&mut v, [0.005, 0.995]) {
+/// The 0.5 % and 99.5 % points of `values` (the display window napari starts with).
+fn window(mut values: Vec<f32>) -> (f32, f32) {
+    values.retain(|x| x.is_finite());
+    match fpm_physics::stats::quantiles(&mut values, [0.005, 0.995]) {
         Some([lo, hi]) => (lo, hi),
         None => (0.0, 1.0),
     }
@@ -95,64 +99,22 @@ pub fn write_placed(
     pixel_um: f64,
     origin_um: (f64, f64),
 ) -> Result<()> {
-    if dir.exists() {
-        std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
-    }
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let k = objects.len();
-    let mut levels: Vec<(Array2<f32>, Array2<Complex32>)> = objects
-        .iter()
-        .map(|(_, o)| (o.mapv(|z| z.norm()), (*o).clone()))
-        .collect();
-    let mut datasets = vec![];
-    // Display windows of the full-size level: the amplitudes', then the phases'.
-    let mut windows = vec![(0.0, 1.0); 2 * k];
-    for level in 0.. {
-        let (h, w) = levels.first().map_or((0, 0), |l| l.1.dim());
-        let level_dir = dir.join(level.to_string());
-        for (i, (amplitude, complex)) in levels.iter().enumerate() {
-            let phase = complex.mapv(|z| z.arg());
-            if level == 0 {
-                windows[i] = window(amplitude.view());
-                windows[k + i] = window(phase.view());
-            }
-            write_chunks(&level_dir, i, amplitude.view())?;
-            write_chunks(&level_dir, k + i, phase.view())?;
-        }
-        write_json(
-            &level_dir.join(".zarray"),
-            &json!({
-                "zarr_format": 2,
-                "shape": [2 * k, h, w],
-                "chunks": [1, CHUNK, CHUNK],
-                "dtype": "<f4",
-                "compressor": {"id": "zlib", "level": 5},
-                "fill_value": "NaN",
-                "order": "C",
-                "filters": null,
-                "dimension_separator": "/",
-            }),
-        )?;
-        let scale = pixel_um * (1u64 << level) as f64;
-        // A level's pixel k covers 2^level pixels of level 0: its centre sits half of
-        // that (less half a pixel) further on.
-        let half = 0.5 * (scale - pixel_um);
-        let mut transforms = vec![json!({"type": "scale", "scale": [1.0, scale, scale]})];
-        if origin_um != (0.0, 0.0) {
-            transforms.push(json!({"type": "translation", "translation": [0.0, origin_um.1 + half, origin_um.0 + half]}));
-        }
-        datasets.push(json!({
-            "path": level.to_string(),
-            "coordinateTransformations": transforms,
-        }));
-        if h.max(w) <= CHUNK || h < 2 || w < 2 {
-            break;
-        }
-        levels = levels
-            .iter()
-            .map(|(a, c)| halve(a.view(), c.view()))
-            .collect();
-    }
+    let names: Vec<&str> = objects.iter().map(|(n, _)| *n).collect();
+    let dim = objects.first().map_or((0, 0), |(_, o)| o.dim());
+    let mut writer = Writer::create(dir, &names, dim, pixel_um, origin_um)?;
+    let views: Vec<ArrayView2<'_, Complex32>> = objects.iter().map(|(_, o)| o.view()).collect();
+    writer.push(&views)?;
+    writer.finish().map(drop)
+}
+
+/// `.zgroup` and `.zattrs`: the multiscale's levels (`datasets`), the channels'
+/// labels (amplitudes, then phases) and display `windows`.
+fn write_metadata(
+    dir: &Path,
+    names: &[String],
+    windows: &[(f32, f32)],
+    datasets: Vec<serde_json::Value>,
+) -> Result<()> {
     write_json(&dir.join(".zgroup"), &json!({"zarr_format": 2}))?;
     let label = |what: &str, name: &str| {
         if name.is_empty() {
@@ -161,10 +123,11 @@ pub fn write_placed(
             format!("{what} {name}")
         }
     };
-    let labels: Vec<String> = objects
+    let k = names.len();
+    let labels: Vec<String> = names
         .iter()
-        .map(|(n, _)| label("amplitude", n))
-        .chain(objects.iter().map(|(n, _)| label("phase", n)))
+        .map(|n| label("amplitude", n))
+        .chain(names.iter().map(|n| label("phase", n)))
         .collect();
     let channel = |label: &str, (lo, hi): (f32, f32)| {
         json!({
@@ -202,11 +165,275 @@ pub fn write_placed(
             }],
             "omero": {
                 "version": "0.4",
-                "channels": labels.iter().zip(&windows).map(|(l, w)| channel(l, *w)).collect::<Vec<_>>(),
+                "channels": labels.iter().zip(windows).map(|(l, w)| channel(l, *w)).collect::<Vec<_>>(),
                 "rdefs": {"model": "greyscale"},
             },
         }),
     )
+}
+
+/// The longest side of the preview [`Writer::finish`] keeps: the first pyramid level
+/// at most this big.
+pub const PREVIEW_SIDE: usize = 2048;
+
+/// One pyramid level being written: its size, the rows not yet written (a chunk row
+/// is written once it is full), and how many chunk rows are out.
+struct Level {
+    dim: (usize, usize),
+    /// Per object: amplitude (mean |z| of the level below) and the complex mean, rows
+    /// waiting for a full chunk row.
+    pending: Vec<(Array2<f32>, Array2<Complex32>)>,
+    chunk_rows_written: usize,
+    /// Every row of this level, kept when it is the preview.
+    kept: Option<Vec<(Array2<f32>, Array2<Complex32>)>>,
+}
+
+/// An OME-Zarr image written a band of rows at a time, its pyramid built as the rows
+/// come: a slide far larger than memory is written with a few chunk rows per level
+/// held. What [`write_placed`] writes at once, this writes from bands of any height.
+pub struct Writer {
+    dir: PathBuf,
+    names: Vec<String>,
+    pixel_um: f64,
+    origin_um: (f64, f64),
+    levels: Vec<Level>,
+    /// Rows of level 0 received so far.
+    rows_in: usize,
+    /// Every `stride`-th pixel of level 0, per channel (amplitudes, then phases), for
+    /// the display windows.
+    samples: Vec<Vec<f32>>,
+    stride: usize,
+}
+
+/// The smallest pyramid level at most [`PREVIEW_SIDE`] a side, of the first object.
+pub struct Preview {
+    pub amplitude: Array2<f32>,
+    pub object: Array2<Complex32>,
+    /// Its pixel, µm.
+    pub pixel_um: f64,
+}
+
+/// Level sizes: each half the last (odd rows and columns dropped), down to one chunk.
+fn level_dims((h, w): (usize, usize)) -> Vec<(usize, usize)> {
+    let mut dims = vec![(h, w)];
+    let (mut h, mut w) = (h, w);
+    while h.max(w) > CHUNK && h >= 2 && w >= 2 {
+        (h, w) = (h / 2, w / 2);
+        dims.push((h, w));
+    }
+    dims
+}
+
+/// Rows of `a` then `b` (the same width).
+fn stacked<'a, T: Clone>(a: &'a Array2<T>, b: ArrayView2<'a, T>) -> Result<Array2<T>> {
+    Ok(ndarray::concatenate(ndarray::Axis(0), &[a.view(), b])?)
+}
+
+impl Writer {
+    /// Start the OME-Zarr group `dir` (replaced if it exists) for `names.len()` complex
+    /// images of `dim` (rows, columns), sampled at `pixel_um`, the first pixel at
+    /// `origin_um` (x, y) in the slide's coordinates; names as [`write_objects`] has them.
+    pub fn create(
+        dir: &Path,
+        names: &[&str],
+        dim: (usize, usize),
+        pixel_um: f64,
+        origin_um: (f64, f64),
+    ) -> Result<Self> {
+        if dir.exists() {
+            std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
+        }
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let k = names.len();
+        let dims = level_dims(dim);
+        let preview = dims
+            .iter()
+            .position(|&(h, w)| h.max(w) <= PREVIEW_SIDE)
+            .unwrap_or(dims.len() - 1);
+        let levels = dims
+            .iter()
+            .enumerate()
+            .map(|(i, &(h, w))| {
+                let empty = || (Array2::zeros((0, w)), Array2::zeros((0, w)));
+                Level {
+                    dim: (h, w),
+                    pending: (0..k).map(|_| empty()).collect(),
+                    chunk_rows_written: 0,
+                    kept: (i == preview).then(|| (0..k).map(|_| empty()).collect()),
+                }
+            })
+            .collect();
+        // At most ~4 M samples per channel for the windows: every pixel of a field.
+        let stride = (dim.0 * dim.1).div_ceil(1 << 22).max(1);
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            names: names.iter().map(|n| n.to_string()).collect(),
+            pixel_um,
+            origin_um,
+            levels,
+            rows_in: 0,
+            samples: vec![Vec::new(); 2 * k],
+            stride,
+        })
+    }
+
+    /// The next rows of every image (one band per name, each as wide as the image and
+    /// of the same height); NaN marks pixels without data.
+    pub fn push(&mut self, bands: &[ArrayView2<'_, Complex32>]) -> Result<()> {
+        let k = self.names.len();
+        let (h, w) = self.levels[0].dim;
+        let rows = bands.first().map_or(0, |b| b.nrows());
+        if bands.len() != k || bands.iter().any(|b| b.dim() != (rows, w)) || self.rows_in + rows > h
+        {
+            bail!(
+                "{}: a band of {rows} rows of {w} for {k} images, {} rows in of {h}",
+                self.dir.display(),
+                self.rows_in
+            );
+        }
+        let mut level_in = Vec::with_capacity(k);
+        for (i, band) in bands.iter().enumerate() {
+            for (n, z) in band.iter().enumerate() {
+                if (self.rows_in * w + n).is_multiple_of(self.stride) {
+                    self.samples[i].push(z.norm());
+                    self.samples[k + i].push(z.arg());
+                }
+            }
+            level_in.push((band.mapv(|z| z.norm()), band.to_owned()));
+        }
+        self.rows_in += rows;
+        self.feed(0, level_in, false)
+    }
+
+    /// Add rows to level `l`: full chunk rows are written and halved into level l + 1;
+    /// `last` flushes what is left (the image's end).
+    fn feed(
+        &mut self,
+        l: usize,
+        rows: Vec<(Array2<f32>, Array2<Complex32>)>,
+        last: bool,
+    ) -> Result<()> {
+        let k = self.names.len();
+        let level = &mut self.levels[l];
+        for (i, (a, c)) in rows.into_iter().enumerate() {
+            if let Some(kept) = level.kept.as_mut() {
+                kept[i] = (
+                    stacked(&kept[i].0, a.view())?,
+                    stacked(&kept[i].1, c.view())?,
+                );
+            }
+            let p = &mut level.pending[i];
+            *p = (stacked(&p.0, a.view())?, stacked(&p.1, c.view())?);
+        }
+        loop {
+            let have = self.levels[l].pending.first().map_or(0, |p| p.0.nrows());
+            let take = if have >= CHUNK {
+                CHUNK
+            } else if last && have > 0 {
+                have
+            } else {
+                break;
+            };
+            let level_dir = self.dir.join(l.to_string());
+            let cy = self.levels[l].chunk_rows_written;
+            let mut down = Vec::with_capacity(k);
+            for i in 0..k {
+                let (a, c) = {
+                    let p = &mut self.levels[l].pending[i];
+                    let head = (
+                        p.0.slice(ndarray::s![..take, ..]).to_owned(),
+                        p.1.slice(ndarray::s![..take, ..]).to_owned(),
+                    );
+                    *p = (
+                        p.0.slice(ndarray::s![take.., ..]).to_owned(),
+                        p.1.slice(ndarray::s![take.., ..]).to_owned(),
+                    );
+                    head
+                };
+                write_chunks(&level_dir, cy, i, a.view())?;
+                write_chunks(&level_dir, cy, k + i, c.mapv(|z| z.arg()).view())?;
+                down.push(halve(a.view(), c.view()));
+            }
+            self.levels[l].chunk_rows_written += 1;
+            if l + 1 < self.levels.len() {
+                self.feed(l + 1, down, false)?;
+            }
+        }
+        if last && l + 1 < self.levels.len() {
+            self.feed(
+                l + 1,
+                (0..k)
+                    .map(|_| {
+                        let w = self.levels[l + 1].dim.1;
+                        (Array2::zeros((0, w)), Array2::zeros((0, w)))
+                    })
+                    .collect(),
+                true,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Write what is left and the group's metadata; the preview level of the first
+    /// image.
+    pub fn finish(mut self) -> Result<Preview> {
+        let (h, w) = self.levels[0].dim;
+        if self.rows_in != h {
+            bail!("{}: {} rows of {h} given", self.dir.display(), self.rows_in);
+        }
+        let k = self.names.len();
+        let empty = (0..k)
+            .map(|_| (Array2::zeros((0, w)), Array2::zeros((0, w))))
+            .collect();
+        self.feed(0, empty, true)?;
+        let mut datasets = vec![];
+        for (level, l) in self.levels.iter().enumerate() {
+            let (h, w) = l.dim;
+            write_json(
+                &self.dir.join(level.to_string()).join(".zarray"),
+                &json!({
+                    "zarr_format": 2,
+                    "shape": [2 * k, h, w],
+                    "chunks": [1, CHUNK, CHUNK],
+                    "dtype": "<f4",
+                    "compressor": {"id": "zlib", "level": 5},
+                    "fill_value": "NaN",
+                    "order": "C",
+                    "filters": null,
+                    "dimension_separator": "/",
+                }),
+            )?;
+            let scale = self.pixel_um * (1u64 << level) as f64;
+            // A level's pixel k covers 2^level pixels of level 0: its centre sits half
+            // of that (less half a pixel) further on.
+            let half = 0.5 * (scale - self.pixel_um);
+            let mut transforms = vec![json!({"type": "scale", "scale": [1.0, scale, scale]})];
+            if self.origin_um != (0.0, 0.0) {
+                transforms.push(json!({"type": "translation", "translation": [0.0, self.origin_um.1 + half, self.origin_um.0 + half]}));
+            }
+            datasets.push(json!({
+                "path": level.to_string(),
+                "coordinateTransformations": transforms,
+            }));
+        }
+        let windows: Vec<(f32, f32)> = std::mem::take(&mut self.samples)
+            .into_iter()
+            .map(window)
+            .collect();
+        write_metadata(&self.dir, &self.names, &windows, datasets)?;
+        let (preview_level, kept) = self
+            .levels
+            .iter_mut()
+            .enumerate()
+            .find_map(|(i, l)| l.kept.take().map(|k| (i, k)))
+            .context("no preview level")?;
+        let (amplitude, object) = kept.into_iter().next().context("no image")?;
+        Ok(Preview {
+            amplitude,
+            object,
+            pixel_um: self.pixel_um * (1u64 << preview_level) as f64,
+        })
+    }
 }
 
 #[cfg(test)]
@@ -225,5 +452,67 @@ mod tests {
         assert_eq!(a.dim(), (1, 1));
         assert!((a[[0, 0]] - 2.0).abs() < 1e-6);
         assert!((c[[0, 0]].arg().abs() - std::f32::consts::PI).abs() < 1e-5);
+    }
+
+    /// Every file under `dir`, relative path → bytes.
+    fn files(dir: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
+        let mut out = std::collections::BTreeMap::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    let rel = p.strip_prefix(dir).unwrap().to_path_buf();
+                    out.insert(rel, std::fs::read(&p).unwrap());
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn an_image_written_in_bands_of_any_height_is_the_image_written_at_once() {
+        // 600 × 530: three levels (600, 300, 150 rows), odd sizes on the way, edge
+        // chunks padded; NaN where there is no data.
+        let (h, w) = (600, 530);
+        let object = Array2::from_shape_fn((h, w), |(r, c)| {
+            if r > 590 && c < 20 {
+                Complex32::new(f32::NAN, f32::NAN)
+            } else {
+                Complex32::from_polar(1.0 + (r % 7) as f32 * 0.1, (c as f32 * 0.05).sin() * 3.0)
+            }
+        });
+        let base = std::env::temp_dir().join(format!("fpm-zarr-bands-{}", std::process::id()));
+        let (once, banded) = (base.join("once.zarr"), base.join("banded.zarr"));
+        write_placed(&once, &[("", &object)], 0.5, (10.0, -4.0)).unwrap();
+        let mut writer = Writer::create(&banded, &[""], (h, w), 0.5, (10.0, -4.0)).unwrap();
+        let mut at = 0;
+        for rows in [1, 37, 256, 255, 51] {
+            writer
+                .push(&[object.slice(ndarray::s![at..at + rows, ..])])
+                .unwrap();
+            at += rows;
+        }
+        assert_eq!(at, h);
+        let preview = writer.finish().unwrap();
+        let (a, b) = (files(&once), files(&banded));
+        assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+        assert!(a.keys().any(|k| k.starts_with("2")), "{:?}", a.keys());
+        for (k, v) in &a {
+            assert!(v == &b[k], "{} differs", k.display());
+        }
+        // The whole image is the preview (at most 2048 a side), NaN kept.
+        assert_eq!(preview.object.dim(), (h, w));
+        assert!((preview.pixel_um - 0.5).abs() < 1e-12);
+        assert!(preview.amplitude[[595, 3]].is_nan());
+        // Too many rows is refused, naming the store.
+        let mut writer = Writer::create(&banded, &[""], (4, 4), 0.5, (0.0, 0.0)).unwrap();
+        let err = writer
+            .push(&[Array2::<Complex32>::zeros((5, 4)).view()])
+            .unwrap_err();
+        assert!(format!("{err}").contains("banded.zarr"), "{err}");
+        std::fs::remove_dir_all(&base).unwrap();
     }
 }

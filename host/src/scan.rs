@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use fpm_physics::metrics::Scores;
 use fpm_physics::simulate::{ObjectField, SampleKind};
-use fpm_physics::stitch::{self, Canvas, Field, Layout};
+use fpm_physics::stitch::{self, Canvas, Layout};
 use fpm_physics::System;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
@@ -332,19 +332,9 @@ pub struct StitchOptions {
     pub settings: stitch::Settings,
     /// Reconstruct every field again even if it has a reconstruction.
     pub redo: bool,
-}
-
-/// What stitching reports as it goes.
-#[derive(Debug, Clone, Copy)]
-pub enum StitchEvent {
-    /// Field `done` of `total` is being reconstructed (or read back).
-    Field {
-        done: usize,
-        total: usize,
-        reused: bool,
-    },
-    /// Registering and blending.
-    Joining,
+    /// Field reconstructions kept in memory at most, bytes (those evicted are read
+    /// again from disk); never fewer than two rows of fields.
+    pub field_memory_bytes: usize,
 }
 
 /// One field in the stitch report.
@@ -402,31 +392,117 @@ pub struct StitchReport {
     pub warnings: Vec<String>,
 }
 
-/// A stitched scan.
+/// What stitching reports as it goes.
+#[derive(Debug, Clone, Copy)]
+pub enum StitchEvent {
+    /// Field `done` of `total` is being reconstructed (or read back).
+    Field {
+        done: usize,
+        total: usize,
+        reused: bool,
+    },
+    /// Registering pair `done` of `total`.
+    Registering { done: usize, total: usize },
+    /// Blending and writing the mosaic: `done` of `total` rows.
+    Writing { done: usize, total: usize },
+}
+
+/// How many bytes of field reconstructions stitching keeps in memory by default (the
+/// rest are read again from disk as needed).
+pub const FIELD_MEMORY_BYTES: usize = 4 << 30;
+
+/// Fields' reconstructions, read from disk when asked and kept while there is room
+/// (least recently used go first).
+struct FieldCache<'a> {
+    dirs: Vec<PathBuf>,
+    capacity: usize,
+    kept: Vec<(usize, std::sync::Arc<Array2<Complex32>>)>,
+    /// What a field becomes once read (the blend's shift onto the canvas).
+    prepare: Box<dyn Fn(usize, Array2<Complex32>) -> Array2<Complex32> + 'a>,
+    reads: usize,
+}
+
+impl<'a> FieldCache<'a> {
+    fn new(dirs: Vec<PathBuf>, capacity: usize) -> Self {
+        Self {
+            dirs,
+            capacity: capacity.max(1),
+            kept: Vec::new(),
+            prepare: Box::new(|_, o| o),
+            reads: 0,
+        }
+    }
+
+    fn put(&mut self, k: usize, object: Array2<Complex32>) -> std::sync::Arc<Array2<Complex32>> {
+        let object = std::sync::Arc::new((self.prepare)(k, object));
+        self.kept.retain(|(i, _)| *i != k);
+        self.kept.insert(0, (k, object.clone()));
+        self.kept.truncate(self.capacity);
+        object
+    }
+
+    fn get(&mut self, k: usize) -> Result<std::sync::Arc<Array2<Complex32>>> {
+        if let Some(at) = self.kept.iter().position(|(i, _)| *i == k) {
+            let hit = self.kept.remove(at);
+            self.kept.insert(0, hit.clone());
+            return Ok(hit.1);
+        }
+        let dir = self.dirs[k].join("reconstruction");
+        let object = reconstruction::read_object(&dir)
+            .with_context(|| format!("reading {}", dir.display()))?;
+        self.reads += 1;
+        Ok(self.put(k, object))
+    }
+
+    /// From now on `prepare` each field read; those kept are prepared now.
+    fn reset(&mut self, prepare: Box<dyn Fn(usize, Array2<Complex32>) -> Array2<Complex32> + 'a>) {
+        self.prepare = prepare;
+        for (k, object) in std::mem::take(&mut self.kept).into_iter().rev() {
+            let object = std::sync::Arc::try_unwrap(object).unwrap_or_else(|o| (*o).clone());
+            self.put(k, object);
+        }
+    }
+}
+
+/// A stitched scan: where the mosaic went, how it was joined, and its preview.
 pub struct Stitched {
-    /// The slide image on [`StitchReport::canvas`] (zero where no field reached).
-    pub object: Array2<Complex32>,
-    /// Where a field reached.
-    pub covered: Array2<bool>,
+    /// `mosaic.zarr`.
+    pub mosaic: PathBuf,
     pub report: StitchReport,
+    /// Its smallest pyramid level at most [`crate::ome_zarr::PREVIEW_SIDE`] a side.
+    pub preview: crate::ome_zarr::Preview,
 }
 
 /// Reconstruct `dir`'s fields (each into `<field>/reconstruction/`, skipped where one
-/// is there already unless `redo`), then join them.
+/// is there already unless `redo`), then join them into `out`: `mosaic.zarr` (OME-Zarr,
+/// amplitude and phase, a pyramid, the slide's coordinates as its translation) and
+/// `stitch.json`. The mosaic is blended and written a band of rows at a time, fields
+/// read back from disk as the band needs them: a slide larger than memory is fine.
 pub fn stitch(
     dir: &Path,
     options: &StitchOptions,
+    out: &Path,
     on: &(dyn Fn(StitchEvent) + Sync),
 ) -> Result<Stitched> {
     let manifest = ScanManifest::read(dir)?;
     let total = manifest.fields.len();
-    let mut objects = Vec::with_capacity(total);
+    if total == 0 {
+        bail!("{}: no fields yet", dir.join(MANIFEST).display());
+    }
+    let field_dirs: Vec<PathBuf> = manifest
+        .fields
+        .iter()
+        .map(|f| dir.join(&f.dataset))
+        .collect();
+    let mut footprints = Vec::with_capacity(total);
     let mut scores = Vec::with_capacity(total);
     let mut pitch: Option<f64> = None;
+    // Sized once the first field's size is known.
+    let mut cache = FieldCache::new(field_dirs.clone(), total);
     for (k, f) in manifest.fields.iter().enumerate() {
-        let field_dir = dir.join(&f.dataset);
-        let out = field_dir.join("reconstruction");
-        let report_path = out.join("report.json");
+        let field_dir = &field_dirs[k];
+        let recon = field_dir.join("reconstruction");
+        let report_path = recon.join("report.json");
         let reused = !options.redo && report_path.exists();
         on(StitchEvent::Field {
             done: k,
@@ -434,11 +510,11 @@ pub fn stitch(
             reused,
         });
         let (object, p, score) = if reused {
-            let object = reconstruction::read_object(&out).with_context(|| {
+            let object = reconstruction::read_object(&recon).with_context(|| {
                 format!(
                     "reading field {}'s reconstruction (delete {} to redo it)",
                     f.dataset,
-                    out.display()
+                    recon.display()
                 )
             })?;
             let report: serde_json::Value =
@@ -453,69 +529,143 @@ pub fn stitch(
                 .ok()
                 .or_else(|| {
                     let upsample = report["upsample"].as_u64()? as usize;
-                    let ds = crate::dataset::DatasetOnDisk::open(&field_dir).ok()?;
+                    let ds = crate::dataset::DatasetOnDisk::open(field_dir).ok()?;
                     crate::truth::score_reconstruction(&ds, &object, upsample)
                 });
             (object, p, score)
         } else {
-            // A field without a geometry of its own is reconstructed with the scan's
-            // calibration: its own calibration.json, else the first field's (a scan
-            // calibrates once).
-            let job = match &options.job.geometry {
-                reconstruction::GeometryChoice::Nominal => {
-                    let own = field_dir.join("calibration.json");
-                    let first = manifest
-                        .fields
-                        .first()
-                        .map(|f| dir.join(&f.dataset).join("calibration.json"));
-                    match [Some(own), first]
-                        .into_iter()
-                        .flatten()
-                        .find(|p| p.is_file())
-                    {
-                        Some(path) => Job {
-                            geometry: reconstruction::GeometryChoice::File(path),
-                            ..options.job.clone()
-                        },
-                        None => options.job.clone(),
-                    }
-                }
-                _ => options.job.clone(),
-            };
+            let job = field_job(dir, &manifest, field_dir, &options.job);
             let finished = job
-                .run(&field_dir, &|_: JobEvent| {})
+                .run(field_dir, &|_: JobEvent| {})
                 .with_context(|| format!("reconstructing field {}", f.dataset))?;
-            reconstruction::write_outputs(&finished.reconstruction, &out)?;
+            reconstruction::write_outputs(&finished.reconstruction, &recon)?;
             let r = finished.reconstruction;
-            (r.object, r.report.pixel_um, r.report.versus_truth)
+            // As written (amplitude and phase, float32) and as a later stitch reads it
+            // back: the same mosaic whether a field was just reconstructed or not.
+            let object = r.object.mapv(|z| Complex32::from_polar(z.norm(), z.arg()));
+            (object, r.report.pixel_um, r.report.versus_truth)
         };
         match pitch {
             Some(q) if (q - p).abs() > 1e-9 * q => bail!("field {} was reconstructed at {p} µm pixels, the others at {q}: reconstruct them alike (--redo)", f.dataset),
             _ => pitch = Some(p),
         }
-        objects.push(object);
+        if k == 0 {
+            let bytes = object.len() * std::mem::size_of::<Complex32>();
+            // Never fewer than two rows of fields: what a band of the mosaic needs.
+            cache.capacity = (options.field_memory_bytes / bytes.max(1)).max(2 * manifest.cols + 2);
+        }
+        footprints.push(stitch::Footprint {
+            dim: object.dim(),
+            stage_um: (f.stage_um[0], f.stage_um[1]),
+        });
         scores.push(score);
+        cache.put(k, object);
     }
     let pitch = pitch.unwrap_or(1.0);
-    on(StitchEvent::Joining);
-    let fields: Vec<Field<'_>> = objects
+    // Registration, a pair at a time, in the order of the fields' grid (row by row),
+    // so that the fields a pair needs are mostly those just used.
+    let mut plans = stitch::plan_pairs(&footprints, pitch, &options.settings);
+    let grid = |k: usize| (manifest.fields[k].row, manifest.fields[k].col);
+    plans.sort_by_key(|p| grid(p.a).max(grid(p.b)));
+    let mut pairs = Vec::with_capacity(plans.len());
+    for (i, plan) in plans.iter().enumerate() {
+        on(StitchEvent::Registering {
+            done: i,
+            total: plans.len(),
+        });
+        let (a, b) = (cache.get(plan.a)?, cache.get(plan.b)?);
+        pairs.extend(stitch::register(
+            plan,
+            plan.window_a.of(a.view()),
+            plan.window_b.of(b.view()),
+            pitch,
+            &options.settings,
+        ));
+    }
+    let layout = stitch::solve(&footprints, pairs, pitch, &options.settings);
+    let canvas = Canvas::covering(&footprints, &layout.positions_um, pitch);
+    let placements: Vec<((usize, usize), (f64, f64))> = footprints
         .iter()
-        .zip(&manifest.fields)
-        .map(|(o, f)| Field {
-            object: o.view(),
-            stage_um: (f.stage_um[0], f.stage_um[1]),
-        })
+        .zip(&layout.positions_um)
+        .map(|(f, &p)| canvas.placement(f, p))
         .collect();
-    let layout = stitch::layout(&fields, pitch, &options.settings);
-    let canvas = Canvas::covering(&fields, &layout.positions_um, pitch);
-    let side = objects.first().map_or(0, |o| o.ncols());
+    // From here the cache holds fields shifted onto the canvas's grid.
+    let fractions: Vec<(f64, f64)> = placements.iter().map(|p| p.1).collect();
+    cache.reset(Box::new(move |k, object| {
+        stitch::shifted_onto_canvas(object.view(), fractions[k])
+    }));
+    let side = footprints[0].dim.1;
     let overlap_px = (manifest.overlap * side as f64).round() as usize;
-    let (object, covered) = stitch::blend(
-        &fields,
-        &layout.positions_um,
-        &canvas,
-        overlap_px,
-        &options.settings,
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let zarr = out.join("mosaic.zarr");
+    let mut writer = crate::ome_zarr::Writer::create(
+        &zarr,
+        &[""],
+        (canvas.height, canvas.width),
+        pitch,
+        canvas.origin_um,
+    )?;
+    // A simulation's mosaic is scored against its truth: kept whole (they are small).
+    let truth = dir.join("truth").join("slide.json").exists();
+    let mut whole = truth.then(|| {
+        (
+            Array2::<Complex32>::zeros((canvas.height, canvas.width)),
+            Array2::<bool>::from_elem((canvas.height, canvas.width), false),
+        )
+    });
+    let band = crate::ome_zarr::CHUNK;
+    for y0 in (0..canvas.height).step_by(band) {
+        on(StitchEvent::Writing {
+            done: y0,
+            total: canvas.height,
+        });
+        let rows = y0..(y0 + band).min(canvas.height);
+        let here: Vec<usize> = (0..total)
+            .filter(|&k| {
+                let (y, h) = (placements[k].0 .1, footprints[k].dim.0);
+                y < rows.end && y + h > rows.start
+            })
+            .collect();
+        let objects = here
+            .iter()
+            .map(|&k| cache.get(k))
+            .collect::<Result<Vec<_>>>()?;
+        let placed: Vec<stitch::Placed<'_>> = here
+            .iter()
+            .zip(&objects)
+            .map(|(&k, o)| stitch::Placed {
+                object: o.view(),
+                at: placements[k].0,
+                phase_rad: layout.phases_rad[k],
+            })
+            .collect();
+        let (mut object, weight) = stitch::blend_rows(
+            &placed,
+            canvas.width,
+            rows.clone(),
+            overlap_px,
+            &options.settings,
+        );
+        if let Some((m, c)) = whole.as_mut() {
+            m.slice_mut(ndarray::s![rows.clone(), ..]).assign(&object);
+            c.slice_mut(ndarray::s![rows.clone(), ..])
+                .assign(&weight.mapv(|w| w > 0.0));
+        }
+        // Uncovered pixels are NaN (the OME-Zarr's fill value): no data, not black.
+        ndarray::Zip::from(&mut object)
+            .and(&weight)
+            .for_each(|v, &w| {
+                if w <= 0.0 {
+                    *v = Complex32::new(f32::NAN, f32::NAN);
+                }
+            });
+        writer.push(&[object.view()])?;
+    }
+    let preview = writer.finish()?;
+    tracing::info!(
+        reads = cache.reads,
+        kept = cache.capacity,
+        "fields read again from disk while stitching"
     );
     let field_reports: Vec<FieldReport> = manifest
         .fields
@@ -543,27 +693,77 @@ pub fn stitch(
         versus_truth: None,
         warnings,
     };
-    report.versus_truth = match versus_truth(dir, &object, &covered, &report, &layout, &fields) {
-        Ok(t) => t,
-        Err(e) => {
-            tracing::warn!("the mosaic was not scored against the slide's truth: {e:#}");
-            None
-        }
-    };
+    if let Some((object, covered)) = &whole {
+        report.versus_truth =
+            match versus_truth(dir, object, covered, &report, &layout, &footprints) {
+                Ok(t) => t,
+                Err(e) => {
+                    tracing::warn!("the mosaic was not scored against the slide's truth: {e:#}");
+                    None
+                }
+            };
+    }
+    std::fs::write(
+        out.join("stitch.json"),
+        serde_json::to_string_pretty(&report)?,
+    )
+    .with_context(|| format!("writing {}", out.join("stitch.json").display()))?;
     Ok(Stitched {
-        object,
-        covered,
+        mosaic: zarr,
         report,
+        preview,
     })
+}
+
+/// How a field without a geometry of its own is reconstructed: with the scan's
+/// calibration (its own calibration.json, else the first field's: a scan calibrates
+/// once).
+fn field_job(dir: &Path, manifest: &ScanManifest, field_dir: &Path, job: &Job) -> Job {
+    match &job.geometry {
+        reconstruction::GeometryChoice::Nominal => {
+            let own = field_dir.join("calibration.json");
+            let first = manifest
+                .fields
+                .first()
+                .map(|f| dir.join(&f.dataset).join("calibration.json"));
+            match [Some(own), first]
+                .into_iter()
+                .flatten()
+                .find(|p| p.is_file())
+            {
+                Some(path) => Job {
+                    geometry: reconstruction::GeometryChoice::File(path),
+                    ..job.clone()
+                },
+                None => job.clone(),
+            }
+        }
+        _ => job.clone(),
+    }
 }
 
 fn warnings(layout: &Layout, manifest: &ScanManifest, s: &stitch::Settings) -> Vec<String> {
     let mut out = Vec::new();
-    let unused = layout.pairs.iter().filter(|p| !p.used).count();
-    if unused > 0 {
+    // A field none of whose overlaps registered keeps the stage's position (and its
+    // error); one with at least one is placed by the images.
+    let alone: Vec<&str> = manifest
+        .fields
+        .iter()
+        .enumerate()
+        .filter(|&(k, _)| {
+            manifest.fields.len() > 1
+                && !layout
+                    .pairs
+                    .iter()
+                    .any(|p| p.used && (p.a == k || p.b == k))
+        })
+        .map(|(_, f)| f.dataset.as_str())
+        .collect();
+    if !alone.is_empty() {
         out.push(format!(
-            "{unused} of {} overlaps could not be registered (blank glass, too little overlap, or a stage error beyond {:.0} µm); those fields are placed by the stage alone: scan with more overlap (--overlap) or give the stage's error (--stage-sigma-um)",
-            layout.pairs.len(),
+            "{} kept the stage's position (±{:.0} µm): none of its overlaps could be registered (blank glass, too little overlap, or a stage error beyond {:.0} µm); scan with more overlap (--overlap), or give the stage's error (--stage-sigma-um) if it is larger",
+            alone.join(", "),
+            s.stage_sigma_um,
             4.0 * s.stage_sigma_um
         ));
     }
@@ -585,7 +785,7 @@ fn versus_truth(
     covered: &Array2<bool>,
     report: &StitchReport,
     layout: &Layout,
-    fields: &[Field<'_>],
+    fields: &[stitch::Footprint],
 ) -> Result<Option<MosaicTruth>> {
     let truth_dir = dir.join("truth");
     let path = truth_dir.join("slide.json");
@@ -724,7 +924,7 @@ fn seam_steps(
     mosaic: &Array2<Complex32>,
     truth: &Array2<Complex32>,
     covered: &Array2<bool>,
-    fields: &[Field<'_>],
+    fields: &[stitch::Footprint],
     positions: &[(f64, f64)],
     c: &Canvas,
 ) -> (f64, f64) {
@@ -749,7 +949,7 @@ fn seam_steps(
     let py = |y: f64| ((y - c.origin_um.1) / c.pitch_um).round().max(0.0) as usize;
     let (mut seams, mut within) = (Vec::new(), Vec::new());
     for (i, a) in fields.iter().enumerate() {
-        let (fh, fw) = a.object.dim();
+        let (fh, fw) = a.dim;
         let half = (fw as f64 * c.pitch_um / 2.0, fh as f64 * c.pitch_um / 2.0);
         let pa = positions[i];
         // Rows (or columns) across the field's middle half, for a step along x (or y).
@@ -801,29 +1001,4 @@ fn seam_steps(
     }
     let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
     (rms(&seams), rms(&within))
-}
-
-/// Write the mosaic into `out`: `mosaic.zarr` (OME-Zarr, amplitude and phase, a
-/// pyramid, the slide's coordinates as its translation) and `stitch.json`.
-pub fn write(stitched: &Stitched, out: &Path) -> Result<PathBuf> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let zarr = out.join("mosaic.zarr");
-    let c = &stitched.report.canvas;
-    // Uncovered pixels are NaN (the OME-Zarr's fill value): no data, not black.
-    let object = ndarray::Zip::from(&stitched.object)
-        .and(&stitched.covered)
-        .map_collect(|&v, &k| {
-            if k {
-                v
-            } else {
-                Complex32::new(f32::NAN, f32::NAN)
-            }
-        });
-    crate::ome_zarr::write_placed(&zarr, &[("", &object)], c.pitch_um, c.origin_um)?;
-    std::fs::write(
-        out.join("stitch.json"),
-        serde_json::to_string_pretty(&stitched.report)?,
-    )
-    .with_context(|| format!("writing {}", out.join("stitch.json").display()))?;
-    Ok(zarr)
 }

@@ -533,15 +533,20 @@ pub fn run_scan(
             ..Default::default()
         },
         redo: false,
+        field_memory_bytes: fpm_host::scan::FIELD_MEMORY_BYTES,
     };
     // The rig's truth beside the fields first (its writing not counted), so that one
     // stitch reconstructs what the scan did not and scores it all.
     let truth_started = Instant::now();
     write_scan_truth(&out, &camera_truth)?;
     let truth_took = truth_started.elapsed();
-    let stitched = fpm_host::scan::stitch(&out, &options, &|_| {})?;
+    let mosaic = out.join("mosaic");
+    let stitched = fpm_host::scan::stitch(&out, &options, &mosaic, &|_| {})?;
     let seconds = (started.elapsed() - truth_took).as_secs_f64();
-    fpm_host::scan::write(&stitched, &out.join("mosaic"))?;
+    let reproduce = format!("fpm stitch {}", out.display());
+    if let Err(e) = fpm_report::slide::write_page(&stitched, &mosaic, &reproduce) {
+        tracing::warn!("no HTML report for the mosaic: {e:#}");
+    }
     Ok(ScanDemoReport {
         out,
         scan: summary,

@@ -75,14 +75,41 @@ fn a_three_by_three_scan_stitches_within_the_fields_own_error() {
     .unwrap();
     let transforms = &zattrs["multiscales"][0]["datasets"][0]["coordinateTransformations"];
     assert_eq!(transforms[1]["type"], "translation", "{transforms}");
-    // Fields done are not reconstructed again.
+    // The report page beside it, with the score.
+    let page = std::fs::read_to_string(scan.join("mosaic/report.html")).unwrap();
+    assert!(page.contains("id=\"mosaic-nrmse\""), "{page}");
+    // Fields done are not reconstructed again; kept in memory as few as a band of the
+    // mosaic needs (the others read again from disk), the same mosaic, byte for byte.
+    let lean = tmp.0.join("lean");
     let again = std::process::Command::new(fpm_bin())
-        .args(["stitch", scan_s])
+        .args(["stitch", scan_s, "--field-memory-mib", "0", "--out"])
+        .arg(&lean)
         .output()
         .unwrap();
     assert!(again.status.success());
     let text = String::from_utf8_lossy(&again.stdout);
     assert!(text.contains("9 fields joined"), "{text}");
+    let files = |dir: &std::path::Path| {
+        let mut out = std::collections::BTreeMap::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    let bytes = std::fs::read(&p).unwrap();
+                    out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), bytes);
+                }
+            }
+        }
+        out
+    };
+    let (whole, streamed) = (
+        files(&scan.join("mosaic/mosaic.zarr")),
+        files(&lean.join("mosaic.zarr")),
+    );
+    assert!(whole.len() > 3 && whole == streamed, "the mosaics differ");
 }
 
 #[test]

@@ -118,7 +118,10 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let bad = [
         (r#"{"kind": "acquire""#.to_string(), "EOF"),
         (r#"{"kind": "acquire", "out": 5}"#.to_string(), "out"),
-        (r#"{"kind": "teleport", "out": "/tmp/x"}"#.to_string(), "teleport"),
+        (
+            r#"{"kind": "teleport", "out": "/tmp/x"}"#.to_string(),
+            "teleport",
+        ),
         (
             serde_json::json!({"kind": "acquire", "out": out, "step_ms": 0.0}).to_string(),
             "step_ms",

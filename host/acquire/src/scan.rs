@@ -353,27 +353,38 @@ pub fn run(
             },
             settings,
             redo: false,
+            field_memory_bytes: fpm_host::scan::FIELD_MEMORY_BYTES,
         };
         // `stitch` reports from threads (Sync); the scan's reporter is not.
         let (tx, rx) = mpsc::channel();
+        let mosaic = out.join("mosaic");
         let stitched = std::thread::scope(|s| {
             let joined = s.spawn(|| {
                 let tx = std::sync::Mutex::new(tx);
-                fpm_host::scan::stitch(&out, &options, &|e| {
+                fpm_host::scan::stitch(&out, &options, &mosaic, &|e| {
                     let _ = tx.lock().map(|t| t.send(e));
                 })
             });
             for e in rx {
-                on(match e {
-                    StitchEvent::Field { done, total, .. } => ScanEvent::Stitching { done, total },
-                    StitchEvent::Joining => ScanEvent::Stitching { done: total, total },
-                });
+                match e {
+                    StitchEvent::Field { done, total, .. } => {
+                        on(ScanEvent::Stitching { done, total })
+                    }
+                    StitchEvent::Registering { done: 0, .. } => {
+                        on(ScanEvent::Stitching { done: total, total })
+                    }
+                    _ => {}
+                }
             }
             joined.join()
         })
         .map_err(|_| anyhow::anyhow!("stitching the scan panicked"))?
         .context("stitching the fields")?;
-        summary.mosaic = Some(fpm_host::scan::write(&stitched, &out.join("mosaic"))?);
+        let reproduce = format!("fpm stitch {}", out.display());
+        if let Err(e) = fpm_report::slide::write_page(&stitched, &mosaic, &reproduce) {
+            tracing::warn!("no HTML report for the mosaic: {e:#}");
+        }
+        summary.mosaic = Some(stitched.mosaic);
         summary.stitch = Some(stitched.report);
     }
     std::fs::write(

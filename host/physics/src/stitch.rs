@@ -10,9 +10,11 @@
 //!    with nothing to register on (blank glass) falls back to the stage, and one bad
 //!    pair cannot tear the mosaic; pairs that disagree with the solution by more than
 //!    a few σ are dropped and the solve repeated.
-//! 3. Fields are shifted by their sub-pixel remainder (Fourier shift), rotated onto the
-//!    global phase of what is placed, and blended with sin² ramps across the overlaps
-//!    ([`crate::tiles::Mosaic`]).
+//! 3. Each field's global phase is taken from its pairs (a's phase over b's where they
+//!    coincide), along the tree of the best-matched pairs from the central field.
+//! 4. Fields are shifted by their sub-pixel remainder (Fourier shift), rotated by their
+//!    phase, and blended with sin² ramps across the overlaps
+//!    ([`crate::tiles::Taper`]), a band of rows at a time ([`blend_rows`]).
 //!
 //! Coordinates: a field's position is the slide point at its centre pixel (W/2, H/2),
 //! µm; image columns run along +x and rows along +y, as the stage's axes.
@@ -22,7 +24,6 @@ use rustfft::num_complex::Complex32;
 use serde::Serialize;
 
 use crate::fft::Fft2;
-use crate::tiles::Mosaic;
 
 /// One field: its reconstruction (HR grid, `pitch_um` pixels) and where the stage put
 /// its centre, µm.
@@ -49,6 +50,9 @@ pub struct Pair {
     /// The matched overlap over the one the stage promised: a registration's error
     /// grows as its overlap shrinks, and it is weighed so.
     pub overlap_fraction: f64,
+    /// arg Σ a·b̄ where they coincide: a's global phase over b's (each
+    /// reconstruction's own is arbitrary), rad.
+    pub phase_rad: f64,
     /// Whether the solve kept it.
     pub used: bool,
 }
@@ -90,6 +94,8 @@ pub struct Layout {
     pub pairs: Vec<Pair>,
     /// RMS of the used pairs' residuals after the solve, µm.
     pub residual_rms_um: f64,
+    /// Each field's global phase rotation onto the field nearest the centre, rad.
+    pub phases_rad: Vec<f64>,
 }
 
 /// The normalised correlation of `a` and `b` with `b`'s pixel (0, 0) on `a`'s pixel
@@ -332,9 +338,30 @@ pub fn locate(
     })
 }
 
+/// Where a field lies, without its pixels: its size and where the stage put its centre.
+/// Everything but the registration itself is planned from footprints, so that a
+/// slide's fields need not all be in memory at once.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Footprint {
+    /// (rows, columns) of its reconstruction.
+    pub dim: (usize, usize),
+    /// Where the stage put its centre, µm.
+    pub stage_um: (f64, f64),
+}
+
+impl Field<'_> {
+    /// Its size and place.
+    pub fn footprint(&self) -> Footprint {
+        Footprint {
+            dim: self.object.dim(),
+            stage_um: self.stage_um,
+        }
+    }
+}
+
 /// A field's pixel rectangle in slide µm: (x0, y0, x1, y1) of its pixel centres.
-fn extent(f: &Field<'_>, pitch: f64, at: (f64, f64)) -> (f64, f64, f64, f64) {
-    let (h, w) = f.object.dim();
+fn extent(f: &Footprint, pitch: f64, at: (f64, f64)) -> (f64, f64, f64, f64) {
+    let (h, w) = f.dim;
     let x0 = at.0 - (w / 2) as f64 * pitch;
     let y0 = at.1 - (h / 2) as f64 * pitch;
     (
@@ -358,15 +385,51 @@ fn features(z: ArrayView2<'_, Complex32>) -> Array2<Complex32> {
     })
 }
 
-/// Register `b` against `a`: from each, the part facing the other (the overlap as the
-/// stage has it, widened by the search margin), located one on the other.
-fn register_pair(
-    fields: &[Field<'_>],
+/// A field's pixels: rows `rows.0..rows.1`, columns `cols.0..cols.1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    pub rows: (usize, usize),
+    pub cols: (usize, usize),
+}
+
+impl Window {
+    /// This window of `z`.
+    pub fn of<'a>(&self, z: ArrayView2<'a, Complex32>) -> ArrayView2<'a, Complex32> {
+        z.slice_move(ndarray::s![
+            self.rows.0..self.rows.1,
+            self.cols.0..self.cols.1
+        ])
+    }
+}
+
+/// What registering two neighbours takes, planned from their footprints: the part of
+/// each facing the other (the overlap as the stage has it, widened by the search
+/// margin, each field's border left out) and where the stage puts one on the other.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairPlan {
+    pub a: usize,
+    pub b: usize,
+    /// `a`'s pixels to register on.
+    pub window_a: Window,
+    /// `b`'s.
+    pub window_b: Window,
+    /// Where the stage puts `b`'s window on `a`'s, pixels (col, row).
+    guess: (f64, f64),
+    radius_px: f64,
+    min_area: usize,
+    expected_area: usize,
+    stage_offset_um: (f64, f64),
+}
+
+/// Plan the registration of fields `ia` and `ib` (None: too little of them faces the
+/// other).
+fn plan_pair(
+    footprints: &[Footprint],
     (ia, ib): (usize, usize),
     pitch: f64,
     s: &Settings,
-) -> Option<Pair> {
-    let (a, b) = (&fields[ia], &fields[ib]);
+) -> Option<PairPlan> {
+    let (a, b) = (&footprints[ia], &footprints[ib]);
     let ea = extent(a, pitch, a.stage_um);
     let eb = extent(b, pitch, b.stage_um);
     let margin = (4.0 * s.stage_sigma_um).max(4.0 * pitch);
@@ -382,61 +445,121 @@ fn register_pair(
         overlap.2 + margin,
         overlap.3 + margin,
     );
-    // Each field's pixels inside the widened overlap: (col0, row0, col1, row1).
-    let window = |e: (f64, f64, f64, f64), f: &Field<'_>| {
-        let (h, w) = f.object.dim();
+    // Each field's pixels inside the widened overlap, its border left out: a
+    // reconstruction's edges carry its periodic boundary's artefacts, which look alike
+    // in every field.
+    let window = |e: (f64, f64, f64, f64), f: &Footprint| {
+        let (h, w) = f.dim;
+        let t = s.unblended_px;
         let c0 = ((widened.0 - e.0) / pitch).ceil().max(0.0) as usize;
         let r0 = ((widened.1 - e.1) / pitch).ceil().max(0.0) as usize;
         let c1 = (((widened.2 - e.0) / pitch).floor() as usize + 1).min(w);
         let r1 = (((widened.3 - e.1) / pitch).floor() as usize + 1).min(h);
-        (c0, r0, c1.max(c0), r1.max(r0))
+        let (c0, r0) = (c0.max(t), r0.max(t));
+        let (c1, r1) = (
+            c1.max(c0).min(w.saturating_sub(t)),
+            r1.max(r0).min(h.saturating_sub(t)),
+        );
+        Window {
+            rows: (r0, r1.max(r0)),
+            cols: (c0, c1.max(c0)),
+        }
     };
-    // Each field's border is left out: a reconstruction's edges carry its periodic
-    // boundary's artefacts, which look alike in every field.
-    let trim = |(c0, r0, c1, r1): (usize, usize, usize, usize), f: &Field<'_>| {
-        let (h, w) = f.object.dim();
-        let t = s.unblended_px;
-        (
-            c0.max(t),
-            r0.max(t),
-            c1.min(w.saturating_sub(t)),
-            r1.min(h.saturating_sub(t)),
-        )
-    };
-    let (ca0, ra0, ca1, ra1) = trim(window(ea, a), a);
-    let (cb0, rb0, cb1, rb1) = trim(window(eb, b), b);
-    if ca1 < ca0 + 16 || ra1 < ra0 + 16 || cb1 < cb0 + 16 || rb1 < rb0 + 16 {
+    let (wa, wb) = (window(ea, a), window(eb, b));
+    let small = |w: &Window| w.cols.1 < w.cols.0 + 16 || w.rows.1 < w.rows.0 + 16;
+    if small(&wa) || small(&wb) {
         return None;
     }
-    let wa = features(a.object.slice(ndarray::s![ra0..ra1, ca0..ca1]));
-    let wb = features(b.object.slice(ndarray::s![rb0..rb1, cb0..cb1]));
-    let (wa, wb) = (wa.view(), wb.view());
-    // Where the stage puts b's window on a's, pixels.
-    let guess = (
-        (eb.0 + cb0 as f64 * pitch - ea.0 - ca0 as f64 * pitch) / pitch,
-        (eb.1 + rb0 as f64 * pitch - ea.1 - ra0 as f64 * pitch) / pitch,
-    );
     let overlap_px = (
         ((overlap.2 - overlap.0) / pitch).max(0.0),
         ((overlap.3 - overlap.1) / pitch).max(0.0),
     );
-    // At least a quarter of the overlap the stage promises must coincide.
-    let min_area = ((overlap_px.0 * overlap_px.1) / 4.0).max(64.0) as usize;
-    let expected = (overlap_px.0 * overlap_px.1) as usize;
-    let m = locate(wa, wb, guess, margin / pitch, min_area, expected)?;
-    let (qx, qy) = m.at;
-    let stage_offset = (b.stage_um.0 - a.stage_um.0, b.stage_um.1 - a.stage_um.1);
-    Some(Pair {
+    Some(PairPlan {
         a: ia,
         b: ib,
+        window_a: wa,
+        window_b: wb,
+        guess: (
+            (eb.0 + wb.cols.0 as f64 * pitch - ea.0 - wa.cols.0 as f64 * pitch) / pitch,
+            (eb.1 + wb.rows.0 as f64 * pitch - ea.1 - wa.rows.0 as f64 * pitch) / pitch,
+        ),
+        radius_px: margin / pitch,
+        // At least a quarter of the overlap the stage promises must coincide.
+        min_area: ((overlap_px.0 * overlap_px.1) / 4.0).max(64.0) as usize,
+        expected_area: (overlap_px.0 * overlap_px.1) as usize,
+        stage_offset_um: (b.stage_um.0 - a.stage_um.0, b.stage_um.1 - a.stage_um.1),
+    })
+}
+
+/// Every pair of edge neighbours worth registering (a corner's overlap is too small),
+/// planned from the footprints alone.
+pub fn plan_pairs(footprints: &[Footprint], pitch_um: f64, s: &Settings) -> Vec<PairPlan> {
+    let n = footprints.len();
+    let mut plans = Vec::new();
+    for ia in 0..n {
+        for ib in ia + 1..n {
+            let (ea, eb) = (
+                extent(&footprints[ia], pitch_um, footprints[ia].stage_um),
+                extent(&footprints[ib], pitch_um, footprints[ib].stage_um),
+            );
+            let (ow, oh) = (
+                ea.2.min(eb.2) - ea.0.max(eb.0),
+                ea.3.min(eb.3) - ea.1.max(eb.1),
+            );
+            let (fw, fh) = (ea.2 - ea.0, ea.3 - ea.1);
+            if ow > 0.0 && oh > 0.0 && (ow >= 0.5 * fw || oh >= 0.5 * fh) {
+                plans.extend(plan_pair(footprints, (ia, ib), pitch_um, s));
+            }
+        }
+    }
+    plans
+}
+
+/// Register a planned pair on its windows (`a` and `b`: `plan.window_a` of field
+/// `plan.a`, `plan.window_b` of `plan.b`): the offset, how well it matches, and the
+/// two fields' relative global phase there.
+pub fn register(
+    plan: &PairPlan,
+    a: ArrayView2<'_, Complex32>,
+    b: ArrayView2<'_, Complex32>,
+    pitch: f64,
+    s: &Settings,
+) -> Option<Pair> {
+    let (fa, fb) = (features(a), features(b));
+    let m = locate(
+        fa.view(),
+        fb.view(),
+        plan.guess,
+        plan.radius_px,
+        plan.min_area,
+        plan.expected_area,
+    )?;
+    let (qx, qy) = m.at;
+    // a's global phase over b's where they coincide (at the nearest whole pixel): what
+    // turns b onto a, for the blend.
+    let (q0, q1) = (qx.round() as isize, qy.round() as isize);
+    let (ha, wa) = a.dim();
+    let (hb, wb) = b.dim();
+    let mut c = rustfft::num_complex::Complex64::default();
+    for r in q1.max(0)..(q1 + hb as isize).min(ha as isize) {
+        for k in q0.max(0)..(q0 + wb as isize).min(wa as isize) {
+            let p = a[[r as usize, k as usize]] * b[[(r - q1) as usize, (k - q0) as usize]].conj();
+            c += rustfft::num_complex::Complex64::new(p.re as f64, p.im as f64);
+        }
+    }
+    let stage_offset = plan.stage_offset_um;
+    Some(Pair {
+        a: plan.a,
+        b: plan.b,
         offset_um: (
-            stage_offset.0 + (qx - guess.0) * pitch,
-            stage_offset.1 + (qy - guess.1) * pitch,
+            stage_offset.0 + (qx - plan.guess.0) * pitch,
+            stage_offset.1 + (qy - plan.guess.1) * pitch,
         ),
         stage_offset_um: stage_offset,
         peak: m.score,
         runner_up: m.runner_up,
         overlap_fraction: m.overlap_fraction,
+        phase_rad: c.arg(),
         used: m.score >= s.min_score,
     })
 }
@@ -507,39 +630,42 @@ fn difference_variance(
     (x[b] - x[a]).max(0.0)
 }
 
-/// Register every overlapping pair and solve the fields' positions.
+/// Register every overlapping pair and solve the fields' positions (all fields in
+/// memory; [`plan_pairs`], [`register`] and [`solve`] do the same a pair at a time).
 pub fn layout(fields: &[Field<'_>], pitch_um: f64, s: &Settings) -> Layout {
-    let n = fields.len();
-    let mut pairs = Vec::new();
-    for ia in 0..n {
-        for ib in ia + 1..n {
-            let (ea, eb) = (
-                extent(&fields[ia], pitch_um, fields[ia].stage_um),
-                extent(&fields[ib], pitch_um, fields[ib].stage_um),
-            );
-            // Edge neighbours only: a corner's overlap is too small to register on.
-            let (ow, oh) = (
-                ea.2.min(eb.2) - ea.0.max(eb.0),
-                ea.3.min(eb.3) - ea.1.max(eb.1),
-            );
-            let (fw, fh) = (ea.2 - ea.0, ea.3 - ea.1);
-            let edge = ow > 0.0 && oh > 0.0 && (ow >= 0.5 * fw || oh >= 0.5 * fh);
-            if edge {
-                if let Some(p) = register_pair(fields, (ia, ib), pitch_um, s) {
-                    pairs.push(p);
-                }
-            }
-        }
-    }
+    let footprints: Vec<Footprint> = fields.iter().map(Field::footprint).collect();
+    let pairs = plan_pairs(&footprints, pitch_um, s)
+        .iter()
+        .filter_map(|p| {
+            register(
+                p,
+                p.window_a.of(fields[p.a].object),
+                p.window_b.of(fields[p.b].object),
+                pitch_um,
+                s,
+            )
+        })
+        .collect();
+    solve(&footprints, pairs, pitch_um, s)
+}
+
+/// The fields' positions from their registered `pairs` and the stage (the prior), and
+/// their global phases.
+pub fn solve(
+    footprints: &[Footprint],
+    mut pairs: Vec<Pair>,
+    pitch_um: f64,
+    s: &Settings,
+) -> Layout {
     let w0 = 1.0 / s.stage_sigma_um.powi(2);
     // A pair's σ: the registration's own, grown as its overlap falls short of the
     // promised one (fewer pixels, and nearer the fields' edges), never below a tenth
     // of a pixel.
     let sigma =
         |p: &Pair| s.pair_sigma_um.max(0.1 * pitch_um) / p.overlap_fraction.clamp(0.05, 1.0);
-    let stage_x: Vec<f64> = fields.iter().map(|f| f.stage_um.0).collect();
-    let stage_y: Vec<f64> = fields.iter().map(|f| f.stage_um.1).collect();
-    let n = fields.len();
+    let stage_x: Vec<f64> = footprints.iter().map(|f| f.stage_um.0).collect();
+    let stage_y: Vec<f64> = footprints.iter().map(|f| f.stage_um.1).collect();
+    let n = footprints.len();
     let solve = |pairs: &[&Pair]| -> Vec<(f64, f64)> {
         let axis = |k: usize| -> Vec<(usize, usize, f64, f64)> {
             pairs
@@ -598,11 +724,53 @@ pub fn layout(fields: &[Field<'_>], pitch_um: f64, s: &Settings) -> Layout {
     } else {
         (used.iter().sum::<f64>() / used.len() as f64).sqrt()
     };
+    let phases_rad = phases(&positions, &pairs);
     Layout {
         positions_um: positions,
         pairs,
         residual_rms_um,
+        phases_rad,
     }
+}
+
+/// Each field's phase rotation onto the field nearest the centre: along the tree of
+/// the best-matched pairs from it (used pairs first; a field that only an unused pair
+/// reaches takes that one's phase, one that none reaches keeps its own).
+fn phases(positions: &[(f64, f64)], pairs: &[Pair]) -> Vec<f64> {
+    let n = positions.len();
+    let mut phase = vec![0.0; n];
+    if n == 0 {
+        return phase;
+    }
+    let centre = positions.iter().fold((0.0, 0.0), |a, p| {
+        (a.0 + p.0 / n as f64, a.1 + p.1 / n as f64)
+    });
+    let d = |k: usize| (positions[k].0 - centre.0).powi(2) + (positions[k].1 - centre.1).powi(2);
+    let root = (0..n).min_by(|&i, &j| d(i).total_cmp(&d(j))).unwrap_or(0);
+    let mut reached = vec![false; n];
+    reached[root] = true;
+    for trusted in [true, false] {
+        loop {
+            // The strongest pair from a reached field to one not reached.
+            let next = pairs
+                .iter()
+                .filter(|p| p.used || !trusted)
+                .filter(|p| reached[p.a] != reached[p.b])
+                .max_by(|p, q| {
+                    (p.peak * p.overlap_fraction).total_cmp(&(q.peak * q.overlap_fraction))
+                });
+            let Some(p) = next else { break };
+            // ρ_b = ρ_a + arg Σ a·b̄.
+            if reached[p.a] {
+                phase[p.b] = phase[p.a] + p.phase_rad;
+                reached[p.b] = true;
+            } else {
+                phase[p.a] = phase[p.b] - p.phase_rad;
+                reached[p.a] = true;
+            }
+        }
+    }
+    phase
 }
 
 fn residual(p: &Pair, positions: &[(f64, f64)]) -> f64 {
@@ -622,9 +790,9 @@ pub struct Canvas {
 
 impl Canvas {
     /// The grid that holds every field at `positions`.
-    pub fn covering(fields: &[Field<'_>], positions: &[(f64, f64)], pitch_um: f64) -> Self {
+    pub fn covering(footprints: &[Footprint], positions: &[(f64, f64)], pitch_um: f64) -> Self {
         let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-        for (f, &p) in fields.iter().zip(positions) {
+        for (f, &p) in footprints.iter().zip(positions) {
             let e = extent(f, pitch_um, p);
             x0 = x0.min(e.0);
             y0 = y0.min(e.1);
@@ -638,56 +806,118 @@ impl Canvas {
             pitch_um,
         }
     }
+
+    /// Where a field at `position` lands: the canvas pixel of its pixel (0, 0) once
+    /// shifted by the fraction (x, y) of a pixel (see [`shifted_onto_canvas`]).
+    pub fn placement(&self, f: &Footprint, position: (f64, f64)) -> ((usize, usize), (f64, f64)) {
+        let e = extent(f, self.pitch_um, position);
+        let fx = (e.0 - self.origin_um.0) / self.pitch_um;
+        let fy = (e.1 - self.origin_um.1) / self.pitch_um;
+        let (ix, iy) = (fx.floor(), fy.floor());
+        (
+            (ix.max(0.0) as usize, iy.max(0.0) as usize),
+            (fx - ix, fy - iy),
+        )
+    }
 }
 
-/// Blend the fields at `positions` onto `canvas`: the object and where some field
-/// covers it (the edges of a mosaic of misplaced fields are ragged). `overlap_px` is
-/// the nominal overlap (the ramp's length).
+/// A field's pixels on the canvas's grid: Fourier-shifted by the `fraction` of a pixel
+/// its place leaves ([`Canvas::placement`]), so that pixel j of a canvas row reads the
+/// field at j − fraction.
+pub fn shifted_onto_canvas(
+    object: ArrayView2<'_, Complex32>,
+    fraction: (f64, f64),
+) -> Array2<Complex32> {
+    crate::color::shifted_back(&object.to_owned(), -fraction.0, -fraction.1)
+}
+
+/// A field as blended: its pixels on the canvas's grid, the canvas pixel of its first
+/// pixel, and its global phase rotation.
+#[derive(Debug, Clone, Copy)]
+pub struct Placed<'a> {
+    pub object: ArrayView2<'a, Complex32>,
+    pub at: (usize, usize),
+    pub phase_rad: f64,
+}
+
+/// Rows `rows` of a canvas `width` wide, blended from `placed` with sin² ramps across
+/// the overlaps (`overlap_px` the nominal overlap, the ramp's length): the object, and
+/// each pixel's total weight (0: no field reached it; the object is 0 there). A band
+/// at a time, so that a slide is written as it is blended.
+pub fn blend_rows(
+    placed: &[Placed<'_>],
+    width: usize,
+    rows: std::ops::Range<usize>,
+    overlap_px: usize,
+    s: &Settings,
+) -> (Array2<Complex32>, Array2<f32>) {
+    let band = rows.end.saturating_sub(rows.start);
+    let mut sum = Array2::<Complex32>::zeros((band, width));
+    let mut weight = Array2::<f32>::zeros((band, width));
+    let taper = crate::tiles::Taper {
+        free: s.unblended_px,
+        ramp: overlap_px
+            .max(2 * s.unblended_px + 2)
+            .saturating_sub(2 * s.unblended_px)
+            .max(1),
+    };
+    for p in placed {
+        let (h, w) = p.object.dim();
+        let (x0, y0) = p.at;
+        let rotation = Complex32::from_polar(1.0, p.phase_rad as f32);
+        let (r0, r1) = (rows.start.max(y0), rows.end.min(y0 + h));
+        for r in r0..r1 {
+            let fr = r - y0;
+            let wr = taper.weight(fr, h, true, true);
+            if wr == 0.0 {
+                continue;
+            }
+            for fc in 0..w.min(width.saturating_sub(x0)) {
+                let wt = wr * taper.weight(fc, w, true, true);
+                sum[[r - rows.start, x0 + fc]] += p.object[[fr, fc]] * rotation * wt;
+                weight[[r - rows.start, x0 + fc]] += wt;
+            }
+        }
+    }
+    for (v, &w) in sum.iter_mut().zip(weight.iter()) {
+        *v = if w > 0.0 {
+            *v / w
+        } else {
+            Complex32::default()
+        };
+    }
+    (sum, weight)
+}
+
+/// Blend the fields laid out by `layout` onto `canvas` (all in memory): the object and
+/// where some field covers it (the edges of a mosaic of misplaced fields are ragged).
+/// `overlap_px` is the nominal overlap (the ramp's length).
 pub fn blend(
     fields: &[Field<'_>],
-    positions: &[(f64, f64)],
+    layout: &Layout,
     canvas: &Canvas,
     overlap_px: usize,
     s: &Settings,
 ) -> (Array2<Complex32>, Array2<bool>) {
-    let mut mosaic = Mosaic::new(
-        canvas.width,
-        canvas.height,
-        1,
-        overlap_px.max(2 * s.unblended_px + 2),
-        s.unblended_px,
-    );
-    // Centre-out order: the first field sets the global phase, the others join it.
-    let centre = positions
+    let placements: Vec<((usize, usize), Array2<Complex32>)> = fields
         .iter()
-        .fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
-    let centre = (
-        centre.0 / positions.len().max(1) as f64,
-        centre.1 / positions.len().max(1) as f64,
-    );
-    let mut order: Vec<usize> = (0..fields.len()).collect();
-    order.sort_by(|&i, &j| {
-        let d =
-            |k: usize| (positions[k].0 - centre.0).powi(2) + (positions[k].1 - centre.1).powi(2);
-        d(i).total_cmp(&d(j))
-    });
-    for i in order {
-        let f = &fields[i];
-        let e = extent(f, canvas.pitch_um, positions[i]);
-        let fx = (e.0 - canvas.origin_um.0) / canvas.pitch_um;
-        let fy = (e.1 - canvas.origin_um.1) / canvas.pitch_um;
-        let (ix, iy) = (fx.floor(), fy.floor());
-        // Pixel j of the canvas row reads the field at j − (fx − ix).
-        let shifted = crate::color::shifted_back(&f.object.to_owned(), -(fx - ix), -(fy - iy));
-        let faces = [true; 4];
-        mosaic.add_at(
-            ix.max(0.0) as usize,
-            iy.max(0.0) as usize,
-            faces,
-            shifted.view(),
-        );
-    }
-    mosaic.finish_with_coverage()
+        .zip(&layout.positions_um)
+        .map(|(f, &p)| {
+            let (at, fraction) = canvas.placement(&f.footprint(), p);
+            (at, shifted_onto_canvas(f.object, fraction))
+        })
+        .collect();
+    let placed: Vec<Placed<'_>> = placements
+        .iter()
+        .zip(&layout.phases_rad)
+        .map(|((at, object), &phase_rad)| Placed {
+            object: object.view(),
+            at: *at,
+            phase_rad,
+        })
+        .collect();
+    let (object, weight) = blend_rows(&placed, canvas.width, 0..canvas.height, overlap_px, s);
+    (object, weight.mapv(|w| w > 0.0))
 }
 
 #[cfg(test)]
@@ -802,14 +1032,9 @@ mod tests {
             "{:?}",
             lay.pairs
         );
-        let canvas = Canvas::covering(&fields, &lay.positions_um, pitch);
-        let (mosaic, covered) = blend(
-            &fields,
-            &lay.positions_um,
-            &canvas,
-            27,
-            &Settings::default(),
-        );
+        let footprints: Vec<Footprint> = fields.iter().map(Field::footprint).collect();
+        let canvas = Canvas::covering(&footprints, &lay.positions_um, pitch);
+        let (mosaic, covered) = blend(&fields, &lay, &canvas, 27, &Settings::default());
         // Compare with the slide where the canvas lies on it, after one global phase.
         let ox = (canvas.origin_um.0 + shift.0).round() as usize;
         let oy = (canvas.origin_um.1 + shift.1).round() as usize;

@@ -115,6 +115,38 @@ pub fn plan(width: usize, height: usize, tile: usize, overlap: usize) -> Vec<Til
         .collect()
 }
 
+/// A tile's blending weight along one axis: nothing in the unblended border of a side
+/// that faces another tile (its values nothing constrained), then a sin² ramp up to
+/// the end of the overlap, full weight beyond; a side that faces no tile keeps full
+/// weight to its edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Taper {
+    /// The unblended border, pixels.
+    pub free: usize,
+    /// The ramp's length, pixels (at least 1).
+    pub ramp: usize,
+}
+
+impl Taper {
+    /// The weight of pixel `i` of `len`, its low side facing a tile when `low_inner`,
+    /// its high side when `high_inner`.
+    pub fn weight(&self, i: usize, len: usize, low_inner: bool, high_inner: bool) -> f32 {
+        let side = |d: usize, inner: bool| -> f32 {
+            if !inner || d >= self.free + self.ramp {
+                1.0
+            } else if d < self.free {
+                0.0
+            } else {
+                let t = (d - self.free) as f32 + 0.5;
+                (t / self.ramp as f32 * std::f32::consts::FRAC_PI_2)
+                    .sin()
+                    .powi(2)
+            }
+        };
+        side(i, low_inner) * side(len - 1 - i, high_inner)
+    }
+}
+
 /// Blends tile reconstructions (on the HR grid, `upsample` × camera pixels) into one.
 pub struct Mosaic {
     upsample: usize,
@@ -178,28 +210,12 @@ impl Mosaic {
             h.min(full_h.saturating_sub(y0)),
             w.min(full_w.saturating_sub(x0)),
         );
-        // Along one axis: nothing in the unblended border of a side that faces another
-        // tile, then a sin² ramp up to the end of the overlap; frame edges keep full
-        // weight.
-        let (free, ramp) = (
-            self.unblended_hr,
-            self.overlap_hr.saturating_sub(2 * self.unblended_hr).max(1),
-        );
-        let taper = |i: usize, len: usize, low_inner: usize, high_inner: usize| -> f32 {
-            let side = |d: usize, inner: usize| -> f32 {
-                if inner == 0 || d >= free + ramp {
-                    1.0
-                } else if d < free {
-                    0.0
-                } else {
-                    let t = (d - free) as f32 + 0.5;
-                    (t / ramp as f32 * std::f32::consts::FRAC_PI_2)
-                        .sin()
-                        .powi(2)
-                }
-            };
-            side(i, low_inner) * side(len - 1 - i, high_inner)
+        let taper = Taper {
+            free: self.unblended_hr,
+            ramp: self.overlap_hr.saturating_sub(2 * self.unblended_hr).max(1),
         };
+        let taper =
+            |i: usize, len: usize, low: usize, high: usize| taper.weight(i, len, low > 0, high > 0);
         // Global phase: c = Σ a·conj(t)·(blended so far) over the overlap, weighted by
         // where both count: the tile's own weight (zero in its free border, whose
         // values nothing constrained, rising over the ramp) times the weight placed.

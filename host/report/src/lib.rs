@@ -16,4 +16,5 @@ pub mod pages;
 pub mod preview;
 pub mod reconstruction;
 pub mod scale_bar;
+pub mod slide;
 pub mod text;

@@ -252,6 +252,10 @@ pub struct ScanArgs {
     /// The stage's position error, 1σ, µm (for stitching).
     #[arg(long, default_value_t = 10.0)]
     pub stage_sigma_um: f64,
+    /// Do not focus each field before acquiring it (by default the defocus is read
+    /// from a few bright-field frames and the stage moves when it is clear).
+    #[arg(long)]
+    pub no_autofocus: bool,
     /// The acquisition of each field (--out is the scan directory; --calibrate
     /// calibrates at the first field; --reconstruct reconstructs each field while the
     /// next is acquired, then stitches them).
@@ -267,13 +271,16 @@ pub fn scan(a: ScanArgs) -> Result<()> {
     }
     let dev = crate::acquire::open_controller(acq)?;
     let mut stage = acq.stage.open_scan()?;
-    let scan_plan = fpm_acquire::scan::ScanPlan::new(
-        a.fields.0,
-        a.fields.1,
-        a.overlap,
-        crate::acquire::plan(acq),
-        a.stage_sigma_um,
-    );
+    let scan_plan = fpm_acquire::scan::ScanPlan {
+        autofocus: !a.no_autofocus,
+        ..fpm_acquire::scan::ScanPlan::new(
+            a.fields.0,
+            a.fields.1,
+            a.overlap,
+            crate::acquire::plan(acq),
+            a.stage_sigma_um,
+        )
+    };
     let control = fpm_acquire::pipeline::Control::cancelled_by(crate::acquire::cancel_on_signal()?);
     let bar = progress::counter("scanning", "fields");
     let total = a.fields.0 * a.fields.1;
@@ -295,6 +302,15 @@ pub fn scan(a: ScanArgs) -> Result<()> {
                 progress::advance(&bar, index + 1, total)
             }
             fpm_acquire::scan::ScanEvent::Reconstructed { .. } => {}
+            fpm_acquire::scan::ScanEvent::Focused {
+                index,
+                measured_um,
+                moved,
+            } => bar.set_message(match (measured_um, moved) {
+                (Some(z), true) => format!("field {}: refocused by {z:+.0} µm", index + 1),
+                (Some(z), false) => format!("field {}: in focus ({z:+.0} µm)", index + 1),
+                (None, _) => format!("field {}: too blank to focus, focus kept", index + 1),
+            }),
             fpm_acquire::scan::ScanEvent::Stitching { done, total } => {
                 progress::advance(&bar, total, total);
                 bar.set_message(if done < total {

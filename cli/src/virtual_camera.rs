@@ -59,6 +59,10 @@ pub struct VirtualCameraArgs {
     /// µm (repeatably: a position error of the lead screws).
     #[arg(long, default_value_t = 20.0)]
     pub stage_error_um: f64,
+    /// With --slide-um: the slide's tilt, µm of height per mm (direction random; the
+    /// focus a scan must follow).
+    #[arg(long, default_value_t = 3.0)]
+    pub slide_tilt_um_per_mm: f64,
     /// Sensor readout time added after each exposure, ms.
     #[arg(long, default_value_t = 5.0)]
     pub readout_ms: f64,
@@ -96,6 +100,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         truth_dir: a.truth_dir,
         slide_um: a.slide_um,
         stage_error_um: a.stage_error_um,
+        slide_tilt_um_per_mm: a.slide_tilt_um_per_mm,
         readout_ms: a.readout_ms,
         drop_frame: a.drop_frame,
         late_ms: a.late_ms,

@@ -56,6 +56,24 @@ pub struct ScanField {
     /// The stage's Z for this field, µm, if a focus was set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub z_um: Option<f64>,
+    /// How the field was focused before it was acquired (a scan with autofocus).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus: Option<FieldFocus>,
+}
+
+/// A field's focus, measured before it was acquired: the shifts between a few
+/// bright-field frames at the focus the stage held
+/// ([`fpm_physics::reconstruct::refocus`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldFocus {
+    /// The defocus the frames showed, µm toward the LEDs.
+    pub measured_um: f64,
+    /// Its 1σ, µm: the shifts' scatter and what a sample's relief reads as defocus
+    /// (a quarter of λ/NA², varying field to field).
+    pub sigma_um: f64,
+    /// Whether the stage moved to take it out (beyond 3σ).
+    pub moved: bool,
 }
 
 impl ScanManifest {
@@ -269,6 +287,7 @@ pub fn simulate(
             dataset: name,
             stage_um: [commanded.0, commanded.1],
             z_um: None,
+            focus: None,
         });
     }
     let manifest = ScanManifest {

@@ -50,6 +50,9 @@ pub struct VirtualCamera {
     pub slide_um: Option<f64>,
     /// The stage's hidden, repeatable XY error: up to this far off, µm.
     pub stage_error_um: f64,
+    /// The slide's surface tilt, µm of height per mm (its direction random): the
+    /// focus a scan must follow.
+    pub slide_tilt_um_per_mm: f64,
     /// Sensor readout time added after each exposure, ms.
     pub readout_ms: f64,
     /// Fault injection: never publish the frame with this number (repeatable).
@@ -322,9 +325,10 @@ impl SlideScene {
             fpm_physics::simulate::SampleKind::Cells,
         );
         let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x0005_11DE);
-        // A slide lies a little tilted: up to 3 µm per mm.
+        // A slide lies a little tilted.
         let angle = rng.gen_range(0.0..std::f64::consts::TAU);
-        let tilt = (3e-3 * angle.cos(), 3e-3 * angle.sin());
+        let t = a.slide_tilt_um_per_mm * 1e-3;
+        let tilt = (t * angle.cos(), t * angle.sin());
         if let Some(dir) = &a.truth_dir {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
             let n = slide.n;
@@ -390,6 +394,7 @@ impl SlideScene {
                 .with_context(|| format!("the stage at ({x:.0}, {y:.0}) µm shows no slide (the virtual slide is {:.0} µm wide)", self.slide.camera as f64 * self.slide.camera_pixel_um))?;
             if let Some(dir) = truth_dir {
                 use std::io::Write;
+                let surface = self.tilt.0 * real.0 + self.tilt.1 * real.1;
                 let mut f = std::fs::OpenOptions::new()
                     .create(true)
                     .append(true)
@@ -397,7 +402,7 @@ impl SlideScene {
                 writeln!(
                     f,
                     "{}",
-                    serde_json::json!({"commanded_um": [x, y], "true_um": [used.0, used.1]})
+                    serde_json::json!({"commanded_um": [x, y], "true_um": [used.0, used.1], "surface_um": surface})
                 )?;
             }
             let renderer = Renderer::new(&field);

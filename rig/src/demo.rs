@@ -253,7 +253,8 @@ fn start_emulator(demo: &Demo, fpm: &Path, rig: &str) -> Result<EmulatorProcess>
         Some(uf2) => options.extend(["--firmware", uf2.as_str()]),
         None => options.extend(["--lanes", lanes.as_str()]),
     }
-    let link = std::env::temp_dir().join(format!("fpm-emulator-{}.tty", std::process::id()));
+    // Named by its rig: rigs side by side in one process get links of their own.
+    let link = std::env::temp_dir().join(format!("fpm-emulator-{rig}.tty"));
     EmulatorProcess::start_at(fpm, &link, &options, std::process::Stdio::null())
 }
 
@@ -397,6 +398,10 @@ pub struct ScanDemo {
     /// Reconstruct each field while the next is acquired (false: all fields after the
     /// scan, one after another; the benchmark's baseline).
     pub reconstruct_while_scanning: bool,
+    /// The slide's tilt, µm per mm (the focus the scan follows).
+    pub tilt_um_per_mm: f64,
+    /// Focus each field before acquiring it.
+    pub autofocus: bool,
 }
 
 impl Default for ScanDemo {
@@ -411,6 +416,8 @@ impl Default for ScanDemo {
             stage_error_um: 10.0,
             leds: None,
             reconstruct_while_scanning: true,
+            tilt_um_per_mm: 3.0,
+            autofocus: true,
         }
     }
 }
@@ -437,7 +444,10 @@ pub fn run_scan(
             demo.size
         );
     }
-    let rig = format!("scan-{}", std::process::id());
+    // One rig per scan, also for scans run side by side in one process.
+    static SCANS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = SCANS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let rig = format!("scan-{}-{n}", std::process::id());
     let out = demo.out.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("fpm-scan-demo-{}", std::process::id()))
     });
@@ -451,11 +461,12 @@ pub fn run_scan(
     let span = |n: usize| field_um * (1.0 + (n as f64 - 1.0) * (1.0 - demo.overlap));
     let slide_um = span(demo.rows.max(demo.cols)) + 2.0 * demo.stage_error_um + 60.0;
     let emulator = start_emulator(&Demo::default(), fpm, &rig)?;
-    let (seed, size, slide, error) = (
+    let (seed, size, slide, error, tilt) = (
         demo.seed.to_string(),
         demo.size.to_string(),
         format!("{slide_um:.0}"),
         demo.stage_error_um.to_string(),
+        demo.tilt_um_per_mm.to_string(),
     );
     let camera = VirtualCameraProcess::start(
         fpm,
@@ -471,6 +482,8 @@ pub fn run_scan(
             &slide,
             "--stage-error-um",
             &error,
+            "--slide-tilt-um-per-mm",
+            &tilt,
         ],
     )?;
     let dev = Controller::open(&emulator.port(), Duration::from_secs(2))?;
@@ -510,6 +523,7 @@ pub fn run_scan(
         job: job.clone(),
         // Stitched below, once the rig's truth is beside the fields to score it.
         stitch: None,
+        autofocus: demo.autofocus,
     };
     let total = demo.rows * demo.cols;
     let started = Instant::now();

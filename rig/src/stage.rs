@@ -16,6 +16,8 @@ pub struct VirtualStage {
     control: StageControl,
     rig: String,
     state: Stage,
+    /// Where the sample's focus is, as a defocus on the bus (0 until a scan refocuses).
+    sample_focus_um: f64,
 }
 
 /// A real motor needs time to settle; the camera reads the stage before its next
@@ -29,6 +31,7 @@ impl VirtualStage {
             control: StageControl::create(rig)?,
             rig: rig.into(),
             state: Stage::default(),
+            sample_focus_um: 0.0,
         })
     }
 
@@ -55,12 +58,16 @@ impl VirtualStage {
 
 impl FocusStage for VirtualStage {
     fn move_to(&mut self, to: StagePosition) -> Result<()> {
-        self.state.defocus_um = to.defocus_um;
-        self.state.slide = match to.slide {
-            Slide::Sample => Stage::SAMPLE,
-            Slide::CalibrationTarget => Stage::CALIBRATION_TARGET,
+        (self.state.defocus_um, self.state.slide) = match to.slide {
+            Slide::Sample => (to.defocus_um + self.sample_focus_um, Stage::SAMPLE),
+            Slide::CalibrationTarget => (to.defocus_um, Stage::CALIBRATION_TARGET),
         };
         self.publish()?;
+        Ok(())
+    }
+
+    fn refocus_sample(&mut self, defocus_um: f64) -> Result<()> {
+        self.sample_focus_um -= defocus_um;
         Ok(())
     }
 

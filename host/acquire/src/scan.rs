@@ -12,7 +12,8 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use fpm_host::reconstruction::{self, GeometryChoice, Job};
 use fpm_host::scan::{
-    field_name, ScanField, ScanManifest, StitchEvent, StitchOptions, StitchReport, FORMAT,
+    field_name, FieldFocus, ScanField, ScanManifest, StitchEvent, StitchOptions, StitchReport,
+    FORMAT,
 };
 use fpm_physics::stitch;
 use fpm_stage::{Stage, Target};
@@ -44,6 +45,9 @@ pub struct ScanPlan {
     /// With `field.reconstruct`: how the fields are joined once all are in (the
     /// mosaic in `OUT/mosaic/`); None leaves them unjoined (`fpm stitch` joins them).
     pub stitch: Option<stitch::Settings>,
+    /// Focus each field before acquiring it ([`focus_field`]; the first with the
+    /// board's geometry, the rest with the scan's calibration).
+    pub autofocus: bool,
 }
 
 impl ScanPlan {
@@ -89,6 +93,7 @@ impl ScanPlan {
                 stage_sigma_um,
                 ..Default::default()
             }),
+            autofocus: true,
         }
     }
 }
@@ -107,6 +112,13 @@ pub enum ScanEvent {
         index: usize,
         total: usize,
         progress: Progress,
+    },
+    /// Field `index` was focused: the defocus its focus frames showed (None: too
+    /// little texture to tell; the focus kept), and whether the stage moved.
+    Focused {
+        index: usize,
+        measured_um: Option<f64>,
+        moved: bool,
     },
     /// Field `index` was acquired before: skipped.
     Skipped { index: usize },
@@ -135,6 +147,78 @@ pub struct ScanSummary {
     /// How the fields were joined: every pair, the placements, the warnings.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stitch: Option<StitchReport>,
+}
+
+/// Focus the field under the objective: at the focus the stage holds, light the
+/// bright-field LEDs nearest the axis (up to 25) one at a time into `dir` (a small
+/// dataset), read the defocus from the shifts between their frames, and when it is
+/// clear (beyond 3σ, σ mostly what a sample's relief adds: a quarter of λ/NA²) move
+/// the sample's focus by it. None when the frames hold too little texture to
+/// tell (blank glass): the focus is kept.
+pub fn focus_field(
+    dev: &Controller,
+    stage: &mut dyn ScanStage,
+    field: &Plan,
+    geometry_file: Option<&Path>,
+    dir: &Path,
+    control: &Control,
+) -> Result<Option<FieldFocus>> {
+    let board = pipeline::board_geometry(dev);
+    let geometry = match geometry_file {
+        Some(path) => fpm_host::calibration::PlacementFile::read(path)?.geometry(&board),
+        None => board,
+    };
+    let system = field.system;
+    let leds: Vec<fpm_physics::LedIndex> = geometry
+        .nearest_first(&geometry.leds(), (0.0, 0.0), &system)
+        .into_iter()
+        .map(|k| geometry.leds()[k])
+        .filter(|&led| geometry.is_bright_field(led, 0.0, 0.0, &system))
+        .take(25)
+        .collect();
+    if leds.len() < 4 {
+        return Ok(None);
+    }
+    if dir.exists() {
+        // An earlier run's focus frames, cut short.
+        std::fs::remove_dir_all(dir).with_context(|| format!("replacing {}", dir.display()))?;
+    }
+    let plan = Plan {
+        out: dir.to_path_buf(),
+        calibrate: false,
+        store_geometry: false,
+        reconstruct: false,
+        snapshot_every: 0,
+        leds: Some(leds),
+        multiplex: fpm_physics::multiplex::Multiplex::ONE,
+        geometry: geometry_file.map(Path::to_path_buf),
+        ..field.clone()
+    };
+    pipeline::acquire(dev, stage, &plan, |_: &Progress| {}, control)?;
+    let ds = fpm_host::dataset::DatasetOnDisk::open(dir)?;
+    let Some(e) = fpm_host::reconstruction::refocus::defocus_on_disk(&ds, &system, &geometry)?
+    else {
+        return Ok(None);
+    };
+    // Only a clear defocus moves the stage: the shifts also read a sample's relief
+    // (oblique light on features whose phase and absorption go together) as defocus,
+    // differently field to field (σ ≈ a quarter of λ/NA², in `sigma_um`).
+    let moved = e.is_clear();
+    if moved {
+        FocusStage::refocus_sample(stage, e.z_um)?;
+        FocusStage::move_to(stage, crate::StagePosition::in_focus(crate::Slide::Sample))?;
+    }
+    tracing::info!(
+        defocus_um = e.z_um,
+        sigma_um = e.sigma_um,
+        moved,
+        "field focus"
+    );
+    Ok(Some(FieldFocus {
+        measured_um: e.z_um,
+        sigma_um: e.sigma_um,
+        moved,
+    }))
 }
 
 /// The reconstruction threads, joined however the scan ends: a scan that stops
@@ -250,7 +334,32 @@ pub fn run(
                 total,
                 at_um: at,
             });
-            let placed = Stage::move_to(stage, Target::xy(at.0, at.1))?;
+            Stage::move_to(stage, Target::xy(at.0, at.1))?;
+            let resume = dir.join("dataset.toml").is_file() || dir.join("journal").exists();
+            // A field cut short keeps the focus its first frames had.
+            let focus = if scan.autofocus && !resume {
+                let geometry = geometry.clone().or_else(|| scan.field.geometry.clone());
+                let focus_dir = out
+                    .join("focus")
+                    .join(field_name(row, col).replace("fields/", ""));
+                let f = focus_field(
+                    dev,
+                    stage,
+                    &scan.field,
+                    geometry.as_deref(),
+                    &focus_dir,
+                    control,
+                )
+                .with_context(|| format!("focusing field {name}"))?;
+                on(ScanEvent::Focused {
+                    index,
+                    measured_um: f.map(|f| f.measured_um),
+                    moved: f.is_some_and(|f| f.moved),
+                });
+                f
+            } else {
+                None
+            };
             let plan = Plan {
                 out: dir.clone(),
                 calibrate: scan.field.calibrate && index == 0,
@@ -267,7 +376,6 @@ pub fn run(
                     progress: *p,
                 })
             };
-            let resume = dir.join("dataset.toml").is_file() || dir.join("journal").exists();
             let _summary = if resume {
                 pipeline::resume(dev, stage, &plan, &mut watch, control)
             } else {
@@ -281,7 +389,9 @@ pub fn run(
                 col,
                 dataset: name.clone(),
                 stage_um: [at.0, at.1],
-                z_um: Some(placed.z_um),
+                // Where the field was acquired (in focus).
+                z_um: Some(Stage::position(stage)?.z_um),
+                focus,
             });
             manifest.write(&out)?;
         }

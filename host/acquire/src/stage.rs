@@ -41,6 +41,14 @@ pub trait FocusStage {
     /// Move to `to` and return once it is there (settled).
     fn move_to(&mut self, to: StagePosition) -> Result<()>;
 
+    /// The sample, at the focus this stage holds, was measured `defocus_um` toward the
+    /// LEDs: take that out of its focus, for the moves after (the next move to the
+    /// sample in focus goes there). A scan refocuses each field so.
+    fn refocus_sample(&mut self, defocus_um: f64) -> Result<()> {
+        let _ = defocus_um;
+        anyhow::bail!("this stage cannot refocus by itself: a scan needs a motorised stage")
+    }
+
     /// This stage as one that also moves over the slide, for a scan (None: it only
     /// focuses, as a person turning the knob does).
     fn as_scan_stage(&mut self) -> Option<&mut dyn crate::scan::ScanStage> {
@@ -152,6 +160,16 @@ impl FocusStage for MotorisedFocus {
         let z = self.z_for(focus_z, to.defocus_um);
         let at = Stage::move_to(&mut *self.stage, Target::z(z))?;
         tracing::info!(defocus_um = to.defocus_um, z_um = at.z_um, "stage");
+        Ok(())
+    }
+
+    fn refocus_sample(&mut self, defocus_um: f64) -> Result<()> {
+        let Some((Slide::Sample, z)) = self.focused else {
+            anyhow::bail!("the sample has not been focused on this stage yet");
+        };
+        let z = self.z_for(z, -defocus_um);
+        tracing::info!(defocus_um, focus_z_um = z, "refocused");
+        self.focused = Some((Slide::Sample, z));
         Ok(())
     }
 

@@ -560,7 +560,9 @@ pub fn register(
         runner_up: m.runner_up,
         overlap_fraction: m.overlap_fraction,
         phase_rad: c.arg(),
-        used: m.score >= s.min_score,
+        // Trusted when strong, or nearly so and clearly the only match (its runner-up
+        // under half of it): a textured overlap seen through two reconstructions' noise.
+        used: m.score >= s.min_score || (m.score >= 0.6 && m.runner_up <= 0.5),
     })
 }
 

@@ -73,6 +73,10 @@ pub struct ScanRequest {
     /// it trusts the stage.
     #[serde(default = "stage_sigma_um")]
     pub stage_sigma_um: f64,
+    /// Focus each field before acquiring it: the defocus read from a few bright-field
+    /// frames, the stage moved when it is clear (default true).
+    #[serde(default = "yes")]
+    pub autofocus: bool,
     /// Each field's acquisition, as an `acquire` job's settings (without `out`, which
     /// is the scan's, and in one colour).
     #[serde(default = "field_acquisition")]
@@ -135,8 +139,10 @@ impl ScanRequest {
             .plan_in(camera, out)
             .map_err(|e| anyhow::anyhow!("acquire.{e:#}"))?;
         let [rows, cols] = self.fields;
-        let plan =
-            fpm_acquire::scan::ScanPlan::new(rows, cols, self.overlap, field, self.stage_sigma_um);
+        let plan = fpm_acquire::scan::ScanPlan {
+            autofocus: self.autofocus,
+            ..fpm_acquire::scan::ScanPlan::new(rows, cols, self.overlap, field, self.stage_sigma_um)
+        };
         plan.validate().map_err(|e| {
             let e = format!("{e:#}");
             let field = if e.starts_with("overlap") {

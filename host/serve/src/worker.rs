@@ -581,6 +581,9 @@ fn scan(
                 work("fields reconstructed", reconstructed, plan.rows * plan.cols)
             }
             ScanEvent::Stitching { done, total } => work("stitching", done, total),
+            ScanEvent::Focused { index, .. } => {
+                work("fields focused", index + 1, plan.rows * plan.cols)
+            }
         },
         control,
     )?;

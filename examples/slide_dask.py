@@ -4,8 +4,12 @@ output directory. Dask does the scheduling; this script only maps fields to it.
 
     python examples/slide_dask.py SLIDE_DIR OUT_ROOT [--workers 2] [--passes 10]
     python examples/slide_dask.py SLIDE_DIR OUT_ROOT --scheduler tcp://HOST:8786
+    python examples/slide_dask.py SCAN_DIR [--upsample 2]; fpm stitch SCAN_DIR
 
-SLIDE_DIR holds one dataset directory per field (each with a dataset.toml). Without
+SLIDE_DIR holds one dataset directory per field (each with a dataset.toml). A scan's
+directory (with scan.json, as `fpm scan` writes it) needs no OUT_ROOT: each field goes
+into its own `reconstruction/`, with the scan's calibration (the field's own, else the
+first field's), where `fpm stitch` reads it back and joins the fields. Without
 --scheduler a local cluster is started, its scheduler, workers and dashboard bound to
 127.0.0.1 only. Fields already done are skipped, and a field is moved into place only
 when complete, so a stopped run resumes (as `fpm reconstruct --out-root` does).
@@ -19,15 +23,16 @@ import time
 from pathlib import Path
 
 
-def reconstruct_field(dataset_dir, out_root, passes, upsample, geometry):
-    """One field, on a worker: skipped when done, else reconstructed and saved."""
+def reconstruct_field(dataset_dir, out, passes, upsample, geometry):
+    """One field into `out`, on a worker: skipped when done, else reconstructed and
+    saved."""
     import fpm
 
     name = Path(dataset_dir).name
-    out = Path(out_root) / name
+    out = Path(out)
     if (out / "report.json").is_file():
         return {"field": name, "status": "skipped"}
-    partial = Path(out_root) / f".{name}.partial"
+    partial = out.parent / f".{out.name}.partial"
     shutil.rmtree(partial, ignore_errors=True)
     began = time.perf_counter()
     try:
@@ -42,19 +47,43 @@ def reconstruct_field(dataset_dir, out_root, passes, upsample, geometry):
     return {"field": name, "status": "done", "seconds": time.perf_counter() - began}
 
 
-def fields_of(slide):
-    """The slide's dataset directories, in name order."""
-    return sorted(p for p in Path(slide).iterdir() if (p / "dataset.toml").is_file())
+def fields_of(slide, out_root):
+    """The slide's fields, each (dataset directory, output directory, calibration or
+    None): a scan's from its scan.json, each into its own reconstruction/ with the
+    scan's calibration; else every dataset directory in name order, each into
+    OUT_ROOT/<name>."""
+    slide = Path(slide)
+    manifest = slide / "scan.json"
+    if manifest.is_file():
+        datasets = [slide / f["dataset"] for f in json.loads(manifest.read_text())["fields"]]
+        first = datasets[0] / "calibration.json" if datasets else None
+
+        def calibration(d):
+            own = d / "calibration.json"
+            if own.is_file():
+                return str(own)
+            return str(first) if first is not None and first.is_file() else None
+
+        return [(d, d / "reconstruction", calibration(d)) for d in datasets]
+    if out_root is None:
+        raise SystemExit(f"{slide}: not a scan (no scan.json); give OUT_ROOT for its fields")
+    return [
+        (p, Path(out_root) / p.name, None)
+        for p in sorted(slide.iterdir())
+        if (p / "dataset.toml").is_file()
+    ]
 
 
-def run(slide, out_root, workers=2, scheduler=None, passes=10, upsample=4, geometry=None):
-    """Reconstruct every field of `slide` into `out_root`; returns a summary dict."""
+def run(slide, out_root=None, workers=2, scheduler=None, passes=10, upsample=4, geometry=None):
+    """Reconstruct every field of `slide` (into `out_root`, or a scan's own
+    reconstruction/ directories); returns a summary dict."""
     from dask.distributed import Client, LocalCluster
 
-    fields = fields_of(slide)
+    fields = fields_of(slide, out_root)
     if not fields:
         raise SystemExit(f"{slide}: no dataset directories (none with a dataset.toml)")
-    Path(out_root).mkdir(parents=True, exist_ok=True)
+    for _, out, _ in fields:
+        out.parent.mkdir(parents=True, exist_ok=True)
     if scheduler:
         cluster = None
         client = Client(scheduler)
@@ -75,15 +104,18 @@ def run(slide, out_root, workers=2, scheduler=None, passes=10, upsample=4, geome
     began = time.perf_counter()
     try:
         addresses = [client.scheduler.address, *client.scheduler_info()["workers"]]
-        futures = client.map(
-            reconstruct_field,
-            [str(f) for f in fields],
-            out_root=str(out_root),
-            passes=passes,
-            upsample=upsample,
-            geometry=geometry,
-            pure=False,
-        )
+        futures = [
+            client.submit(
+                reconstruct_field,
+                str(dataset),
+                str(out),
+                passes=passes,
+                upsample=upsample,
+                geometry=geometry or calibration,
+                pure=False,
+            )
+            for dataset, out, calibration in fields
+        ]
         results = client.gather(futures)
     finally:
         client.close()
@@ -104,13 +136,20 @@ def run(slide, out_root, workers=2, scheduler=None, passes=10, upsample=4, geome
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("slide", help="directory of field datasets")
-    parser.add_argument("out_root", help="one output directory per field goes here")
+    parser.add_argument("slide", help="directory of field datasets, or a scan's directory")
+    parser.add_argument(
+        "out_root",
+        nargs="?",
+        help="one output directory per field goes here (a scan's fields: their own reconstruction/)",
+    )
     parser.add_argument("--workers", type=int, default=2, help="local cluster's worker processes")
     parser.add_argument("--scheduler", help="an existing cluster's scheduler address instead")
     parser.add_argument("--passes", type=int, default=10)
     parser.add_argument("--upsample", type=int, default=4)
-    parser.add_argument("--calibration", help="calibration.json of the rig (default: each dataset's nominal array)")
+    parser.add_argument(
+        "--calibration",
+        help="calibration.json of the rig (default: a scan's own, else each dataset's nominal array)",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = parser.parse_args()
     summary = run(

@@ -736,29 +736,48 @@ pub fn stitch(
 
 /// How a field without a geometry of its own is reconstructed: with the scan's
 /// calibration (its own calibration.json, else the first field's: a scan calibrates
-/// once).
-fn field_job(dir: &Path, manifest: &ScanManifest, field_dir: &Path, job: &Job) -> Job {
-    match &job.geometry {
-        reconstruction::GeometryChoice::Nominal => {
-            let own = field_dir.join("calibration.json");
-            let first = manifest
-                .fields
-                .first()
-                .map(|f| dir.join(&f.dataset).join("calibration.json"));
-            match [Some(own), first]
-                .into_iter()
-                .flatten()
-                .find(|p| p.is_file())
-            {
-                Some(path) => Job {
-                    geometry: reconstruction::GeometryChoice::File(path),
-                    ..job.clone()
-                },
-                None => job.clone(),
-            }
-        }
-        _ => job.clone(),
+/// once), else with the placement it was acquired with when that was the calibration
+/// stored on the controller board (its acquisition.json says so), else as `job` says.
+pub fn field_job(dir: &Path, manifest: &ScanManifest, field_dir: &Path, job: &Job) -> Job {
+    if job.geometry != reconstruction::GeometryChoice::Nominal {
+        return job.clone();
     }
+    let own = field_dir.join("calibration.json");
+    let first = manifest
+        .fields
+        .first()
+        .map(|f| dir.join(&f.dataset).join("calibration.json"));
+    if let Some(path) = [Some(own), first]
+        .into_iter()
+        .flatten()
+        .find(|p| p.is_file())
+    {
+        return Job {
+            geometry: reconstruction::GeometryChoice::File(path),
+            ..job.clone()
+        };
+    }
+    match board_placement(field_dir) {
+        Some(geometry) => Job {
+            geometry: reconstruction::GeometryChoice::Given(
+                geometry,
+                "the controller board's stored calibration (acquisition.json)".into(),
+            ),
+            ..job.clone()
+        },
+        None => job.clone(),
+    }
+}
+
+/// The placement a field was acquired with, if it was the calibration stored on the
+/// controller board (acquisition.json's `geometry` with `geometry_source` "board").
+fn board_placement(field_dir: &Path) -> Option<fpm_physics::LedGeometry> {
+    let text = std::fs::read_to_string(field_dir.join("acquisition.json")).ok()?;
+    let value: serde_json::Value = serde_json::from_str(&text).ok()?;
+    if value["geometry_source"] != "board" {
+        return None;
+    }
+    serde_json::from_value(value["geometry"].clone()).ok()
 }
 
 fn warnings(layout: &Layout, manifest: &ScanManifest, s: &stitch::Settings) -> Vec<String> {
@@ -1020,4 +1039,56 @@ fn seam_steps(
     }
     let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
     (rms(&seams), rms(&within))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_field_acquired_with_the_boards_calibration_is_reconstructed_with_it() {
+        let dir = std::env::temp_dir().join(format!("fpm-scan-field-job-{}", std::process::id()));
+        let field = dir.join("fields/r0c0");
+        std::fs::create_dir_all(&field).unwrap();
+        let board = fpm_physics::LedGeometry {
+            dx_mm: 1.66,
+            theta_deg: -4.6,
+            ..fpm_physics::LedGeometry::paper()
+        };
+        let manifest = ScanManifest {
+            format: FORMAT.into(),
+            rows: 1,
+            cols: 1,
+            overlap: 0.15,
+            fields: vec![ScanField {
+                row: 0,
+                col: 0,
+                dataset: "fields/r0c0".into(),
+                stage_um: [0.0, 0.0],
+                z_um: None,
+                focus: None,
+            }],
+        };
+        let acquired = |source: &str| {
+            let record = serde_json::json!({"geometry": board, "geometry_source": source});
+            std::fs::write(field.join("acquisition.json"), record.to_string()).unwrap();
+            field_job(&dir, &manifest, &field, &Job::default()).geometry
+        };
+        assert!(matches!(
+            acquired("board"),
+            reconstruction::GeometryChoice::Given(g, _) if g == board
+        ));
+        // The controller's nominal array: the dataset's own nominal placement.
+        assert_eq!(
+            acquired("controller"),
+            reconstruction::GeometryChoice::Nominal
+        );
+        // A calibration of the scan's own comes first.
+        std::fs::write(field.join("calibration.json"), "{}").unwrap();
+        assert_eq!(
+            acquired("board"),
+            reconstruction::GeometryChoice::File(field.join("calibration.json"))
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

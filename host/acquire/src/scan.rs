@@ -10,7 +10,7 @@ use std::sync::mpsc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use fpm_host::reconstruction::{self, GeometryChoice, Job};
+use fpm_host::reconstruction::{self, Job};
 use fpm_host::scan::{
     field_name, FieldFocus, ScanField, ScanManifest, StitchEvent, StitchOptions, StitchReport,
     FORMAT,
@@ -406,12 +406,8 @@ pub fn run(
             field_um = Some((w as f64 * pixel, h as f64 * pixel));
         }
         if scan.field.reconstruct && !reconstructed(&dir) {
-            let job = Job {
-                geometry: geometry
-                    .clone()
-                    .map_or(GeometryChoice::Nominal, GeometryChoice::File),
-                ..scan.job.clone()
-            };
+            // The scan's calibration, else the placement the field was acquired with.
+            let job = fpm_host::scan::field_job(&out, &manifest, &dir, &scan.job);
             let tx = done_tx.clone();
             // One field reconstructs while the next is acquired; the next waits for
             // it (two cores: more at once would starve the acquisition).
@@ -457,10 +453,8 @@ pub fn run(
             bail!("the scan was cancelled before its fields were stitched; run it again to stitch them");
         }
         let options = StitchOptions {
-            job: Job {
-                geometry: geometry.map_or(GeometryChoice::Nominal, GeometryChoice::File),
-                ..scan.job.clone()
-            },
+            // Each field's geometry as `field_job` finds it.
+            job: scan.job.clone(),
             settings,
             redo: false,
             field_memory_bytes: fpm_host::scan::FIELD_MEMORY_BYTES,

@@ -179,21 +179,23 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
     let bar = progress::counter("reconstructing", "fields");
     let total = manifest.fields.len();
     let out = a.out.clone().unwrap_or_else(|| a.scan.join("mosaic"));
-    let stitched = scan::stitch(&a.scan, &options, &out, &|e| match e {
-        StitchEvent::Field { done, .. } => progress::advance(&bar, done, total),
-        StitchEvent::Registering { done, total } => {
-            bar.set_message(format!("registering overlap {} of {total}", done + 1))
-        }
-        StitchEvent::Writing { done, total } => {
-            progress::advance(&bar, total, total);
-            bar.set_message(format!("writing row {done} of {total}"));
-        }
-    })?;
+    let (stitched, page) = fpm_report::slide::stitch(
+        &a.scan,
+        &options,
+        &out,
+        &fpm_report::html::command_line(),
+        &mut |e| match e {
+            StitchEvent::Field { done, .. } => progress::advance(&bar, done, total),
+            StitchEvent::Registering { done, total: pairs } => {
+                bar.set_message(format!("registering overlap {} of {pairs}", done + 1))
+            }
+            StitchEvent::Writing { done, total: rows } => {
+                progress::advance(&bar, total, total);
+                bar.set_message(format!("writing row {done} of {rows}"));
+            }
+        },
+    )?;
     bar.finish_and_clear();
-    let page = fpm_report::slide::write_page(&stitched, &out, &fpm_report::html::command_line());
-    if let Err(e) = &page {
-        tracing::warn!("no HTML report: {e:#}");
-    }
     let zarr = &stitched.mosaic;
     let r = &stitched.report;
     if a.json {

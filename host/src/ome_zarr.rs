@@ -176,16 +176,17 @@ fn write_metadata(
 /// at most this big.
 pub const PREVIEW_SIDE: usize = 2048;
 
+/// Rows of one image at one pyramid level: the amplitude (mean |z| of the level
+/// below) and the complex mean.
+type Rows = (Array2<f32>, Array2<Complex32>);
+
 /// One pyramid level being written: its size, the rows not yet written (a chunk row
 /// is written once it is full), and how many chunk rows are out.
 struct Level {
     dim: (usize, usize),
-    /// Per object: amplitude (mean |z| of the level below) and the complex mean, rows
-    /// waiting for a full chunk row.
-    pending: Vec<(Array2<f32>, Array2<Complex32>)>,
+    /// Per image, the rows waiting for a full chunk row.
+    pending: Vec<Rows>,
     chunk_rows_written: usize,
-    /// Every row of this level, kept when it is the preview.
-    kept: Option<Vec<(Array2<f32>, Array2<Complex32>)>>,
 }
 
 /// An OME-Zarr image written a band of rows at a time, its pyramid built as the rows
@@ -203,9 +204,12 @@ pub struct Writer {
     /// the display windows.
     samples: Vec<Vec<f32>>,
     stride: usize,
+    /// With [`Writer::with_preview`]: the preview's level and the first image's rows
+    /// of it so far.
+    preview: Option<(usize, Vec<Rows>)>,
 }
 
-/// The smallest pyramid level at most [`PREVIEW_SIDE`] a side, of the first object.
+/// The smallest pyramid level at most [`PREVIEW_SIDE`] a side, of the first image.
 pub struct Preview {
     pub amplitude: Array2<f32>,
     pub object: Array2<Complex32>,
@@ -245,22 +249,14 @@ impl Writer {
         }
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let k = names.len();
-        let dims = level_dims(dim);
-        let preview = dims
-            .iter()
-            .position(|&(h, w)| h.max(w) <= PREVIEW_SIDE)
-            .unwrap_or(dims.len() - 1);
-        let levels = dims
-            .iter()
-            .enumerate()
-            .map(|(i, &(h, w))| {
-                let empty = || (Array2::zeros((0, w)), Array2::zeros((0, w)));
-                Level {
-                    dim: (h, w),
-                    pending: (0..k).map(|_| empty()).collect(),
-                    chunk_rows_written: 0,
-                    kept: (i == preview).then(|| (0..k).map(|_| empty()).collect()),
-                }
+        let levels = level_dims(dim)
+            .into_iter()
+            .map(|(h, w)| Level {
+                dim: (h, w),
+                pending: (0..k)
+                    .map(|_| (Array2::zeros((0, w)), Array2::zeros((0, w))))
+                    .collect(),
+                chunk_rows_written: 0,
             })
             .collect();
         // At most ~4 M samples per channel for the windows: every pixel of a field.
@@ -274,7 +270,20 @@ impl Writer {
             rows_in: 0,
             samples: vec![Vec::new(); 2 * k],
             stride,
+            preview: None,
         })
+    }
+
+    /// Also keep the first image's smallest pyramid level at most [`PREVIEW_SIDE`] a
+    /// side, for [`Writer::finish`] to return.
+    pub fn with_preview(mut self) -> Self {
+        let level = self
+            .levels
+            .iter()
+            .position(|l| l.dim.0.max(l.dim.1) <= PREVIEW_SIDE)
+            .unwrap_or(self.levels.len() - 1);
+        self.preview = Some((level, Vec::new()));
+        self
     }
 
     /// The next rows of every image (one band per name, each as wide as the image and
@@ -307,21 +316,15 @@ impl Writer {
 
     /// Add rows to level `l`: full chunk rows are written and halved into level l + 1;
     /// `last` flushes what is left (the image's end).
-    fn feed(
-        &mut self,
-        l: usize,
-        rows: Vec<(Array2<f32>, Array2<Complex32>)>,
-        last: bool,
-    ) -> Result<()> {
+    fn feed(&mut self, l: usize, rows: Vec<Rows>, last: bool) -> Result<()> {
         let k = self.names.len();
+        if let (Some((level, kept)), Some((a, c))) = (self.preview.as_mut(), rows.first()) {
+            if *level == l && a.nrows() > 0 {
+                kept.push((a.clone(), c.clone()));
+            }
+        }
         let level = &mut self.levels[l];
         for (i, (a, c)) in rows.into_iter().enumerate() {
-            if let Some(kept) = level.kept.as_mut() {
-                kept[i] = (
-                    stacked(&kept[i].0, a.view())?,
-                    stacked(&kept[i].1, c.view())?,
-                );
-            }
             let p = &mut level.pending[i];
             *p = (stacked(&p.0, a.view())?, stacked(&p.1, c.view())?);
         }
@@ -374,9 +377,9 @@ impl Writer {
         Ok(())
     }
 
-    /// Write what is left and the group's metadata; the preview level of the first
-    /// image.
-    pub fn finish(mut self) -> Result<Preview> {
+    /// Write what is left and the group's metadata; the preview, if it was asked for
+    /// ([`Writer::with_preview`]).
+    pub fn finish(mut self) -> Result<Option<Preview>> {
         let (h, w) = self.levels[0].dim;
         if self.rows_in != h {
             bail!("{}: {} rows of {h} given", self.dir.display(), self.rows_in);
@@ -421,18 +424,22 @@ impl Writer {
             .map(window)
             .collect();
         write_metadata(&self.dir, &self.names, &windows, datasets)?;
-        let (preview_level, kept) = self
-            .levels
-            .iter_mut()
-            .enumerate()
-            .find_map(|(i, l)| l.kept.take().map(|k| (i, k)))
-            .context("no preview level")?;
-        let (amplitude, object) = kept.into_iter().next().context("no image")?;
-        Ok(Preview {
-            amplitude,
-            object,
-            pixel_um: self.pixel_um * (1u64 << preview_level) as f64,
-        })
+        let Some((level, kept)) = self.preview.take() else {
+            return Ok(None);
+        };
+        if kept.is_empty() {
+            bail!(
+                "{}: an image without rows has no preview",
+                self.dir.display()
+            );
+        }
+        let amplitudes: Vec<_> = kept.iter().map(|(a, _)| a.view()).collect();
+        let objects: Vec<_> = kept.iter().map(|(_, c)| c.view()).collect();
+        Ok(Some(Preview {
+            amplitude: ndarray::concatenate(ndarray::Axis(0), &amplitudes)?,
+            object: ndarray::concatenate(ndarray::Axis(0), &objects)?,
+            pixel_um: self.pixel_um * (1u64 << level) as f64,
+        }))
     }
 }
 
@@ -487,7 +494,9 @@ mod tests {
         let base = std::env::temp_dir().join(format!("fpm-zarr-bands-{}", std::process::id()));
         let (once, banded) = (base.join("once.zarr"), base.join("banded.zarr"));
         write_placed(&once, &[("", &object)], 0.5, (10.0, -4.0)).unwrap();
-        let mut writer = Writer::create(&banded, &[""], (h, w), 0.5, (10.0, -4.0)).unwrap();
+        let mut writer = Writer::create(&banded, &[""], (h, w), 0.5, (10.0, -4.0))
+            .unwrap()
+            .with_preview();
         let mut at = 0;
         for rows in [1, 37, 256, 255, 51] {
             writer
@@ -496,7 +505,7 @@ mod tests {
             at += rows;
         }
         assert_eq!(at, h);
-        let preview = writer.finish().unwrap();
+        let preview = writer.finish().unwrap().expect("asked for");
         let (a, b) = (files(&once), files(&banded));
         assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
         assert!(a.keys().any(|k| k.starts_with("2")), "{:?}", a.keys());

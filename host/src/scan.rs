@@ -501,7 +501,7 @@ pub fn stitch(
     dir: &Path,
     options: &StitchOptions,
     out: &Path,
-    on: &(dyn Fn(StitchEvent) + Sync),
+    on: &mut dyn FnMut(StitchEvent),
 ) -> Result<Stitched> {
     let manifest = ScanManifest::read(dir)?;
     let total = manifest.fields.len();
@@ -623,7 +623,8 @@ pub fn stitch(
         (canvas.height, canvas.width),
         pitch,
         canvas.origin_um,
-    )?;
+    )?
+    .with_preview();
     // A simulation's mosaic is scored against its truth: kept whole (they are small).
     let truth = dir.join("truth").join("slide.json").exists();
     let mut whole = truth.then(|| {
@@ -680,7 +681,7 @@ pub fn stitch(
             });
         writer.push(&[object.view()])?;
     }
-    let preview = writer.finish()?;
+    let preview = writer.finish()?.context("the mosaic's preview")?;
     tracing::info!(
         reads = cache.reads,
         kept = cache.capacity,

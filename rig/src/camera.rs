@@ -376,6 +376,11 @@ impl SlideScene {
         (x + r * a.cos(), y + r * a.sin())
     }
 
+    /// The slide's surface height at slide position `at`, µm toward the LEDs.
+    fn surface_at(&self, at: (f64, f64)) -> f64 {
+        self.tilt.0 * at.0 + self.tilt.1 * at.1
+    }
+
     /// The field under the stage told (x, y), its renderer, and the surface height
     /// there (µm toward the LEDs); a new position is logged to `truth_dir/stage.jsonl`.
     fn field_at(
@@ -394,7 +399,7 @@ impl SlideScene {
                 .with_context(|| format!("the stage at ({x:.0}, {y:.0}) µm shows no slide (the virtual slide is {:.0} µm wide)", self.slide.camera as f64 * self.slide.camera_pixel_um))?;
             if let Some(dir) = truth_dir {
                 use std::io::Write;
-                let surface = self.tilt.0 * real.0 + self.tilt.1 * real.1;
+                let surface = self.surface_at(real);
                 let mut f = std::fs::OpenOptions::new()
                     .create(true)
                     .append(true)
@@ -408,8 +413,7 @@ impl SlideScene {
             let renderer = Renderer::new(&field);
             self.current = Some((key, field, renderer));
         }
-        let real = self.true_position(x, y);
-        let surface = self.tilt.0 * real.0 + self.tilt.1 * real.1;
+        let surface = self.surface_at(self.true_position(x, y));
         let (_, field, renderer) = self.current.as_mut().context("the field just made")?;
         Ok((field, renderer, surface))
     }

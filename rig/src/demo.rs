@@ -554,13 +554,10 @@ pub fn run_scan(
     let truth_started = Instant::now();
     write_scan_truth(&out, &camera_truth)?;
     let truth_took = truth_started.elapsed();
-    let mosaic = out.join("mosaic");
-    let stitched = fpm_host::scan::stitch(&out, &options, &mosaic, &|_| {})?;
-    let seconds = (started.elapsed() - truth_took).as_secs_f64();
     let reproduce = format!("fpm stitch {}", out.display());
-    if let Err(e) = fpm_report::slide::write_page(&stitched, &mosaic, &reproduce) {
-        tracing::warn!("no HTML report for the mosaic: {e:#}");
-    }
+    let (stitched, _page) =
+        fpm_report::slide::stitch(&out, &options, &out.join("mosaic"), &reproduce, &mut |_| {})?;
+    let seconds = (started.elapsed() - truth_took).as_secs_f64();
     Ok(ScanDemoReport {
         out,
         scan: summary,

@@ -54,7 +54,11 @@ impl ScanPlan {
     /// Check the grid and overlap (the field's plan is checked when it runs).
     pub fn validate(&self) -> Result<()> {
         if self.rows == 0 || self.cols == 0 || self.rows * self.cols > 10_000 {
-            bail!("a {}×{} scan: give 1–10000 fields", self.rows, self.cols);
+            bail!(
+                "fields {}×{}: give 1–10000 fields in all",
+                self.rows,
+                self.cols
+            );
         }
         if !(0.0..0.9).contains(&self.overlap) {
             bail!("overlap {}: give a fraction 0–0.9", self.overlap);
@@ -62,7 +66,7 @@ impl ScanPlan {
         if let Some(s) = &self.stitch {
             if !(s.stage_sigma_um.is_finite() && s.stage_sigma_um > 0.0) {
                 bail!(
-                    "stage sigma {} µm: give the stage's position error, above 0",
+                    "stage_sigma_um {}: give the stage's position error, above 0",
                     s.stage_sigma_um
                 );
             }
@@ -169,10 +173,11 @@ pub fn focus_field(
         None => board,
     };
     let system = field.system;
+    let all = geometry.leds();
     let leds: Vec<fpm_physics::LedIndex> = geometry
-        .nearest_first(&geometry.leds(), (0.0, 0.0), &system)
+        .nearest_first(&all, (0.0, 0.0), &system)
         .into_iter()
-        .map(|k| geometry.leds()[k])
+        .map(|k| all[k])
         .filter(|&led| geometry.is_bright_field(led, 0.0, 0.0, &system))
         .take(25)
         .collect();
@@ -339,9 +344,10 @@ pub fn run(
             // A field cut short keeps the focus its first frames had.
             let focus = if scan.autofocus && !resume {
                 let geometry = geometry.clone().or_else(|| scan.field.geometry.clone());
+                // `focus/r<row>c<col>`, beside `fields/r<row>c<col>`.
                 let focus_dir = out
                     .join("focus")
-                    .join(field_name(row, col).replace("fields/", ""));
+                    .join(Path::new(&name).file_name().context("a field's name")?);
                 let f = focus_field(
                     dev,
                     stage,
@@ -459,17 +465,9 @@ pub fn run(
             redo: false,
             field_memory_bytes: fpm_host::scan::FIELD_MEMORY_BYTES,
         };
-        // `stitch` reports from threads (Sync); the scan's reporter is not.
-        let (tx, rx) = mpsc::channel();
-        let mosaic = out.join("mosaic");
-        let stitched = std::thread::scope(|s| {
-            let joined = s.spawn(|| {
-                let tx = std::sync::Mutex::new(tx);
-                fpm_host::scan::stitch(&out, &options, &mosaic, &|e| {
-                    let _ = tx.lock().map(|t| t.send(e));
-                })
-            });
-            for e in rx {
+        let reproduce = format!("fpm stitch {}", out.display());
+        let (stitched, _page) =
+            fpm_report::slide::stitch(&out, &options, &out.join("mosaic"), &reproduce, &mut |e| {
                 match e {
                     StitchEvent::Field { done, total, .. } => {
                         on(ScanEvent::Stitching { done, total })
@@ -479,15 +477,8 @@ pub fn run(
                     }
                     _ => {}
                 }
-            }
-            joined.join()
-        })
-        .map_err(|_| anyhow::anyhow!("stitching the scan panicked"))?
-        .context("stitching the fields")?;
-        let reproduce = format!("fpm stitch {}", out.display());
-        if let Err(e) = fpm_report::slide::write_page(&stitched, &mosaic, &reproduce) {
-            tracing::warn!("no HTML report for the mosaic: {e:#}");
-        }
+            })
+            .context("stitching the fields")?;
         summary.mosaic = Some(stitched.mosaic);
         summary.stitch = Some(stitched.report);
     }

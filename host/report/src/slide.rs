@@ -5,9 +5,27 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use fpm_host::scan::Stitched;
+use fpm_host::scan::{StitchEvent, StitchOptions, Stitched};
 
 use crate::html::{Page, Row};
+
+/// Join the scan in `dir` into `out` ([`fpm_host::scan::stitch`]) for people: the
+/// mosaic, stitch.json, and [`write_page`] beside them. The page is an extra: its error
+/// is returned beside, never fails the stitch.
+pub fn stitch(
+    dir: &Path,
+    options: &StitchOptions,
+    out: &Path,
+    reproduce: &str,
+    on: &mut dyn FnMut(StitchEvent),
+) -> Result<(Stitched, Result<PathBuf>)> {
+    let stitched = fpm_host::scan::stitch(dir, options, out, on)?;
+    let page = write_page(&stitched, out, reproduce);
+    if let Err(e) = &page {
+        tracing::warn!("no HTML report for the mosaic: {e:#}");
+    }
+    Ok((stitched, page))
+}
 
 /// Write the mosaic's previews (`amplitude.png`, `phase.png`, from its smallest
 /// pyramid level of at most 2048 px a side) and `report.html` into `out` (beside

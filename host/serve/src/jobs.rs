@@ -143,17 +143,8 @@ impl ScanRequest {
             autofocus: self.autofocus,
             ..fpm_acquire::scan::ScanPlan::new(rows, cols, self.overlap, field, self.stage_sigma_um)
         };
-        plan.validate().map_err(|e| {
-            let e = format!("{e:#}");
-            let field = if e.starts_with("overlap") {
-                ""
-            } else if e.starts_with("stage sigma") {
-                "stage_sigma_um: "
-            } else {
-                "fields: "
-            };
-            anyhow::anyhow!("{field}{e}")
-        })?;
+        // Its messages name the request's fields (`fields`, `overlap`, `stage_sigma_um`).
+        plan.validate()?;
         Ok(plan)
     }
 }

@@ -45,11 +45,18 @@ pub struct ReconstructArgs {
     /// With --out-root: reconstruct the datasets already done again.
     #[arg(long, requires = "out_root")]
     redo: bool,
-    /// LED array placement instead of the dataset's nominal one: the calibration.json of
-    /// `fpm calibrate`, or a JSON file with just dx_mm, dy_mm, theta_deg and height_mm
-    /// (an array measured by other means; the grid then comes from the dataset).
+    /// LED array placement to reconstruct with: the calibration.json of `fpm
+    /// calibrate`, or a JSON file with just dx_mm, dy_mm, theta_deg and height_mm (an
+    /// array measured by other means; the grid then comes from the dataset). Without
+    /// it, a dataset is reconstructed with the placement it was acquired with where its
+    /// acquisition.json records one (the calibration made then, or the one stored on
+    /// the board), else with its nominal placement (dataset.toml).
     #[arg(long)]
     calibration: Option<PathBuf>,
+    /// The dataset's nominal placement (dataset.toml), even where acquisition.json
+    /// records a calibrated one: to compare the two.
+    #[arg(long, conflicts_with_all = ["calibration", "led_height_mm"])]
+    nominal_geometry: bool,
     /// The LEDs' height below the sample, mm, instead of the dataset's (the rest of the
     /// nominal placement kept): for a height misreported or measured to another plane.
     /// When the bright/dark-field edge of the frames disagrees with the dataset's
@@ -265,7 +272,8 @@ impl ReconstructArgs {
             geometry: match (&self.calibration, self.led_height_mm) {
                 (Some(path), _) => GeometryChoice::File(path.clone()),
                 (None, Some(h)) => GeometryChoice::LedHeightMm(h),
-                (None, None) => GeometryChoice::Nominal,
+                (None, None) if self.nominal_geometry => GeometryChoice::Nominal,
+                (None, None) => GeometryChoice::AsAcquired,
             },
             entrance_pupil_mm: self.entrance_pupil_mm,
             camera_gamma: self.camera_gamma,

@@ -107,6 +107,67 @@ pub fn serialize_short<S: serde::Serializer>(g: &GeometrySource, s: S) -> Result
     s.serialize_str(&g.short_name())
 }
 
+/// The geometry the dataset in `dir` was acquired with, where its `acquisition.json`
+/// records a measured one (`geometry_source` "calibration.json": the calibration made
+/// then, beside it; "board": the one stored on the controller; else a placement file's
+/// path) with the `geometry` it used; a file still there is read as `--calibration`
+/// reads it, on the dataset's `nominal` grid. None where it records the nominal array, or there
+/// is no record (a simulated or imported dataset): the dataset's nominal placement
+/// applies. A record that names a measured geometry but cannot be read is an error, not
+/// a silent fall back to the nominal array.
+pub fn as_acquired(
+    dir: &Path,
+    nominal: &LedGeometry,
+) -> Result<Option<(LedGeometry, GeometrySource)>> {
+    let path = dir.join("acquisition.json");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(None);
+    };
+    let record: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    let source = match record.get("geometry_source") {
+        None => return Ok(None),
+        Some(serde_json::Value::String(s)) if s == "nominal" => return Ok(None),
+        Some(serde_json::Value::String(s)) => s.clone(),
+        Some(other) => bail!(
+            "{}: geometry_source {other}: expected \"nominal\", \"board\", \"calibration.json\" or a placement file's path",
+            path.display()
+        ),
+    };
+    let geometry = || -> Result<LedGeometry> {
+        let value = record.get("geometry").cloned().with_context(|| {
+            format!(
+                "{}: geometry_source {source:?} but no geometry: give the placement with --calibration, or --nominal-geometry",
+                path.display()
+            )
+        })?;
+        serde_json::from_value(value).with_context(|| {
+            format!(
+                "{}: geometry is not an LED geometry: give the placement with --calibration, or --nominal-geometry",
+                path.display()
+            )
+        })
+    };
+    let beside = dir.join("calibration.json");
+    Ok(Some(match source.as_str() {
+        "board" => (geometry()?, GeometrySource::Board),
+        "calibration.json" if beside.is_file() => (
+            PlacementFile::read(&beside)?.geometry(nominal),
+            GeometrySource::File(beside),
+        ),
+        file if Path::new(file).is_file() => (
+            PlacementFile::read(Path::new(file))?.geometry(nominal),
+            GeometrySource::File(file.into()),
+        ),
+        gone => (
+            geometry()?,
+            GeometrySource::Given(format!(
+                "as acquired (acquisition.json; its {gone} is no longer there)"
+            )),
+        ),
+    }))
+}
+
 /// The four numbers that place an LED array (docs/dataset.md, "calibration.json").
 pub const GEOMETRY_KEYS: [&str; 4] = ["dx_mm", "dy_mm", "theta_deg", "height_mm"];
 

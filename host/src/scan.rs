@@ -737,10 +737,10 @@ pub fn stitch(
 
 /// How a field without a geometry of its own is reconstructed: with the scan's
 /// calibration (its own calibration.json, else the first field's: a scan calibrates
-/// once), else with the placement it was acquired with when that was the calibration
-/// stored on the controller board (its acquisition.json says so), else as `job` says.
+/// once), else as `job` says (by default, as the field was acquired: the calibration
+/// stored on the controller board when its acquisition.json says so).
 pub fn field_job(dir: &Path, manifest: &ScanManifest, field_dir: &Path, job: &Job) -> Job {
-    if job.geometry != reconstruction::GeometryChoice::Nominal {
+    if job.geometry != reconstruction::GeometryChoice::AsAcquired {
         return job.clone();
     }
     let own = field_dir.join("calibration.json");
@@ -748,37 +748,17 @@ pub fn field_job(dir: &Path, manifest: &ScanManifest, field_dir: &Path, job: &Jo
         .fields
         .first()
         .map(|f| dir.join(&f.dataset).join("calibration.json"));
-    if let Some(path) = [Some(own), first]
+    match [Some(own), first]
         .into_iter()
         .flatten()
         .find(|p| p.is_file())
     {
-        return Job {
+        Some(path) => Job {
             geometry: reconstruction::GeometryChoice::File(path),
-            ..job.clone()
-        };
-    }
-    match board_placement(field_dir) {
-        Some(geometry) => Job {
-            geometry: reconstruction::GeometryChoice::Given(
-                geometry,
-                "the controller board's stored calibration (acquisition.json)".into(),
-            ),
             ..job.clone()
         },
         None => job.clone(),
     }
-}
-
-/// The placement a field was acquired with, if it was the calibration stored on the
-/// controller board (acquisition.json's `geometry` with `geometry_source` "board").
-fn board_placement(field_dir: &Path) -> Option<fpm_physics::LedGeometry> {
-    let text = std::fs::read_to_string(field_dir.join("acquisition.json")).ok()?;
-    let value: serde_json::Value = serde_json::from_str(&text).ok()?;
-    if value["geometry_source"] != "board" {
-        return None;
-    }
-    serde_json::from_value(value["geometry"].clone()).ok()
 }
 
 fn warnings(layout: &Layout, manifest: &ScanManifest, s: &stitch::Settings) -> Vec<String> {
@@ -1070,19 +1050,36 @@ mod tests {
                 focus: None,
             }],
         };
+        let nominal = fpm_physics::LedGeometry::paper();
         let acquired = |source: &str| {
             let record = serde_json::json!({"geometry": board, "geometry_source": source});
             std::fs::write(field.join("acquisition.json"), record.to_string()).unwrap();
             field_job(&dir, &manifest, &field, &Job::default()).geometry
         };
-        assert!(matches!(
-            acquired("board"),
-            reconstruction::GeometryChoice::Given(g, _) if g == board
-        ));
+        let resolved =
+            |choice: reconstruction::GeometryChoice| choice.resolve(&field, &nominal).unwrap();
+        assert_eq!(
+            resolved(acquired("board")),
+            (board, crate::calibration::GeometrySource::Board)
+        );
         // The controller's nominal array: the dataset's own nominal placement.
         assert_eq!(
-            acquired("controller"),
-            reconstruction::GeometryChoice::Nominal
+            resolved(acquired("nominal")),
+            (nominal, crate::calibration::GeometrySource::Dataset)
+        );
+        // A record that names a measured geometry without it is refused, naming it.
+        std::fs::write(
+            field.join("acquisition.json"),
+            r#"{"geometry_source": "board"}"#,
+        )
+        .unwrap();
+        let err = reconstruction::GeometryChoice::AsAcquired
+            .resolve(&field, &nominal)
+            .unwrap_err();
+        assert!(
+            format!("{err:#}")
+                .contains("acquisition.json: geometry_source \"board\" but no geometry"),
+            "{err:#}"
         );
         // A calibration of the scan's own comes first.
         std::fs::write(field.join("calibration.json"), "{}").unwrap();

@@ -120,7 +120,7 @@ fn geometry_from(
     nominal: &LedGeometry,
 ) -> PyResult<GeometryChoice> {
     let Some(given) = given.filter(|g| !g.is_none()) else {
-        return Ok(GeometryChoice::Nominal);
+        return Ok(GeometryChoice::AsAcquired);
     };
     if let Ok(c) = given.cast::<Calibration>() {
         return Ok(GeometryChoice::Given(

@@ -123,6 +123,31 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
             "{key}: {got} used, {value} stored"
         );
     }
+
+    // Reconstructed later with no flags, the dataset keeps the placement it was
+    // acquired with (acquisition.json), not dataset.toml's nominal array; asked for,
+    // the nominal one is used and named.
+    let reconstructed = |extra: &[&str]| {
+        let result = dir.0.join(format!("reconstruction{}", extra.len()));
+        let mut args = vec!["reconstruct", out.to_str().unwrap(), "--passes", "1"];
+        args.extend(["--out", result.to_str().unwrap()]);
+        args.extend(extra);
+        fpm_tests::fpm_stdout(&args);
+        let text = std::fs::read_to_string(result.join("report.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&text).unwrap()
+    };
+    let checks = |report: &serde_json::Value| -> Vec<String> {
+        let warnings = report["warnings"].as_array().unwrap();
+        warnings.iter().map(|w| w["check"].to_string()).collect()
+    };
+    let as_acquired = reconstructed(&[]);
+    assert_eq!(as_acquired["geometry_source"], "stored on the board");
+    assert_eq!(as_acquired["geometry"], report["geometry"]);
+    assert!(!checks(&as_acquired).contains(&r#""nominal-geometry""#.to_string()));
+    let nominal = reconstructed(&["--nominal-geometry"]);
+    assert_eq!(nominal["geometry_source"], "nominal (dataset.toml)");
+    assert_eq!(nominal["geometry"], report["nominal"]);
+    assert!(checks(&nominal).contains(&r#""nominal-geometry""#.to_string()));
 }
 
 /// The camera dies mid-sequence. Its frames cover the first part of the run: by

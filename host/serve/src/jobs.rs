@@ -663,7 +663,7 @@ impl ReconstructRequest {
                 GeometryChoice::File(path.clone())
             }
             (None, Some(h)) => GeometryChoice::LedHeightMm(h),
-            (None, None) => GeometryChoice::Nominal,
+            (None, None) => GeometryChoice::AsAcquired,
         };
         let defaults = Job::default();
         let job = Job {

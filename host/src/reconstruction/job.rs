@@ -20,7 +20,12 @@ use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 /// Which LED geometry the job reconstructs with.
 #[derive(Debug, Clone, PartialEq)]
 pub enum GeometryChoice {
-    /// The dataset's nominal placement.
+    /// What the dataset was acquired with, where its acquisition.json records a
+    /// measured placement (the calibration made then, or the one stored on the board:
+    /// [`crate::calibration::as_acquired`]), else its nominal placement: the default,
+    /// so a dataset acquired calibrated is reconstructed calibrated without flags.
+    AsAcquired,
+    /// The dataset's nominal placement (dataset.toml), whatever it was acquired with.
     Nominal,
     /// A calibration.json, refined-board.json or placement file.
     File(PathBuf),
@@ -31,9 +36,16 @@ pub enum GeometryChoice {
 }
 
 impl GeometryChoice {
-    /// The geometry and its source, for a dataset whose nominal geometry is `nominal`.
-    pub fn resolve(&self, nominal: &LedGeometry) -> Result<(LedGeometry, GeometrySource)> {
+    /// The geometry and its source, for the dataset in `dir` whose nominal geometry is
+    /// `nominal`.
+    pub fn resolve(
+        &self,
+        dir: &Path,
+        nominal: &LedGeometry,
+    ) -> Result<(LedGeometry, GeometrySource)> {
         Ok(match self {
+            Self::AsAcquired => crate::calibration::as_acquired(dir, nominal)?
+                .unwrap_or((*nominal, GeometrySource::Dataset)),
             Self::Nominal => (*nominal, GeometrySource::Dataset),
             Self::File(path) => (
                 PlacementFile::read(path)?.geometry(nominal),
@@ -115,7 +127,7 @@ pub struct Job {
 impl Default for Job {
     fn default() -> Self {
         Self {
-            geometry: GeometryChoice::Nominal,
+            geometry: GeometryChoice::AsAcquired,
             entrance_pupil_mm: None,
             camera_gamma: None,
             settings: Settings::default(),
@@ -217,7 +229,7 @@ impl Job {
         let mut on_disk = DatasetOnDisk::open(dir)?;
         on_disk.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
         let nominal = on_disk.manifest.geometry();
-        let (geometry, source) = self.geometry.resolve(&nominal)?;
+        let (geometry, source) = self.geometry.resolve(dir, &nominal)?;
         let reason = match self.camera_gamma {
             Some(CameraGamma::Exponent(gamma)) => {
                 // γ = 1 is linear: nothing to decode, so no full scale needed.
@@ -265,7 +277,7 @@ impl Job {
             }
         };
         let r = reconstruct_at(&geometry, &source)?;
-        let mut r = self.with_edge_height_weighed(r, &geometry, |at_edge, source| {
+        let mut r = self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
             on(JobEvent::WeighingEdgeHeight {
                 stated_mm: geometry.height_mm,
                 edge_mm: at_edge.height_mm,
@@ -287,15 +299,15 @@ impl Job {
     /// `r`, the run with `geometry`, or the run at the bright/dark-field edge's height
     /// (made by `reconstruct_at`) if the frames fit that clearly better, the weighing
     /// in the report ([`height`]). Weighed only for the dataset's own nominal geometry
-    /// (a calibration, a file or a height given is the user's word), and where the two
-    /// heights are [`height::WEIGH_SIGMA`] apart.
+    /// (a calibration, recorded or given, a file or a height given is the user's word),
+    /// and where the two heights are [`height::WEIGH_SIGMA`] apart.
     fn with_edge_height_weighed(
         &self,
         r: Reconstruction,
-        geometry: &LedGeometry,
+        (geometry, source): (&LedGeometry, &GeometrySource),
         reconstruct_at: impl FnOnce(&LedGeometry, &GeometrySource) -> Result<Reconstruction>,
     ) -> Result<Reconstruction> {
-        let edge = (self.geometry == GeometryChoice::Nominal)
+        let edge = (*source == GeometrySource::Dataset)
             .then_some(r.report.height_from_boundary)
             .flatten()
             .filter(height::worth_weighing);
@@ -334,9 +346,9 @@ impl Job {
             entrance_pupil_mm: self.entrance_pupil_mm,
             ..ds.manifest.system()
         };
-        let (geometry, source) = self.geometry.resolve(&ds.manifest.geometry())?;
+        let (geometry, source) = self.geometry.resolve(&ds.dir, &ds.manifest.geometry())?;
         let r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
-        let mut r = self.with_edge_height_weighed(r, &geometry, |at_edge, source| {
+        let mut r = self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
             self.reconstruct_loaded(ds, &system, (at_edge, source), progress)
         })?;
         score(ds, &mut r);

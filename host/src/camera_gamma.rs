@@ -12,14 +12,16 @@ use rayon::prelude::*;
 use crate::dataset::{DatasetOnDisk, Pixels};
 
 /// Scan the in-focus frames of `ds` through `system` and `geometry` for the gamma
-/// that explains them best (`progress(done, total)` counts candidates). The full
-/// scale is the dataset's bit depth, else the frames' sample type's.
+/// that explains them best (`progress(done, total)` counts candidates; `screened`: see
+/// [`gamma::scan`]). The full scale is the dataset's bit depth, else the frames'
+/// sample type's.
 pub fn scan(
     ds: &DatasetOnDisk,
     system: &System,
     geometry: &LedGeometry,
     settings: Settings,
     passes: usize,
+    screened: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<GammaScan> {
     let context = || format!("reading the camera gamma of {}", ds.dir.display());
@@ -68,6 +70,7 @@ pub fn scan(
         },
         settings,
         passes,
+        screened,
         progress,
     )
     .with_context(context)

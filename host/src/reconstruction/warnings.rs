@@ -173,10 +173,14 @@ pub fn checks(report: &Report) -> Vec<Warning> {
     if let (Some(scan), Some(gamma), false) =
         (&report.camera_gamma_scan, report.camera_gamma, asked)
     {
+        let frames = match report.camera_gamma_scan_reason {
+            Some(GammaScanReason::Unstated) => "integer",
+            _ => "8-bit",
+        };
         out.push(
             Check::GammaRead,
             format!(
-                "the 8-bit frames read as saved for viewing with a display gamma: decoded with {gamma:.2} (their error within {:.0} % of its least for gamma {:.1}-{:.1}, and clearly above it as linear); if the camera saved raw counts, give --camera-gamma 1, or state [camera] gamma in dataset.toml",
+                "the {frames} frames read as saved for viewing with a display gamma: decoded with {gamma:.2} (their error within {:.0} % of its least for gamma {:.1}-{:.1}, and clearly above it as linear); if the camera saved raw counts, give --camera-gamma 1, or state [camera] gamma in dataset.toml",
                 100.0 * fpm_physics::reconstruct::gamma::FLAT_WITHIN,
                 scan.range.0,
                 scan.range.1

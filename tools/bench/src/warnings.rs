@@ -199,6 +199,8 @@ pub struct Scored {
     pub boundary: Option<BoundaryCheck>,
     /// The edge's height weighed against the dataset's, where they were apart.
     pub height_choice: Option<HeightChoice>,
+    /// The frames' error after the last pass.
+    pub final_error: Option<f64>,
 }
 
 /// Simulate `case` into `dir` and reconstruct it as a user would.
@@ -277,6 +279,7 @@ pub fn run_case(case: &Case, dir: &Path) -> Result<Scored> {
         bright_field_fit: report.bright_field_fit,
         boundary: report.height_from_boundary,
         height_choice: report.height_choice,
+        final_error: report.error_per_pass.last().copied(),
     })
 }
 

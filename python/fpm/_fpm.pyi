@@ -274,6 +274,10 @@ def reconstruct(
     `dataset` may be a directory; a colour dataset's gives a ColorResult (`geometry`:
     the path of its colour calibration.json).
 
+    `geometry` None: the placement the dataset was acquired with where its
+    acquisition.json records one (a calibration made then, or the one stored on the
+    board), else its nominal placement (the report's `geometry_source` says which).
+
     `entrance_pupil_mm`: the objective's entrance pupil distance above the sample, for
     objectives that are not telecentric (default: telecentric). `refocus_um`: how far
     the sample sat from focus when the frames were taken, µm (toward the LEDs

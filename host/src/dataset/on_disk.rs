@@ -106,15 +106,17 @@ impl DatasetOnDisk {
             rows.clone()
         };
         let file = self.dir.join(&entry.file);
-        match image_io::read_rows(&file, file_rows).map_err(|e| bad(e.reason()))? {
-            Some((pixels, whole)) if whole == (h, w) => {
+        match image_io::read_rows(&file, file_rows) {
+            Ok(Some((pixels, whole))) if whole == (h, w) => {
                 Ok(cut(pixels, 0..rows.len(), camera.flip_x, camera.flip_y))
             }
-            Some((_, whole)) => Err(bad(format!(
+            Ok(Some((_, whole))) => Err(bad(format!(
                 "size {}x{} differs from frame 0 ({w}x{h})",
                 whole.1, whole.0
             ))),
-            None => Ok(cut(self.frame(k)?, rows, false, false)),
+            // A file whose rows cannot be read (shorter than frame 0, a damaged strip)
+            // is read whole, which names what is wrong with it as a whole read would.
+            Ok(None) | Err(_) => Ok(cut(self.frame(k)?, rows, false, false)),
         }
     }
 

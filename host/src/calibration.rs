@@ -109,12 +109,12 @@ pub fn serialize_short<S: serde::Serializer>(g: &GeometrySource, s: S) -> Result
 
 /// The geometry the dataset in `dir` was acquired with, where its `acquisition.json`
 /// records a measured one (`geometry_source` "calibration.json": the calibration made
-/// then, beside it; "board": the one stored on the controller; else a placement file's
-/// path) with the `geometry` it used; a file still there is read as `--calibration`
-/// reads it, on the dataset's `nominal` grid. None where it records the nominal array, or there
-/// is no record (a simulated or imported dataset): the dataset's nominal placement
-/// applies. A record that names a measured geometry but cannot be read is an error, not
-/// a silent fall back to the nominal array.
+/// then, beside the dataset, read as `--calibration` reads it on the `nominal` grid;
+/// "board": the one stored on the controller; else the path of the placement file it
+/// was given) with the `geometry` it used. None where it records the nominal array, or
+/// there is no record (a simulated or imported dataset): the dataset's nominal
+/// placement applies. A record that names a measured geometry but cannot give it is an
+/// error, not a silent fall back to the nominal array.
 pub fn as_acquired(
     dir: &Path,
     nominal: &LedGeometry,
@@ -155,15 +155,18 @@ pub fn as_acquired(
             PlacementFile::read(&beside)?.geometry(nominal),
             GeometrySource::File(beside),
         ),
-        file if Path::new(file).is_file() => (
-            PlacementFile::read(Path::new(file))?.geometry(nominal),
-            GeometrySource::File(file.into()),
-        ),
-        gone => (
+        // A placement file's path may be relative to wherever the acquisition ran: the
+        // geometry recorded is what it gave.
+        "calibration.json" => (
             geometry()?,
-            GeometrySource::Given(format!(
-                "as acquired (acquisition.json; its {gone} is no longer there)"
-            )),
+            GeometrySource::Given(
+                "as acquired (acquisition.json; its calibration.json is no longer beside it)"
+                    .into(),
+            ),
+        ),
+        file => (
+            geometry()?,
+            GeometrySource::Given(format!("as acquired with {file} (acquisition.json)")),
         ),
     }))
 }

@@ -1067,6 +1067,13 @@ mod tests {
             resolved(acquired("nominal")),
             (nominal, crate::calibration::GeometrySource::Dataset)
         );
+        // A placement file it was given: the geometry recorded, wherever the path points.
+        let (geometry, source) = resolved(acquired("placement.json"));
+        assert_eq!(geometry, board);
+        assert_eq!(
+            source.to_string(),
+            "as acquired with placement.json (acquisition.json)"
+        );
         // A record that names a measured geometry without it is refused, naming it.
         std::fs::write(
             field.join("acquisition.json"),

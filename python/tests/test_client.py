@@ -45,7 +45,9 @@ def test_a_reconstruct_job_makes_what_fpm_reconstruct_makes(service, fpm_cli, tm
     for event in events:
         if event.get("job") != job:
             continue
-        if event["event"] == "work":
+        # The frame updates' count (frames of more than 8 bits stating no gamma are
+        # first screened for one: "camera gamma candidates", counted on their own).
+        if event["event"] == "work" and event["what"] == "frame updates":
             work.append((event["done"], event["total"]))
         elif event["event"] == "state" and event["state"] in fpm.client.FINAL_STATES:
             assert event["state"] == "done", service.job(job)

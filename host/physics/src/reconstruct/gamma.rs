@@ -199,7 +199,9 @@ pub fn scan(
         background: settings.background.for_comparing_errors(),
         ..settings
     };
-    let total = COARSE.len() + 4;
+    // A screen counts its own two candidates; a full scan (after one, too) all ten.
+    let full = COARSE.len() + 4;
+    let total = std::sync::atomic::AtomicUsize::new(if screened { SCREEN.len() } else { full });
     let done = std::sync::atomic::AtomicUsize::new(0);
     let run_for = |gamma: f64, passes: usize| -> Result<GammaCandidate, TiledError> {
         let frames = decoded(&square, gamma, full_scale, dark_counts);
@@ -213,7 +215,7 @@ pub fn scan(
             &|_, _| {},
         )?;
         let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(n, total);
+        progress(n, total.load(std::sync::atomic::Ordering::Relaxed).max(n));
         Ok(GammaCandidate {
             gamma,
             error: outcome
@@ -233,9 +235,9 @@ pub fn scan(
             .map(|&g| run_for(g, passes))
             .collect::<Result<_, _>>()?;
         if screen[1].error >= screen[0].error * (1.0 - FLAT_WITHIN) {
-            progress(total, total);
             return Ok(conclude(screen, side, passes));
         }
+        total.fetch_add(full, std::sync::atomic::Ordering::Relaxed);
     }
     let mut candidates: Vec<GammaCandidate> = COARSE
         .par_iter()
@@ -253,6 +255,7 @@ pub fn scan(
             .map(|&g| run(g))
             .collect::<Result<Vec<_>, _>>()?,
     );
+    let total = total.load(std::sync::atomic::Ordering::Relaxed);
     progress(total, total);
     candidates.sort_by(|a, b| a.gamma.total_cmp(&b.gamma));
     Ok(conclude(candidates, side, passes))

@@ -63,6 +63,12 @@ pub struct VirtualCameraArgs {
     /// focus a scan must follow).
     #[arg(long, default_value_t = 3.0)]
     pub slide_tilt_um_per_mm: f64,
+    /// Encode the frames for display with this gamma (e.g. 2.2), as a camera with
+    /// its Gamma feature on (at 1/2.2) does; the camera reports it with its
+    /// settings, as `fpm camera run` reports a GenICam camera's, and the acquisition
+    /// states it in the dataset.
+    #[arg(long, value_parser = display_gamma)]
+    pub display_gamma: Option<f64>,
     /// Sensor readout time added after each exposure, ms.
     #[arg(long, default_value_t = 5.0)]
     pub readout_ms: f64,
@@ -84,6 +90,14 @@ pub struct VirtualCameraArgs {
     pub clock_jitter_ms: f64,
 }
 
+/// A display gamma a dataset can state: above 0, at most 5.
+fn display_gamma(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(g) if g > 0.0 && g <= 5.0 => Ok(g),
+        _ => Err(format!("{text}: a gamma above 0 and at most 5 (e.g. 2.2)")),
+    }
+}
+
 /// Run it.
 pub fn run(a: VirtualCameraArgs) -> Result<()> {
     fpm_rig::camera::run(fpm_rig::camera::VirtualCamera {
@@ -101,6 +115,7 @@ pub fn run(a: VirtualCameraArgs) -> Result<()> {
         slide_um: a.slide_um,
         stage_error_um: a.stage_error_um,
         slide_tilt_um_per_mm: a.slide_tilt_um_per_mm,
+        display_gamma: a.display_gamma,
         readout_ms: a.readout_ms,
         drop_frame: a.drop_frame,
         late_ms: a.late_ms,

@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use fpm_frames::{FrameHeader, FramePublisher, ServiceNames};
+use fpm_camera::settings::AppliedSettings;
+use fpm_frames::{FrameHeader, FramePublisher, ServiceNames, SettingsPublisher};
 use fpm_host::truth::{write_truth_field, Truth};
 use fpm_physics::simulate::{Camera, ObjectField, Renderer};
 use fpm_physics::{LedGeometry, System};
@@ -53,6 +54,9 @@ pub struct VirtualCamera {
     /// The slide's surface tilt, µm of height per mm (its direction random): the
     /// focus a scan must follow.
     pub slide_tilt_um_per_mm: f64,
+    /// Encode the frames for display with this gamma, as a camera with its Gamma
+    /// feature on does (reported with the camera's settings).
+    pub display_gamma: Option<f64>,
     /// Sensor readout time added after each exposure, ms.
     pub readout_ms: f64,
     /// Fault injection: never publish the frame with this number (repeatable).
@@ -150,7 +154,10 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         (0.0, 0.0),
         0.0,
     );
-    let camera = Camera::realistic();
+    let camera = Camera {
+        display_gamma: a.display_gamma,
+        ..Camera::realistic()
+    };
     let mut rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0x00CA_3E7A);
     let mut renderers = (Renderer::new(&sample), Renderer::new(&target));
     let mut slide = match a.slide_um {
@@ -159,7 +166,13 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     };
     let mut dies = Dies::new(&hidden);
     let mut rig = RigListener::create(&a.rig)?;
-    let publisher = FramePublisher::create(&ServiceNames::for_camera(&a.camera), width * height)?;
+    let names = ServiceNames::for_camera(&a.camera);
+    let publisher = FramePublisher::create(&names, width * height)?;
+    // What the camera applied, as a GenICam camera's driver reports it.
+    let settings = SettingsPublisher::create(
+        &names,
+        &serde_json::to_string(&applied_settings(&a, &camera, &system, width, height))?,
+    )?;
     if let Some(dir) = &a.truth_dir {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         std::fs::write(
@@ -192,6 +205,7 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     let mut frame_number = 0u64;
     let mut clock_rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0xC10C);
     while !fpm_rig_bus::stop::requested() {
+        settings.serve();
         let Some(pulse) = rig.next_pulse(Duration::from_millis(100))? else {
             continue;
         };
@@ -295,6 +309,39 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     }
     tracing::info!("virtual camera stopped after {frame_number} frames");
     Ok(())
+}
+
+/// The settings the virtual camera works with, in the document a GenICam camera's
+/// driver publishes (`fpm camera run`).
+fn applied_settings(
+    a: &VirtualCamera,
+    camera: &Camera,
+    system: &System,
+    width: usize,
+    height: usize,
+) -> AppliedSettings {
+    let (w, h) = (width as i32, height as i32);
+    AppliedSettings {
+        vendor: "fpm".into(),
+        model: "virtual camera".into(),
+        serial: format!("seed {}", a.seed),
+        pixel_format: format!("Mono{}", camera.bit_depth),
+        bit_depth: Some(camera.bit_depth),
+        bayer: None,
+        roi: [0, 0, w, h],
+        binning: [1, 1],
+        // Auto-exposed frame by frame: each frame's header says.
+        exposure_us: None,
+        encoding_gamma: Some(camera.display_gamma.unwrap_or(1.0)),
+        gain: None,
+        trigger_mode: Some("On".into()),
+        trigger_source: Some("Line0".into()),
+        trigger_activation: Some("RisingEdge".into()),
+        pixel_size_um: Some(system.pixel_size_um),
+        channel: None,
+        published_size: [w, h],
+        published_pixel_factor: 1,
+    }
 }
 
 /// A slide larger than one field, the stage's hidden error and the slide's tilt.

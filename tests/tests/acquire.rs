@@ -95,6 +95,9 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
 
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), 441);
+    // The camera reported raw counts (its settings' encoding_gamma), and the dataset
+    // says so: nothing is read from the frames later.
+    assert_eq!(ds.manifest.camera.gamma, Some(1.0));
     let hidden = LedGeometry::paper().placed(1.3, -0.7, 3.0, 90.0);
     let mut leds: Vec<_> = ds.frames.iter().map(|f| f.entry.led).collect();
     leds.sort();
@@ -141,6 +144,7 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
         warnings.iter().map(|w| w["check"].to_string()).collect()
     };
     let as_acquired = reconstructed(&[]);
+    assert!(as_acquired["camera_gamma_scan"].is_null(), "{as_acquired}");
     assert_eq!(as_acquired["geometry_source"], "stored on the board");
     assert_eq!(as_acquired["geometry"], report["geometry"]);
     assert!(!checks(&as_acquired).contains(&r#""nominal-geometry""#.to_string()));
@@ -432,6 +436,58 @@ fn score(ds: &Dataset, object: &ndarray::Array2<rustfft::num_complex::Complex32>
     fpm_host::truth::score_reconstruction(ds, object, 4)
         .expect("a truth of the sensor's field")
         .complex_nrmse
+}
+
+/// A camera with its gamma on (the virtual camera encoding for display at 2.2, as a
+/// GenICam camera's Gamma at 1/2.2 does) reports it with its settings; the acquisition
+/// states it in the dataset, and the dataset reconstructs decoded, with nothing to
+/// read from the frames, closer to the hidden sample than read as raw counts.
+#[test]
+fn a_camera_gamma_is_stated_by_the_acquisition_and_decoded() {
+    let id = format!("acq-gamma-{}", std::process::id());
+    let dir = TempDir::new("acquire-gamma");
+    let emu = Emulator::start_at(&dir.0.join("ctl.tty"), &["--rig", &id]);
+    let truth = dir.0.join("truth");
+    let extra = [
+        &ON_AXIS_AT_92_MM[..],
+        &["--size", "64", "--display-gamma", "2.2"],
+    ]
+    .concat();
+    let _cam = camera(&id, &truth, &extra);
+    let out = dir.0.join("data");
+    let run = acquire_command(&emu, &id, &out).output().unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report = fpm_tests::acquisition_report(&out);
+    assert_eq!(report["camera_settings"]["encoding_gamma"], 2.2, "{report}");
+    let ds = Dataset::load(&out).unwrap();
+    assert_eq!(ds.manifest.camera.gamma, Some(2.2));
+    for name in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
+        std::fs::copy(truth.join(name), out.join(name)).unwrap();
+    }
+    let reconstructed = |extra: &[&str]| {
+        let result = dir.0.join(format!("reconstruction{}", extra.len()));
+        let mut args = vec!["reconstruct", out.to_str().unwrap(), "--passes", "4"];
+        args.extend(["--out", result.to_str().unwrap()]);
+        args.extend(extra);
+        fpm_tests::fpm_stdout(&args);
+        let text = std::fs::read_to_string(result.join("report.json")).unwrap();
+        let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let object = fpm_host::reconstruction::read_object(&result).unwrap();
+        (report, score(&ds, &object))
+    };
+    let (stated, decoded) = reconstructed(&[]);
+    assert_eq!(stated["camera_gamma"], 2.2, "{stated}");
+    assert!(stated["camera_gamma_scan"].is_null(), "{stated}");
+    let (_, as_raw) = reconstructed(&["--camera-gamma", "1"]);
+    eprintln!("gamma 2.2 camera, 64²: decoded as stated {decoded:.3}, read as raw {as_raw:.3}");
+    assert!(
+        decoded < 0.8 * as_raw,
+        "decoded {decoded} against {as_raw} read as raw counts"
+    );
 }
 
 /// A camera whose clock is 3.7 s ahead of the controller's, runs 100 ppm fast and

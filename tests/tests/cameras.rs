@@ -415,8 +415,11 @@ fn an_acquisition_with_the_fake_camera_labels_every_led() {
     );
     assert_eq!(settings["trigger_source"], "Software", "{settings}");
     assert_eq!(settings["model"], "Fake", "{settings}");
+    // The simulator has no Gamma or LUT feature: raw counts, and the dataset says so.
+    assert_eq!(settings["encoding_gamma"], 1.0, "{settings}");
     let dataset = std::fs::read_to_string(out_dir.join("dataset.toml")).unwrap();
     assert!(dataset.contains("bit_depth = 8"), "{dataset}");
+    assert!(dataset.contains("gamma = 1.0"), "{dataset}");
     let log = log(&dir.0);
     assert!(log.contains("trigger On Software"), "{log}");
 }

@@ -886,7 +886,7 @@ impl Acquisition {
             self.plan.out.join("calibration"),
             &self.plan.system,
             &self.rig.nominal,
-            self.plan.dark_level,
+            self.camera_section(),
             shots.into_iter(),
         )?);
         Ok(())
@@ -969,6 +969,11 @@ impl Acquisition {
         self.update_us.push(t.elapsed().as_secs_f64() * 1e6);
     }
 
+    /// The datasets' `[camera]` block (its bit depth comes with the frames).
+    fn camera_section(&self) -> CameraSection {
+        camera_section(self.plan.dark_level, self.rig.camera_settings.as_ref())
+    }
+
     /// The labelled shots as the dataset to write.
     fn build_dataset(&mut self) -> Step {
         self.tiles = self.streaming.as_ref().map(|s| s.layout().tiles.len());
@@ -977,7 +982,7 @@ impl Acquisition {
             self.plan.out.clone(),
             &self.plan.system,
             &self.rig.nominal,
-            self.plan.dark_level,
+            self.camera_section(),
             shots.into_iter().map(|s| (s, 0.0)),
         ) {
             Ok(d) => {
@@ -1150,13 +1155,32 @@ fn streaming_settings(plan: &Plan) -> Settings {
     }
 }
 
+/// A dataset's `[camera]` block: the dark level, and the gamma the camera's driver
+/// reported its frames decode with (`encoding_gamma` in its settings: 1 for raw
+/// counts, so nothing is read from the frames later). A camera that did not say
+/// leaves it unstated, and `fpm reconstruct` may read one from the frames.
+pub(crate) fn camera_section(
+    dark_level: f64,
+    camera_settings: Option<&serde_json::Value>,
+) -> CameraSection {
+    let gamma = camera_settings
+        .and_then(|s| s.get("encoding_gamma"))
+        .and_then(serde_json::Value::as_f64)
+        .filter(|g| *g > 0.0 && *g <= 5.0);
+    CameraSection {
+        dark_level,
+        gamma,
+        ..CameraSection::default()
+    }
+}
+
 /// Labelled shots (with their defocus) as an in-memory dataset in `dir`; the pixels
 /// are moved, not copied.
 fn dataset(
     dir: PathBuf,
     system: &System,
     nominal: &LedGeometry,
-    dark_level: f64,
+    camera: CameraSection,
     shots: impl Iterator<Item = (Shot, f64)>,
 ) -> Result<Dataset> {
     let mut entries = vec![];
@@ -1173,10 +1197,6 @@ fn dataset(
         });
         images.push(shot.pixels);
     }
-    let camera = CameraSection {
-        dark_level,
-        ..CameraSection::default()
-    };
     let mut manifest = Manifest::new(system, nominal, camera, entries);
     manifest.camera.bit_depth = bit_depth;
     Ok(Dataset::from_frames(&dir, manifest, images)?)

@@ -38,6 +38,7 @@ pub fn acquire(
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("creating {}", plan.out.display()))?;
     let nominal = crate::pipeline::nominal_geometry(dev);
+    let camera_settings = crate::pipeline::camera_settings(&plan.camera, &plan.system);
     let board_calibration = crate::pipeline::stored_board_calibration(dev);
     let (geometry, geometry_source) = match &board_calibration {
         Some(c) => (
@@ -105,9 +106,8 @@ pub fn acquire(
         );
     }
     let camera = CameraSection {
-        dark_level: plan.dark_level,
         bit_depth,
-        ..CameraSection::default()
+        ..crate::acquisition::camera_section(plan.dark_level, camera_settings.as_ref())
     };
     let manifest = Manifest::new(&plan.system, &nominal, camera, entries);
     let mut ds = Dataset::from_frames(&plan.out, manifest, images)?;
@@ -152,7 +152,7 @@ pub fn acquire(
         entrance_pupil_mm: plan.system.entrance_pupil_mm,
         geometry_source,
         board_calibration,
-        camera_settings: None,
+        camera_settings,
         calibration: vec![],
         capture,
         retake: None,

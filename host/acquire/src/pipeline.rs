@@ -47,7 +47,7 @@ pub(crate) fn wait_for_camera(names: &ServiceNames) -> Result<()> {
 
 /// What the camera's driver says it applied, if it says (an optional extra: never an
 /// error). A reported pixel pitch that disagrees with the system's is warned about.
-fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json::Value> {
+pub(crate) fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json::Value> {
     let text = fpm_frames::read_settings(camera, std::time::Duration::from_millis(300))?;
     let value: serde_json::Value = match serde_json::from_str(&text) {
         Ok(v) => v,
@@ -338,6 +338,7 @@ fn run(
         camera_settings: camera_settings(&plan.camera, &plan.system),
     };
     let nominal = rig.nominal;
+    let camera = crate::acquisition::camera_section(plan.dark_level, rig.camera_settings.as_ref());
     // The frames an earlier run wrote, which a new journal must carry on.
     let mut adopted = vec![];
     let mut acq = match before {
@@ -398,7 +399,7 @@ fn run(
             Action::RunSequence { id, leds } => {
                 let captures = matches!(id, sequence_id::CAPTURE | sequence_id::RETAKE);
                 if captures && journal.is_none() {
-                    journal = start_journal(plan, &nominal, &adopted);
+                    journal = start_journal(plan, &nominal, camera, &adopted);
                 }
                 let mut on_frame = |shot: ShotView<'_>| {
                     if let Some(j) = journal.as_mut().filter(|_| captures) {
@@ -515,11 +516,12 @@ struct Adopted {
 /// written when the capture ends, as ever), carrying on the frames of the run resumed.
 /// Its dataset.toml is then removed: the journal holds all it said, and a kill makes a
 /// dataset of the journal only where there is no dataset.toml.
-fn start_journal(plan: &Plan, nominal: &LedGeometry, adopted: &[Adopted]) -> Option<Journal> {
-    let camera = fpm_host::dataset::CameraSection {
-        dark_level: plan.dark_level,
-        ..Default::default()
-    };
+fn start_journal(
+    plan: &Plan,
+    nominal: &LedGeometry,
+    camera: fpm_host::dataset::CameraSection,
+    adopted: &[Adopted],
+) -> Option<Journal> {
     let manifest = fpm_host::dataset::Manifest::new(&plan.system, nominal, camera, vec![]);
     let started = Journal::start(&plan.out, &manifest).and_then(|mut j| {
         for a in adopted {

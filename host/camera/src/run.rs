@@ -136,7 +136,7 @@ pub fn run(args: RunOptions) -> Result<RunSummary> {
     let mut applied = AppliedSettings::read(&camera)?;
     let channel = colour_channel(&args.aravis, &settings, &mut applied)?;
     tracing::info!(
-        "camera {} {} (serial {}): {} {}x{} at ({}, {}), binning {}x{}, exposure {} µs, gain {:?}, trigger {} {}",
+        "camera {} {} (serial {}): {} {}x{} at ({}, {}), binning {}x{}, exposure {}, gain {:?}, trigger {} {}",
         applied.vendor,
         applied.model,
         applied.serial,
@@ -147,7 +147,9 @@ pub fn run(args: RunOptions) -> Result<RunSummary> {
         applied.roi[1],
         applied.binning[0],
         applied.binning[1],
-        applied.exposure_us,
+        applied
+            .exposure_us
+            .map_or("per frame".to_string(), |us| format!("{us} µs")),
         applied.gain,
         applied.trigger_mode.as_deref().unwrap_or("?"),
         applied.trigger_source.as_deref().unwrap_or("")
@@ -158,6 +160,17 @@ pub fn run(args: RunOptions) -> Result<RunSummary> {
             args.aravis,
             applied.pixel_format
         );
+    }
+    match applied.encoding_gamma {
+        Some(g) if (g - 1.0).abs() > 1e-6 => tracing::warn!(
+            "camera {}: its gamma is on (frames encoded for display, decoded with {g:.3} as the dataset will state); decoding undoes the curve but not its rounding: for raw counts set Gamma to 1 or GammaEnable to false",
+            args.aravis
+        ),
+        None => tracing::warn!(
+            "camera {}: a lookup table is on (LUTEnable), so its frames may not be linear in the light and the dataset cannot state how; `fpm reconstruct` reads a gamma from the frames, but for raw counts set LUTEnable to false",
+            args.aravis
+        ),
+        Some(_) => {}
     }
     if let Some(path) = &args.settings_out {
         std::fs::write(path, serde_json::to_string_pretty(&applied)?)
@@ -293,7 +306,12 @@ fn stream_frames(
     } = *ends;
     let mut summary = RunSummary::default();
     let mut frame_number = 0u64;
-    let exposure_us = applied.exposure_us.round().clamp(0.0, u32::MAX as f64) as u32;
+    // A GenICam camera's exposure, read back when the settings were (always there).
+    let exposure_us = applied
+        .exposure_us
+        .unwrap_or(0.0)
+        .round()
+        .clamp(0.0, u32::MAX as f64) as u32;
     let lost_after = Duration::from_secs_f64(args.lost_after_s.max(0.5));
     let mut last_sign_of_life = Instant::now();
     let mut last_stats = Instant::now();

@@ -127,8 +127,14 @@ pub struct AppliedSettings {
     pub roi: [i32; 4],
     /// Binning: horizontal, vertical.
     pub binning: [i32; 2],
-    /// ExposureTime, µs.
-    pub exposure_us: f64,
+    /// ExposureTime, µs; None where each frame has its own (an auto-exposing camera:
+    /// each frame's header carries it).
+    pub exposure_us: Option<f64>,
+    /// The gamma that decodes the published frames to light, in the dataset's
+    /// convention (`[camera] gamma`: a value v stands for full·(v/full)^gamma): 1 for
+    /// raw counts; None where the camera cannot say (a lookup table is on). See
+    /// [`GammaFeatures::encoding_gamma`].
+    pub encoding_gamma: Option<f64>,
     /// Gain, if the camera has one.
     pub gain: Option<f64>,
     /// TriggerMode (FrameStart).
@@ -169,7 +175,8 @@ impl AppliedSettings {
             pixel_format,
             roi: [x, y, w, h],
             binning: [bx, by],
-            exposure_us: camera.exposure_us()?,
+            exposure_us: Some(camera.exposure_us()?),
+            encoding_gamma: GammaFeatures::read(camera).encoding_gamma(),
             gain: camera
                 .gain_available()
                 .unwrap_or(false)
@@ -191,6 +198,70 @@ impl AppliedSettings {
     /// Whether each frame waits for a trigger.
     pub fn triggered(&self) -> bool {
         self.trigger_mode.as_deref() == Some("On")
+    }
+}
+
+/// A camera's features that change how its pixel values follow the light (GenICam
+/// SFNC names; each None where the camera does not have it).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GammaFeatures {
+    /// LUTEnable: a user lookup table is applied to every pixel.
+    pub lut_enable: Option<bool>,
+    /// GammaEnable (Basler, FLIR): whether Gamma is applied at all.
+    pub gamma_enable: Option<bool>,
+    /// GammaSelector (Basler): "User" (Gamma's value) or "sRGB" (a fixed curve).
+    pub gamma_selector: Option<String>,
+    /// Gamma: the camera outputs full·(v/full)^Gamma (below 1 brightens the image).
+    pub gamma: Option<f64>,
+}
+
+impl GammaFeatures {
+    /// Read them from `camera` (a feature that cannot be read counts as absent).
+    pub fn read(camera: &Camera) -> Self {
+        let boolean = |f: &str| {
+            camera
+                .has_feature(f)
+                .then(|| camera.boolean(f).ok())
+                .flatten()
+        };
+        Self {
+            lut_enable: boolean("LUTEnable"),
+            gamma_enable: boolean("GammaEnable"),
+            gamma_selector: camera
+                .has_feature("GammaSelector")
+                .then(|| camera.string("GammaSelector").ok())
+                .flatten(),
+            gamma: camera
+                .has_feature("Gamma")
+                .then(|| camera.float("Gamma").ok())
+                .flatten(),
+        }
+    }
+
+    /// The gamma that decodes the frames, as the dataset states it (the inverse of the
+    /// camera's Gamma, which raises the normalised value to its power on the way
+    /// out): 1 for a camera without gamma or with it off; 2.2 for the sRGB curve (the
+    /// exponent it approximates). None where a lookup table is on (any curve at all)
+    /// or the value is out of the range a dataset accepts (above 0, at most 5).
+    pub fn encoding_gamma(&self) -> Option<f64> {
+        if self.lut_enable == Some(true) {
+            return None;
+        }
+        if self.gamma_enable == Some(false) {
+            return Some(1.0);
+        }
+        if self
+            .gamma_selector
+            .as_deref()
+            .is_some_and(|s| s.eq_ignore_ascii_case("sRGB"))
+        {
+            return Some(2.2);
+        }
+        match self.gamma {
+            None => Some(1.0),
+            Some(g) if g.is_finite() && g >= 0.2 => Some(1.0 / g),
+            Some(_) => None,
+        }
     }
 }
 
@@ -230,6 +301,53 @@ pub fn pixel_format_code(name: &str) -> Option<PixelFormat> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_gamma_that_decodes_a_cameras_frames_follows_its_features() {
+        let none = GammaFeatures::default();
+        assert_eq!(
+            none.encoding_gamma(),
+            Some(1.0),
+            "no gamma feature: raw counts"
+        );
+        let basler_display = GammaFeatures {
+            gamma_enable: Some(true),
+            gamma_selector: Some("User".into()),
+            gamma: Some(0.45),
+            ..GammaFeatures::default()
+        };
+        let decode = basler_display.encoding_gamma().unwrap();
+        assert!((decode - 1.0 / 0.45).abs() < 1e-12, "{decode}");
+        let off = GammaFeatures {
+            gamma_enable: Some(false),
+            ..basler_display.clone()
+        };
+        assert_eq!(off.encoding_gamma(), Some(1.0));
+        let srgb = GammaFeatures {
+            gamma_selector: Some("sRGB".into()),
+            ..basler_display.clone()
+        };
+        assert_eq!(srgb.encoding_gamma(), Some(2.2));
+        let lut = GammaFeatures {
+            lut_enable: Some(true),
+            ..GammaFeatures::default()
+        };
+        assert_eq!(
+            lut.encoding_gamma(),
+            None,
+            "a lookup table can be any curve"
+        );
+        let ids_unity = GammaFeatures {
+            gamma: Some(1.0),
+            ..GammaFeatures::default()
+        };
+        assert_eq!(ids_unity.encoding_gamma(), Some(1.0));
+        let beyond = GammaFeatures {
+            gamma: Some(0.1),
+            ..GammaFeatures::default()
+        };
+        assert_eq!(beyond.encoding_gamma(), None, "10 is beyond a dataset's 5");
+    }
 
     #[test]
     fn a_file_and_flags_combine_flags_winning() {

@@ -112,6 +112,7 @@ symbols! {
     arv_camera_set_string: fn(*mut Camera, *const c_char, *const c_char, Err);
     arv_camera_get_string: fn(*mut Camera, *const c_char, Err) -> *const c_char;
     arv_camera_get_float: fn(*mut Camera, *const c_char, Err) -> c_double;
+    arv_camera_get_boolean: fn(*mut Camera, *const c_char, Err) -> c_int;
     arv_camera_is_feature_available: fn(*mut Camera, *const c_char, Err) -> c_int;
     arv_camera_get_payload: fn(*mut Camera, Err) -> c_uint;
     arv_camera_create_stream: fn(*mut Camera, *mut c_void, *mut c_void, Err) -> *mut Stream;

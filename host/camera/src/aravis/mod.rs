@@ -340,6 +340,15 @@ impl Camera {
         })
     }
 
+    /// Read a boolean feature.
+    pub fn boolean(&self, feature: &str) -> Result<bool> {
+        let what = format!("reading {feature}");
+        let f = c_string(&what, feature)?;
+        call(&self.api, &what, |e| unsafe {
+            (self.api.arv_camera_get_boolean)(self.ptr, f.as_ptr(), e) != 0
+        })
+    }
+
     /// Whether the camera has `feature` and it is available now.
     pub fn has_feature(&self, feature: &str) -> bool {
         let Ok(f) = CString::new(feature) else {

@@ -221,6 +221,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                     match (rep.camera_gamma, &rep.camera_gamma_scan) {
                         (Some(g), Some(_)) => format!("; frames decoded with gamma {g}, read from them"),
                         (None, Some(_)) => "; frames read as linear, as their scan found".to_string(),
+                        (Some(1.0), None) => "; frames linear, as the dataset states".to_string(),
                         (Some(g), None) => format!("; frames decoded with the dataset's gamma {g}"),
                         (None, None) => String::new(),
                     }

@@ -81,6 +81,10 @@ fn a_python_publisher_feeds_a_whole_acquisition() {
     assert!((offset_s - 2.5).abs() < 0.01, "clock offset {offset_s} s");
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.frames.len(), 441);
+    // The camera said what it applied (raw 12-bit counts), and the dataset states it.
+    let settings = &report["camera_settings"];
+    assert_eq!(settings["model"], "example NumPy camera", "{settings}");
+    assert_eq!(ds.manifest.camera.gamma, Some(1.0));
     let dark = 100.0; // fpm acquire's default --dark-level
     for (k, f) in ds.frames.iter().enumerate() {
         let led = f.entry.led;
@@ -127,4 +131,10 @@ fn pypylons_emulated_camera_feeds_a_whole_acquisition() {
     assert_eq!(ds.frames.len(), 441);
     assert_eq!(ds.frames[0].raw.dim(), (64, 64));
     assert_eq!(ds.manifest.camera.bit_depth, Some(12));
+    // The emulation's settings as pypylon read them: its Gamma feature at 1, raw counts.
+    let settings = &report["camera_settings"];
+    assert_eq!(settings["vendor"], "Basler", "{settings}");
+    assert_eq!(settings["pixel_format"], "Mono12", "{settings}");
+    assert_eq!(settings["encoding_gamma"], 1.0, "{settings}");
+    assert_eq!(ds.manifest.camera.gamma, Some(1.0));
 }

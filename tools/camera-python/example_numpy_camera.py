@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from fpm_camera import FramePublisher, RigTriggers
+from fpm_camera import FramePublisher, RigTriggers, SettingsPublisher
 
 
 def main() -> int:
@@ -27,11 +27,25 @@ def main() -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     triggers = RigTriggers(args.rig)
+    # What this camera applies: raw 12-bit counts (no gamma), one fixed exposure.
+    settings = SettingsPublisher(
+        args.camera,
+        {
+            "vendor": "fpm",
+            "model": "example NumPy camera",
+            "pixel_format": "Mono12",
+            "bit_depth": 12,
+            "roi": [0, 0, args.size, args.size],
+            "exposure_us": 5000,
+            "encoding_gamma": 1.0,
+        },
+    )
     with FramePublisher(args.camera, max_pixels=args.size * args.size) as camera:
         if args.ready_file:
             open(args.ready_file, "w").close()
         published = 0
         while not stop and (args.frames is None or published < args.frames):
+            settings.serve()
             pulse = triggers.next(0.1)
             if pulse is None:
                 continue

@@ -18,7 +18,7 @@ import signal
 import sys
 import time
 
-from fpm_camera import FramePublisher, RigTriggers
+from fpm_camera import FramePublisher, RigTriggers, SettingsPublisher
 
 
 def open_camera(pylon, emulated: bool, serial: str | None):
@@ -33,6 +33,34 @@ def open_camera(pylon, emulated: bool, serial: str | None):
     if serial:
         info.SetSerialNumber(serial)
     return pylon.InstantCamera(factory.CreateFirstDevice(info))
+
+
+def feature(camera, name: str):
+    """A feature's value, or None where the camera does not have it (or not now)."""
+    from pypylon import genicam
+
+    node = camera.GetNodeMap().GetNode(name)
+    if node is None or not genicam.IsReadable(node):
+        return None
+    return getattr(camera, name).GetValue()
+
+
+def encoding_gamma(camera) -> float | None:
+    """The gamma that decodes the frames (`encoding_gamma`: the dataset's `[camera]
+    gamma`), by the rule `fpm camera run` applies to GenICam cameras: a lookup table
+    on says nothing; GammaEnable off or no Gamma feature is raw counts (1); the sRGB
+    curve is 2.2; otherwise the inverse of Gamma (the camera outputs
+    full·(v/full)^Gamma)."""
+    if feature(camera, "LUTEnable"):
+        return None
+    if feature(camera, "GammaEnable") is False:
+        return 1.0
+    if str(feature(camera, "GammaSelector") or "").lower() == "srgb":
+        return 2.2
+    gamma = feature(camera, "Gamma")
+    if gamma is None:
+        return 1.0
+    return 1.0 / gamma if gamma >= 0.2 else None
 
 
 def main() -> int:
@@ -69,19 +97,43 @@ def main() -> int:
     software = args.emulated
     camera.TriggerSource.SetValue("Software" if software else "Line0")
     triggers = RigTriggers(args.rig) if software and args.rig else None
+    info = camera.GetDeviceInfo()
+    applied = {
+        "vendor": info.GetVendorName(),
+        "model": info.GetModelName(),
+        "serial": info.GetSerialNumber(),
+        "pixel_format": camera.PixelFormat.GetValue(),
+        "bit_depth": bits,
+        "roi": [camera.OffsetX.GetValue(), camera.OffsetY.GetValue(),
+                camera.Width.GetValue(), camera.Height.GetValue()],
+        # Read back from the feature set above.
+        "exposure_us": feature(camera, "ExposureTimeAbs") or feature(camera, "ExposureTime"),
+        "trigger_mode": camera.TriggerMode.GetValue(),
+        "trigger_source": camera.TriggerSource.GetValue(),
+    }
+    gamma = encoding_gamma(camera)
+    if gamma is not None:
+        applied["encoding_gamma"] = gamma
+    pitch = feature(camera, "SensorPixelWidth")
+    if pitch is not None:
+        applied["pixel_size_um"] = pitch
+    settings = SettingsPublisher(args.camera, applied)
     camera.StartGrabbing(pylon.GrabStrategy_OneByOne)
     published = 0
     with FramePublisher(args.camera, max_pixels=args.width * args.height) as fpm:
         if args.ready_file:
             open(args.ready_file, "w").close()
         while not stop:
+            settings.serve()
             if triggers is not None:
                 if triggers.next(0.1) is None:
                     continue
                 camera.WaitForFrameTriggerReady(1000, pylon.TimeoutHandling_ThrowException)
                 triggered_ns = time.monotonic_ns()
                 camera.ExecuteSoftwareTrigger()
-            result = camera.RetrieveResult(1000, pylon.TimeoutHandling_Return)
+            # Waiting on a hardware trigger, come back often enough to serve the settings
+            # to an acquisition that starts meanwhile (it waits 300 ms for them).
+            result = camera.RetrieveResult(1000 if triggers else 100, pylon.TimeoutHandling_Return)
             if not result or not result.IsValid():
                 continue
             try:

@@ -10,13 +10,15 @@ Python (pypylon, picamera2, PySpin, pycromanager, ...).
 Each frame is copied once, from the SDK's array into the loaned shared-memory sample;
 `fpm acquire --frames 0` reads it in place. The stamp must be the camera's own
 timestamp of the exposure start (ns, any epoch): fpm fits the camera clock to the LED
-controller's. `RigTriggers` gives the trigger pulses of a virtual rig (`fpm emulator
+controller's. `SettingsPublisher` says what the camera applied (pixel format, exposure,
+its gamma), which `fpm acquire` records and states in the dataset. `RigTriggers` gives the trigger pulses of a virtual rig (`fpm emulator
 --rig NAME`), for testing without a camera.
 """
 
 from __future__ import annotations
 
 import ctypes
+import json
 from typing import Optional
 
 import iceoryx2 as iox2
@@ -28,6 +30,7 @@ MAX_SUBSCRIBERS = 2
 SUBSCRIBER_BUFFER = 2
 SUBSCRIBER_BORROWED = 1
 PUBLISHER_LOANED = 1
+MAX_SETTINGS_BYTES = 16 * 1024
 
 
 class FrameHeader(ctypes.Structure):
@@ -195,6 +198,48 @@ class FramePublisher:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class SettingsPublisher:
+    """Publishes what the camera applied, a JSON document, on
+    `fpm/camera/<camera>/settings` with a history of one, as `fpm camera run` does for
+    a GenICam camera: `fpm acquire` records it in acquisition.json (`camera_settings`)
+    and states its `encoding_gamma` as the dataset's `[camera] gamma` (1.0 for raw
+    counts; 1/Gamma when the camera's Gamma feature is on; leave it out when a lookup
+    table is on). Other keys it reads: `pixel_size_um`, `binning`,
+    `published_pixel_factor` (a pitch that disagrees with `--pixel-um` is warned
+    about). Call `serve()` in the frame loop: readers that connected since get the
+    document then."""
+
+    def __init__(self, camera: str, settings: dict):
+        text = json.dumps(settings).encode()
+        if len(text) > MAX_SETTINGS_BYTES:
+            raise ValueError(f"settings of {len(text)} bytes exceed {MAX_SETTINGS_BYTES}")
+        self._node = _node("fpm-camera-python-settings")
+        service = (
+            self._node.service_builder(iox2.ServiceName.new(f"fpm/camera/{camera}/settings"))
+            .publish_subscribe(iox2.Slice[ctypes.c_uint8])
+            .max_publishers(1)
+            .history_size(1)
+            .subscriber_max_buffer_size(1)
+            .open_or_create()
+        )
+        self._publisher = (
+            service.publisher_builder().initial_max_slice_len(MAX_SETTINGS_BYTES).create()
+        )
+        sample = self._publisher.loan_slice_uninit(len(text))
+        ctypes.memmove(sample.payload().data_ptr, text, len(text))
+        sample.assume_init().send()
+        self._service = service
+
+    def serve(self) -> None:
+        """Hand the document to readers that connected since."""
+        self._publisher.update_connections()
+
+    def close(self) -> None:
+        self._publisher = None
+        self._service = None
+        self._node = None
 
 
 class RigTriggers:

@@ -463,6 +463,11 @@ impl Acquisition {
                     "starting from the geometry stored on the board: {}",
                     board_geometry::describe(c)
                 ),
+                // Chosen LEDs (a scan's focus frames before its calibration, a raw
+                // sequence) are not the array a reconstruction needs placed: said only.
+                None if plan.leds.is_some() => tracing::info!(
+                    "no calibration given and none stored on the board: the chosen LEDs are labelled with the nominal geometry"
+                ),
                 None => tracing::warn!(
                     "no calibration given and none stored on the board: using the nominal geometry (calibrate with --calibrate --store-geometry)"
                 ),

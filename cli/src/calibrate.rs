@@ -147,6 +147,17 @@ fn print_calibration(file: &fpm_host::calibration::CalibrationFile, no_tilt: boo
         "  feature at ({:.1}, {:.1}) µm, {} px; rms residual {:.4} µm",
         c.feature.x_um, c.feature.y_um, c.feature.area_px, c.rms_residual_um
     );
+    if let Some(o) = c.led_offsets() {
+        println!(
+            "  each LED off the fitted board: {:.3} mm RMS (1σ of each ≈ {:.3} mm), farthest ({}, {}) {:.3} ± {:.3} mm",
+            o.rms_mm,
+            o.median_sigma_mm,
+            o.farthest.row,
+            o.farthest.col,
+            o.farthest_mm,
+            o.farthest_sigma_mm
+        );
+    }
     let count = |s: LedStatus| c.leds.iter().filter(|l| l.status == s).count();
     let cut = c
         .leds

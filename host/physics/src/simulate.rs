@@ -1158,6 +1158,10 @@ pub struct CalibrationScene {
     pub peak_dn: Option<f64>,
     /// Random seed.
     pub seed: u64,
+    /// Each LED off its place on the board by its own lateral move, N(0, σ = this)
+    /// each way, mm (a hand-soldered board: bent legs, packages askew;
+    /// [`Self::led_offset_mm`]); 0: every LED where `truth` puts it.
+    pub led_jitter_mm: f64,
 }
 
 impl CalibrationScene {
@@ -1175,7 +1179,22 @@ impl CalibrationScene {
             camera: Camera::realistic(),
             peak_dn: None,
             seed,
+            led_jitter_mm: 0.0,
         }
+    }
+
+    /// How far LED `led` sits off its place (x, y, mm): drawn from the seed and the
+    /// LED, the same on every call.
+    pub fn led_offset_mm(&self, led: LedIndex) -> (f64, f64) {
+        let Ok(jitter) = Normal::new(0.0, self.led_jitter_mm) else {
+            return (0.0, 0.0);
+        };
+        if self.led_jitter_mm == 0.0 {
+            return (0.0, 0.0);
+        }
+        let stream = ((led.row as u64) << 32) | led.col as u64;
+        let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x1ED5_0FF5 ^ stream);
+        (jitter.sample(&mut rng), jitter.sample(&mut rng))
     }
 
     /// The shots: the focused reference under the nominal centre LED, then every LED of
@@ -1225,9 +1244,14 @@ impl CalibrationScene {
             .into_iter()
             .map(|(led, z)| (led, z + focus_offset_um))
             .collect();
-        let mut frames = acquire(
+        let board = |led: LedIndex| {
+            let (x, y, h) = self.truth.led_position_3d_mm(led);
+            let (dx, dy) = self.led_offset_mm(led);
+            (x + dx, y + dy, h)
+        };
+        let mut frames = acquire_from(
             &self.system,
-            &self.truth,
+            &board,
             &object,
             &shots,
             &self.camera,

@@ -156,6 +156,16 @@ pub struct LedResult {
     pub fitted_um: [f64; 2],
     /// |corrected − fitted|, µm.
     pub residual_um: Option<f64>,
+    /// Where this LED sits off the fitted board, mm (x, y, the sample's axes): its
+    /// residual shift carried back to the board (× −h/z, ≈ 460 at 200 µm), so a few
+    /// nm of shift are a µm of LED. What a rigid board cannot hold: a misplaced LED, a
+    /// package soldered askew.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_mm: Option<[f64; 2]>,
+    /// 1σ of each of `offset_mm`'s two numbers, mm: its frame's pixel noise through the
+    /// shift, and 5 % of its bias correction (the model's own error).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset_sigma_mm: Option<f64>,
     /// Its defocused window was cut by the frame's edge: the bias model saw the same
     /// cut (its bias is then larger, and counts in the uncertainty as every bias does).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -213,6 +223,21 @@ pub struct Calibration {
     pub leds: Vec<LedResult>,
 }
 
+/// How far the calibrated LEDs sit off the fitted board, each measured on its own.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LedOffsets {
+    /// RMS per axis over the used LEDs, mm.
+    pub rms_mm: f64,
+    /// The median of their 1σ, mm: what a perfect board's offsets would scatter by.
+    pub median_sigma_mm: f64,
+    /// The LED farthest off.
+    pub farthest: LedIndex,
+    /// How far, mm.
+    pub farthest_mm: f64,
+    /// Its 1σ per axis, mm.
+    pub farthest_sigma_mm: f64,
+}
+
 /// What a calibration should reach (1σ): Δx, Δy µm; θ °; h mm from the shifts alone
 /// (the defocus's own error aside). Beyond it, a warning says so rather than letting
 /// the number look confident.
@@ -242,6 +267,40 @@ impl Calibration {
             u.theta_deg > ACCURACY_TARGET[2],
             self.height_sigma_from_shifts_mm() > ACCURACY_TARGET[3],
         ]
+    }
+
+    /// How far the used LEDs sit off the fitted board ([`LedResult::offset_mm`]).
+    /// None without two used LEDs.
+    pub fn led_offsets(&self) -> Option<LedOffsets> {
+        let used: Vec<(&LedResult, [f64; 2], f64)> = self
+            .leds
+            .iter()
+            .filter(|l| l.status == LedStatus::Used)
+            .filter_map(|l| Some((l, l.offset_mm?, l.offset_sigma_mm?)))
+            .collect();
+        if used.len() < 2 {
+            return None;
+        }
+        let n = used.len() as f64;
+        let rms_mm = (used
+            .iter()
+            .map(|(_, o, _)| 0.5 * (o[0] * o[0] + o[1] * o[1]))
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        let mut sigmas: Vec<f64> = used.iter().map(|u| u.2).collect();
+        sigmas.sort_by(f64::total_cmp);
+        let (farthest, offset, sigma) = used
+            .iter()
+            .max_by(|a, b| a.1[0].hypot(a.1[1]).total_cmp(&b.1[0].hypot(b.1[1])))
+            .map(|(l, o, s)| (l.led, o[0].hypot(o[1]), *s))?;
+        Some(LedOffsets {
+            rms_mm,
+            median_sigma_mm: sigmas[sigmas.len() / 2],
+            farthest,
+            farthest_mm: offset,
+            farthest_sigma_mm: sigma,
+        })
     }
 
     /// h's 1σ without the defocus's share (which is the user's to state).

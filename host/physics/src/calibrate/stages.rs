@@ -414,12 +414,17 @@ pub(super) fn report(
         uncertainty.tilt_x_deg = a.to_degrees();
         uncertainty.tilt_y_deg = b.to_degrees();
     }
+    // A shift of the feature of s = (z/h)(x_c − x_LED) moves by −(z/h) per µm of LED.
+    let to_board = -final_params.h / z;
     let leds = measured
         .iter()
         .zip(bias)
         .zip(&residuals)
-        .map(|((m, b), r)| {
+        .zip(&shift_sigma)
+        .map(|(((m, b), r), sigma)| {
             let fitted = tilt::predict(setup, &model, m.grid);
+            let bias_share = model_share * b.0.hypot(b.1) / 2f64.sqrt();
+            let shift_sigma = (0.5 * (sigma.0 * sigma.0 + sigma.1 * sigma.1)).sqrt();
             LedResult {
                 led: m.led,
                 grid: [m.grid.0 as i64, m.grid.1 as i64],
@@ -429,6 +434,12 @@ pub(super) fn report(
                 bias_um: m.shift_um.map(|_| [b.0, b.1]),
                 fitted_um: [fitted.0, fitted.1],
                 residual_um: m.shift_um.map(|_| r.0.hypot(r.1)),
+                offset_mm: m
+                    .shift_um
+                    .map(|_| [r.0 * to_board * 1e-3, r.1 * to_board * 1e-3]),
+                offset_sigma_mm: m
+                    .shift_um
+                    .map(|_| shift_sigma.hypot(bias_share) * to_board.abs() * 1e-3),
                 cut_by_edge: m.cut_by_edge,
             }
         })

@@ -187,6 +187,10 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
                 l.residual_um
                     .map(|r| format!("{r:.3}"))
                     .unwrap_or_else(|| "—".into()),
+                match (l.offset_mm, l.offset_sigma_mm) {
+                    (Some([x, y]), Some(s)) => format!("({x:+.3}, {y:+.3}) ± {s:.3}"),
+                    _ => "—".into(),
+                },
             ]
         })
         .collect();
@@ -198,6 +202,7 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
             "measured shift (µm)",
             "fitted shift (µm)",
             "residual (µm)",
+            "LED off the fitted board (mm)",
         ],
         &rows,
     );

@@ -35,6 +35,17 @@ fn store_on_board(emu: &Emulator, dir: &Path, placement: &str) {
     );
 }
 
+/// `fpm acquire` into `out`, which must succeed: its acquisition.json.
+fn acquired(emu: &Emulator, id: &str, out: &Path) -> serde_json::Value {
+    let run = acquire_command(emu, id, out).output().unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    fpm_tests::acquisition_report(out)
+}
+
 fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> VirtualCameraProcess {
     let mut args = vec!["--readout-ms", "1"];
     args.extend(extra);
@@ -455,13 +466,7 @@ fn a_camera_gamma_is_stated_by_the_acquisition_and_decoded() {
     .concat();
     let _cam = camera(&id, &truth, &extra);
     let out = dir.0.join("data");
-    let run = acquire_command(&emu, &id, &out).output().unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let report = fpm_tests::acquisition_report(&out);
+    let report = acquired(&emu, &id, &out);
     assert_eq!(report["camera_settings"]["encoding_gamma"], 2.2, "{report}");
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.manifest.camera.gamma, Some(2.2));
@@ -520,13 +525,7 @@ fn a_drifting_camera_clock_is_fitted_and_nothing_is_mislabelled() {
         ],
     );
     let out = dir.0.join("data");
-    let run = acquire_command(&emu, &id, &out).output().unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let report = fpm_tests::acquisition_report(&out);
+    let report = acquired(&emu, &id, &out);
     let capture = &report["capture"];
     assert_eq!(capture["labelled"], 441, "{capture}");
     assert_eq!(capture["relabelled"], 0, "{capture}");

@@ -373,7 +373,7 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
     // Outliers whose shift puts their LED off the fitted board beyond 5σ of its own
     // measurement (its σ is a little optimistic: the bias model's error): a board
     // problem, or dust. One within it is the robust fit trimming its tail (seen at
-    // 3.2σ on a simulated perfect board), listed in the report only.
+    // 3.1σ on a simulated perfect board), listed in the report only.
     let off: Vec<String> = cal
         .leds
         .iter()

@@ -234,6 +234,11 @@ pub struct CalibrationArgs {
     /// Feature position y, µm.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     feature_y_um: f64,
+    /// Put each LED off its grid place by its own move (1σ per axis, mm, drawn from the
+    /// seed and the LED), as hand-soldered boards have them: `fpm calibrate` reports
+    /// each one's offset, and truth.json lists where the calibration's LEDs really were.
+    #[arg(long, default_value_t = 0.0, value_parser = jitter_mm)]
+    led_jitter_mm: f64,
 }
 
 /// `fpm simulate acquisition`.
@@ -355,6 +360,7 @@ fn calibration(a: CalibrationArgs) -> Result<()> {
         defocus_um: a.defocus_um,
         feature_um: a.feature_um,
         feature_at_um: (a.feature_x_um, a.feature_y_um),
+        led_jitter_mm: a.led_jitter_mm,
     };
     let start = Instant::now();
     if let Some(color) = s.color.color_set()? {
@@ -427,4 +433,12 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         written.truth.object_pixel_um.unwrap_or(f64::NAN)
     );
     Ok(())
+}
+
+/// A standard deviation in mm: finite, 0 or more.
+fn jitter_mm(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("{text}: a standard deviation in mm (0 or more)")),
+    }
 }

@@ -330,6 +330,15 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
         .count();
     let mut out = vec![];
     let u = &cal.uncertainty;
+    // LEDs off a rigid board by far more than each is measured to: the fit's scatter
+    // is the board's own, which no exposure or defocus takes away.
+    let board_scatter = cal
+        .led_offsets()
+        .filter(|o| o.rms_mm > 0.05 && o.rms_mm > 10.0 * o.median_sigma_mm);
+    let help = |usual: &str| match board_scatter {
+        Some(_) => "the LEDs' own places off the board set it (below)".to_string(),
+        None => usual.to_string(),
+    };
     if used < calibrate::MIN_USED_LEDS {
         out.push(format!(
             "only {used} LEDs were usable: check the defocus, the exposure and the feature"
@@ -339,21 +348,24 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
         let [lateral, _, theta, height] = cal.accuracy_warned();
         if lateral {
             out.push(format!(
-                "Δx, Δy are uncertain by {:.1} µm (1σ), more than the {TARGET_LATERAL_UM} µm a calibration should reach: a brighter exposure (without saturating), a larger feature or a larger defocus would help",
-                u.dx_mm.max(u.dy_mm) * 1e3
+                "Δx, Δy are uncertain by {:.1} µm (1σ), more than the {TARGET_LATERAL_UM} µm a calibration should reach: {}",
+                u.dx_mm.max(u.dy_mm) * 1e3,
+                help("a brighter exposure (without saturating), a larger feature or a larger defocus would help")
             ));
         }
         if theta {
             out.push(format!(
-                "θ is uncertain by {:.3}° (1σ), more than {TARGET_THETA_DEG}°: more LEDs or a larger defocus would help",
-                u.theta_deg
+                "θ is uncertain by {:.3}° (1σ), more than {TARGET_THETA_DEG}°: {}",
+                u.theta_deg,
+                help("more LEDs or a larger defocus would help")
             ));
         }
         // h's share from the shifts alone: the defocus's own σ is the user's to state.
         if height {
             out.push(format!(
-                "h is uncertain by {:.2} mm (1σ) from the shifts alone, more than {TARGET_HEIGHT_MM} mm: a larger defocus or more LEDs would help",
-                cal.height_sigma_from_shifts_mm()
+                "h is uncertain by {:.2} mm (1σ) from the shifts alone, more than {TARGET_HEIGHT_MM} mm: {}",
+                cal.height_sigma_from_shifts_mm(),
+                help("a larger defocus or more LEDs would help")
             ));
         }
     }
@@ -361,13 +373,20 @@ pub fn warnings(cal: &Calibration) -> Vec<String> {
         out.push("the board's tilt was not fitted: it was taken as flat".to_string());
     } else if !cal.tilt_observable {
         out.push(format!(
-            "the shifts cannot pin down the board's tilt (1σ {:.2}° / {:.2}°, more than {}°): the board was taken as flat, and Δx, Δy carry what such a tilt could do; more LEDs or a larger defocus would show it",
-            cal.uncertainty.tilt_x_deg, cal.uncertainty.tilt_y_deg, calibrate::TILT_OBSERVABLE_SIGMA_DEG
+            "the shifts cannot pin down the board's tilt (1σ {:.2}° / {:.2}°, more than {}°): the board was taken as flat, and Δx, Δy carry what such a tilt could do; {}",
+            cal.uncertainty.tilt_x_deg, cal.uncertainty.tilt_y_deg, calibrate::TILT_OBSERVABLE_SIGMA_DEG,
+            help("more LEDs or a larger defocus would show it")
         ));
     } else if cal.placement.tilt_x_deg.hypot(cal.placement.tilt_y_deg) > 3.0 {
         out.push(format!(
             "the board is tilted by {:.1}° about x and {:.1}° about y: check that it is mounted parallel to the stage",
             cal.placement.tilt_x_deg, cal.placement.tilt_y_deg
+        ));
+    }
+    if let Some(o) = board_scatter {
+        out.push(format!(
+            "the LEDs sit off a rigid board by {:.2} mm RMS, each measured to about {:.3} mm (farthest ({}, {}) {:.2} mm; offset_mm in calibration.json): a hand-built board's own scatter, which widens Δx, Δy, θ, h's σ honestly; the reconstruction takes each LED on the fitted board, and `fpm reconstruct --refine-leds` moves them within it",
+            o.rms_mm, o.median_sigma_mm, o.farthest.row, o.farthest.col, o.farthest_mm
         ));
     }
     // Outliers whose shift puts their LED off the fitted board beyond 5σ of its own

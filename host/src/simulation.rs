@@ -166,6 +166,9 @@ pub struct CalibrationSet {
     pub feature_um: f64,
     /// Where the hole is, µm from the optical axis.
     pub feature_at_um: (f64, f64),
+    /// Each LED off its grid place by its own move, 1σ per axis, mm
+    /// ([`CalibrationScene::led_offset_mm`]).
+    pub led_jitter_mm: f64,
 }
 
 impl Default for CalibrationSet {
@@ -174,6 +177,7 @@ impl Default for CalibrationSet {
             defocus_um: 200.0,
             feature_um: 50.0,
             feature_at_um: (0.0, 0.0),
+            led_jitter_mm: 0.0,
         }
     }
 }
@@ -265,12 +269,36 @@ fn write_calibration_set_at(
     sim.feature_at_um = set.feature_at_um;
     sim.camera_px = scene.size;
     sim.camera = scene.camera();
+    if !(set.led_jitter_mm.is_finite() && set.led_jitter_mm >= 0.0) {
+        anyhow::bail!(
+            "led_jitter_mm {}: must be 0 or a positive distance in mm",
+            set.led_jitter_mm
+        );
+    }
+    sim.led_jitter_mm = set.led_jitter_mm;
     let frames = sim.acquire_focused_off(focal_shift_um);
     write_frames(out, &sim.system, &sim.camera, &frames, &nominal())?;
+    // Where the calibration's LEDs really were, when they were moved.
+    let leds = (set.led_jitter_mm > 0.0).then(|| {
+        let mut shot: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
+        shot.sort_by_key(|l| (l.row, l.col));
+        shot.dedup();
+        shot.into_iter()
+            .map(|led| {
+                let (x, y, h) = scene.truth.led_position_3d_mm(led);
+                let (dx, dy) = sim.led_offset_mm(led);
+                TrueLed {
+                    led,
+                    position_mm: [x + dx, y + dy, h],
+                }
+            })
+            .collect()
+    });
     let truth = Truth {
         defocus_um: Some(set.defocus_um),
         feature_um: Some(set.feature_um),
         feature_at_um: Some([set.feature_at_um.0, set.feature_at_um.1]),
+        leds,
         ..scene.truth_file()
     };
     write_json(&out.join("truth.json"), &truth)?;

@@ -173,6 +173,7 @@ pub fn simulate_calibration<'py>(
         defocus_um,
         feature_um,
         feature_at_um,
+        ..CalibrationSet::default()
     };
     let written = py
         .detach(|| simulation::write_calibration_set(&scene, &set, &out))

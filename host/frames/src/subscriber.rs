@@ -93,13 +93,19 @@ impl FrameSubscriber {
                 return Ok(None);
             }
             // Wake on the next signal (or the deadline); signals may be coalesced, so
-            // always look at the buffer again.
+            // always look at the buffer again. Never wait less than MIN_WAIT: a wait
+            // under a µs became "forever" (an acquisition hung at the end of a capture,
+            // its frame thread's deadline a few hundred ns away).
             self.listener
-                .timed_wait(|_| {}, deadline - now)
+                .timed_wait(|_| {}, (deadline - now).max(MIN_WAIT))
                 .map_err(|e| ipc("waiting for a frame")(&e))?;
         }
     }
 }
+
+/// The shortest wait for a frame's signal: iceoryx2 sets the wait as a socket timeout
+/// in whole µs, where 0 means forever.
+const MIN_WAIT: Duration = Duration::from_millis(1);
 
 /// Check a header against its payload length.
 pub(crate) fn validate(h: &FrameHeader, payload_len: usize) -> Result<(), FrameError> {

@@ -179,3 +179,30 @@ fn camera_settings_reach_a_late_reader() {
     );
     assert!(started.elapsed() < Duration::from_secs(1));
 }
+
+/// Waits shorter than a µs come back (iceoryx2 takes a wait as a socket timeout in
+/// whole µs, where 0 is forever: `fpm acquire` once hung at the end of a capture whose
+/// frame thread met its deadline a few hundred ns early). Each call must return within
+/// its timeout and a few ms; a hang fails the test instead of stalling it.
+#[test]
+fn a_wait_of_a_few_nanoseconds_returns() {
+    let names = unique("tiny-wait");
+    let (done_tx, done_rx) = std::sync::mpsc::channel();
+    // The subscriber's ports stay on the thread that made them.
+    std::thread::spawn(move || {
+        let subscriber = FrameSubscriber::create(&names).unwrap();
+        // Timeouts a little longer than a look at the buffer takes, finely spread, so
+        // that some calls are left with under a µs to wait.
+        for nanos in (0..800u64).map(|k| 500 + (k * 37) % 6_000) {
+            assert!(subscriber
+                .next(Duration::from_nanos(nanos))
+                .unwrap()
+                .is_none());
+        }
+        let _ = done_tx.send(());
+    });
+    assert!(
+        done_rx.recv_timeout(Duration::from_secs(20)).is_ok(),
+        "a wait of under a µs did not come back"
+    );
+}

@@ -237,7 +237,7 @@ pub struct CalibrationArgs {
     /// Put each LED off its grid place by its own move (1σ per axis, mm, drawn from the
     /// seed and the LED), as hand-soldered boards have them: `fpm calibrate` reports
     /// each one's offset, and truth.json lists where the calibration's LEDs really were.
-    #[arg(long, default_value_t = 0.0, value_parser = jitter_mm)]
+    #[arg(long, default_value_t = 0.0)]
     led_jitter_mm: f64,
 }
 
@@ -433,12 +433,4 @@ fn acquisition(a: AcquisitionArgs) -> Result<()> {
         written.truth.object_pixel_um.unwrap_or(f64::NAN)
     );
     Ok(())
-}
-
-/// A standard deviation in mm: finite, 0 or more.
-fn jitter_mm(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        _ => Err(format!("{text}: a standard deviation in mm (0 or more)")),
-    }
 }

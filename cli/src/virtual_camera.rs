@@ -93,7 +93,7 @@ pub struct VirtualCameraArgs {
 /// A display gamma a dataset can state: above 0, at most 5.
 fn display_gamma(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
-        Ok(g) if g > 0.0 && g <= 5.0 => Ok(g),
+        Ok(g) if fpm_host::dataset::CameraSection::is_valid_gamma(g) => Ok(g),
         _ => Err(format!("{text}: a gamma above 0 and at most 5 (e.g. 2.2)")),
     }
 }

@@ -269,21 +269,14 @@ fn write_calibration_set_at(
     sim.feature_at_um = set.feature_at_um;
     sim.camera_px = scene.size;
     sim.camera = scene.camera();
-    if !(set.led_jitter_mm.is_finite() && set.led_jitter_mm >= 0.0) {
-        anyhow::bail!(
-            "led_jitter_mm {}: must be 0 or a positive distance in mm",
-            set.led_jitter_mm
-        );
-    }
+    check_led_jitter(set.led_jitter_mm)?;
     sim.led_jitter_mm = set.led_jitter_mm;
     let frames = sim.acquire_focused_off(focal_shift_um);
     write_frames(out, &sim.system, &sim.camera, &frames, &nominal())?;
     // Where the calibration's LEDs really were, when they were moved.
     let leds = (set.led_jitter_mm > 0.0).then(|| {
-        let mut shot: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
-        shot.sort_by_key(|l| (l.row, l.col));
-        shot.dedup();
-        shot.into_iter()
+        fpm_physics::calibrate::calibration_grid(&scene.truth, sim.half_grid)
+            .into_iter()
             .map(|led| {
                 let (x, y, h) = scene.truth.led_position_3d_mm(led);
                 let (dx, dy) = sim.led_offset_mm(led);
@@ -465,15 +458,10 @@ fn write_acquisition_lit(
             UPSAMPLE.end()
         );
     }
-    if !(set.led_jitter_mm.is_finite() && set.led_jitter_mm >= 0.0) {
-        anyhow::bail!(
-            "led_jitter_mm {}: must be 0 or a positive distance in mm",
-            set.led_jitter_mm
-        );
-    }
+    check_led_jitter(set.led_jitter_mm)?;
     if let Some(gamma) = set
         .display_gamma
-        .filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0))
+        .filter(|g| !CameraSection::is_valid_gamma(*g))
     {
         anyhow::bail!("display gamma {gamma}: give an exponent above 0 and at most 5 (2.2 for sRGB-like images)");
     }
@@ -608,6 +596,14 @@ pub fn write_acquisition_of(
         frames: frames.len(),
         truth,
     })
+}
+
+/// A scene's LED jitter (`led_jitter_mm`): a standard deviation, 0 or more.
+fn check_led_jitter(jitter_mm: f64) -> Result<()> {
+    if !(jitter_mm.is_finite() && jitter_mm >= 0.0) {
+        anyhow::bail!("led_jitter_mm {jitter_mm}: must be 0 or a positive distance in mm");
+    }
+    Ok(())
 }
 
 /// Every LED of `truth`'s board, each moved laterally by N(0, σ = `jitter_mm`) per

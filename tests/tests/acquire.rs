@@ -46,6 +46,16 @@ fn acquired(emu: &Emulator, id: &str, out: &Path) -> serde_json::Value {
     fpm_tests::acquisition_report(out)
 }
 
+/// `fpm reconstruct DATA --passes PASSES --out RESULT EXTRA…`: its report.json.
+fn reconstruct(data: &Path, result: &Path, passes: &str, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["reconstruct", data.to_str().unwrap(), "--passes", passes];
+    args.extend(["--out", result.to_str().unwrap()]);
+    args.extend(extra);
+    fpm_tests::fpm_stdout(&args);
+    let text = std::fs::read_to_string(result.join("report.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
 fn camera(id: &str, truth: &std::path::Path, extra: &[&str]) -> VirtualCameraProcess {
     let mut args = vec!["--readout-ms", "1"];
     args.extend(extra);
@@ -143,12 +153,7 @@ fn every_frame_is_labelled_with_the_led_that_lit_it() {
     // the nominal one is used and named.
     let reconstructed = |extra: &[&str]| {
         let result = dir.0.join(format!("reconstruction{}", extra.len()));
-        let mut args = vec!["reconstruct", out.to_str().unwrap(), "--passes", "1"];
-        args.extend(["--out", result.to_str().unwrap()]);
-        args.extend(extra);
-        fpm_tests::fpm_stdout(&args);
-        let text = std::fs::read_to_string(result.join("report.json")).unwrap();
-        serde_json::from_str::<serde_json::Value>(&text).unwrap()
+        reconstruct(&out, &result, "1", extra)
     };
     let checks = |report: &serde_json::Value| -> Vec<String> {
         let warnings = report["warnings"].as_array().unwrap();
@@ -475,12 +480,7 @@ fn a_camera_gamma_is_stated_by_the_acquisition_and_decoded() {
     }
     let reconstructed = |extra: &[&str]| {
         let result = dir.0.join(format!("reconstruction{}", extra.len()));
-        let mut args = vec!["reconstruct", out.to_str().unwrap(), "--passes", "4"];
-        args.extend(["--out", result.to_str().unwrap()]);
-        args.extend(extra);
-        fpm_tests::fpm_stdout(&args);
-        let text = std::fs::read_to_string(result.join("report.json")).unwrap();
-        let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let report = reconstruct(&out, &result, "4", extra);
         let object = fpm_host::reconstruction::read_object(&result).unwrap();
         (report, score(&ds, &object))
     };

@@ -1171,7 +1171,7 @@ pub(crate) fn camera_section(
     let gamma = camera_settings
         .and_then(|s| s.get("encoding_gamma"))
         .and_then(serde_json::Value::as_f64)
-        .filter(|g| *g > 0.0 && *g <= 5.0);
+        .filter(|g| CameraSection::is_valid_gamma(*g));
     CameraSection {
         dark_level,
         gamma,

@@ -1186,12 +1186,11 @@ impl CalibrationScene {
     /// How far LED `led` sits off its place (x, y, mm): drawn from the seed and the
     /// LED, the same on every call.
     pub fn led_offset_mm(&self, led: LedIndex) -> (f64, f64) {
-        let Ok(jitter) = Normal::new(0.0, self.led_jitter_mm) else {
-            return (0.0, 0.0);
+        // 0 (or a σ no normal law takes): every LED where `truth` puts it.
+        let jitter = match Normal::new(0.0, self.led_jitter_mm) {
+            Ok(j) if self.led_jitter_mm > 0.0 => j,
+            _ => return (0.0, 0.0),
         };
-        if self.led_jitter_mm == 0.0 {
-            return (0.0, 0.0);
-        }
         let stream = ((led.row as u64) << 32) | led.col as u64;
         let mut rng = rand::rngs::StdRng::seed_from_u64(self.seed ^ 0x1ED5_0FF5 ^ stream);
         (jitter.sample(&mut rng), jitter.sample(&mut rng))

@@ -209,6 +209,11 @@ pub struct CameraSection {
 }
 
 impl CameraSection {
+    /// Whether `gamma` is one a dataset can state (`camera.gamma`): above 0, at most 5.
+    pub fn is_valid_gamma(gamma: f64) -> bool {
+        gamma.is_finite() && gamma > 0.0 && gamma <= 5.0
+    }
+
     /// How the stored values stand for light.
     pub fn response(&self) -> Response {
         match (self.gamma, self.bit_depth) {
@@ -238,7 +243,7 @@ impl CameraSection {
         let Some(gamma) = self.gamma else {
             return Ok(());
         };
-        let why = if !(gamma.is_finite() && gamma > 0.0 && gamma <= 5.0) {
+        let why = if !Self::is_valid_gamma(gamma) {
             "must be above 0 and at most 5 (2.2 for sRGB-like 8-bit images)"
         } else if self.bit_depth.is_none() {
             "needs camera.bit_depth: full scale is 2^bit_depth - 1"

@@ -337,8 +337,13 @@ def simulate_calibration(
     defocus_um: float = 200.0,
     feature_um: float = 50.0,
     feature_at_um: Tuple[float, float] = (0.0, 0.0),
+    led_jitter_mm: float = 0.0,
 ) -> Tuple[Dataset, dict[str, Json]]:
-    """A simulated pdcFPM calibration set written into `out`: (dataset, truth)."""
+    """A simulated pdcFPM calibration set written into `out`: (dataset, truth).
+
+    `led_jitter_mm`: each LED off its grid by its own draw of this σ per axis, as on a
+    hand-built board (truth["leds"] lists where the calibration's LEDs were; the
+    calibration's `leds[i]["offset_mm"]` measures each)."""
 
 def simulate_color_acquisition(
     out: Union[str, PathLike[str]],

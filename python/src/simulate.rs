@@ -4,6 +4,7 @@
 use fpm_physics::simulate::SampleKind;
 use std::path::PathBuf;
 
+use fpm_host::dataset::CameraSection;
 use fpm_host::simulation::{self, AcquisitionSet, CalibrationSet, Noise, Scene, Written};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -107,7 +108,7 @@ pub fn simulate_acquisition<'py>(
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let entrance_pupil_mm = entrance_pupil(entrance_pupil_mm)?;
     let sample = sample_kind(sample)?;
-    if let Some(g) = display_gamma.filter(|g| !(g.is_finite() && *g > 0.0 && *g <= 5.0)) {
+    if let Some(g) = display_gamma.filter(|g| !CameraSection::is_valid_gamma(*g)) {
         return Err(PyValueError::new_err(format!(
             "display_gamma: {g} is not an exponent above 0 and at most 5 (2.2 for sRGB-like images)"
         )));
@@ -140,10 +141,12 @@ pub fn simulate_acquisition<'py>(
 
 /// Simulate a pdcFPM calibration set (an in-focus reference and defocused frames of
 /// the LEDs around the centre, of a square hole `feature_um` wide at `feature_at_um`)
-/// with the array really at (dx_mm, dy_mm, theta_deg, height_mm). Written into `out`;
-/// returns (Dataset, truth dict).
+/// with the array really at (dx_mm, dy_mm, theta_deg, height_mm), each LED moved off
+/// its grid by its own draw of σ `led_jitter_mm` per axis (a hand-built board; the
+/// truth dict's `leds` lists where they were). Written into `out`; returns (Dataset,
+/// truth dict).
 #[pyfunction]
-#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, defocus_um = 200.0, feature_um = 50.0, feature_at_um = (0.0, 0.0)))]
+#[pyo3(signature = (out, *, size = 256, seed = 1, dx_mm = 1.0, dy_mm = 1.0, theta_deg = 5.0, height_mm = 92.0, tilt_deg = (0.0, 0.0), noise = "realistic", stray_light = 0.0, defocus_um = 200.0, feature_um = 50.0, feature_at_um = (0.0, 0.0), led_jitter_mm = 0.0))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn simulate_calibration<'py>(
     py: Python<'py>,
@@ -160,6 +163,7 @@ pub fn simulate_calibration<'py>(
     defocus_um: f64,
     feature_um: f64,
     feature_at_um: (f64, f64),
+    led_jitter_mm: f64,
 ) -> PyResult<(Dataset, Bound<'py, PyAny>)> {
     let scene = scene(
         size,
@@ -173,7 +177,7 @@ pub fn simulate_calibration<'py>(
         defocus_um,
         feature_um,
         feature_at_um,
-        ..CalibrationSet::default()
+        led_jitter_mm,
     };
     let written = py
         .detach(|| simulation::write_calibration_set(&scene, &set, &out))

@@ -73,3 +73,25 @@ def test_bad_options_are_refused(calibration_set):
         fpm.calibrate(ds, roi=(0, 0, 0, 10))
     with pytest.raises(ValueError, match="defocus_sigma_um"):
         fpm.calibrate(ds, defocus_sigma_um=-1.0)
+
+
+def test_a_hand_built_boards_own_scatter_is_measured_and_named(calibration_set, tmp_path):
+    # Each LED off its grid by σ 0.25 mm per axis: the calibration measures every LED's
+    # own place (offset_mm) and names the scatter; the rigid board of the module's set
+    # reads a few µm.
+    ds, truth = fpm.simulate_calibration(tmp_path, seed=11, led_jitter_mm=0.25, **TRUTH)
+    assert len(truth["leds"]) == 25, "the truth lists where the calibration's LEDs were"
+    scattered = fpm.calibrate(ds)
+    rigid = fpm.calibrate(calibration_set[1])
+
+    def offsets_rms(cal):
+        offsets = [l["offset_mm"] for l in cal.leds if l.get("offset_mm") is not None]
+        assert len(offsets) >= 20, cal.leds
+        return (sum(x * x + y * y for x, y in offsets) / (2 * len(offsets))) ** 0.5
+
+    assert offsets_rms(scattered) > 0.15, offsets_rms(scattered)
+    assert offsets_rms(rigid) < 0.02, offsets_rms(rigid)
+    assert any("sit off a rigid board" in w for w in scattered.warnings), scattered.warnings
+    assert not any("sit off a rigid board" in w for w in rigid.warnings), rigid.warnings
+    with pytest.raises(fpm.FpmError, match="led_jitter_mm"):
+        fpm.simulate_calibration(tmp_path / "bad", led_jitter_mm=-1.0)

@@ -475,6 +475,15 @@ fn a_camera_gamma_is_stated_by_the_acquisition_and_decoded() {
     assert_eq!(report["camera_settings"]["encoding_gamma"], 2.2, "{report}");
     let ds = Dataset::load(&out).unwrap();
     assert_eq!(ds.manifest.camera.gamma, Some(2.2));
+    // The page says how the frames are encoded, and what would give raw counts.
+    let page = std::fs::read_to_string(out.join("acquisition.html")).unwrap();
+    assert!(
+        page.contains(
+            "id=\"encoding\">encoded by the camera&#39;s gamma; dataset.toml states gamma = 2.200"
+        ),
+        "{page}"
+    );
+    assert!(page.contains("set the camera&#39;s Gamma to 1"), "{page}");
     for name in ["truth.json", "truth_amplitude.tif", "truth_phase.tif"] {
         std::fs::copy(truth.join(name), out.join(name)).unwrap();
     }

@@ -87,7 +87,51 @@ pub fn warnings(s: &AcquireSummary, failure: Option<&str>) -> Vec<String> {
     if let Some(p) = &s.capture.clock_problem {
         out.push(format!("camera clock: {p}"));
     }
+    match encoding_gamma(s.camera_settings.as_ref()) {
+        Encoding::Gamma(g) => out.push(format!(
+            "the camera encoded its frames with its gamma on (decoded with {g:.3}, as dataset.toml states): decoding undoes the curve but not its rounding of the dim dark-field light; set the camera's Gamma to 1 (or GammaEnable to false) for raw counts"
+        )),
+        Encoding::Lut => out.push(
+            "the camera's lookup table is on (LUTEnable): its frames may not be linear in the light and the dataset cannot say how (`fpm reconstruct` reads a gamma from the frames); set LUTEnable to false for raw counts"
+                .into(),
+        ),
+        Encoding::Linear | Encoding::Unreported => {}
+    }
     out
+}
+
+/// How the camera's frames stand for light, as its driver reported (`encoding_gamma`
+/// in its settings document).
+enum Encoding {
+    Linear,
+    Gamma(f64),
+    /// A lookup table is on: the driver cannot say.
+    Lut,
+    /// No settings document, or one without the field (an older publisher).
+    Unreported,
+}
+
+fn encoding_gamma(settings: Option<&serde_json::Value>) -> Encoding {
+    match settings.and_then(|s| s.get("encoding_gamma")) {
+        None => Encoding::Unreported,
+        Some(serde_json::Value::Null) => Encoding::Lut,
+        Some(v) => match v.as_f64() {
+            Some(g) if (g - 1.0).abs() <= 1e-6 => Encoding::Linear,
+            // As `acquisition::camera_section` states it in dataset.toml.
+            Some(g) if fpm_host::dataset::CameraSection::is_valid_gamma(g) => Encoding::Gamma(g),
+            _ => Encoding::Unreported,
+        },
+    }
+}
+
+/// The "frames" row of the acquisition page.
+fn encoding_row(settings: Option<&serde_json::Value>) -> String {
+    match encoding_gamma(settings) {
+        Encoding::Linear => "raw counts, linear in the light (the camera's gamma off; dataset.toml states gamma = 1)".into(),
+        Encoding::Gamma(g) => format!("encoded by the camera's gamma; dataset.toml states gamma = {g:.3}, which `fpm reconstruct` decodes"),
+        Encoding::Lut => "through the camera's lookup table: not stated in dataset.toml".into(),
+        Encoding::Unreported => "not reported by the camera: dataset.toml states no gamma, and `fpm reconstruct` screens frames of more than 8 bits for one".into(),
+    }
 }
 
 /// `out/acquisition.html`.
@@ -135,6 +179,11 @@ fn write_acquisition(
             ),
         ),
         Row::new("frames in the dataset", s.frames_in_dataset.to_string()),
+        Row::with_id(
+            "encoding",
+            "frames' encoding",
+            encoding_row(s.camera_settings.as_ref()),
+        ),
     ];
     if let Some(r) = &s.retake {
         rows.push(Row::new(
@@ -239,4 +288,35 @@ fn write_acquisition(
     page.heading("Reproduce");
     page.command(&command_line());
     page.write(&out.join("acquisition.html"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_frames_encoding_follows_the_cameras_settings_document() {
+        let of = |v: serde_json::Value| encoding_gamma(Some(&v));
+        assert!(matches!(
+            of(serde_json::json!({"encoding_gamma": 1.0})),
+            Encoding::Linear
+        ));
+        assert!(
+            matches!(of(serde_json::json!({"encoding_gamma": 2.2})), Encoding::Gamma(g) if g == 2.2)
+        );
+        assert!(matches!(
+            of(serde_json::json!({"encoding_gamma": null})),
+            Encoding::Lut
+        ));
+        assert!(matches!(
+            of(serde_json::json!({"exposure_us": 10.0})),
+            Encoding::Unreported
+        ));
+        // A gamma no dataset can state is not claimed as stated.
+        assert!(matches!(
+            of(serde_json::json!({"encoding_gamma": 9.0})),
+            Encoding::Unreported
+        ));
+        assert!(matches!(encoding_gamma(None), Encoding::Unreported));
+    }
 }

@@ -459,3 +459,16 @@ pub fn rate_of_clear_field() -> f32 {
     let c = fpm_physics::simulate::Camera::realistic();
     (c.electrons_per_ms * c.gain_dn_per_e) as f32
 }
+
+/// Copy the dataset in `from` (its files and `frames/`) to `to`.
+pub fn copy_dataset(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("frames")).unwrap();
+    for dir in [PathBuf::new(), PathBuf::from("frames")] {
+        for entry in std::fs::read_dir(from.join(&dir)).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_file() {
+                std::fs::copy(&path, to.join(&dir).join(path.file_name().unwrap())).unwrap();
+            }
+        }
+    }
+}

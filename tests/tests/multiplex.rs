@@ -104,6 +104,36 @@ fn a_frame_lit_by_several_leds_is_read_back_and_refused_where_one_led_is_needed(
         stderr.contains("--refine-leds needs frames lit by one LED"),
         "{stderr}"
     );
+    // So a run that does not converge (here: the dataset states NA 0.13 for 0.1) is not
+    // told to try it: the advice applies to the frames at hand.
+    let wrong_na = tmp.0.join("wrong-na");
+    fpm_tests::copy_dataset(&data, &wrong_na);
+    let manifest = wrong_na.join("dataset.toml");
+    let stated = std::fs::read_to_string(&manifest).unwrap();
+    assert!(stated.contains("\nna = 0.1\n"), "{stated}");
+    std::fs::write(&manifest, stated.replace("\nna = 0.1\n", "\nna = 0.13\n")).unwrap();
+    let done = reconstruct(&wrong_na, &tmp.0.join("wrong-na-out"), &[]);
+    assert!(done.status.success());
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.0.join("wrong-na-out/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        report["multiplexed_frames"], 99,
+        "{}",
+        report["multiplexed_frames"]
+    );
+    let rose = report["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["check"] == "error-rose")
+        .unwrap_or_else(|| panic!("no error-rose warning: {}", report["warnings"]));
+    let message = rose["message"].as_str().unwrap();
+    assert!(
+        message.contains("fpm calibrate, then --calibration") && !message.contains("--refine-leds"),
+        "{message}"
+    );
 
     let text = std::fs::read_to_string(data.join("dataset.toml")).unwrap();
     let first = text.find("leds = [[").unwrap();

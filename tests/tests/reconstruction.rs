@@ -836,21 +836,8 @@ fn says_dim_dark_field(report: &serde_json::Value) -> bool {
 /// A copy of the vendored USAF dataset in `dir`, to add files beside it.
 fn usaf_copy(dir: &Path) -> PathBuf {
     let to = dir.join("usaf");
-    copy_dataset(&usaf(), &to);
+    fpm_tests::copy_dataset(&usaf(), &to);
     to
-}
-
-/// Copy the dataset in `from` (its files and `frames/`) to `to`.
-fn copy_dataset(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to.join("frames")).unwrap();
-    for dir in [PathBuf::new(), PathBuf::from("frames")] {
-        for entry in std::fs::read_dir(from.join(&dir)).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_file() {
-                std::fs::copy(&path, to.join(&dir).join(path.file_name().unwrap())).unwrap();
-            }
-        }
-    }
 }
 
 /// Frames stored for display (`--display-gamma 2.2`, as camera software exporting 8-bit
@@ -871,7 +858,7 @@ fn display_encoded_frames_decoded_reconstruct_as_well_as_raw_counts() {
     args.extend_from_slice(&["--display-gamma", "2.2"]);
     simulate_acquisition(&encoded, &args);
     let as_linear = dir.0.join("as-linear");
-    copy_dataset(&encoded.0, &as_linear);
+    fpm_tests::copy_dataset(&encoded.0, &as_linear);
     let toml = as_linear.join("dataset.toml");
     let stated = std::fs::read_to_string(&toml).unwrap();
     assert!(stated.contains("gamma = 2.2\n"), "{stated}");
@@ -1480,7 +1467,7 @@ fn with_led_section(
     to: &Path,
     led: impl FnOnce(&fpm_physics::LedGeometry) -> fpm_host::dataset::LedSection,
 ) {
-    copy_dataset(from, to);
+    fpm_tests::copy_dataset(from, to);
     let mut m = fpm_host::dataset::DatasetOnDisk::open(to).unwrap().manifest;
     m.led = led(&m.geometry());
     m.write(to).unwrap();

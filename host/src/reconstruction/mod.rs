@@ -140,6 +140,14 @@ pub struct Report {
     /// what advice applies to them (floats carry no display gamma).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sample_bits: Option<u32>,
+    /// Frames lit by more than one LED (a multiplexed acquisition): advice that needs
+    /// frames of one LED each (`--refine-leds`) does not apply to them.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub multiplexed_frames: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// h from the bright/dark-field boundary, beside the geometry's h.
@@ -323,6 +331,7 @@ impl Report {
             bright_field_fit: outcome.bright_field,
             refocus: RefocusReport::given(settings.defocus_um),
             sample_bits: None,
+            multiplexed_frames: 0,
         }
     }
 }
@@ -506,6 +515,7 @@ pub fn reconstruct_with_system(
     report.height_from_boundary = boundary_check(system, geometry, &frames);
     report.camera_gamma = ds.manifest.camera.gamma;
     report.sample_bits = ds.frames.first().map(|f| f.raw.bits());
+    report.multiplexed_frames = frames.iter().filter(|f| f.is_multiplexed()).count();
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 
@@ -614,6 +624,10 @@ pub fn reconstruct_on_disk(
     report.height_from_boundary = edges.and_then(|e| BoundaryCheck::read(&system, geometry, &e));
     report.camera_gamma = ds.manifest.camera.gamma;
     report.sample_bits = Some(ds.sample_bits());
+    report.multiplexed_frames = indices
+        .iter()
+        .filter(|&&k| ds.manifest.frames[k].is_multiplexed())
+        .count();
     Ok(Reconstruction::from_outcome(outcome, report))
 }
 

@@ -136,10 +136,16 @@ pub fn checks(report: &Report) -> Vec<Warning> {
     if let Some((pass, error, before)) =
         fpm_physics::reconstruct::schedule::divergence(&report.error_per_pass)
     {
+        // Refinement needs frames of one LED each (it refuses multiplexed ones).
+        let geometry_help = if report.multiplexed_frames > 0 {
+            "fpm calibrate, then --calibration"
+        } else {
+            "fpm calibrate, or --refine-leds"
+        };
         out.push(
             Check::ErrorRose,
             format!(
-                "the frames' error rose to {error:.4} in pass {pass} (from {before:.4}): the reconstruction is not converging; check the geometry (fpm calibrate, or --refine-leds) and the dataset's NA and wavelength"
+                "the frames' error rose to {error:.4} in pass {pass} (from {before:.4}): the reconstruction is not converging; check the geometry ({geometry_help}) and the dataset's NA and wavelength"
             ),
         );
     }

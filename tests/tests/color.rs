@@ -223,3 +223,37 @@ fn a_colour_dataset_says_what_it_is_where_one_colour_is_expected() {
         "{err}"
     );
 }
+
+/// Channels that lie where each other do are registered so, even when one is far out
+/// of focus and refocused (blue 150 µm from green's focus, 128² frames): the phase
+/// correlation once whitened the empty band beyond the synthetic aperture, read the
+/// aligned channels 35 µm apart, shifted blue by it in the colour image and warned of a
+/// die offset that was not there.
+#[test]
+fn aligned_channels_are_registered_as_aligned() {
+    let tmp = TempDir::new("color-aligned");
+    let data = tmp.0.join("gb");
+    simulate_centred(
+        &data,
+        "128",
+        "1",
+        &[
+            "--colors",
+            "green,blue",
+            "--sample",
+            "stained",
+            "--focal-shift-um",
+            "blue=150",
+            "--spectral-samples",
+            "1",
+        ],
+    );
+    let report = reconstruct(&data, &tmp.0.join("out"), &[]);
+    for c in report["channels"].as_array().unwrap() {
+        let [x, y] = [0, 1].map(|i| c["shift_um"][i].as_f64().unwrap());
+        eprintln!("{}: registered ({x:+.2}, {y:+.2}) µm", c["name"]);
+        // Measured: 0.31 µm (27 µm before the whitening had a floor).
+        assert!(x.hypot(y) < 1.0, "{}: ({x}, {y}) µm", c["name"]);
+    }
+    assert!(!warned(&report, "color-shift"), "{}", report["warnings"]);
+}

@@ -538,12 +538,21 @@ fn write_and_print_color(
             );
         }
     }
-    for w in report
-        .warnings
-        .iter()
-        .chain(report.channels.iter().flat_map(|c| c.warnings.iter()))
-    {
+    for w in &report.warnings {
         eprintln!("warning: {}", w.message);
+    }
+    // Each channel's warnings, named by its channel; one said by several, once.
+    let mut said: Vec<(&str, Vec<&str>)> = vec![];
+    for c in &report.channels {
+        for w in &c.warnings {
+            match said.iter_mut().find(|(m, _)| *m == w.message) {
+                Some((_, names)) => names.push(&c.name),
+                None => said.push((&w.message, vec![&c.name])),
+            }
+        }
+    }
+    for (message, names) in said {
+        eprintln!("warning: {}: {message}", names.join(", "));
     }
     Ok(())
 }

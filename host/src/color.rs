@@ -659,7 +659,7 @@ pub fn reconstruct(
             clear_level: fpm_physics::color::clear_level(registered.mapv(|z| z.norm()).view()),
             final_error: report.error_per_pass.last().copied(),
             versus_truth: report.versus_truth,
-            warnings: crate::reconstruction::checks(report),
+            warnings: channel_warnings(report),
         });
         runs.push(ChannelRun {
             name: c.name.clone(),
@@ -759,4 +759,19 @@ pub fn write_outputs(
         serde_json::to_string_pretty(report)?,
     )
     .with_context(|| format!("writing {}", out.join("report.json").display()))
+}
+
+/// A channel's warnings: its run's, with focus advice that fits a colour run (the
+/// colours focus apart, so "focus the microscope" for one defocuses the others).
+fn channel_warnings(report: &crate::reconstruction::Report) -> Vec<crate::reconstruction::Warning> {
+    let mut warnings = crate::reconstruction::checks(report);
+    for w in warnings
+        .iter_mut()
+        .filter(|w| w.check == crate::reconstruction::Check::Refocus)
+    {
+        if let Some(message) = report.refocus.warning_for_colour() {
+            w.message = message;
+        }
+    }
+    warnings
 }

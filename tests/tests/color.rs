@@ -248,7 +248,24 @@ fn aligned_channels_are_registered_as_aligned() {
             "1",
         ],
     );
-    let report = reconstruct(&data, &tmp.0.join("out"), &[]);
+    let done = Command::new(fpm_bin())
+        .args(["reconstruct", &data.to_string_lossy(), "--out"])
+        .arg(tmp.0.join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&done.stderr);
+    assert!(done.status.success(), "{stderr}");
+    // Each channel's warnings say whose they are, and one shared by both is said once.
+    assert_eq!(
+        stderr
+            .matches("warning: green, blue: the LED positions are the nominal ones")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.0.join("out/report.json")).unwrap())
+            .unwrap();
     for c in report["channels"].as_array().unwrap() {
         let [x, y] = [0, 1].map(|i| c["shift_um"][i].as_f64().unwrap());
         eprintln!("{}: registered ({x:+.2}, {y:+.2}) µm", c["name"]);
@@ -256,4 +273,24 @@ fn aligned_channels_are_registered_as_aligned() {
         assert!(x.hypot(y) < 1.0, "{}: ({x}, {y}) µm", c["name"]);
     }
     assert!(!warned(&report, "color-shift"), "{}", report["warnings"]);
+    // Blue is refocused by its chromatic shift, and not told to focus the microscope
+    // for it (that would defocus green).
+    let blue = report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == "blue")
+        .unwrap();
+    let refocus = blue["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["check"] == "refocus")
+        .unwrap_or_else(|| panic!("blue: {}", blue["warnings"]));
+    let message = refocus["message"].as_str().unwrap();
+    assert!(
+        message.contains("the colours of a run focus apart")
+            && !message.contains("focus the microscope before the next acquisition"),
+        "{message}"
+    );
 }

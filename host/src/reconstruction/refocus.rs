@@ -61,6 +61,20 @@ impl RefocusReport {
 
     /// What a user should know about the focus, with what to do (None: nothing).
     pub fn warning(&self) -> Option<String> {
+        self.warning_with("focus the microscope before the next acquisition")
+    }
+
+    /// [`warning`](Self::warning) for one colour of a colour run: the colours focus
+    /// apart by the objective's chromatic focal shift, so focusing the microscope for
+    /// this one defocuses the others.
+    pub fn warning_for_colour(&self) -> Option<String> {
+        self.warning_with(
+            "the colours of a run focus apart (the objective's chromatic focal shift; a colour calibration measures it), so focus the microscope in the colour that matters most",
+        )
+    }
+
+    /// The warning, with `focus_advice` for a sample clearly out of focus.
+    fn warning_with(&self, focus_advice: &str) -> Option<String> {
         let e = self.estimate.as_ref()?;
         let shown = format!(
             "the bright-field frames' shifts put the sample {:.1} ± {:.1} µm out of focus ({} of {} frames fit, rms {:.2} µm)",
@@ -73,7 +87,7 @@ impl RefocusReport {
         match self.choice {
             RefocusChoice::Given => None,
             RefocusChoice::WhereClear if e.is_clear() => Some(format!(
-                "{shown}: the image is refocused by it; focus the microscope before the next acquisition, or give --refocus-um 0 to reconstruct as in focus"
+                "{shown}: the image is refocused by it; {focus_advice}, or give --refocus-um 0 to reconstruct as in focus"
             )),
             RefocusChoice::WhereClear => None,
             RefocusChoice::Auto if !e.is_clear() => Some(format!(

@@ -59,21 +59,17 @@ fn python_package_builds_and_its_tests_pass() {
     );
 }
 
-/// What `pip install ptychoscope` would give a user without Rust: the wheel (abi3,
-/// one file for every CPython from 3.9, manylinux x86_64) built by maturin, installed
-/// into a fresh virtual environment with NumPy alone, and the Python example run there
-/// with no `cargo` or `rustc` on the PATH, importing the installed package. Built in
-/// the dev profile (the physics and every dependency optimised, Cargo.toml): the same
-/// packaging as `--release`, whose only difference is the optimisation of our own
-/// crates, and it reuses what the test above compiled instead of building the whole
-/// tree a second time (the release build was most of this binary's 490 s in CI).
+/// What `pip install ptychoscope` would give a user without Rust: the release wheel
+/// (abi3, one file for every CPython from 3.9, manylinux x86_64) built by maturin,
+/// installed into a fresh virtual environment with NumPy alone, and the Python example
+/// run there with no `cargo` or `rustc` on the PATH, importing the installed package.
 #[test]
 fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust() {
     let (workspace, _, venv) = package_environment();
     let scratch = tempfile::tempdir().unwrap();
     let wheels = scratch.path().join("wheels");
     let build = Command::new(venv.join("bin/maturin"))
-        .args(["build", "--profile", "dev", "--strip", "--quiet", "-m"])
+        .args(["build", "--release", "--strip", "--quiet", "-m"])
         .arg(workspace.join("python/Cargo.toml"))
         .arg("--out")
         .arg(&wheels)

@@ -174,6 +174,10 @@ pub fn phase_at(phase_at_047: f64, wavelength_um: f64) -> f64 {
     phase_at_047 * 0.47 / wavelength_um
 }
 
+/// The whitening's floor in [`register`], a share of the cross-power's mean: 0.01–0.1
+/// all read the known offsets of simulated colour runs (0 did not), 1 lost one.
+const WHITENING_FLOOR: f64 = 0.1;
+
 /// Where `moving` lies against `reference` (the same scene in another colour), in
 /// pixels (x, y): `moving` ≈ `reference` shifted by that much. Phase correlation over
 /// the central square (≤ 1024 px, Hann-windowed, mean removed), sub-pixel by a
@@ -183,10 +187,6 @@ pub fn phase_at(phase_at_047: f64, wavelength_um: f64) -> f64 {
 /// reconstruction upsampled 4× holds light only inside its synthetic aperture, and
 /// whitened alike, the weak rest of its spectrum decided the peak (two aligned colour
 /// channels of 128² frames read 31–35 µm apart).
-/// The whitening's floor in [`register`], a share of the cross-power's mean: 0.01–0.1
-/// all read the known offsets of simulated colour runs (0 did not), 1 lost one.
-const WHITENING_FLOOR: f64 = 0.1;
-
 pub fn register(reference: ArrayView2<'_, f32>, moving: ArrayView2<'_, f32>) -> Option<(f64, f64)> {
     let (h, w) = reference.dim();
     if moving.dim() != (h, w) {

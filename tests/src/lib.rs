@@ -3,6 +3,7 @@
 //! them.
 
 pub mod browser;
+pub mod once;
 /// The service's own blocking client, failing the test on a failed request.
 pub mod http {
     pub use fpm_serve::client::Response;
@@ -28,9 +29,9 @@ use std::sync::OnceLock;
 /// `requirements` installed, made (or remade, when the requirements changed) on first
 /// use. Needs Python ≥ 3.9 with `venv`; the packages come from PyPI.
 pub fn python_venv(name: &str, requirements: &Path) -> PathBuf {
-    // Tests of one binary run on threads: one makes the environment, the others wait.
-    static MAKING: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _making = MAKING.lock().unwrap_or_else(|e| e.into_inner());
+    // Tests run as threads of one process (cargo test) or as processes (nextest): one
+    // makes the environment, the others wait for it.
+    let _making = once::exclusive(&format!("venv-{name}"));
     let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
     let venv = workspace.join("target").join(name);
     let python = venv.join("bin/python");
@@ -60,7 +61,10 @@ pub fn python_venv(name: &str, requirements: &Path) -> PathBuf {
     python
 }
 
-/// The `fpm` executable, built with the same profile as the running test.
+/// The `fpm` executable, built with the same profile as the running test and with
+/// the whole workspace's features (`--workspace --tests --bins`, as `cargo test
+/// --workspace` resolves them), so that it reuses the libraries the test build made;
+/// `-p ptychoscope` alone resolves fewer features and rebuilt most of the tree.
 pub fn fpm_bin() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
@@ -73,42 +77,46 @@ pub fn fpm_bin() -> &'static Path {
         let profile = profile_dir
             .file_name()
             .and_then(|s| s.to_str())
-            .unwrap_or("debug");
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut cmd = Command::new(cargo);
-        cmd.args([
-            "build",
-            "--quiet",
-            "-p",
-            "ptychoscope",
-            "--bin",
-            "fpm",
-            "--message-format=json",
-        ]);
-        if profile != "debug" {
-            cmd.args([
-                "--profile",
-                if profile == "release" {
-                    "release"
-                } else {
-                    profile
-                },
-            ]);
-        }
-        let out = cmd
-            .stderr(Stdio::inherit())
-            .output()
-            .expect("running cargo build");
-        assert!(out.status.success(), "cargo build of fpm failed");
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        stdout
-            .lines()
-            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-            .filter(|v| v["reason"] == "compiler-artifact" && v["target"]["name"] == "fpm")
-            .filter_map(|v| v["executable"].as_str().map(PathBuf::from))
-            .next_back()
-            .expect("cargo reported the fpm executable")
+            .unwrap_or("debug")
+            .to_string();
+        PathBuf::from(once::once_per_run(&format!("fpm-bin-{profile}"), || {
+            build_fpm(&profile)
+        }))
     })
+}
+
+fn build_fpm(profile: &str) -> String {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args([
+        "build",
+        "--quiet",
+        "--workspace",
+        "--tests",
+        "--bins",
+        "--message-format=json",
+    ])
+    .current_dir(workspace());
+    if profile != "debug" {
+        cmd.args(["--profile", profile]);
+    }
+    let out = cmd
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("running cargo build");
+    assert!(out.status.success(), "cargo build of fpm failed");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    stdout
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|v| {
+            v["reason"] == "compiler-artifact"
+                && v["target"]["name"] == "fpm"
+                && v["profile"]["test"] == false
+        })
+        .filter_map(|v| v["executable"].as_str().map(String::from))
+        .next_back()
+        .expect("cargo reported the fpm executable")
 }
 
 /// Which controller a conformance test talks to.
@@ -173,55 +181,11 @@ pub fn firmware_uf2() -> &'static Path {
 pub fn firmware_uf2_with_lanes(lanes: u8) -> &'static Path {
     static UF2: OnceLock<Vec<(u8, PathBuf)>> = OnceLock::new();
     let images = UF2.get_or_init(|| {
-        let root = workspace();
-        let release = root.join("target/thumbv6m-none-eabi/release");
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let run = |cmd: &mut Command, what: &str| {
-            let status = cmd
-                .stdout(Stdio::null())
-                .status()
-                .unwrap_or_else(|e| panic!("{what}: {e}"));
-            assert!(status.success(), "{what} failed: {status}");
-        };
-        // Built from its own directory so its .cargo/config.toml (target, linker
-        // scripts) applies; cargo makes this a no-op when nothing changed.
-        run(
-            Command::new(&cargo)
-                .args(["build", "--release", "--quiet"])
-                .current_dir(root.join("firmware/rp2040"))
-                .env_remove("CARGO_TARGET_DIR"),
-            "building the RP2040 firmware",
-        );
-        let images: Vec<(u8, PathBuf)> = [
-            (1, "fpm-led-controller"),
-            (2, "fpm-led-controller-2lanes"),
-            (4, "fpm-led-controller-4lanes"),
-        ]
-        .into_iter()
-        .map(|(lanes, name)| {
-            let elf = release.join(name);
-            let uf2 = elf.with_extension("uf2");
-            run(
-                Command::new(&cargo)
-                    .args(["run", "--quiet", "-p", "fpm-fwtool", "--", "uf2"])
-                    .arg(&elf)
-                    .arg(&uf2)
-                    .current_dir(root),
-                "writing the firmware's UF2 image",
-            );
-            (lanes, uf2)
-        })
-        .collect();
-        let harness = root.join("tools/rp2040");
-        if !harness.join("node_modules/rp2040js").is_dir() {
-            run(
-                Command::new("npm")
-                    .args(["ci", "--no-audit", "--no-fund"])
-                    .current_dir(&harness),
-                "installing the RP2040 emulator (npm ci in tools/rp2040)",
-            );
-        }
-        images
+        // Once per run: another test process may be writing the same UF2 files.
+        let release = PathBuf::from(once::once_per_run("firmware-uf2", build_firmware_images));
+        FIRMWARE_IMAGES
+            .map(|(lanes, name)| (lanes, release.join(name).with_extension("uf2")))
+            .to_vec()
     });
     images
         .iter()
@@ -229,6 +193,58 @@ pub fn firmware_uf2_with_lanes(lanes: u8) -> &'static Path {
         .map(|(_, uf2)| uf2.as_path())
         .unwrap_or_else(|| panic!("no firmware image for {lanes} lanes (1, 2 or 4)"))
 }
+
+/// Build the firmware images and their UF2 files, and install the RP2040 emulator's
+/// Node packages: the directory of the images.
+fn build_firmware_images() -> String {
+    let root = workspace();
+    let release = root.join("target/thumbv6m-none-eabi/release");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let run = |cmd: &mut Command, what: &str| {
+        let status = cmd
+            .stdout(Stdio::null())
+            .status()
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert!(status.success(), "{what} failed: {status}");
+    };
+    // Built from its own directory so its .cargo/config.toml (target, linker
+    // scripts) applies; cargo makes this a no-op when nothing changed.
+    run(
+        Command::new(&cargo)
+            .args(["build", "--release", "--quiet"])
+            .current_dir(root.join("firmware/rp2040"))
+            .env_remove("CARGO_TARGET_DIR"),
+        "building the RP2040 firmware",
+    );
+    for name in FIRMWARE_IMAGES.map(|(_, name)| name) {
+        let elf = release.join(name);
+        run(
+            Command::new(&cargo)
+                .args(["run", "--quiet", "-p", "fpm-fwtool", "--", "uf2"])
+                .arg(&elf)
+                .arg(elf.with_extension("uf2"))
+                .current_dir(root),
+            "writing the firmware's UF2 image",
+        );
+    }
+    let harness = root.join("tools/rp2040");
+    if !harness.join("node_modules/rp2040js").is_dir() {
+        run(
+            Command::new("npm")
+                .args(["ci", "--no-audit", "--no-fund"])
+                .current_dir(&harness),
+            "installing the RP2040 emulator (npm ci in tools/rp2040)",
+        );
+    }
+    release.display().to_string()
+}
+
+/// The firmware's images: the chain's data lanes and the ELF's name.
+const FIRMWARE_IMAGES: [(u8, &str); 3] = [
+    (1, "fpm-led-controller"),
+    (2, "fpm-led-controller-2lanes"),
+    (4, "fpm-led-controller-4lanes"),
+];
 
 /// Run `fpm args…`, which must succeed (its stderr in the panic otherwise); its stdout.
 pub fn fpm_stdout(args: &[&str]) -> String {

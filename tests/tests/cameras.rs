@@ -4,24 +4,26 @@
 //! opened by address, never found by a discovery broadcast. One fake camera can listen
 //! on 127.0.0.1 at a time (GVCP's port is fixed), so these tests take turns.
 
+use std::fs::File;
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use fpm_frames::{FrameSubscriber, ServiceNames};
 use fpm_tests::{child, fpm_bin, ChildProcess, Ready, TempDir};
-
-static ONE_CAMERA_AT_A_TIME: Mutex<()> = Mutex::new(());
+use nix::fcntl::Flock;
 
 const FAKE_CAMERA: &str = "arv-fake-gv-camera-0.8";
 
-/// This test's turn with a fresh fake camera (serial from `tag`): hold both.
-fn own_fake_camera(tag: &str) -> (std::sync::MutexGuard<'static, ()>, ChildProcess) {
-    let turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    (turn, fake_camera(&unique(tag)))
+/// This test's turn with a fresh fake camera (serial from `tag`): hold both. The turn
+/// is a file lock, as tests run as threads (cargo test) or processes (nextest).
+fn own_fake_camera(tag: &str) -> (Flock<File>, ChildProcess) {
+    own_fake_camera_with_serial(&unique(tag))
+}
+
+fn own_fake_camera_with_serial(serial: &str) -> (Flock<File>, ChildProcess) {
+    let turn = fpm_tests::once::exclusive("fake-gige-camera");
+    (turn, fake_camera(serial))
 }
 
 /// `fpm camera run --aravis 127.0.0.1 ARGS`, which must fail: its stderr.
@@ -105,11 +107,8 @@ fn fastrand() -> u32 {
 /// The fake camera is found by its address, with its identity, and nothing else is
 /// asked (no broadcast).
 fn the_camera_is_listed_by_address() {
-    let _turn = ONE_CAMERA_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
     let serial = unique("LIST");
-    let _camera = fake_camera(&serial);
+    let (_turn, _camera) = own_fake_camera_with_serial(&serial);
     let out = fpm(&["camera", "list", "--address", "127.0.0.1", "--json"]);
     assert!(out.status.success(), "{out:?}");
     let list: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

@@ -1,10 +1,12 @@
-//! The Python package (`python/`, `import fpm`): built with maturin into a virtual
-//! environment from the same crates as the CLI, then its pytest suite
+//! The Python package (`python/`, `import fpm`): its release wheel built with maturin
+//! from the same crates as the CLI and installed into a virtual environment, then its
+//! pytest suite
 //! (python/tests/, which also runs examples/python_session.py) against the real USAF
 //! data, simulated sets, and the `fpm` command for comparison.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::OnceLock;
 
 use fpm_tests::{fpm_bin, python_venv};
 
@@ -24,20 +26,66 @@ fn package_environment() -> (&'static Path, PathBuf, PathBuf) {
     (workspace, python, venv)
 }
 
+/// The release wheel users get (`maturin build --release --strip`, abi3, one file for
+/// every CPython from 3.9, manylinux x86_64), built once per run under
+/// `target/python-wheel` and shared by both tests: the pytest suite runs against it
+/// installed, as a user's `pip install` gives it. (`maturin develop` beside it compiled
+/// the whole tree a second time, in another profile and feature set.)
+fn release_wheel() -> PathBuf {
+    static WHEEL: OnceLock<PathBuf> = OnceLock::new();
+    WHEEL
+        .get_or_init(|| {
+            let (workspace, _, venv) = package_environment();
+            PathBuf::from(fpm_tests::once::once_per_run("python-wheel", || {
+                let wheels = workspace.join("target/python-wheel");
+                let _ = std::fs::remove_dir_all(&wheels);
+                let build = Command::new(venv.join("bin/maturin"))
+                    .args(["build", "--release", "--strip", "--quiet", "-m"])
+                    .arg(workspace.join("python/Cargo.toml"))
+                    .arg("--out")
+                    .arg(&wheels)
+                    .output()
+                    .expect("running maturin");
+                assert!(
+                    build.status.success(),
+                    "maturin build failed:\n{}",
+                    String::from_utf8_lossy(&build.stderr)
+                );
+                let built: Vec<_> = std::fs::read_dir(&wheels)
+                    .unwrap()
+                    .map(|e| e.unwrap().path())
+                    .collect();
+                let [wheel] = built.as_slice() else {
+                    panic!("one wheel expected: {built:?}")
+                };
+                wheel.display().to_string()
+            }))
+        })
+        .clone()
+}
+
 #[test]
 fn python_package_builds_and_its_tests_pass() {
-    let (workspace, python, venv) = package_environment();
-    // The dev profile builds the physics optimised (Cargo.toml), as the tests do.
-    let build = Command::new(venv.join("bin/maturin"))
-        .args(["develop", "--quiet", "-m"])
-        .arg(workspace.join("python/Cargo.toml"))
-        .env("VIRTUAL_ENV", &venv)
+    let (workspace, python, _) = package_environment();
+    let wheel = release_wheel();
+    // The test environment's own copy of the package, replaced by this run's wheel.
+    let install = Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--force-reinstall",
+        ])
+        .arg(&wheel)
         .output()
-        .expect("running maturin");
+        .expect("running pip");
     assert!(
-        build.status.success(),
-        "maturin develop failed:\n{}",
-        String::from_utf8_lossy(&build.stderr)
+        install.status.success(),
+        "installing {}:\n{}",
+        wheel.display(),
+        String::from_utf8_lossy(&install.stderr)
     );
     let tests = Command::new(&python)
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
@@ -60,33 +108,13 @@ fn python_package_builds_and_its_tests_pass() {
 }
 
 /// What `pip install ptychoscope` would give a user without Rust: the release wheel
-/// (abi3, one file for every CPython from 3.9, manylinux x86_64) built by maturin,
 /// installed into a fresh virtual environment with NumPy alone, and the Python example
 /// run there with no `cargo` or `rustc` on the PATH, importing the installed package.
 #[test]
 fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust() {
-    let (workspace, _, venv) = package_environment();
+    let (workspace, _, _) = package_environment();
     let scratch = tempfile::tempdir().unwrap();
-    let wheels = scratch.path().join("wheels");
-    let build = Command::new(venv.join("bin/maturin"))
-        .args(["build", "--release", "--strip", "--quiet", "-m"])
-        .arg(workspace.join("python/Cargo.toml"))
-        .arg("--out")
-        .arg(&wheels)
-        .output()
-        .expect("running maturin");
-    assert!(
-        build.status.success(),
-        "maturin build failed:\n{}",
-        String::from_utf8_lossy(&build.stderr)
-    );
-    let built: Vec<_> = std::fs::read_dir(&wheels)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    let [wheel] = built.as_slice() else {
-        panic!("one wheel expected: {built:?}")
-    };
+    let wheel = release_wheel();
     let name = wheel.file_name().unwrap().to_string_lossy().to_string();
     assert!(
         name.starts_with("ptychoscope-")

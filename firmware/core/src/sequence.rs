@@ -70,6 +70,34 @@ struct Run {
     edge_at: Option<u64>,
 }
 
+/// Each step after the first settles up to this much longer, µs ([`trigger_dither_us`]).
+pub const TRIGGER_DITHER_MAX_US: u64 = 1023;
+
+/// The extra settle of step `step`, 0 to [`TRIGGER_DITHER_MAX_US`] µs, pseudo-random by
+/// the step's index (0 for the first step).
+///
+/// Why: a periodic sequence's triggers look alike a whole step apart, so a camera's
+/// stamps cannot tell which trigger took which frame once frames arrive later than a
+/// step or the first ones are lost; the host then waits for the sequence's end to label
+/// them. With each interval lengthened by its own amount, the intervals are a
+/// fingerprint only the true pairing reproduces in the stamps (the host's labeller
+/// checks it), from a handful of frames on. Reported in each step's `trigger_us`, so the
+/// host needs no copy of this function. The LEDs only stay lit a little longer: the
+/// exposure follows the trigger as before.
+pub fn trigger_dither_us(step: u16) -> u64 {
+    if step == 0 {
+        return 0;
+    }
+    // murmur3's 32-bit finaliser: neighbouring steps get unrelated values.
+    let mut h = u32::from(step);
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85eb_ca6b);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xc2b2_ae35);
+    h ^= h >> 16;
+    u64::from(h) % (TRIGGER_DITHER_MAX_US + 1)
+}
+
 /// The one sequence slot and its run state.
 pub struct Engine {
     id: u32,
@@ -253,8 +281,8 @@ impl Engine {
         Ok(())
     }
 
-    /// Shortest run time: settle, trigger delay and exposure (or pulse) of every step,
-    /// without LED shift times or trigger-in waits, µs.
+    /// Shortest run time: settle (with its dither), trigger delay and exposure (or
+    /// pulse) of every step, without LED shift times or trigger-in waits, µs.
     pub fn min_duration_us(&self) -> u64 {
         let Some(t) = self.timing else { return 0 };
         let (delay, pulse) = t
@@ -266,7 +294,8 @@ impl Engine {
         } else {
             t.exposure_us as u64
         };
-        (t.settle_us as u64 + delay + expose.max(pulse)) * self.total as u64
+        let dither: u64 = (0..self.total).map(trigger_dither_us).sum();
+        (t.settle_us as u64 + delay + expose.max(pulse)) * self.total as u64 + dither
     }
 
     /// The device has shifted out the current step's LEDs: they are lit from `light_on`.
@@ -277,7 +306,8 @@ impl Engine {
                 run.light_on = light_on;
                 run.leds_on = leds_on;
                 let delay = t.trigger_out.map(|o| o.delay_us as u64).unwrap_or(0);
-                run.phase = Phase::Trigger(light_on + t.settle_us as u64 + delay);
+                let dither = trigger_dither_us(run.step);
+                run.phase = Phase::Trigger(light_on + t.settle_us as u64 + dither + delay);
             }
         }
     }
@@ -435,5 +465,26 @@ impl Engine {
                 Action::WaitUntil(wake)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The dither is bounded, absent on the first step, and varies enough from step to
+    /// step to be a fingerprint: its spread over a 21×21 board's sequence is near a
+    /// uniform draw's (1024/√12 ≈ 296 µs), and no two neighbouring steps share it more
+    /// often than chance would have them.
+    #[test]
+    fn the_trigger_dither_is_bounded_and_irregular() {
+        assert_eq!(trigger_dither_us(0), 0);
+        let d: std::vec::Vec<f64> = (1..441).map(|s| trigger_dither_us(s) as f64).collect();
+        assert!(d.iter().all(|&v| v <= TRIGGER_DITHER_MAX_US as f64));
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
+        assert!((250.0..340.0).contains(&sd), "{sd}");
+        let same = d.windows(2).filter(|w| w[0] == w[1]).count();
+        assert!(same <= 3, "{same} neighbours alike");
     }
 }

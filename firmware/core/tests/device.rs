@@ -5,6 +5,7 @@ mod common;
 use common::*;
 use fpm_firmware::chain::chain_index;
 use fpm_firmware::patterns;
+use fpm_firmware::sequence::trigger_dither_us;
 use fpm_protocol::*;
 use postcard_rpc::header::{VarHeader, VarKey, VarSeq};
 use postcard_rpc::standard_icd::{PingEndpoint, WireError};
@@ -318,7 +319,10 @@ fn a_sequence_runs_with_exact_timing_and_reports_every_step() {
     upload(&mut dev, 9, &steps, timing(None));
     let started = ok::<SequenceStartEndpoint>(&mut dev, &9, T0).unwrap();
     assert_eq!(started.steps, 30);
-    assert_eq!(started.min_duration_us, 30 * (1000 + 100 + 5000));
+    // Each step after the first settles its dither longer (the steps' timing is a
+    // fingerprint the host's labeller checks the camera's stamps against).
+    let dither: u64 = (0..30).map(trigger_dither_us).sum();
+    assert_eq!(started.min_duration_us, 30 * (1000 + 100 + 5000) + dither);
     let frames = run_until(&mut dev, T0, T0 + 10_000_000);
     let events = topics::<StepTopic>(&frames);
     let ends = topics::<SequenceEndTopic>(&frames);
@@ -341,7 +345,10 @@ fn a_sequence_runs_with_exact_timing_and_reports_every_step() {
             prev_end + (furthest as u64 + 1) * 30 + 280,
             "step {i}"
         );
-        assert_eq!(ev.trigger_us, ev.light_on_us + 1000 + 100);
+        assert_eq!(
+            ev.trigger_us,
+            ev.light_on_us + 1000 + trigger_dither_us(i as u16) + 100
+        );
         assert_eq!(ev.end_us, ev.trigger_us + 5000);
         assert_eq!(ev.trigger_in_us, None);
         prev_end = ev.end_us;

@@ -48,6 +48,28 @@ pub struct Pairing {
     /// without arriving before them (always true without arrival times). Labels given
     /// while frames still arrive should wait until it is.
     pub arrivals_agree: bool,
+    /// The clock offset singled out by the stamps, if one is: the stamps follow the
+    /// controller's step-to-step timing (its LED update times and its trigger dither)
+    /// under it, and decisively not under any other offset that labels at least half
+    /// as many frames. The steps' timing is a fingerprint only the true offset
+    /// reproduces. Evidence that does not depend on when frames reach the host (unlike
+    /// [`Pairing::arrivals_agree`]) nor on how many frames an offset labels so far, so
+    /// it holds for a camera slower than a step, for frames lost at the start, and
+    /// while step reports lag behind frames. None for a strictly periodic sequence,
+    /// stamps with more jitter than the steps' irregularity, or under
+    /// [`MIN_PAIRS_TO_COMPARE`] pairs.
+    pub fingerprint: Option<ClockFit>,
+}
+
+/// A clock mapping fitted to the frames: see [`Pairing::fingerprint`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClockFit {
+    /// Camera clock minus controller clock at the first step, ns.
+    pub offset_ns: i64,
+    /// How much faster the camera's clock runs than the controller's, ppm.
+    pub drift_ppm: f64,
+    /// Frames it labels.
+    pub matched: usize,
 }
 
 /// The camera's clock as a function of the controller's: `camera = t + offset +
@@ -256,8 +278,14 @@ pub fn pair_with_arrivals(
         (Some(_), Some((k, _))) => k == 0,
         (Some(_), None) => false,
     };
+    let fingerprint = singled_out_by_stamps(steps, frames, &fits).map(|k| ClockFit {
+        offset_ns: fits[k].0.offset_ns.round() as i64,
+        drift_ppm: fits[k].0.drift * 1e6,
+        matched: fits[k].1.matched.len(),
+    });
     let (map, mut out) = fits.swap_remove(0);
     out.arrivals_agree = arrivals_agree;
+    out.fingerprint = fingerprint;
     let drift_ppm = map.drift * 1e6;
     let residuals: Vec<f64> = out
         .matched
@@ -291,6 +319,7 @@ pub fn pair_with_arrivals(
             clock_drift_ppm: out.clock_drift_ppm,
             residual_spread_ns: out.residual_spread_ns,
             arrivals_agree: out.arrivals_agree,
+            fingerprint: out.fingerprint,
             ..refused(steps.len(), frames.len(), p)
         };
     }
@@ -438,8 +467,45 @@ fn refine(
 /// mean: the offset is free, so a candidate that was not refitted is not favoured by
 /// where its fit started), ns. Infinite under [`MIN_PAIRS_TO_COMPARE`] pairs.
 fn residual_rms_ns(steps: &[StepTime], frames: &[FrameTime], fit: &(ClockMap, Pairing)) -> f64 {
+    if fit.1.matched.len() < MIN_PAIRS_TO_COMPARE {
+        return f64::INFINITY;
+    }
+    scatter_ns(steps, frames, fit)
+}
+
+/// The index of the one of `fits` singled out by its stamps' residuals
+/// ([`Pairing::fingerprint`]): at least [`MIN_PAIRS_TO_COMPARE`] pairs and half as many
+/// as the most any labels, and every other candidate labelling at least half as many
+/// frames as it scatters decisively more ([`DECISIVE_RMS_RATIO`],
+/// [`MIN_RMS_DIFFERENCE_NS`]). A rival is measured over as few as 3 pairs; one that
+/// cannot be measured is not counted as beaten.
+fn singled_out_by_stamps(
+    steps: &[StepTime],
+    frames: &[FrameTime],
+    fits: &[(ClockMap, Pairing)],
+) -> Option<usize> {
+    let most = fits.iter().map(|f| f.1.matched.len()).max()?;
+    let rms: Vec<f64> = fits.iter().map(|f| scatter_ns(steps, frames, f)).collect();
+    let (k, own) = rms
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|&(k, _)| {
+            let n = fits[k].1.matched.len();
+            n >= MIN_PAIRS_TO_COMPARE && n * 2 >= most
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    let n = fits[k].1.matched.len();
+    let beaten = (0..fits.len())
+        .filter(|&r| r != k && fits[r].1.matched.len() * 2 >= n)
+        .all(|r| rms[r].is_finite() && rms[r] >= DECISIVE_RMS_RATIO * own + MIN_RMS_DIFFERENCE_NS);
+    (own.is_finite() && beaten).then_some(k)
+}
+
+/// [`residual_rms_ns`] over any 3 pairs or more (infinite under 3).
+fn scatter_ns(steps: &[StepTime], frames: &[FrameTime], fit: &(ClockMap, Pairing)) -> f64 {
     let (map, p) = fit;
-    if p.matched.len() < MIN_PAIRS_TO_COMPARE {
+    if p.matched.len() < 3 {
         return f64::INFINITY;
     }
     let r: Vec<f64> = p

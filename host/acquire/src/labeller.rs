@@ -7,6 +7,36 @@
 
 use crate::label::{pair_with_arrivals, step_for, Arrivals, FrameTime, Pairing, StepTime};
 
+/// Frames (and step reports) before the clock mapping is first fitted.
+const MIN_FRAMES_TO_ANCHOR: usize = 8;
+
+/// Frames lost before the first that arrived, at most, for labels given while the
+/// capture runs (more wait for the final pairing, which has every step).
+const LOST_AT_START_MAX: usize = 8;
+
+/// Why frames wait for their labels while the capture runs ([`Labeller::waiting`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Waiting {
+    /// Fewer than 8 frames or step reports so far: the camera's clock is fitted from 8.
+    FirstFrames,
+    /// The frames so far fit clock offsets a whole step apart alike: neither the
+    /// stamps (a periodic sequence, or stamps with more jitter than the steps'
+    /// timing varies) nor the arrivals (a camera slower than a step) tell which.
+    Fingerprint,
+    /// The camera's clock and the controller's could not be reconciled so far: why.
+    Clocks(String),
+}
+
+impl std::fmt::Display for Waiting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Waiting::FirstFrames => write!(f, "labelling: waiting for the first 8 frames to fit the camera's clock"),
+            Waiting::Fingerprint => write!(f, "labelling: waiting for the camera's clock (the frames so far fit it a whole step apart alike; every frame is labelled when the sequence ends)"),
+            Waiting::Clocks(why) => write!(f, "labelling: waiting for the camera's clock ({why})"),
+        }
+    }
+}
+
 /// A frame given its step while the capture runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Label {
@@ -67,7 +97,9 @@ pub struct Labeller {
     /// Frames not yet handed out.
     pending: Vec<usize>,
     anchor: Option<Anchor>,
-    anchored_at: usize,
+    /// Fit the clock mapping again once this many frames have arrived.
+    next_fit_at: usize,
+    waiting: Option<Waiting>,
     /// The latest camera stamp so far, ns.
     newest_stamp_ns: u64,
     changed: bool,
@@ -89,7 +121,8 @@ impl Labeller {
             given: vec![false; sequence_len],
             pending: vec![],
             anchor: None,
-            anchored_at: 0,
+            next_fit_at: MIN_FRAMES_TO_ANCHOR,
+            waiting: Some(Waiting::FirstFrames),
             newest_stamp_ns: 0,
             changed: false,
         }
@@ -101,6 +134,11 @@ impl Labeller {
     /// report sent when the step ends would otherwise arrive after the step's frame,
     /// and the true labels would look acausal).
     pub fn step(&mut self, step: StepTime, arrived_ns: i64) {
+        tracing::trace!(
+            "step {} triggered at {} ns (controller), arrived {arrived_ns} ns",
+            step.step,
+            step.trigger_ns
+        );
         self.steps.push(step);
         self.step_arrival_ns.push(arrived_ns);
         self.changed = true;
@@ -110,6 +148,11 @@ impl Labeller {
     /// index, by which labels name it.
     pub fn frame(&mut self, frame: FrameTime, arrived_ns: i64) -> usize {
         let k = self.frames.len();
+        tracing::trace!(
+            "frame {} stamped {} ns (camera), arrived {arrived_ns} ns",
+            frame.frame_number,
+            frame.timestamp_ns
+        );
         self.frames.push(frame);
         self.newest_stamp_ns = self.newest_stamp_ns.max(frame.timestamp_ns);
         self.frame_arrival_ns.push(arrived_ns);
@@ -129,41 +172,20 @@ impl Labeller {
             return vec![];
         }
         let received = self.frames.len();
-        if received >= 8.max(self.anchored_at * 2) && self.steps.len() >= 8 {
-            self.anchored_at = received;
-            // As many steps as frames: steps run ahead of frames still in flight, and
-            // with extra steps an offset a step later would fit as well.
-            let n = received.min(self.steps.len());
-            let arrivals = Arrivals {
-                steps_ns: &self.step_arrival_ns[..n],
-                frames_ns: &self.frame_arrival_ns[..n],
+        if received >= self.next_fit_at && self.steps.len() >= MIN_FRAMES_TO_ANCHOR {
+            let (anchor, waiting) = self.fit_anchor();
+            // While the clocks are not known, try again after a quarter more frames (a
+            // fingerprint needs only a few more; a fit is over everything so far, so
+            // trying at every frame would cost the square of the count); once known,
+            // refit as the count doubles.
+            self.next_fit_at = match anchor {
+                Some(_) => received * 2,
+                None => received + (received / 4).max(1),
             };
-            let p = pair_with_arrivals(
-                &self.steps[..n],
-                &self.frames[..n],
-                self.tolerance_ns,
-                u64::MAX,
-                Some(arrivals),
-            );
-            let trusted =
-                p.clock_problem.is_none() && p.arrivals_agree && p.matched.len() * 4 >= n * 3;
-            if !trusted {
-                tracing::debug!(
-                    "labelling waits after {received} frames: clock problem {:?}, arrivals agree {}, {} of {n} matched",
-                    p.clock_problem,
-                    p.arrivals_agree,
-                    p.matched.len()
-                );
-            }
-            self.anchor = trusted.then(|| Anchor {
-                t0_ns: self.steps[..n]
-                    .iter()
-                    .map(|s| s.trigger_ns)
-                    .min()
-                    .unwrap_or(0),
-                offset_ns: p.clock_offset_ns,
-                drift: p.clock_drift_ppm * 1e-6,
-            });
+            self.anchor = anchor;
+            self.waiting = waiting;
+        } else if received < MIN_FRAMES_TO_ANCHOR || self.steps.len() < MIN_FRAMES_TO_ANCHOR {
+            self.waiting = Some(Waiting::FirstFrames);
         }
         let Some(anchor) = self.anchor else {
             return vec![];
@@ -202,6 +224,130 @@ impl Labeller {
         }
         self.pending.retain(|&k| self.online[k].is_none());
         out
+    }
+
+    /// The clock mapping to label by, when the frames so far single it out; else why
+    /// labelling waits.
+    ///
+    /// Two kinds of evidence, either enough:
+    /// - the stamps: the pairing over everything so far, whose clock offset alone
+    ///   reproduces the controller's irregular step timing in the stamps
+    ///   ([`Pairing::fingerprint`]). It holds however late frames reach the host
+    ///   and whatever was lost at the start: the usual case on every rig we ship;
+    /// - the arrivals, for a strictly periodic sequence: as many steps as frames (steps
+    ///   run ahead of frames still in flight, and with extra steps an offset a step
+    ///   later would fit as well), and the frames reaching the host soonest after their
+    ///   steps under the offset chosen ([`Pairing::arrivals_agree`]), which guards
+    ///   against frames lost at the start but holds only for a camera faster than a
+    ///   step.
+    fn fit_anchor(&self) -> (Option<Anchor>, Option<Waiting>) {
+        let received = self.frames.len();
+        let anchor = |steps: &[StepTime], p: &Pairing| Anchor {
+            t0_ns: steps.iter().map(|s| s.trigger_ns).min().unwrap_or(0),
+            offset_ns: p.clock_offset_ns,
+            drift: p.clock_drift_ppm * 1e-6,
+        };
+        let enough =
+            |p: &Pairing, n: usize| p.clock_problem.is_none() && p.matched.len() * 4 >= n * 3;
+        // The steps a frame so far can belong to: frames come in order, so no further
+        // than the frames' count plus those lost at the start. A camera slower than the
+        // steps falls many steps behind; the steps beyond would only add offsets that
+        // fit as well, until there are too many to fit.
+        let reach = self.steps.len().min(received + LOST_AT_START_MAX);
+        let all = pair_with_arrivals(
+            &self.steps[..reach],
+            &self.frames,
+            self.tolerance_ns,
+            u64::MAX,
+            Some(Arrivals {
+                steps_ns: &self.step_arrival_ns[..reach],
+                frames_ns: &self.frame_arrival_ns,
+            }),
+        );
+        if let Some(fit) = all.fingerprint {
+            if fit.matched * 4 >= received.min(reach) * 3 {
+                let t0_ns = self.steps[..reach]
+                    .iter()
+                    .map(|s| s.trigger_ns)
+                    .min()
+                    .unwrap_or(0);
+                let anchor = Anchor {
+                    t0_ns,
+                    offset_ns: fit.offset_ns,
+                    drift: fit.drift_ppm * 1e-6,
+                };
+                return (Some(anchor), None);
+            }
+        }
+        if !self.reports_prompt() {
+            tracing::debug!(
+                "labelling waits after {received} frames: clock problem {:?}; stamps single out their steps {}; step reports arrive in batches",
+                all.clock_problem,
+                all.fingerprint.is_some(),
+            );
+            return (None, Some(Waiting::Fingerprint));
+        }
+        let n = received.min(self.steps.len());
+        let arrivals = Arrivals {
+            steps_ns: &self.step_arrival_ns[..n],
+            frames_ns: &self.frame_arrival_ns[..n],
+        };
+        let p = pair_with_arrivals(
+            &self.steps[..n],
+            &self.frames[..n],
+            self.tolerance_ns,
+            u64::MAX,
+            Some(arrivals),
+        );
+        if p.arrivals_agree && enough(&p, n) {
+            return (Some(anchor(&self.steps[..n], &p)), None);
+        }
+        tracing::debug!(
+            "labelling waits after {received} frames: clock problem {:?}; stamps single out their steps {}, arrivals agree {}, {} of {n} matched",
+            all.clock_problem.as_ref().or(p.clock_problem.as_ref()),
+            all.fingerprint.is_some(),
+            p.arrivals_agree,
+            p.matched.len()
+        );
+        let why = match all.clock_problem.or(p.clock_problem) {
+            Some(problem) => Waiting::Clocks(problem),
+            None => Waiting::Fingerprint,
+        };
+        (None, Some(why))
+    }
+
+    /// Whether the step reports reached the host one by one, each about as long after
+    /// the one before as their triggers were apart: the arrivals' check needs that. A
+    /// link that hands several over at once (USB CDC) makes the first of each batch look
+    /// late, its frame early, and the check would favour an offset a step off.
+    fn reports_prompt(&self) -> bool {
+        let (t, a) = (&self.steps, &self.step_arrival_ns);
+        let (Some(first), Some(last)) = (t.first().zip(a.first()), t.last().zip(a.last())) else {
+            return false;
+        };
+        let span = last.0.trigger_ns as f64 - first.0.trigger_ns as f64;
+        if t.len() < 3 || span <= 0.0 {
+            return false;
+        }
+        // Host ns per controller ns over the whole run (an emulator's may be far from 1).
+        let rate = (*last.1 - *first.1) as f64 / span;
+        if rate <= 0.0 {
+            return false;
+        }
+        let bunched = t
+            .windows(2)
+            .zip(a.windows(2))
+            .filter(|(s, h)| {
+                let apart = (s[1].trigger_ns as f64 - s[0].trigger_ns as f64) * rate;
+                ((h[1] - h[0]) as f64) < 0.5 * apart
+            })
+            .count();
+        bunched * 10 < t.len()
+    }
+
+    /// Why frames wait for their labels now (None: they do not).
+    pub fn waiting(&self) -> Option<&Waiting> {
+        self.waiting.as_ref()
     }
 
     /// The index into the steps of the one step in whose window the frame's mapped

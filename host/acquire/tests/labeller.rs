@@ -246,3 +246,236 @@ fn no_interleaving_pairs_a_frame_with_the_wrong_led() {
         panic!("{e}");
     }
 }
+
+/// A capture as the rigs we ship make them, for [`labels_come_out_while_frames_arrive`]:
+/// the controller's steps lengthened by its trigger dither (up to 1 ms, as
+/// `fpm_firmware::sequence::trigger_dither_us`) and by its LED update down the chain,
+/// a triggered camera stamping the exposure's start (exactly, as the virtual camera
+/// does, or with a hardware stamp's few µs of jitter), and the ways frames and reports
+/// reach the host.
+#[derive(Debug, Clone)]
+struct LiveRig {
+    steps: usize,
+    /// Nominal step, controller µs (15 to 100 ms).
+    period_us: u64,
+    /// The LED update down the chain: each step up to this much longer, µs.
+    chain_us: u64,
+    /// Stamp jitter, ns (uniform, this wide).
+    jitter_ns: u64,
+    camera_offset_ns: u64,
+    /// Up to ±1000 ppm.
+    camera_drift_ppm: f64,
+    /// Frames reach the host this many steps after their trigger (0: within the step,
+    /// up to 3: a camera three steps behind), plus up to half a step at random.
+    late_steps: f64,
+    /// A camera slower than the steps (a virtual camera rendering on a busy machine):
+    /// frame k is delivered no sooner than k · (1 + this) steps after the first
+    /// trigger, so it falls further behind (0: it keeps up).
+    falls_behind: f64,
+    /// Step reports reach the host in batches of this many (USB CDC hands several
+    /// over at once; 1: one by one).
+    report_batch: usize,
+    /// Frames lost at the start.
+    lost_at_start: usize,
+    /// Frames lost in the middle (by step index).
+    lost_in_middle: Vec<usize>,
+    seed: u64,
+}
+
+fn live_rig() -> impl Strategy<Value = LiveRig> {
+    (
+        (
+            24usize..160,
+            15_000u64..100_000,
+            0u64..13_000,
+            prop_oneof![Just(0u64), 0u64..20_000],
+        ),
+        (0u64..10_000_000_000_000, -1000.0..1000.0f64),
+        (
+            0.0..3.0f64,
+            prop_oneof![3 => Just(0.0), 1 => 0.0..0.8f64],
+            prop_oneof![2 => Just(1usize), 1 => 2usize..9],
+        ),
+        (
+            prop_oneof![3 => Just(0usize), 1 => 1usize..4],
+            prop::collection::vec(8usize..160, 0..3),
+            any::<u64>(),
+        ),
+    )
+        .prop_map(
+            |(
+                (steps, period_us, chain_us, jitter_ns),
+                (camera_offset_ns, camera_drift_ppm),
+                (late_steps, falls_behind, report_batch),
+                (lost_at_start, lost_in_middle, seed),
+            )| LiveRig {
+                steps,
+                period_us,
+                chain_us,
+                jitter_ns,
+                camera_offset_ns,
+                camera_drift_ppm,
+                late_steps,
+                falls_behind,
+                report_batch,
+                lost_at_start,
+                lost_in_middle,
+                seed,
+            },
+        )
+}
+
+/// The same dither as the firmware's (kept apart: the host must not need it).
+fn dither_us(step: usize) -> u64 {
+    if step == 0 {
+        return 0;
+    }
+    let mut h = step as u32;
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x85eb_ca6b);
+    h ^= h >> 13;
+    h = h.wrapping_mul(0xc2b2_ae35);
+    h ^= h >> 16;
+    u64::from(h) % 1024
+}
+
+/// The capture as the host sees it, in arrival order, and the labeller's tolerance (a
+/// third of the step, as the capture sets it).
+fn live_events(r: &LiveRig) -> (Vec<(i64, Event)>, u64) {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(r.seed);
+    let period_ns = r.period_us * 1000;
+    let first_trigger = 5_000_000_000u64 + rng.gen_range(0..1_000_000_000);
+    // The host's clock: ns since the capture started, a little before the first trigger.
+    let host = |controller_ns: u64| (controller_ns - first_trigger) as i64 + 2_000_000;
+    let camera = |t: u64| {
+        r.camera_offset_ns as f64
+            + t as f64
+            + r.camera_drift_ppm * 1e-6 * (t as f64 - first_trigger as f64)
+    };
+    let mut out = vec![];
+    let mut trigger = first_trigger;
+    let mut batch: Vec<StepTime> = vec![];
+    for step in 0..r.steps {
+        if step > 0 {
+            trigger += period_ns + dither_us(step) * 1000 + rng.gen_range(0..=r.chain_us) * 1000;
+        }
+        batch.push(StepTime {
+            step,
+            trigger_ns: trigger,
+        });
+        // A step is reported when it ends; a batch when its last step has.
+        if batch.len() == r.report_batch || step + 1 == r.steps {
+            let at = host(trigger + period_ns);
+            out.extend(batch.drain(..).map(|s| (at, Event::Step(s))));
+        }
+        // The camera counts every trigger, the frames it loses too.
+        let number = step as u64;
+        if step < r.lost_at_start || r.lost_in_middle.contains(&step) {
+            continue;
+        }
+        let jitter = rng.gen_range(0..=r.jitter_ns) as f64;
+        let frame = FrameTime {
+            frame_number: number,
+            timestamp_ns: (camera(trigger) + jitter) as u64,
+        };
+        let late = r.late_steps + rng.gen::<f64>() * 0.5;
+        let behind =
+            host(first_trigger) + (step as f64 * (1.0 + r.falls_behind) * period_ns as f64) as i64;
+        let arrival = (host(trigger) + ((0.7 + late) * period_ns as f64) as i64).max(behind);
+        out.push((arrival, Event::Frame(frame, Some(step))));
+    }
+    // Frames come in the order the camera took them (one stream); reports likewise.
+    out.sort_by_key(|e| e.0);
+    (out, period_ns / 3)
+}
+
+/// On every configuration we ship, labels come out while the capture runs: after the
+/// first frames that fit the camera's clock, each frame is labelled within a few steps
+/// of its arrival, not when the sequence ends: with frames arriving up to 3 steps late,
+/// step reports in batches, camera clocks drifting up to 1000 ppm, and frames lost at
+/// the start and in the middle. And no frame is labelled wrongly, online or finally,
+/// nor relabelled (issue 61).
+#[test]
+fn labels_come_out_while_frames_arrive() {
+    let config = Config {
+        cases: 1_500,
+        failure_persistence: None,
+        ..Config::default()
+    };
+    let mut runner =
+        TestRunner::new_with_rng(config, TestRng::deterministic_rng(RngAlgorithm::ChaCha));
+    let result = runner.run(&live_rig(), |r| {
+        let (events, tolerance) = live_events(&r);
+        let mut labeller = Labeller::new(r.steps, tolerance);
+        let mut truth: Vec<Option<usize>> = vec![];
+        // When each frame arrived, and when it was labelled (host ns).
+        let mut arrived_at: Vec<i64> = vec![];
+        let mut labelled_at: Vec<Option<i64>> = vec![];
+        let last_frame = events
+            .iter()
+            .filter(|e| matches!(e.1, Event::Frame(..)))
+            .map(|e| e.0)
+            .max()
+            .unwrap_or(0);
+        for (arrived, e) in &events {
+            match *e {
+                // As the capture does: a report's arrival less the device time from the
+                // trigger to the report (a step: the report is sent when it ends).
+                Event::Step(s) => labeller.step(s, *arrived - (r.period_us * 1000) as i64),
+                Event::Frame(f, step) => {
+                    labeller.frame(f, *arrived);
+                    truth.push(step);
+                    arrived_at.push(*arrived);
+                    labelled_at.push(None);
+                }
+            }
+            for l in labeller.labels() {
+                prop_assert_eq!(
+                    truth[l.frame],
+                    Some(l.step),
+                    "frame {} labelled step {} while the capture ran",
+                    l.frame,
+                    l.step
+                );
+                labelled_at[l.frame] = Some(*arrived);
+            }
+        }
+        let received = truth.len();
+        let done = labeller.finish();
+        prop_assert_eq!(done.relabelled, 0);
+        for &(step, frame) in &done.matched {
+            prop_assert_eq!(truth[frame], Some(step));
+        }
+        prop_assert_eq!(
+            done.matched.len(),
+            received,
+            "{:?}",
+            done.pairing.clock_problem
+        );
+        // Live: all but the first frames (the clock is fitted from 8, more when frames
+        // were lost at the start) and the last few (a frame waits for a later one to
+        // close its window, and for its step's report) are labelled before the last
+        // frame arrives, each within a few steps of its own arrival.
+        let period = (r.period_us * 1000) as i64;
+        let live = (0..received)
+            .filter(|&k| labelled_at[k].is_some_and(|t| t < last_frame))
+            .count();
+        let slow: Vec<usize> = (12..received)
+            .filter(|&k| {
+                labelled_at[k]
+                    .is_none_or(|t| t - arrived_at[k] > (r.report_batch as i64 + 3) * period)
+            })
+            .filter(|&k| arrived_at[k] < last_frame - (r.report_batch as i64 + 3) * period)
+            .collect();
+        prop_assert!(
+            slow.is_empty(),
+            "{} of {received} frames labelled live; frames {slow:?} waited more than {} steps",
+            live,
+            r.report_batch + 3
+        );
+        Ok(())
+    });
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+}

@@ -1116,3 +1116,71 @@ fn a_scan_runs_as_a_job_and_a_resume_completes_it() {
         "the stage missed by only {stage_error} µm: nothing tested"
     );
 }
+
+/// `fpm serve --virtual` exactly as shipped (its 256² virtual camera, its 40 ms steps)
+/// and one acquisition with its defaults and `reconstruct`: a client sees the frames
+/// labelled all through the capture, not bunched at its end (issue 61: the labeller
+/// waited for the sequence's end on this rig, because the virtual camera is slower than
+/// a step). Each quarter of the capture announces at least a tenth of the frames.
+#[test]
+fn the_default_service_labels_frames_all_through_the_capture() {
+    let dir = TempDir::new("serve-default-live");
+    let service =
+        VirtualService::start_with(fpm_bin(), &dir.0.join("state"), &[], Stdio::inherit()).unwrap();
+    let events = events(service.address);
+    let job = serde_json::json!({"kind": "acquire", "reconstruct": true});
+    let id = service
+        .post("/api/jobs", Some(&job.to_string()))
+        .unwrap()
+        .json()
+        .unwrap()["id"]
+        .as_i64()
+        .unwrap();
+    // Each frame event's time, and the capture's start, on the service's clock.
+    let (mut start, mut frames, mut state) = (None, vec![], String::new());
+    for line in events {
+        let Some(data) = line.strip_prefix("data:") else {
+            continue;
+        };
+        let event: serde_json::Value = serde_json::from_str(data.trim()).unwrap();
+        if event["job"] != id {
+            continue;
+        }
+        let at = event["at_s"].as_f64().unwrap();
+        match event["event"].as_str() {
+            Some("progress") if event["progress"]["phase"] == "capturing" => {
+                start.get_or_insert(at);
+            }
+            Some("frame") => frames.push(at),
+            Some("state") => state = event["state"].as_str().unwrap().to_string(),
+            _ => {}
+        }
+        if state != "queued" && state != "running" && !state.is_empty() {
+            break;
+        }
+    }
+    assert_eq!(state, "done");
+    assert_eq!(frames.len(), 441, "frames announced");
+    let start = start.unwrap();
+    let end = frames.iter().cloned().fold(start, f64::max);
+    let quarters: Vec<usize> = (0..4)
+        .map(|q| {
+            let (from, to) = (
+                start + (end - start) * q as f64 / 4.0,
+                start + (end - start) * (q + 1) as f64 / 4.0,
+            );
+            frames
+                .iter()
+                .filter(|&&t| t >= from && (t < to || (q == 3 && t <= to)))
+                .count()
+        })
+        .collect();
+    eprintln!(
+        "frames announced per quarter of the {:.1} s capture: {quarters:?}",
+        end - start
+    );
+    assert!(
+        quarters.iter().all(|&n| n * 10 >= frames.len()),
+        "frames bunched: {quarters:?} per quarter of the capture"
+    );
+}

@@ -218,6 +218,8 @@ fn run_plan(
     let on_progress = |p: &Progress| {
         bar.set_length(p.of as u64);
         bar.set_position(p.frames as u64);
+        // Why frames wait for their labels, while they do.
+        bar.set_message(p.labelling.map(|w| w.to_string()).unwrap_or_default());
     };
     let control = Control::cancelled_by(cancel);
     let summary = match resume {

@@ -160,6 +160,13 @@ fn print_result(r: &DemoReport) {
     if let (Some(ms), Some(us)) = (s.last_frame_to_final_ms, s.update_us_mean) {
         println!("streaming EPRY  {us:.0} µs per frame as it arrived; last frame → final image {ms:.0} ms");
     }
+    // How live the labelling was: a frame is streamed only once it is labelled.
+    println!(
+        "labelling       {:.0} % of the frames labelled while the sequence ran; frame → label {:.0} ms median, {:.0} ms p99",
+        100.0 * c.labelled_live as f64 / c.labelled.max(1) as f64,
+        c.label_lag_p50_ms,
+        c.label_lag_p99_ms
+    );
     let q = &r.complex_nrmse;
     if let (Some(n), Some(k)) = (q.nominal, q.calibrated) {
         println!(

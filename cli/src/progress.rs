@@ -5,7 +5,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 /// A bar counting frames, `what` in front: "acquiring [====    ] 120/441 frames (…)".
 pub fn frames(what: &str) -> ProgressBar {
     let template =
-        format!("{what} [{{bar:40}}] {{pos}}/{{len}} frames ({{per_sec}}, {{eta}} left)");
+        format!("{what} [{{bar:40}}] {{pos}}/{{len}} frames ({{per_sec}}, {{eta}} left) {{msg}}");
     ProgressBar::new(0).with_style(
         ProgressStyle::with_template(&template).unwrap_or_else(|_| ProgressStyle::default_bar()),
     )

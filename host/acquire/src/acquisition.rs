@@ -32,6 +32,7 @@ use serde::Serialize;
 
 use crate::board_geometry;
 use crate::capture::{CaptureReport, Shot, ShotView};
+use crate::labeller::Waiting;
 use crate::stage::{Slide, StagePosition};
 use crate::summary::AcquireSummary;
 
@@ -220,6 +221,9 @@ pub enum Event<'a> {
     Pause,
     /// The user asked to go on after a pause.
     Resume,
+    /// Why the running sequence's frames wait for their labels (None: they no longer
+    /// do), as [`crate::capture::Live::Labelling`] says.
+    Labelling(Option<Waiting>),
 }
 
 /// What the driver must do next, from [`Acquisition::next_action`]. Each action but
@@ -280,6 +284,9 @@ pub struct Progress {
     pub phase: Phase,
     /// Frames of the full capture (and its retake) labelled so far.
     pub frames: usize,
+    /// While frames of the running capture wait for their labels: why (as text).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub labelling: Option<Waiting>,
     /// LEDs in the full capture (0 until it is ordered).
     pub of: usize,
     /// The user asked to stop.
@@ -405,6 +412,8 @@ pub struct Acquisition {
     retake_problem: Option<String>,
     streaming: Option<TiledStreaming>,
     stream_error: Option<String>,
+    /// Why the running sequence's frames wait for their labels, if they do.
+    labelling: Option<Waiting>,
     snapshot_due: Option<SnapshotDue>,
     update_us: Vec<f64>,
     tiles: Option<usize>,
@@ -495,6 +504,7 @@ impl Acquisition {
             retake_problem: None,
             streaming: None,
             stream_error: None,
+            labelling: None,
             snapshot_due: None,
             update_us: vec![],
             tiles: None,
@@ -527,6 +537,9 @@ impl Acquisition {
         Progress {
             phase,
             frames: self.frames,
+            labelling: self
+                .labelling
+                .filter(|_| matches!(self.step, Step::Capture | Step::Retake)),
             of: self.order.len(),
             cancelled: self.cancelled,
             paused: self.pause,
@@ -726,9 +739,13 @@ impl Acquisition {
                     self.stream(shot);
                 }
             }
+            Event::Labelling(waiting) => self.labelling = waiting,
             Event::StageArrived if self.waiting => self.advance(None),
             Event::Done if self.waiting => self.advance(None),
-            Event::SequenceEnded(result) if self.waiting => self.advance(Some(result)),
+            Event::SequenceEnded(result) if self.waiting => {
+                self.labelling = None;
+                self.advance(Some(result))
+            }
             Event::StageArrived | Event::Done | Event::SequenceEnded(_) => {
                 tracing::debug!("an event no step waits for ({:?}): ignored", self.step)
             }

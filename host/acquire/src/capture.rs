@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent, SequenceEvents};
 use crate::label::{FrameTime, StepTime};
-use crate::labeller::{Labelled, Labeller};
+use crate::labeller::{Labelled, Labeller, Waiting};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -110,6 +110,14 @@ pub struct CaptureReport {
     pub relabelled: usize,
     /// Controller sequences it took: 1, and one more after each pause.
     pub sequences: usize,
+    /// Frames labelled while the controller's sequence still ran, as they arrived (the
+    /// rest waited for the final pairing).
+    pub labelled_live: usize,
+    /// A frame's arrival to its label being handed on, ms: the median over the
+    /// labelled frames (those the final pairing labelled too).
+    pub label_lag_p50_ms: f64,
+    /// The same, 99th percentile.
+    pub label_lag_p99_ms: f64,
 }
 
 impl CaptureReport {
@@ -131,6 +139,10 @@ impl CaptureReport {
         self.failed = later.failed;
         self.relabelled += later.relabelled;
         self.sequences += later.sequences;
+        self.labelled_live += later.labelled_live;
+        // The worse sequence's (the two are not pooled).
+        self.label_lag_p50_ms = self.label_lag_p50_ms.max(later.label_lag_p50_ms);
+        self.label_lag_p99_ms = self.label_lag_p99_ms.max(later.label_lag_p99_ms);
     }
 }
 
@@ -252,8 +264,10 @@ pub fn capture(
     camera: &ServiceNames,
     sequence: &Sequence<'_>,
     stop: impl Fn() -> bool,
-    mut on_frame: impl FnMut(ShotView<'_>),
+    on_live: impl FnMut(Live<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
+    // One callback for both kinds of news; capture_steps never gives both at once.
+    let on_live = std::cell::RefCell::new(on_live);
     let &Sequence {
         id,
         leds,
@@ -275,12 +289,13 @@ pub fn capture(
         exposure_us,
         stop,
         |step, header, pixels| {
-            on_frame(ShotView {
+            (on_live.borrow_mut())(Live::Frame(ShotView {
                 led: leds[step],
                 header,
                 pixels,
-            })
+            }))
         },
+        |waiting| (on_live.borrow_mut())(Live::Labelling(waiting)),
     )?;
     report.missing = frames
         .iter()
@@ -300,6 +315,14 @@ pub fn capture(
         })
         .collect();
     Ok((shots, report))
+}
+
+/// What a running [`capture`] tells its caller.
+pub enum Live<'a> {
+    /// A frame labelled with its LED (every labelled frame exactly once).
+    Frame(ShotView<'a>),
+    /// Why labels wait now (None: they flow again); given when it changes.
+    Labelling(Option<Waiting>),
 }
 
 /// A step's frame: the camera's header and the pixels.
@@ -343,6 +366,7 @@ pub fn capture_steps(
     exposure_us: u32,
     stop: impl Fn() -> bool,
     mut on_frame: impl for<'b> FnMut(usize, &'b FrameHeader, ArrayView2<'b, u16>),
+    mut on_labelling: impl FnMut(Option<Waiting>),
 ) -> Result<(Vec<Option<StepFrame>>, CaptureReport)> {
     let n = steps.len();
     let timing = timing(exposure_us);
@@ -361,6 +385,12 @@ pub fn capture_steps(
     // Arrival times are ns since `start`, taken before the sequence started.
     let since_start = || start.elapsed().as_nanos() as i64;
     let mut labeller = Labeller::new(n, tolerance);
+    let mut waiting = None;
+    // When each frame arrived and when its label was handed on (ns since `start`), and
+    // how many were labelled before the sequence ended: the live figures.
+    let mut arrived_ns: Vec<i64> = vec![];
+    let mut labelled_ns: std::collections::HashMap<usize, i64> = Default::default();
+    let mut live = 0usize;
     let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
     let mut ended = None;
     let mut last_frame = Instant::now();
@@ -377,7 +407,9 @@ pub fn capture_steps(
             }
         }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
-            labeller.frame(frame_time(&f.0), since_start());
+            let at = since_start();
+            arrived_ns.push(at);
+            labeller.frame(frame_time(&f.0), at);
             received.push(f);
             last_frame = Instant::now();
         }
@@ -389,9 +421,18 @@ pub fn capture_steps(
         }
         // Hand frames on while they arrive; the final pairing below checks every label.
         let labels = labeller.labels();
+        if labeller.waiting() != waiting {
+            waiting = labeller.waiting();
+            if let Some(why) = waiting.filter(|w| *w != Waiting::FirstFrames) {
+                tracing::info!("{why}");
+            }
+            on_labelling(waiting);
+        }
         for l in &labels {
             let (header, pixels) = &received[l.frame];
             on_frame(l.step, header, pixels.view());
+            labelled_ns.insert(l.frame, since_start());
+            live += usize::from(ended.is_none());
         }
         if !labels.is_empty() {
             // Time spent streaming is not the camera being idle.
@@ -418,7 +459,9 @@ pub fn capture_steps(
             // Frames already on their way still count.
             std::thread::sleep(Duration::from_millis(300));
             while let Ok(f) = drain.rx.try_recv() {
-                labeller.frame(frame_time(&f.0), since_start());
+                let at = since_start();
+                arrived_ns.push(at);
+                labeller.frame(frame_time(&f.0), at);
                 received.push(f);
             }
             break;
@@ -432,6 +475,9 @@ pub fn capture_steps(
     }
     drop(drain);
     let seconds = start.elapsed().as_secs_f64();
+    if waiting.is_some() {
+        on_labelling(None);
+    }
     let Labelled {
         pairing: p,
         matched,
@@ -449,7 +495,18 @@ pub fn capture_steps(
     for l in late {
         let (header, pixels) = &received[l.frame];
         on_frame(l.step, header, pixels.view());
+        labelled_ns.insert(l.frame, since_start());
     }
+    // Arrival → label handed on, ms, over the frames the final pairing kept.
+    let mut lags: Vec<f64> = matched
+        .iter()
+        .filter_map(|&(_, fi)| Some((labelled_ns.get(&fi)? - arrived_ns.get(fi)?) as f64 / 1e6))
+        .collect();
+    lags.sort_by(f64::total_cmp);
+    let quantile = |q: f64| match lags.len() {
+        0 => 0.0,
+        n => lags[((n - 1) as f64 * q).round() as usize],
+    };
     let mut frames: Vec<Option<StepFrame>> = (0..n).map(|_| None).collect();
     for &(step, fi) in &matched {
         if let Some(slot) = frames.get_mut(step) {
@@ -478,6 +535,9 @@ pub fn capture_steps(
         },
         failed: failure.is_some(),
         sequences: 1,
+        labelled_live: live.min(labelled),
+        label_lag_p50_ms: quantile(0.5),
+        label_lag_p99_ms: quantile(0.99),
     };
     Ok((frames, report))
 }

@@ -208,6 +208,7 @@ pub fn live(
         phase,
         frames,
         of,
+        labelling: None,
         cancelled: control.is_cancelled(),
         paused: false,
     };
@@ -263,6 +264,7 @@ pub fn live(
                 last = Some(object);
             }
         },
+        |_| {},
     )?;
     let seconds = started.elapsed().as_secs_f64();
     let Some(object) = last else {

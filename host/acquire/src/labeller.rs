@@ -14,8 +14,9 @@ const MIN_FRAMES_TO_ANCHOR: usize = 8;
 /// capture runs (more wait for the final pairing, which has every step).
 const LOST_AT_START_MAX: usize = 8;
 
-/// Why frames wait for their labels while the capture runs ([`Labeller::waiting`]).
-#[derive(Debug, Clone, PartialEq)]
+/// Why frames wait for their labels while the capture runs ([`Labeller::waiting`]);
+/// shown with the acquisition's progress, as its text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Waiting {
     /// Fewer than 8 frames or step reports so far: the camera's clock is fitted from 8.
     FirstFrames,
@@ -23,17 +24,24 @@ pub enum Waiting {
     /// stamps (a periodic sequence, or stamps with more jitter than the steps'
     /// timing varies) nor the arrivals (a camera slower than a step) tell which.
     Fingerprint,
-    /// The camera's clock and the controller's could not be reconciled so far: why.
-    Clocks(String),
+    /// The camera's clock and the controller's could not be reconciled so far (the
+    /// debug log says how).
+    Clocks,
 }
 
 impl std::fmt::Display for Waiting {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Waiting::FirstFrames => write!(f, "labelling: waiting for the first 8 frames to fit the camera's clock"),
-            Waiting::Fingerprint => write!(f, "labelling: waiting for the camera's clock (the frames so far fit it a whole step apart alike; every frame is labelled when the sequence ends)"),
-            Waiting::Clocks(why) => write!(f, "labelling: waiting for the camera's clock ({why})"),
-        }
+        f.write_str(match self {
+            Waiting::FirstFrames => "labelling: waiting for the first 8 frames to fit the camera's clock",
+            Waiting::Fingerprint => "labelling: waiting for the camera's clock (the frames so far fit it a whole step apart alike); the frames are labelled when the sequence ends",
+            Waiting::Clocks => "labelling: waiting for the camera's clock (the frames so far follow no one clock: is the camera triggered by the controller?)",
+        })
+    }
+}
+
+impl serde::Serialize for Waiting {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
     }
 }
 
@@ -310,7 +318,7 @@ impl Labeller {
             p.matched.len()
         );
         let why = match all.clock_problem.or(p.clock_problem) {
-            Some(problem) => Waiting::Clocks(problem),
+            Some(_) => Waiting::Clocks,
             None => Waiting::Fingerprint,
         };
         (None, Some(why))
@@ -346,8 +354,8 @@ impl Labeller {
     }
 
     /// Why frames wait for their labels now (None: they do not).
-    pub fn waiting(&self) -> Option<&Waiting> {
-        self.waiting.as_ref()
+    pub fn waiting(&self) -> Option<Waiting> {
+        self.waiting
     }
 
     /// The index into the steps of the one step in whose window the frame's mapped

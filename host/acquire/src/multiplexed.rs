@@ -61,6 +61,7 @@ pub fn acquire(
         phase,
         frames,
         of,
+        labelling: None,
         cancelled: control.is_cancelled(),
         paused: false,
     };
@@ -77,6 +78,7 @@ pub fn acquire(
             arrived += 1;
             watcher.progress(&progress(arrived, Phase::Capturing));
         },
+        |_| {},
     )?;
     let last_frame = Instant::now();
     watcher.progress(&progress(arrived, Phase::Writing));

@@ -21,7 +21,7 @@ use crate::acquisition::sequence_id;
 pub use crate::acquisition::Plan;
 use crate::acquisition::{Acquisition, Action, Event, Progress, Rig, Snapshot};
 use crate::board_geometry;
-use crate::capture::{capture, Sequence, ShotView};
+use crate::capture::{capture, Live, Sequence, ShotView};
 use crate::controller::Controller;
 use crate::journal::Journal;
 use crate::page;
@@ -401,7 +401,15 @@ fn run(
                 if captures && journal.is_none() {
                     journal = start_journal(plan, &nominal, camera, &adopted);
                 }
-                let mut on_frame = |shot: ShotView<'_>| {
+                let mut on_live = |live: Live<'_>| {
+                    let shot = match live {
+                        Live::Frame(shot) => shot,
+                        Live::Labelling(waiting) => {
+                            acq.handle(Event::Labelling(waiting));
+                            watch(&mut acq, &mut watcher);
+                            return;
+                        }
+                    };
                     if let Some(j) = journal.as_mut().filter(|_| captures) {
                         if let Err(e) = j.frame(&shot) {
                             tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
@@ -427,7 +435,7 @@ fn run(
                     }
                     control.is_cancelled() || pause
                 };
-                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_frame))
+                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_live))
             }
             Action::Finished(result) => return *result,
             write => {

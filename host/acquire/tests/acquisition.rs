@@ -25,6 +25,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::OnceLock;
 
 use fpm_acquire::acquisition::{sequence_id, Acquisition, Action, Event, Phase, Plan, Rig};
+use fpm_acquire::labeller::Waiting;
 use fpm_acquire::{CaptureReport, Shot, Slide, StagePosition};
 use fpm_frames::{FrameHeader, ServiceNames};
 use fpm_host::calibration::GeometrySource;
@@ -371,6 +372,12 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
                         o.shuffle(&mut rng);
                         o
                     };
+                    // The capture says why its frames wait for labels, while they do:
+                    // the progress carries it until the sequence ends.
+                    if id == sequence_id::CAPTURE {
+                        acq.handle(Event::Labelling(Some(Waiting::Fingerprint)));
+                        prop_assert_eq!(acq.progress().labelling, Some(Waiting::Fingerprint));
+                    }
                     for k in order {
                         cancel_due(&mut acq, &mut seen, &mut events);
                         acq.handle(Event::Frame(shots[k].view()));
@@ -404,6 +411,7 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
                         failed: lost_at.is_some(),
                         relabelled: 0,
                         sequences: 1,
+                        ..CaptureReport::default()
                     };
                     if id == sequence_id::CAPTURE || id == sequence_id::RETAKE {
                         // A cancel before the last sequence ended cut it short.
@@ -470,7 +478,11 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
             }
             Action::Finished(result) => return check_end(case, &nominal, &seen, *result, &acq),
         };
+        let ended = matches!(event, Event::SequenceEnded(_));
         acq.handle(event);
+        if ended {
+            prop_assert_eq!(acq.progress().labelling, None, "after its sequence ended");
+        }
     }
     Err(TestCaseError::fail(
         "the acquisition did not finish in 100 actions",

@@ -232,14 +232,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let (mut states, mut frames, mut announced, mut snapshots) = (vec![], vec![], 0, vec![]);
     // When (on the test's clock) the capture started, its first frame came, its last.
     let (mut capture_start, mut first_frame, mut last_frame) = (None, None, None);
-    for line in events {
-        let Some(data) = line.strip_prefix("data:") else {
-            continue;
-        };
-        let event: serde_json::Value = serde_json::from_str(data.trim()).unwrap();
-        if event["job"] != c {
-            continue;
-        }
+    for event in job_events(events, c) {
         match event["event"].as_str() {
             Some("state") => states.push(event["state"].as_str().unwrap().to_string()),
             Some("progress") => {
@@ -561,6 +554,19 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
 /// The lines of `GET /api/events` as they come.
 fn events(address: SocketAddr) -> impl Iterator<Item = String> {
     fpm_serve::client::event_lines(address, None).unwrap()
+}
+
+/// The events of job `job` in the stream `lines` (from [`events`]), parsed.
+fn job_events(
+    lines: impl Iterator<Item = String>,
+    job: i64,
+) -> impl Iterator<Item = serde_json::Value> {
+    lines
+        .filter_map(|line| {
+            let data = line.strip_prefix("data:")?;
+            Some(serde_json::from_str::<serde_json::Value>(data.trim()).unwrap())
+        })
+        .filter(move |event| event["job"] == job)
 }
 
 /// 10⁴ generated bad requests from four clients while an acquisition runs: every one
@@ -1129,23 +1135,10 @@ fn the_default_service_labels_frames_all_through_the_capture() {
         VirtualService::start_with(fpm_bin(), &dir.0.join("state"), &[], Stdio::inherit()).unwrap();
     let events = events(service.address);
     let job = serde_json::json!({"kind": "acquire", "reconstruct": true});
-    let id = service
-        .post("/api/jobs", Some(&job.to_string()))
-        .unwrap()
-        .json()
-        .unwrap()["id"]
-        .as_i64()
-        .unwrap();
+    let id = service.submit(&job).unwrap();
     // Each frame event's time, and the capture's start, on the service's clock.
     let (mut start, mut frames, mut state) = (None, vec![], String::new());
-    for line in events {
-        let Some(data) = line.strip_prefix("data:") else {
-            continue;
-        };
-        let event: serde_json::Value = serde_json::from_str(data.trim()).unwrap();
-        if event["job"] != id {
-            continue;
-        }
+    for event in job_events(events, id) {
         let at = event["at_s"].as_f64().unwrap();
         match event["event"].as_str() {
             Some("progress") if event["progress"]["phase"] == "capturing" => {

@@ -386,10 +386,11 @@ pub fn capture_steps(
     let since_start = || start.elapsed().as_nanos() as i64;
     let mut labeller = Labeller::new(n, tolerance);
     let mut waiting = None;
-    // When each frame arrived and when its label was handed on (ns since `start`), and
-    // how many were labelled before the sequence ended: the live figures.
+    // When each frame arrived and when its label was handed on (ns since `start`; by
+    // frame index), and how many were labelled before the sequence ended: the live
+    // figures.
     let mut arrived_ns: Vec<i64> = vec![];
-    let mut labelled_ns: std::collections::HashMap<usize, i64> = Default::default();
+    let mut labelled_ns: Vec<Option<i64>> = vec![];
     let mut live = 0usize;
     let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
     let mut ended = None;
@@ -409,6 +410,7 @@ pub fn capture_steps(
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             let at = since_start();
             arrived_ns.push(at);
+            labelled_ns.push(None);
             labeller.frame(frame_time(&f.0), at);
             received.push(f);
             last_frame = Instant::now();
@@ -431,7 +433,7 @@ pub fn capture_steps(
         for l in &labels {
             let (header, pixels) = &received[l.frame];
             on_frame(l.step, header, pixels.view());
-            labelled_ns.insert(l.frame, since_start());
+            labelled_ns[l.frame] = Some(since_start());
             live += usize::from(ended.is_none());
         }
         if !labels.is_empty() {
@@ -461,6 +463,7 @@ pub fn capture_steps(
             while let Ok(f) = drain.rx.try_recv() {
                 let at = since_start();
                 arrived_ns.push(at);
+                labelled_ns.push(None);
                 labeller.frame(frame_time(&f.0), at);
                 received.push(f);
             }
@@ -495,12 +498,12 @@ pub fn capture_steps(
     for l in late {
         let (header, pixels) = &received[l.frame];
         on_frame(l.step, header, pixels.view());
-        labelled_ns.insert(l.frame, since_start());
+        labelled_ns[l.frame] = Some(since_start());
     }
     // Arrival → label handed on, ms, over the frames the final pairing kept.
     let mut lags: Vec<f64> = matched
         .iter()
-        .filter_map(|&(_, fi)| Some((labelled_ns.get(&fi)? - arrived_ns.get(fi)?) as f64 / 1e6))
+        .filter_map(|&(_, fi)| Some(((*labelled_ns.get(fi)?)? - arrived_ns.get(fi)?) as f64 / 1e6))
         .collect();
     lags.sort_by(f64::total_cmp);
     let quantile = |q: f64| match lags.len() {

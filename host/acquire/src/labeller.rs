@@ -192,8 +192,6 @@ impl Labeller {
             };
             self.anchor = anchor;
             self.waiting = waiting;
-        } else if received < MIN_FRAMES_TO_ANCHOR || self.steps.len() < MIN_FRAMES_TO_ANCHOR {
-            self.waiting = Some(Waiting::FirstFrames);
         }
         let Some(anchor) = self.anchor else {
             return vec![];
@@ -250,10 +248,11 @@ impl Labeller {
     ///   step.
     fn fit_anchor(&self) -> (Option<Anchor>, Option<Waiting>) {
         let received = self.frames.len();
-        let anchor = |steps: &[StepTime], p: &Pairing| Anchor {
+        // The mapping a pairing over `steps` fitted (its offset is at their first trigger).
+        let anchor = |steps: &[StepTime], offset_ns: i64, drift_ppm: f64| Anchor {
             t0_ns: steps.iter().map(|s| s.trigger_ns).min().unwrap_or(0),
-            offset_ns: p.clock_offset_ns,
-            drift: p.clock_drift_ppm * 1e-6,
+            offset_ns,
+            drift: drift_ppm * 1e-6,
         };
         let enough =
             |p: &Pairing, n: usize| p.clock_problem.is_none() && p.matched.len() * 4 >= n * 3;
@@ -274,17 +273,8 @@ impl Labeller {
         );
         if let Some(fit) = all.fingerprint {
             if fit.matched * 4 >= received.min(reach) * 3 {
-                let t0_ns = self.steps[..reach]
-                    .iter()
-                    .map(|s| s.trigger_ns)
-                    .min()
-                    .unwrap_or(0);
-                let anchor = Anchor {
-                    t0_ns,
-                    offset_ns: fit.offset_ns,
-                    drift: fit.drift_ppm * 1e-6,
-                };
-                return (Some(anchor), None);
+                let steps = &self.steps[..reach];
+                return (Some(anchor(steps, fit.offset_ns, fit.drift_ppm)), None);
             }
         }
         if !self.reports_prompt() {
@@ -308,7 +298,11 @@ impl Labeller {
             Some(arrivals),
         );
         if p.arrivals_agree && enough(&p, n) {
-            return (Some(anchor(&self.steps[..n], &p)), None);
+            let steps = &self.steps[..n];
+            return (
+                Some(anchor(steps, p.clock_offset_ns, p.clock_drift_ppm)),
+                None,
+            );
         }
         tracing::debug!(
             "labelling waits after {received} frames: clock problem {:?}; stamps single out their steps {}, arrivals agree {}, {} of {n} matched",

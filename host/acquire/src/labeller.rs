@@ -431,7 +431,7 @@ fn log_residuals(p: &Pairing, steps: &[StepTime], frames: &[FrameTime]) {
             tracing::debug!(
                 "frame {} unlabelled: about {:+.1} ms from step {}'s trigger",
                 frames[fi].frame_number,
-                (t - s.trigger_ns as i128) as f64 / 1e6,
+                crate::label::ns_f64(t - s.trigger_ns as i128) / 1e6,
                 s.step
             );
         }

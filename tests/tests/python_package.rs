@@ -1,4 +1,4 @@
-//! The Python package (`python/`, `import fpm`): its release wheel built with maturin
+//! The Python package (`python/`, `import fpm`): its wheel built with maturin
 //! from the same crates as the CLI and installed into a virtual environment, then its
 //! pytest suite
 //! (python/tests/, which also runs examples/python_session.py) against the real USAF
@@ -26,11 +26,15 @@ fn package_environment() -> (&'static Path, PathBuf, PathBuf) {
     (workspace, python, venv)
 }
 
-/// The release wheel users get (`maturin build --release --strip`, abi3, one file for
-/// every CPython from 3.9, manylinux x86_64), built once per run under
-/// `target/python-wheel` and shared by both tests: the pytest suite runs against it
-/// installed, as a user's `pip install` gives it. (`maturin develop` beside it compiled
-/// the whole tree a second time, in another profile and feature set.)
+/// The wheel users get (`maturin build --strip`, abi3, one file for every CPython from
+/// 3.9, manylinux x86_64: the package's files, metadata and entry points as released),
+/// built once per run under `target/python-wheel` and shared by both tests: the pytest
+/// suite runs against it installed, as a user's `pip install` gives it. It is built in
+/// the test profile rather than the release one: the same crates, packaging and
+/// settings, compiled as the rest of the suite is (dependencies and the physics
+/// optimised, with debug assertions and overflow checks on), so it reuses the test
+/// build's dependencies; `--release` compiled the whole tree a second time, about 10 of
+/// the suite's CPU-minutes, against about 3 for the crates whose features differ.
 fn release_wheel() -> PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL
@@ -40,7 +44,7 @@ fn release_wheel() -> PathBuf {
                 let wheels = workspace.join("target/python-wheel");
                 let _ = std::fs::remove_dir_all(&wheels);
                 let build = Command::new(venv.join("bin/maturin"))
-                    .args(["build", "--release", "--strip", "--quiet", "-m"])
+                    .args(["build", "--profile", "dev", "--strip", "--quiet", "-m"])
                     .arg(workspace.join("python/Cargo.toml"))
                     .arg("--out")
                     .arg(&wheels)

@@ -10,7 +10,9 @@ use crate::frame::{Counts, LitFrame, Measured, Response};
 use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, Normal, Poisson};
+use rand_distr::{Distribution, Normal};
+
+mod poisson;
 use rustfft::num_complex::Complex32;
 
 use crate::fft::{bin_frequency, Fft2};
@@ -435,8 +437,8 @@ impl Renderer {
         for r in 0..n {
             for c in 0..n {
                 let (x, y) = object.position(r, c);
-                let (s, co) = reduced(chirp * (x * x + y * y)).sin_cos();
-                self.buf[r * n + c] *= Complex32::new(co as f32, s as f32);
+                let (s, co) = (reduced(chirp * (x * x + y * y)) as f32).sin_cos();
+                self.buf[r * n + c] *= Complex32::new(co, s);
             }
         }
     }
@@ -478,8 +480,8 @@ impl Renderer {
                 } else {
                     to_pupil * (x * x + y * y)
                 };
-                let (s, co) = reduced(k * rr).sin_cos();
-                self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co as f32, s as f32);
+                let (s, co) = (reduced(k * rr) as f32).sin_cos();
+                self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co, s);
             }
         }
         if defocus_first {
@@ -518,6 +520,8 @@ impl Renderer {
 /// `phase` brought within ±π (f64, before its sine and cosine): k·R is up to ~10⁶ rad.
 /// Rounding the turns off costs a multiply; `rem_euclid` is a software `fmod`, and with
 /// the sines it was most of a frame's rendering (the virtual camera's frame rate).
+/// Once within ±π the phase is exact enough in f32, whose sine and cosine (the field's
+/// own precision) cost half the f64 ones.
 #[inline]
 fn reduced(phase: f64) -> f64 {
     use std::f64::consts::TAU;
@@ -657,14 +661,7 @@ impl Camera {
             let mean_e =
                 ((i as f64).max(0.0) + self.stray_light) * self.electrons_per_ms * exposure_ms;
             let e = if self.noisy {
-                let shot = if mean_e > 0.0 {
-                    Poisson::new(mean_e)
-                        .map(|p| p.sample(rng))
-                        .unwrap_or(mean_e)
-                } else {
-                    0.0
-                };
-                shot + read.sample(rng)
+                poisson::sample(mean_e, rng) + read.sample(rng)
             } else {
                 mean_e
             };

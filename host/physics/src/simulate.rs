@@ -10,9 +10,7 @@ use crate::frame::{Counts, LitFrame, Measured, Response};
 use crate::optics::LedIndex;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, Normal};
-
-mod poisson;
+use rand_distr::{Distribution, Normal, Poisson};
 use rustfft::num_complex::Complex32;
 
 use crate::fft::{bin_frequency, Fft2};
@@ -661,7 +659,14 @@ impl Camera {
             let mean_e =
                 ((i as f64).max(0.0) + self.stray_light) * self.electrons_per_ms * exposure_ms;
             let e = if self.noisy {
-                poisson::sample(mean_e, rng) + read.sample(rng)
+                let shot = if mean_e > 0.0 {
+                    Poisson::new(mean_e)
+                        .map(|p| p.sample(rng))
+                        .unwrap_or(mean_e)
+                } else {
+                    0.0
+                };
+                shot + read.sample(rng)
             } else {
                 mean_e
             };

@@ -1177,3 +1177,81 @@ fn the_default_service_labels_frames_all_through_the_capture() {
         "frames bunched: {quarters:?} per quarter of the capture"
     );
 }
+
+/// Crash recovery where users are: `fpm serve --virtual` with its defaults (256²
+/// camera, 40 ms steps), one acquire job with `reconstruct`, killed (SIGKILL) half-way
+/// through the capture. The frames labelled before the kill were journalled as they
+/// were labelled: a new service on the same state directory marks the job
+/// interrupted, its output is a partial dataset holding at least those frames, none
+/// contradicting its LED, and `resume` lights only the LEDs without a frame. (Before
+/// labelling went live on this rig, the journal held only its start line here and
+/// resume failed with "no frames to resume from", issue 61.)
+#[test]
+fn a_default_service_killed_mid_capture_keeps_its_frames_and_resumes_the_rest() {
+    let dir = TempDir::new("serve-default-kill");
+    let state = dir.0.join("state");
+    let out = dir.0.join("field");
+    let service = VirtualService::start_with(fpm_bin(), &state, &[], Stdio::inherit()).unwrap();
+    let events = events(service.address);
+    let job = serde_json::json!({"kind": "acquire", "reconstruct": true, "out": out});
+    let id = service.submit(&job).unwrap();
+    let mut labelled = 0;
+    for event in job_events(events, id) {
+        if event["event"] == "progress" {
+            labelled = event["progress"]["frames"].as_u64().unwrap_or(0);
+        }
+        assert!(
+            !matches!(
+                event["state"].as_str(),
+                Some("done" | "failed" | "cancelled")
+            ),
+            "the job ended before half its frames were labelled: {event}"
+        );
+        if labelled >= 441 / 2 {
+            break;
+        }
+    }
+    service.kill();
+    let service = VirtualService::start_with(fpm_bin(), &state, &[], Stdio::inherit()).unwrap();
+    let interrupted = service
+        .get(&format!("/api/jobs/{id}"))
+        .unwrap()
+        .json()
+        .unwrap();
+    assert_eq!(interrupted["state"], "interrupted", "{interrupted}");
+    let recovered = Dataset::load(&out).unwrap();
+    let n = recovered.frames.len();
+    eprintln!("killed with {labelled} frames labelled: {n} recovered");
+    assert!(
+        n as u64 >= labelled && n < 441,
+        "{n} frames recovered, {labelled} labelled before the kill"
+    );
+    let truth = fpm_host::truth::Truth::find(&state.join("virtual-rig/truth"))
+        .unwrap()
+        .expect("the virtual rig's truth");
+    let hidden = truth.geometry(&fpm_physics::LedGeometry::paper());
+    let wrong = fpm_tests::contradicted_by_physics(&recovered, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "recovered frames contradict their LED: {wrong:?}"
+    );
+    let resumed = service
+        .post(&format!("/api/jobs/{id}/resume"), None)
+        .unwrap();
+    assert_eq!(resumed.status, 202, "{}", resumed.body);
+    let again = resumed.json().unwrap()["id"].as_i64().unwrap();
+    let done = service.wait(again, Duration::from_secs(180)).unwrap();
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["summary"]["frames_before"], n, "{done}");
+    assert_eq!(done["summary"]["capture"]["requested"], 441 - n, "{done}");
+    let whole = Dataset::load(&out).unwrap();
+    let mut leds: Vec<_> = whole.frames.iter().map(|f| f.entry.led).collect();
+    leds.sort();
+    leds.dedup();
+    assert_eq!((whole.frames.len(), leds.len()), (441, 441));
+    let wrong = fpm_tests::contradicted_by_physics(&whole, &hidden);
+    assert!(
+        wrong.is_empty(),
+        "resumed frames contradict their LED: {wrong:?}"
+    );
+}

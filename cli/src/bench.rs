@@ -139,12 +139,12 @@ pub struct ServeArgs {
     /// Concurrent clients in the loaded round-trip measurement.
     #[arg(long, default_value_t = 50)]
     clients: usize,
-    /// The virtual camera's side, pixels.
-    #[arg(long, default_value_t = 64)]
-    size: usize,
-    /// How long each LED is lit, ms.
-    #[arg(long, default_value_t = 15.0)]
-    step_ms: f64,
+    /// The virtual camera's side, pixels (default: `fpm serve --virtual`'s, 256).
+    #[arg(long)]
+    size: Option<usize>,
+    /// How long each LED is lit, ms (default: the service's, 40).
+    #[arg(long)]
+    step_ms: Option<f64>,
     /// Acquisitions per side in the overhead comparison (alternating).
     #[arg(long, default_value_t = 3)]
     rounds: usize,

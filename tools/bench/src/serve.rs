@@ -5,9 +5,16 @@
 //!   script's `urllib` makes them), from 1 client and from 50 at once.
 //! * Event latency: a labelled frame's event, from the service publishing it (its
 //!   `at_s`) to a client reading it off the event stream.
-//! * Snapshot latency: from the event of the frame that completes a snapshot's count to
+//! * Snapshot age: from the event of the frame that completes a snapshot's count to
 //!   the client holding that snapshot's PNG (the reconstruction's blend, the PNG's
 //!   encoding and the request included).
+//! * Live labelling: the share of the capture's frames labelled while its sequence ran,
+//!   and a frame's arrival → its label, p50 and p99 (the capture's own figures).
+//! * ETA: `/api/status`'s time left when a quarter, half and three quarters of the
+//!   frames are labelled, against the capture's actual end.
+//! * Each of the live figures and cancel twice: with the machine idle, and with a CPU
+//!   hog beside the service (two busy threads of the bench's own, stopped afterwards),
+//!   as a lab's PC running napari or the previous field's reconstruction.
 //! * Pause: from the client's pause request to the job's progress saying `paused` (the
 //!   capture sequence cut at its LED, the rig holding).
 //! * Cancel: from the client's cancel request to the job's `cancelled` state (the
@@ -34,10 +41,10 @@ pub struct ServeOptions {
     pub requests: usize,
     /// Concurrent clients in the loaded round-trip test.
     pub clients: usize,
-    /// The virtual camera's side, pixels.
-    pub size: usize,
-    /// How long each LED is lit, ms.
-    pub step_ms: f64,
+    /// The virtual camera's side, pixels (None: `fpm serve --virtual`'s default).
+    pub size: Option<usize>,
+    /// How long each LED is lit, ms (None: the default).
+    pub step_ms: Option<f64>,
     /// Acquisitions per side in the overhead comparison.
     pub rounds: usize,
     /// Print JSON.
@@ -46,16 +53,44 @@ pub struct ServeOptions {
 
 #[derive(Serialize)]
 struct Report {
-    virtual_camera_px: usize,
-    step_ms: f64,
+    /// None: the service's defaults.
+    virtual_camera_px: Option<usize>,
+    step_ms: Option<f64>,
     round_trip_1_client: Percentiles,
     round_trip_clients: usize,
     round_trip_n_clients: Percentiles,
+    /// The machine idle, then with the hog.
+    idle: Live,
+    hog: Live,
+    overhead: Overhead,
+}
+
+/// A reconstructing acquisition as a client follows it, and pauses and cancels.
+#[derive(Serialize)]
+struct Live {
     frame_event_latency: Percentiles,
-    snapshot_latency: Percentiles,
+    /// The newest frame in a snapshot (its event) → the client holding its PNG.
+    snapshot_age: Percentiles,
+    /// Frames labelled while the controller's sequence ran, of those labelled.
+    labelled_live_share: f64,
+    label_lag_p50_ms: f64,
+    label_lag_p99_ms: f64,
+    eta: Vec<Eta>,
     pause_to_paused: Percentiles,
     cancel_to_cancelled: Percentiles,
-    overhead: Overhead,
+}
+
+/// One poll of `/api/status`: (time s, frames labelled, LEDs, ETA s, capturing).
+type Polled = (f64, f64, f64, Option<f64>, bool);
+
+/// `/api/status`'s time left at a share of the capture's frames, against the actual.
+#[derive(Serialize)]
+struct Eta {
+    share: f64,
+    eta_s: f64,
+    actual_s: f64,
+    /// (ETA − actual) / actual.
+    error: f64,
 }
 
 #[derive(Serialize)]
@@ -126,56 +161,165 @@ fn round_trips(address: SocketAddr, clients: usize, per_client: usize) -> Result
     Ok(Percentiles::of(&mut all))
 }
 
-/// A reconstructing acquisition followed on the event stream: frame-event latencies
-/// and snapshot latencies, µs.
-fn live_latencies(service: &VirtualService, step_ms: f64) -> Result<(Percentiles, Percentiles)> {
+/// A reconstructing acquisition followed on the event stream (frame-event latencies
+/// and snapshot ages, µs), with `/api/status` polled beside it for the ETA; then its
+/// record for the capture's live-labelling figures. Pause and cancel are left empty.
+fn follow_live(service: &VirtualService, step_ms: Option<f64>) -> Result<Live> {
     let lines = event_lines(service.address, None)?;
-    let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms,
-        "reconstruct": true, "snapshot_every": 25}))?;
+    let mut request =
+        serde_json::json!({"kind": "acquire", "reconstruct": true, "snapshot_every": 25});
+    if let Some(ms) = step_ms {
+        request["step_ms"] = ms.into();
+    }
+    let job = service.submit(&request)?;
     let (mut frame_us, mut snapshot_us) = (vec![], vec![]);
     // Publication time of the job's n-th capture frame (1-based).
     let mut frame_at: Vec<f64> = vec![];
-    for line in lines {
-        let Some(data) = line.strip_prefix("data:") else {
-            continue;
-        };
-        let received = now_s();
-        let event: serde_json::Value = serde_json::from_str(data.trim())?;
-        if event["job"] != job {
-            continue;
-        }
-        let at = event["at_s"].as_f64().unwrap_or(received);
-        match event["event"].as_str() {
-            Some("frame") => {
-                frame_us.push((received - at) * 1e6);
-                frame_at.push(at);
-            }
-            Some("snapshot") if event["finished"] == false => {
-                let n = event["frames"].as_u64().unwrap_or(0) as usize;
-                let seq = &event["seq"];
-                let png = service.get(&format!(
-                    "/api/jobs/{job}/snapshot/amplitude?format=png&seq={seq}"
-                ))?;
-                if png.status != 200 {
-                    bail!("the snapshot: {}", png.body);
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    // /api/status every 50 ms while the job runs.
+    let polled = std::thread::scope(|s| -> Result<Vec<Polled>> {
+        let poller = s.spawn(|| {
+            let mut seen = vec![];
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if let Ok(status) = service.get("/api/status").and_then(|r| r.json()) {
+                    if status["running"].as_i64() == Some(job) {
+                        let p = &status["progress"];
+                        seen.push((
+                            now_s(),
+                            p["frames"].as_f64().unwrap_or(0.0),
+                            p["of"].as_f64().unwrap_or(0.0),
+                            status["eta_s"].as_f64(),
+                            p["phase"] == "capturing",
+                        ));
+                    }
                 }
-                if let Some(&frame) = frame_at.get(n.wrapping_sub(1)) {
-                    snapshot_us.push((now_s() - frame) * 1e6);
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            seen
+        });
+        let followed = (|| -> Result<()> {
+            for line in lines {
+                let Some(data) = line.strip_prefix("data:") else {
+                    continue;
+                };
+                let received = now_s();
+                let event: serde_json::Value = serde_json::from_str(data.trim())?;
+                if event["job"] != job {
+                    continue;
+                }
+                let at = event["at_s"].as_f64().unwrap_or(received);
+                match event["event"].as_str() {
+                    Some("frame") => {
+                        frame_us.push((received - at) * 1e6);
+                        frame_at.push(at);
+                    }
+                    Some("snapshot") if event["finished"] == false => {
+                        let n = event["frames"].as_u64().unwrap_or(0) as usize;
+                        let seq = &event["seq"];
+                        let png = service.get(&format!(
+                            "/api/jobs/{job}/snapshot/amplitude?format=png&seq={seq}"
+                        ))?;
+                        if png.status != 200 {
+                            bail!("the snapshot: {}", png.body);
+                        }
+                        if let Some(&frame) = frame_at.get(n.wrapping_sub(1)) {
+                            snapshot_us.push((now_s() - frame) * 1e6);
+                        }
+                    }
+                    Some("state")
+                        if !matches!(event["state"].as_str(), Some("queued" | "running")) =>
+                    {
+                        if event["state"] != "done" {
+                            bail!("the live job ended {}: {}", event["state"], event["error"]);
+                        }
+                        return Ok(());
+                    }
+                    _ => {}
                 }
             }
-            Some("state") if !matches!(event["state"].as_str(), Some("queued" | "running")) => {
-                if event["state"] != "done" {
-                    bail!("the live job ended {}: {}", event["state"], event["error"]);
-                }
-                break;
-            }
-            _ => {}
+            bail!("the event stream ended before job {job} did")
+        })();
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let seen = poller
+            .join()
+            .map_err(|_| anyhow!("the status poller panicked"))?;
+        followed.map(|()| seen)
+    })?;
+    let record = service.get(&format!("/api/jobs/{job}"))?.json()?;
+    let capture = &record["summary"]["capture"];
+    let number = |field: &str| {
+        capture[field]
+            .as_f64()
+            .ok_or_else(|| anyhow!("no capture.{field} in job {job}'s summary: {capture}"))
+    };
+    Ok(Live {
+        frame_event_latency: Percentiles::of(&mut frame_us),
+        snapshot_age: Percentiles::of(&mut snapshot_us),
+        labelled_live_share: number("labelled_live")? / number("labelled")?.max(1.0),
+        label_lag_p50_ms: number("label_lag_p50_ms")?,
+        label_lag_p99_ms: number("label_lag_p99_ms")?,
+        eta: eta_errors(&polled),
+        pause_to_paused: Percentiles::of(&mut []),
+        cancel_to_cancelled: Percentiles::of(&mut []),
+    })
+}
+
+/// The ETA the status gave when a quarter, half and three quarters of the frames were
+/// labelled, against the time the capture actually ended (its last poll as capturing).
+fn eta_errors(polled: &[Polled]) -> Vec<Eta> {
+    let Some(end) = polled.iter().filter(|p| p.4).map(|p| p.0).reduce(f64::max) else {
+        return vec![];
+    };
+    [0.25, 0.5, 0.75]
+        .into_iter()
+        .filter_map(|share| {
+            let &(t, _, _, eta, _) = polled
+                .iter()
+                .find(|p| p.4 && p.2 > 0.0 && p.1 >= share * p.2)?;
+            let (eta_s, actual_s) = (eta?, end - t);
+            Some(Eta {
+                share,
+                eta_s,
+                actual_s,
+                error: (eta_s - actual_s) / actual_s.max(1e-3),
+            })
+        })
+        .collect()
+}
+
+/// Two threads that spin until dropped: the CPU hog beside the service.
+struct Hog {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl Hog {
+    fn start(threads: usize) -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let threads = (0..threads)
+            .map(|_| {
+                let stop = stop.clone();
+                std::thread::spawn(move || {
+                    let mut x = 1u64;
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        for _ in 0..10_000 {
+                            x = std::hint::black_box(x.wrapping_mul(6_364_136_223_846_793_005) + 1);
+                        }
+                    }
+                })
+            })
+            .collect();
+        Self { stop, threads }
+    }
+}
+
+impl Drop for Hog {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
         }
     }
-    Ok((
-        Percentiles::of(&mut frame_us),
-        Percentiles::of(&mut snapshot_us),
-    ))
 }
 
 /// Acquisitions paused a second into their capture, resumed, then cancelled: µs from
@@ -183,13 +327,17 @@ fn live_latencies(service: &VirtualService, step_ms: f64) -> Result<(Percentiles
 /// `cancelled`).
 fn pauses_and_cancels(
     service: &VirtualService,
-    step_ms: f64,
+    step_ms: Option<f64>,
     count: usize,
 ) -> Result<(Percentiles, Percentiles)> {
     let (mut pauses, mut cancels) = (vec![], vec![]);
     for _ in 0..count {
         let mut lines = event_lines(service.address, None)?;
-        let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
+        let mut request = serde_json::json!({"kind": "acquire"});
+        if let Some(ms) = step_ms {
+            request["step_ms"] = ms.into();
+        }
+        let job = service.submit(&request)?;
         wait_running(service, job)?;
         std::thread::sleep(Duration::from_secs(1));
         let mut until = |asked: f64, took_effect: &dyn Fn(&serde_json::Value) -> bool| {
@@ -231,24 +379,27 @@ fn pauses_and_cancels(
 }
 
 /// `fpm acquire` on a virtual rig of its own: (capture s, run s).
-fn cli_acquisition(fpm: &Path, dir: &Path, size: usize, step_ms: f64) -> Result<(f64, f64)> {
+fn cli_acquisition(
+    fpm: &Path,
+    dir: &Path,
+    size: Option<usize>,
+    step_ms: Option<f64>,
+) -> Result<(f64, f64)> {
     let name = format!(
         "bench-serve-{}-{}",
         std::process::id(),
         dir.file_name().and_then(|n| n.to_str()).unwrap_or("x")
     );
-    let rig = fpm_rig::process::VirtualRig::start(
-        fpm,
-        &name,
-        &dir.join("rig"),
-        &["--size", &size.to_string()],
-    )?;
+    let size = size.map(|s| s.to_string());
+    let rig_args: Vec<&str> = size.iter().flat_map(|s| ["--size", s.as_str()]).collect();
+    let rig = fpm_rig::process::VirtualRig::start(fpm, &name, &dir.join("rig"), &rig_args)?;
+    let step = step_ms.map(|ms| ms.to_string());
     let out = dir.join("out");
     let start = Instant::now();
     let status = Command::new(fpm)
         .args(["acquire", "--port", &rig.emulator.port(), "--frames", &name])
         .args(["--stage", "virtual", "--rig", &name])
-        .args(["--step-ms", &step_ms.to_string()])
+        .args(step.iter().flat_map(|ms| ["--step-ms", ms.as_str()]))
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::null())
@@ -270,8 +421,12 @@ fn capture_seconds(summary: &serde_json::Value) -> Result<f64> {
 }
 
 /// The service's acquisition: (capture s, run s from running to its end).
-fn service_acquisition(service: &VirtualService, step_ms: f64) -> Result<(f64, f64)> {
-    let job = service.submit(&serde_json::json!({"kind": "acquire", "step_ms": step_ms}))?;
+fn service_acquisition(service: &VirtualService, step_ms: Option<f64>) -> Result<(f64, f64)> {
+    let mut request = serde_json::json!({"kind": "acquire"});
+    if let Some(ms) = step_ms {
+        request["step_ms"] = ms.into();
+    }
+    let job = service.submit(&request)?;
     let record = service.wait(job, Duration::from_secs(600))?;
     if record["state"] != "done" {
         bail!(
@@ -298,14 +453,28 @@ pub fn run(o: ServeOptions) -> Result<()> {
         }
     };
     say("starting fpm serve --virtual …");
-    let service = VirtualService::start(&fpm, &dir.join("state"), o.size, Stdio::null())?;
+    let size = o.size.map(|s| s.to_string());
+    let serve_args: Vec<&str> = size
+        .iter()
+        .flat_map(|s| ["--virtual-size", s.as_str()])
+        .collect();
+    let service = VirtualService::start_with(&fpm, &dir.join("state"), &serve_args, Stdio::null())?;
     say("API round trips …");
     let one = round_trips(service.address, 1, o.requests)?;
     let many = round_trips(service.address, o.clients, o.requests.div_ceil(o.clients))?;
-    say("a reconstructing acquisition, followed live …");
-    let (frame_event, snapshot) = live_latencies(&service, o.step_ms)?;
-    say("pauses and cancels …");
-    let (pause, cancel) = pauses_and_cancels(&service, o.step_ms, 5)?;
+    let live = |hog: bool| -> Result<Live> {
+        let _hog = hog.then(|| Hog::start(2));
+        let beside = if hog { " beside a CPU hog" } else { "" };
+        say(&format!(
+            "a reconstructing acquisition, followed live{beside} …"
+        ));
+        let mut live = follow_live(&service, o.step_ms)?;
+        say(&format!("pauses and cancels{beside} …"));
+        (live.pause_to_paused, live.cancel_to_cancelled) =
+            pauses_and_cancels(&service, o.step_ms, 5)?;
+        Ok(live)
+    };
+    let (idle, hog) = (live(false)?, live(true)?);
     let mut overhead = Overhead {
         rounds: o.rounds,
         cli_capture_s: vec![],
@@ -332,10 +501,8 @@ pub fn run(o: ServeOptions) -> Result<()> {
         round_trip_1_client: one,
         round_trip_clients: o.clients,
         round_trip_n_clients: many,
-        frame_event_latency: frame_event,
-        snapshot_latency: snapshot,
-        pause_to_paused: pause,
-        cancel_to_cancelled: cancel,
+        idle,
+        hog,
         overhead,
     };
     if o.json {
@@ -344,10 +511,15 @@ pub fn run(o: ServeOptions) -> Result<()> {
     }
     let ms =
         |p: &Percentiles| format!("p50 {:.2} ms, p99 {:.2} ms", p.p50_us / 1e3, p.p99_us / 1e3);
-    println!(
-        "fpm serve on a virtual rig ({}² camera, {} ms per LED)",
-        o.size, o.step_ms
-    );
+    let rig = match (o.size, o.step_ms) {
+        (None, None) => "fpm serve --virtual's defaults".to_string(),
+        (size, step) => format!(
+            "{} camera, {} per LED",
+            size.map_or("default".into(), |s| format!("{s}²")),
+            step.map_or("default".into(), |ms| format!("{ms} ms"))
+        ),
+    };
+    println!("fpm serve on a virtual rig ({rig})");
     println!(
         "  GET /api/status, 1 client:     {}",
         ms(&report.round_trip_1_client)
@@ -357,22 +529,40 @@ pub fn run(o: ServeOptions) -> Result<()> {
         o.clients,
         ms(&report.round_trip_n_clients)
     );
-    println!(
-        "  frame event → client:          {}",
-        ms(&report.frame_event_latency)
-    );
-    println!(
-        "  frame → snapshot PNG at client: {}",
-        ms(&report.snapshot_latency)
-    );
-    println!(
-        "  pause → holding:               {}",
-        ms(&report.pause_to_paused)
-    );
-    println!(
-        "  cancel → job cancelled:        {}",
-        ms(&report.cancel_to_cancelled)
-    );
+    for (name, live) in [("idle", &report.idle), ("beside a CPU hog", &report.hog)] {
+        println!("  {name}:");
+        println!(
+            "    frames labelled while the sequence ran: {:.1} %; arrival → label p50 {:.0} ms, p99 {:.0} ms",
+            100.0 * live.labelled_live_share,
+            live.label_lag_p50_ms,
+            live.label_lag_p99_ms
+        );
+        println!(
+            "    frame event → client:          {}",
+            ms(&live.frame_event_latency)
+        );
+        println!(
+            "    snapshot age at the client:    {}",
+            ms(&live.snapshot_age)
+        );
+        for e in &live.eta {
+            println!(
+                "    ETA at {:.0} % of the frames: {:.1} s for {:.1} s ({:+.0} %)",
+                100.0 * e.share,
+                e.eta_s,
+                e.actual_s,
+                100.0 * e.error
+            );
+        }
+        println!(
+            "    pause → holding:               {}",
+            ms(&live.pause_to_paused)
+        );
+        println!(
+            "    cancel → job cancelled:        {}",
+            ms(&live.cancel_to_cancelled)
+        );
+    }
     let o = &report.overhead;
     println!(
         "  441-LED acquisition, service / fpm acquire (median of {}): capture {:.4}×, whole run {:.4}×",

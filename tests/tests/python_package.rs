@@ -35,7 +35,7 @@ fn package_environment() -> (&'static Path, PathBuf, PathBuf) {
 /// optimised, with debug assertions and overflow checks on), so it reuses the test
 /// build's dependencies; `--release` compiled the whole tree a second time, about 10 of
 /// the suite's CPU-minutes, against about 3 for the crates whose features differ.
-fn release_wheel() -> PathBuf {
+fn package_wheel() -> PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL
         .get_or_init(|| {
@@ -71,7 +71,7 @@ fn release_wheel() -> PathBuf {
 #[test]
 fn python_package_builds_and_its_tests_pass() {
     let (workspace, python, _) = package_environment();
-    let wheel = release_wheel();
+    let wheel = package_wheel();
     // The test environment's own copy of the package, replaced by this run's wheel.
     let install = Command::new(&python)
         .args([
@@ -118,7 +118,7 @@ fn python_package_builds_and_its_tests_pass() {
 fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust() {
     let (workspace, _, _) = package_environment();
     let scratch = tempfile::tempdir().unwrap();
-    let wheel = release_wheel();
+    let wheel = package_wheel();
     let name = wheel.file_name().unwrap().to_string_lossy().to_string();
     assert!(
         name.starts_with("ptychoscope-")

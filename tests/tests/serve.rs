@@ -500,10 +500,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     leds.sort();
     leds.dedup();
     assert_eq!(leds.len(), n, "an LED twice");
-    let truth = fpm_host::truth::Truth::find(&state.join("virtual-rig/truth"))
-        .unwrap()
-        .expect("the virtual rig's truth");
-    let hidden = truth.geometry(&fpm_physics::LedGeometry::paper());
+    let hidden = hidden_array(&state);
     let wrong = fpm_tests::contradicted_by_physics(&recovered, &hidden);
     assert!(
         wrong.is_empty(),
@@ -528,16 +525,7 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
     let summary = &job["summary"];
     assert_eq!(summary["frames_before"], n, "{job}");
     assert_eq!(summary["capture"]["requested"], 441 - n, "{job}");
-    let whole = Dataset::load(&d_out).unwrap();
-    let mut leds: Vec<_> = whole.frames.iter().map(|f| f.entry.led).collect();
-    leds.sort();
-    leds.dedup();
-    assert_eq!((whole.frames.len(), leds.len()), (441, 441));
-    let wrong = fpm_tests::contradicted_by_physics(&whole, &hidden);
-    assert!(
-        wrong.is_empty(),
-        "resumed frames contradict their LED: {wrong:?}"
-    );
+    assert_every_led_once_and_true(&d_out, &hidden);
     assert!(!d_out.join(fpm_acquire::journal::JOURNAL).exists());
     eprintln!(
         "resumed: {} LEDs lit, 441 frames, 0 contradict their LED",
@@ -549,6 +537,29 @@ fn jobs_queue_run_cancel_and_survive_a_restart() {
             state
         );
     }
+}
+
+/// The LED array as the virtual rig under `state` really placed it (its truth).
+fn hidden_array(state: &Path) -> fpm_physics::LedGeometry {
+    let truth = fpm_host::truth::Truth::find(&state.join("virtual-rig/truth"))
+        .unwrap()
+        .expect("the virtual rig's truth");
+    truth.geometry(&fpm_physics::LedGeometry::paper())
+}
+
+/// The dataset in `out` holds one frame of each of the 441 LEDs, none of which the
+/// physics under the `hidden` array contradicts.
+fn assert_every_led_once_and_true(out: &Path, hidden: &fpm_physics::LedGeometry) {
+    let whole = Dataset::load(out).unwrap();
+    let mut leds: Vec<_> = whole.frames.iter().map(|f| f.entry.led).collect();
+    leds.sort();
+    leds.dedup();
+    assert_eq!((whole.frames.len(), leds.len()), (441, 441));
+    let wrong = fpm_tests::contradicted_by_physics(&whole, hidden);
+    assert!(
+        wrong.is_empty(),
+        "resumed frames contradict their LED: {wrong:?}"
+    );
 }
 
 /// The lines of `GET /api/events` as they come.
@@ -1226,10 +1237,7 @@ fn a_default_service_killed_mid_capture_keeps_its_frames_and_resumes_the_rest() 
         n as u64 >= labelled && n < 441,
         "{n} frames recovered, {labelled} labelled before the kill"
     );
-    let truth = fpm_host::truth::Truth::find(&state.join("virtual-rig/truth"))
-        .unwrap()
-        .expect("the virtual rig's truth");
-    let hidden = truth.geometry(&fpm_physics::LedGeometry::paper());
+    let hidden = hidden_array(&state);
     let wrong = fpm_tests::contradicted_by_physics(&recovered, &hidden);
     assert!(
         wrong.is_empty(),
@@ -1244,14 +1252,5 @@ fn a_default_service_killed_mid_capture_keeps_its_frames_and_resumes_the_rest() 
     assert_eq!(done["state"], "done", "{done}");
     assert_eq!(done["summary"]["frames_before"], n, "{done}");
     assert_eq!(done["summary"]["capture"]["requested"], 441 - n, "{done}");
-    let whole = Dataset::load(&out).unwrap();
-    let mut leds: Vec<_> = whole.frames.iter().map(|f| f.entry.led).collect();
-    leds.sort();
-    leds.dedup();
-    assert_eq!((whole.frames.len(), leds.len()), (441, 441));
-    let wrong = fpm_tests::contradicted_by_physics(&whole, &hidden);
-    assert!(
-        wrong.is_empty(),
-        "resumed frames contradict their LED: {wrong:?}"
-    );
+    assert_every_led_once_and_true(&out, &hidden);
 }

@@ -12,13 +12,13 @@
 //!   and a frame's arrival → its label, p50 and p99 (the capture's own figures).
 //! * ETA: `/api/status`'s time left when a quarter, half and three quarters of the
 //!   frames are labelled, against the capture's actual end.
-//! * Each of the live figures and cancel twice: with the machine idle, and with a CPU
-//!   hog beside the service (two busy threads of the bench's own, stopped afterwards),
-//!   as a lab's PC running napari or the previous field's reconstruction.
 //! * Pause: from the client's pause request to the job's progress saying `paused` (the
 //!   capture sequence cut at its LED, the rig holding).
 //! * Cancel: from the client's cancel request to the job's `cancelled` state (the
 //!   sequence aborted, the frames so far labelled and written).
+//! * Each of the live figures, pause and cancel twice: with the machine idle, and with
+//!   a CPU hog beside the service (two busy threads of the bench's own, stopped
+//!   afterwards), as a lab's PC running napari or the previous field's reconstruction.
 //! * Overhead: the same 441-LED acquisition run by `fpm acquire` and by the service,
 //!   alternately, each on a virtual rig of its own: the capture's seconds (from
 //!   `acquisition.json`) and the whole run's, as ratios service / CLI.
@@ -26,6 +26,8 @@
 use std::net::SocketAddr;
 use std::path::Path;
 use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -80,8 +82,14 @@ struct Live {
     cancel_to_cancelled: Percentiles,
 }
 
-/// One poll of `/api/status`: (time s, frames labelled, LEDs, ETA s, capturing).
-type Polled = (f64, f64, f64, Option<f64>, bool);
+/// One poll of `/api/status` while the job ran.
+struct Polled {
+    at_s: f64,
+    frames: f64,
+    of: f64,
+    eta_s: Option<f64>,
+    capturing: bool,
+}
 
 /// `/api/status`'s time left at a share of the capture's frames, against the actual.
 #[derive(Serialize)]
@@ -113,6 +121,20 @@ fn now_s() -> f64 {
 
 fn median(v: &[f64]) -> f64 {
     fpm_physics::stats::median(&mut v.to_vec()).unwrap_or(f64::NAN)
+}
+
+/// An acquire job's request, with `step_ms` or the service's default.
+fn acquire_request(step_ms: Option<f64>) -> serde_json::Value {
+    let mut request = serde_json::json!({"kind": "acquire"});
+    if let Some(ms) = step_ms {
+        request["step_ms"] = ms.into();
+    }
+    request
+}
+
+/// `[flag, value]` when there is a value, for a command line.
+fn optional_flag<'a>(flag: &'a str, value: &'a Option<String>) -> impl Iterator<Item = &'a str> {
+    value.iter().flat_map(move |v| [flag, v.as_str()])
 }
 
 /// Until job `id` is the one running.
@@ -166,31 +188,29 @@ fn round_trips(address: SocketAddr, clients: usize, per_client: usize) -> Result
 /// record for the capture's live-labelling figures. Pause and cancel are left empty.
 fn follow_live(service: &VirtualService, step_ms: Option<f64>) -> Result<Live> {
     let lines = event_lines(service.address, None)?;
-    let mut request =
-        serde_json::json!({"kind": "acquire", "reconstruct": true, "snapshot_every": 25});
-    if let Some(ms) = step_ms {
-        request["step_ms"] = ms.into();
-    }
+    let mut request = acquire_request(step_ms);
+    request["reconstruct"] = true.into();
+    request["snapshot_every"] = 25.into();
     let job = service.submit(&request)?;
     let (mut frame_us, mut snapshot_us) = (vec![], vec![]);
     // Publication time of the job's n-th capture frame (1-based).
     let mut frame_at: Vec<f64> = vec![];
-    let stop = std::sync::atomic::AtomicBool::new(false);
+    let stop = AtomicBool::new(false);
     // /api/status every 50 ms while the job runs.
     let polled = std::thread::scope(|s| -> Result<Vec<Polled>> {
         let poller = s.spawn(|| {
             let mut seen = vec![];
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            while !stop.load(Ordering::Relaxed) {
                 if let Ok(status) = service.get("/api/status").and_then(|r| r.json()) {
                     if status["running"].as_i64() == Some(job) {
                         let p = &status["progress"];
-                        seen.push((
-                            now_s(),
-                            p["frames"].as_f64().unwrap_or(0.0),
-                            p["of"].as_f64().unwrap_or(0.0),
-                            status["eta_s"].as_f64(),
-                            p["phase"] == "capturing",
-                        ));
+                        seen.push(Polled {
+                            at_s: now_s(),
+                            frames: p["frames"].as_f64().unwrap_or(0.0),
+                            of: p["of"].as_f64().unwrap_or(0.0),
+                            eta_s: status["eta_s"].as_f64(),
+                            capturing: p["phase"] == "capturing",
+                        });
                     }
                 }
                 std::thread::sleep(Duration::from_millis(50));
@@ -239,7 +259,7 @@ fn follow_live(service: &VirtualService, step_ms: Option<f64>) -> Result<Live> {
             }
             bail!("the event stream ended before job {job} did")
         })();
-        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        stop.store(true, Ordering::Relaxed);
         let seen = poller
             .join()
             .map_err(|_| anyhow!("the status poller panicked"))?;
@@ -267,16 +287,15 @@ fn follow_live(service: &VirtualService, step_ms: Option<f64>) -> Result<Live> {
 /// The ETA the status gave when a quarter, half and three quarters of the frames were
 /// labelled, against the time the capture actually ended (its last poll as capturing).
 fn eta_errors(polled: &[Polled]) -> Vec<Eta> {
-    let Some(end) = polled.iter().filter(|p| p.4).map(|p| p.0).reduce(f64::max) else {
+    let capturing = || polled.iter().filter(|p| p.capturing);
+    let Some(end) = capturing().map(|p| p.at_s).reduce(f64::max) else {
         return vec![];
     };
     [0.25, 0.5, 0.75]
         .into_iter()
         .filter_map(|share| {
-            let &(t, _, _, eta, _) = polled
-                .iter()
-                .find(|p| p.4 && p.2 > 0.0 && p.1 >= share * p.2)?;
-            let (eta_s, actual_s) = (eta?, end - t);
+            let at = capturing().find(|p| p.of > 0.0 && p.frames >= share * p.of)?;
+            let (eta_s, actual_s) = (at.eta_s?, end - at.at_s);
             Some(Eta {
                 share,
                 eta_s,
@@ -289,19 +308,19 @@ fn eta_errors(polled: &[Polled]) -> Vec<Eta> {
 
 /// Two threads that spin until dropped: the CPU hog beside the service.
 struct Hog {
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    stop: Arc<AtomicBool>,
     threads: Vec<std::thread::JoinHandle<()>>,
 }
 
 impl Hog {
     fn start(threads: usize) -> Self {
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
         let threads = (0..threads)
             .map(|_| {
                 let stop = stop.clone();
                 std::thread::spawn(move || {
                     let mut x = 1u64;
-                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    while !stop.load(Ordering::Relaxed) {
                         for _ in 0..10_000 {
                             x = std::hint::black_box(x.wrapping_mul(6_364_136_223_846_793_005) + 1);
                         }
@@ -315,7 +334,7 @@ impl Hog {
 
 impl Drop for Hog {
     fn drop(&mut self) {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.stop.store(true, Ordering::Relaxed);
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
@@ -333,11 +352,7 @@ fn pauses_and_cancels(
     let (mut pauses, mut cancels) = (vec![], vec![]);
     for _ in 0..count {
         let mut lines = event_lines(service.address, None)?;
-        let mut request = serde_json::json!({"kind": "acquire"});
-        if let Some(ms) = step_ms {
-            request["step_ms"] = ms.into();
-        }
-        let job = service.submit(&request)?;
+        let job = service.submit(&acquire_request(step_ms))?;
         wait_running(service, job)?;
         std::thread::sleep(Duration::from_secs(1));
         let mut until = |asked: f64, took_effect: &dyn Fn(&serde_json::Value) -> bool| {
@@ -390,16 +405,18 @@ fn cli_acquisition(
         std::process::id(),
         dir.file_name().and_then(|n| n.to_str()).unwrap_or("x")
     );
-    let size = size.map(|s| s.to_string());
-    let rig_args: Vec<&str> = size.iter().flat_map(|s| ["--size", s.as_str()]).collect();
+    let (size, step) = (
+        size.map(|s| s.to_string()),
+        step_ms.map(|ms| ms.to_string()),
+    );
+    let rig_args: Vec<&str> = optional_flag("--size", &size).collect();
     let rig = fpm_rig::process::VirtualRig::start(fpm, &name, &dir.join("rig"), &rig_args)?;
-    let step = step_ms.map(|ms| ms.to_string());
     let out = dir.join("out");
     let start = Instant::now();
     let status = Command::new(fpm)
         .args(["acquire", "--port", &rig.emulator.port(), "--frames", &name])
         .args(["--stage", "virtual", "--rig", &name])
-        .args(step.iter().flat_map(|ms| ["--step-ms", ms.as_str()]))
+        .args(optional_flag("--step-ms", &step))
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::null())
@@ -422,11 +439,7 @@ fn capture_seconds(summary: &serde_json::Value) -> Result<f64> {
 
 /// The service's acquisition: (capture s, run s from running to its end).
 fn service_acquisition(service: &VirtualService, step_ms: Option<f64>) -> Result<(f64, f64)> {
-    let mut request = serde_json::json!({"kind": "acquire"});
-    if let Some(ms) = step_ms {
-        request["step_ms"] = ms.into();
-    }
-    let job = service.submit(&request)?;
+    let job = service.submit(&acquire_request(step_ms))?;
     let record = service.wait(job, Duration::from_secs(600))?;
     if record["state"] != "done" {
         bail!(
@@ -454,10 +467,7 @@ pub fn run(o: ServeOptions) -> Result<()> {
     };
     say("starting fpm serve --virtual …");
     let size = o.size.map(|s| s.to_string());
-    let serve_args: Vec<&str> = size
-        .iter()
-        .flat_map(|s| ["--virtual-size", s.as_str()])
-        .collect();
+    let serve_args: Vec<&str> = optional_flag("--virtual-size", &size).collect();
     let service = VirtualService::start_with(&fpm, &dir.join("state"), &serve_args, Stdio::null())?;
     say("API round trips …");
     let one = round_trips(service.address, 1, o.requests)?;

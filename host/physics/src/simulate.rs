@@ -9,6 +9,7 @@
 use crate::frame::{Counts, LitFrame, Measured, Response};
 use crate::optics::LedIndex;
 use ndarray::Array2;
+use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal, Poisson};
 use rustfft::num_complex::Complex32;
@@ -652,7 +653,12 @@ impl Camera {
 
     /// Record `intensity` for `exposure_ms`: shot noise, read noise, offset, rounding
     /// and clipping to the ADC range. Returns counts (DN).
-    pub fn record(&self, intensity: &Image, exposure_ms: f64, rng: &mut impl Rng) -> Array2<u16> {
+    ///
+    /// The noise stream is a concrete [`StdRng`], not any `Rng`: a generic would be
+    /// compiled into each caller, at the caller's optimisation, and the virtual camera
+    /// (an unoptimised crate in the test build) spent a third of its time on this
+    /// function's arithmetic there.
+    pub fn record(&self, intensity: &Image, exposure_ms: f64, rng: &mut StdRng) -> Array2<u16> {
         let read = Normal::new(0.0, self.read_noise_e.max(1e-12)).expect("finite read noise");
         let max = self.max_dn();
         intensity.mapv(|i| {

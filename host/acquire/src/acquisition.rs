@@ -26,6 +26,8 @@ use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{Reconstruction, Report, Request};
 use fpm_physics::calibrate::{calibration_grid, Options, GRID_HALF};
 use fpm_physics::reconstruct::{limits, tiled, Flatten, Settings, TiledStreaming};
+
+use crate::stream::StreamWorker;
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, LedIndex, Rgb};
 use serde::Serialize;
@@ -311,13 +313,6 @@ pub struct Snapshot {
     pub pixel_um: f64,
 }
 
-/// Which snapshot is due.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum SnapshotDue {
-    Stream,
-    Finished,
-}
-
 /// The step the machine is in; each waits for the one event that ends it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Step {
@@ -410,11 +405,13 @@ pub struct Acquisition {
     capture: Option<CaptureReport>,
     retake: Option<CaptureReport>,
     retake_problem: Option<String>,
-    streaming: Option<TiledStreaming>,
+    /// The streaming reconstruction, on its own thread.
+    streaming: Option<StreamWorker>,
     stream_error: Option<String>,
     /// Why the running sequence's frames wait for their labels, if they do.
     labelling: Option<Waiting>,
-    snapshot_due: Option<SnapshotDue>,
+    /// The finished reconstruction is to be shown once.
+    finished_snapshot_due: bool,
     update_us: Vec<f64>,
     tiles: Option<usize>,
     frames: usize,
@@ -505,7 +502,7 @@ impl Acquisition {
             streaming: None,
             stream_error: None,
             labelling: None,
-            snapshot_due: None,
+            finished_snapshot_due: false,
             update_us: vec![],
             tiles: None,
             frames: 0,
@@ -593,32 +590,30 @@ impl Acquisition {
         Ok(machine)
     }
 
-    /// The snapshot due now, if one is (taking it blends the stream's tiles: the
-    /// driver asks after each event, when it has a viewer to give it to).
+    /// The snapshot due now, if one is: the finished reconstruction once, before it the
+    /// newest one the stream's thread took (the driver asks after each event, when it
+    /// has a viewer to give it to).
     pub fn snapshot(&mut self) -> Option<Snapshot> {
-        let due = self.snapshot_due.take()?;
-        let (frames, of) = (self.frames, self.order.len());
-        match due {
-            SnapshotDue::Finished => self.reconstruction.as_ref().map(|r| Snapshot {
-                frames,
+        let of = self.order.len();
+        if std::mem::take(&mut self.finished_snapshot_due) {
+            return self.reconstruction.as_ref().map(|r| Snapshot {
+                frames: self.frames,
                 of,
                 finished: true,
                 object: r.object.clone(),
                 pixel_um: r.report.pixel_um,
-            }),
-            SnapshotDue::Stream => {
-                let upsample = streaming_settings(&self.plan).upsample.max(1) as f64;
-                let system = self.plan.system;
-                let object = self.streaming.as_mut()?.snapshot()?;
-                Some(Snapshot {
-                    frames,
-                    of,
-                    finished: false,
-                    object,
-                    pixel_um: system.pixel_size_um / system.magnification / upsample,
-                })
-            }
+            });
         }
+        let (frames, object) = self.streaming.as_ref()?.take_snapshot()?;
+        let upsample = streaming_settings(&self.plan).upsample.max(1) as f64;
+        let system = self.plan.system;
+        Some(Snapshot {
+            frames,
+            of,
+            finished: false,
+            object,
+            pixel_um: system.pixel_size_um / system.magnification / upsample,
+        })
     }
 
     /// The action to carry out now. Calling it again before the action's event was
@@ -715,6 +710,11 @@ impl Acquisition {
                         Step::WriteDataset if self.streaming.is_some() => Some(Cut::Reconstruction),
                         _ => None,
                     };
+                    if self.cut.is_some() {
+                        // Nothing cut short is reconstructed: the stream's thread stops
+                        // now rather than compete with writing what was captured.
+                        self.stop_stream();
+                    }
                 }
                 self.cancelled = true;
                 if !self.waiting {
@@ -965,30 +965,41 @@ impl Acquisition {
     fn stream(&mut self, shot: ShotView<'_>) {
         self.frames += 1;
         self.last_frame_at = Some(Instant::now());
-        if !self.plan.reconstruct || self.stream_error.is_some() {
+        if !self.plan.reconstruct || self.stream_error.is_some() || self.cut.is_some() {
             return;
         }
-        let frame = shot.lit_frame(self.plan.dark_level as f32);
-        let (h, w) = frame.measured.dim();
-        let (system, geometry, settings, tile) = (
-            self.plan.system,
-            self.geometry,
-            streaming_settings(&self.plan),
-            self.plan.tile,
-        );
-        let s = self
-            .streaming
-            .get_or_insert_with(|| TiledStreaming::new(system, geometry, settings, w, h, tile));
-        let t = Instant::now();
-        if let Err(e) = s.push(&frame) {
-            tracing::warn!("streaming reconstruction stopped: {e}");
-            self.stream_error = Some(e.to_string());
-        } else if self.plan.snapshot_every > 0
-            && s.received().is_multiple_of(self.plan.snapshot_every)
-        {
-            self.snapshot_due = Some(SnapshotDue::Stream);
+        if self.streaming.is_none() {
+            let (h, w) = shot.pixels.dim();
+            let stream = TiledStreaming::new(
+                self.plan.system,
+                self.geometry,
+                streaming_settings(&self.plan),
+                w,
+                h,
+                self.plan.tile,
+            );
+            let dark = self.plan.dark_level as f32;
+            match StreamWorker::start(stream, dark, self.plan.snapshot_every) {
+                Ok(worker) => self.streaming = Some(worker),
+                Err(e) => {
+                    tracing::warn!("no streaming reconstruction: {e:#}");
+                    self.stream_error = Some(format!("{e:#}"));
+                    return;
+                }
+            }
         }
-        self.update_us.push(t.elapsed().as_secs_f64() * 1e6);
+        if let Some(worker) = self.streaming.as_mut() {
+            worker.offer(shot);
+        }
+    }
+
+    /// The stream's thread stopped, what it queued dropped; its tiles and update times
+    /// kept for the summary.
+    fn stop_stream(&mut self) {
+        if let Some(worker) = self.streaming.take() {
+            self.tiles = Some(worker.tiles());
+            self.update_us = worker.update_us();
+        }
     }
 
     /// The datasets' `[camera]` block (its bit depth comes with the frames).
@@ -998,7 +1009,9 @@ impl Acquisition {
 
     /// The labelled shots as the dataset to write.
     fn build_dataset(&mut self) -> Step {
-        self.tiles = self.streaming.as_ref().map(|s| s.layout().tiles.len());
+        if let Some(worker) = &self.streaming {
+            self.tiles = Some(worker.tiles());
+        }
         let shots = std::mem::take(&mut self.shots);
         match dataset(
             self.plan.out.clone(),
@@ -1024,7 +1037,10 @@ impl Acquisition {
     fn reconstruct(&mut self) -> Step {
         let capture_failed = self.capture.as_ref().is_none_or(|r| r.failed);
         let streaming = self.streaming.take();
-        let (Some(s), false, None, false, Some(ds)) = (
+        if let Some(worker) = &streaming {
+            self.update_us = worker.update_us();
+        }
+        let (Some(worker), false, None, false, Some(ds)) = (
             streaming,
             capture_failed,
             &self.stream_error,
@@ -1034,16 +1050,30 @@ impl Acquisition {
             return self.summarise();
         };
         let relabelled = self.relabelled();
+        let left_out = worker.left_out();
+        // The stream's thread takes in what it still has queued.
+        let (stream, update_us) = worker.finish();
+        self.update_us = update_us;
+        let stream = match stream {
+            Ok(s) => s,
+            Err(e) => {
+                self.stream_error = Some(e);
+                return self.summarise();
+            }
+        };
         let settings = streaming_settings(&self.plan);
         let frames = ds.in_focus();
-        let outcome = if relabelled == 0 {
+        let outcome = if (relabelled, left_out) == (0, 0) {
             self.reconstruction_source = Some("streamed");
-            s.finish(&frames, self.plan.passes, &|_, _| {})
+            stream
+                .finish(&frames, self.plan.passes, &|_, _| {})
                 .context("finishing the streaming reconstruction")
         } else {
-            tracing::warn!(
-                "{relabelled} frame(s) were relabelled after streaming; reconstructing from the dataset instead"
-            );
+            if relabelled > 0 {
+                tracing::warn!(
+                    "{relabelled} frame(s) were relabelled after streaming; reconstructing from the dataset instead"
+                );
+            }
             self.reconstruction_source = Some("dataset");
             tiled::reconstruct(
                 &self.plan.system,
@@ -1087,7 +1117,7 @@ impl Acquisition {
         report.height_from_boundary =
             fpm_host::reconstruction::boundary_check(&self.plan.system, &self.geometry, &frames);
         self.reconstruction = Some(Reconstruction::from_outcome(outcome, report));
-        self.snapshot_due = Some(SnapshotDue::Finished);
+        self.finished_snapshot_due = true;
         Step::WriteReconstruction
     }
 

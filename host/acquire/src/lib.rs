@@ -32,6 +32,7 @@ pub mod page;
 pub mod pipeline;
 pub mod scan;
 pub mod stage;
+pub mod stream;
 pub mod summary;
 
 pub use acquisition::{Acquisition, Action, Event, Phase, Progress, Snapshot};

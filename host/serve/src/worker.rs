@@ -463,16 +463,20 @@ fn run_job(
             let plan = a.plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
             match a.color_plan()? {
-                None => {
-                    fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
-                        .map(summary)
-                }
+                None => fpm_acquire::pipeline::acquire(
+                    &dev,
+                    stage.as_mut(),
+                    &plan,
+                    watcher.stepping(&plan),
+                    &control,
+                )
+                .map(summary),
                 Some(colors) => fpm_acquire::color::acquire(
                     &dev,
                     stage.as_mut(),
                     &plan,
                     &colors,
-                    |_| JobWatcher::new(shared, id, publisher),
+                    |_| JobWatcher::new(shared, id, publisher).stepping(&plan),
                     &control,
                     &format!("fpm serve: job {id}"),
                 )
@@ -482,12 +486,14 @@ fn run_job(
         JobRequest::Calibrate(c) => {
             let plan = c.plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
+            let watcher = watcher.stepping(&plan);
             fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
                 .map(summary)
         }
         JobRequest::Sequence(s) => {
             let plan = s.as_acquisition().plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
+            let watcher = watcher.stepping(&plan);
             fpm_acquire::pipeline::acquire(&dev, stage.as_mut(), &plan, watcher, &control)
                 .map(summary)
         }
@@ -512,19 +518,20 @@ fn run_job(
                 }
                 let plan = a.plan_in(&rig.camera, Path::new(&job.out))?;
                 let (dev, mut stage) = open()?;
+                let watcher = watcher.stepping(&plan);
                 fpm_acquire::pipeline::resume(&dev, stage.as_mut(), &plan, watcher, &control)
                     .map(summary)
             }
             Resumable::Scan(s) => {
                 let plan = s.plan_in(&rig.camera, Path::new(&job.out))?;
                 let (dev, mut stage) = open()?;
-                scan(watcher, &dev, stage.as_mut(), &plan, &control)
+                scan(watcher.stepping(&plan.field), &dev, stage.as_mut(), &plan, &control)
             }
         },
         JobRequest::Scan(s) => {
             let plan = s.plan(&rig.camera)?;
             let (dev, mut stage) = open()?;
-            scan(watcher, &dev, stage.as_mut(), &plan, &control)
+            scan(watcher.stepping(&plan.field), &dev, stage.as_mut(), &plan, &control)
         }
     });
     // What the acquisition wrote, also when it failed part-way.
@@ -655,8 +662,12 @@ struct JobWatcher<'a> {
     /// The progress last published (the machine reports after every event; an
     /// unchanged one is not sent again).
     last: Option<Progress>,
-    /// When the capture's first frame came, and how many frames there were by then.
-    capture_start: Option<(Instant, usize)>,
+    /// Frames labelled when the capture began (a resumed run's earlier ones).
+    capture_base: Option<usize>,
+    /// When the capture's first frame was labelled, and the frames labelled by then.
+    first_label: Option<(Instant, usize)>,
+    /// The controller's step, s, when the job runs a sequence.
+    step_s: Option<f64>,
     /// Where snapshots go for local viewers.
     publisher: Option<&'a fpm_frames::SnapshotPublisher>,
 }
@@ -671,24 +682,48 @@ impl<'a> JobWatcher<'a> {
             shared,
             job,
             last: None,
-            capture_start: None,
+            capture_base: None,
+            first_label: None,
+            step_s: None,
             publisher,
         }
     }
 
-    /// The capture's time left at its rate so far, s.
+    /// The same, for a run of `plan`, whose controller steps at its pace.
+    fn stepping(mut self, plan: &fpm_acquire::Plan) -> Self {
+        self.step_s = Some(plan.step_us() as f64 / 1e6);
+        self
+    }
+
+    /// The capture's time left, s: the LEDs still to label at the controller's step
+    /// (labels that lag the controller count in as the steps they lag by), or at the
+    /// pace frames have been labelled since the first one, when that is slower (a
+    /// camera that cannot keep up with the steps). The pace alone, from the start, read
+    /// the wait before labelling commits as slowness: 48 % too long at a quarter of
+    /// the capture on the default rig (docs/results.md).
     fn eta_s(&mut self, p: &Progress) -> Option<f64> {
         use fpm_acquire::Phase;
         if !matches!(p.phase, Phase::Capturing | Phase::Retaking) || p.of == 0 {
+            // The next capture (a scan's next field, the retake) starts afresh.
+            (self.capture_base, self.first_label) = (None, None);
             return None;
         }
-        let (t0, f0) = *self.capture_start.get_or_insert((Instant::now(), p.frames));
-        let done = p.frames.saturating_sub(f0);
-        if done < 2 {
-            return None;
+        let base = *self.capture_base.get_or_insert(p.frames);
+        if p.frames > base && self.first_label.is_none() {
+            self.first_label = Some((Instant::now(), p.frames));
         }
-        let rate = done as f64 / t0.elapsed().as_secs_f64().max(1e-6);
-        Some(p.of.saturating_sub(p.frames) as f64 / rate)
+        // Over 16 frames and 2 s at least, so that a burst of labels is not a pace.
+        let pace_s = self.first_label.and_then(|(t, f)| {
+            let (n, s) = (p.frames.saturating_sub(f), t.elapsed().as_secs_f64());
+            (n >= 16 && s >= 2.0).then(|| s / n as f64)
+        });
+        let period = match (self.step_s, pace_s) {
+            (Some(step), Some(pace)) => step.max(pace),
+            (Some(step), None) => step,
+            (None, Some(pace)) => pace,
+            (None, None) => return None,
+        };
+        Some(p.of.saturating_sub(p.frames) as f64 * period)
     }
 }
 

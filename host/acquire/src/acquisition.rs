@@ -34,7 +34,7 @@ use serde::Serialize;
 
 use crate::board_geometry;
 use crate::capture::{CaptureReport, Shot, ShotView};
-use crate::labeller::Waiting;
+use crate::labeller::{SequenceSteps, Waiting};
 use crate::stage::{Slide, StagePosition};
 use crate::summary::AcquireSummary;
 
@@ -226,6 +226,8 @@ pub enum Event<'a> {
     /// Why the running sequence's frames wait for their labels (None: they no longer
     /// do), as [`crate::capture::Live::Labelling`] says.
     Labelling(Option<Waiting>),
+    /// How far the controller is through the running sequence.
+    Steps(SequenceSteps),
 }
 
 /// What the driver must do next, from [`Acquisition::next_action`]. Each action but
@@ -289,6 +291,9 @@ pub struct Progress {
     /// While frames of the running capture wait for their labels: why (as text).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub labelling: Option<Waiting>,
+    /// How far the controller is through the running capture or retake sequence.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steps: Option<SequenceSteps>,
     /// LEDs in the full capture (0 until it is ordered).
     pub of: usize,
     /// The user asked to stop.
@@ -410,6 +415,8 @@ pub struct Acquisition {
     stream_error: Option<String>,
     /// Why the running sequence's frames wait for their labels, if they do.
     labelling: Option<Waiting>,
+    /// How far the controller is through the running sequence.
+    steps: Option<SequenceSteps>,
     /// The finished reconstruction is to be shown once.
     finished_snapshot_due: bool,
     update_us: Vec<f64>,
@@ -502,6 +509,7 @@ impl Acquisition {
             streaming: None,
             stream_error: None,
             labelling: None,
+            steps: None,
             finished_snapshot_due: false,
             update_us: vec![],
             tiles: None,
@@ -536,6 +544,9 @@ impl Acquisition {
             frames: self.frames,
             labelling: self
                 .labelling
+                .filter(|_| matches!(self.step, Step::Capture | Step::Retake)),
+            steps: self
+                .steps
                 .filter(|_| matches!(self.step, Step::Capture | Step::Retake)),
             of: self.order.len(),
             cancelled: self.cancelled,
@@ -740,10 +751,12 @@ impl Acquisition {
                 }
             }
             Event::Labelling(waiting) => self.labelling = waiting,
+            Event::Steps(steps) => self.steps = Some(steps),
             Event::StageArrived if self.waiting => self.advance(None),
             Event::Done if self.waiting => self.advance(None),
             Event::SequenceEnded(result) if self.waiting => {
                 self.labelling = None;
+                self.steps = None;
                 self.advance(Some(result))
             }
             Event::StageArrived | Event::Done | Event::SequenceEnded(_) => {

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent, SequenceEvents};
 use crate::label::{FrameTime, StepTime};
-use crate::labeller::{Labelled, Labeller, Waiting};
+use crate::labeller::{Labelled, Labeller, SequenceSteps, Waiting};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -296,6 +296,7 @@ pub fn capture(
             }))
         },
         |waiting| (on_live.borrow_mut())(Live::Labelling(waiting)),
+        |steps| (on_live.borrow_mut())(Live::Steps(steps)),
     )?;
     report.missing = frames
         .iter()
@@ -323,6 +324,8 @@ pub enum Live<'a> {
     Frame(ShotView<'a>),
     /// Why labels wait now (None: they flow again); given when it changes.
     Labelling(Option<Waiting>),
+    /// How far the controller is; given when it reports a step.
+    Steps(SequenceSteps),
 }
 
 /// A step's frame: the camera's header and the pixels.
@@ -367,6 +370,7 @@ pub fn capture_steps(
     stop: impl Fn() -> bool,
     mut on_frame: impl for<'b> FnMut(usize, &'b FrameHeader, ArrayView2<'b, u16>),
     mut on_labelling: impl FnMut(Option<Waiting>),
+    mut on_steps: impl FnMut(SequenceSteps),
 ) -> Result<(Vec<Option<StepFrame>>, CaptureReport)> {
     let n = steps.len();
     let timing = timing(exposure_us);
@@ -386,6 +390,7 @@ pub fn capture_steps(
     let since_start = || start.elapsed().as_nanos() as i64;
     let mut labeller = Labeller::new(n, tolerance);
     let mut waiting = None;
+    let mut steps_told = 0;
     // When each frame arrived and when its label was handed on (ns since `start`; by
     // frame index), and how many were labelled before the sequence ended: the live
     // figures.
@@ -420,6 +425,10 @@ pub fn capture_steps(
             Ok(None) => {}
             // Keep what arrived: the caller writes it and reports the failure.
             Err(e) => failure = Some(format!("the LED controller was lost mid-sequence: {e}")),
+        }
+        if labeller.steps().done != steps_told {
+            steps_told = labeller.steps().done;
+            on_steps(labeller.steps());
         }
         // Hand frames on while they arrive; the final pairing below checks every label.
         let labels = labeller.labels();

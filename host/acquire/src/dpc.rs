@@ -209,6 +209,7 @@ pub fn live(
         frames,
         of,
         labelling: None,
+        steps: None,
         cancelled: control.is_cancelled(),
         paused: false,
     };
@@ -264,6 +265,7 @@ pub fn live(
                 last = Some(object);
             }
         },
+        |_| {},
         |_| {},
     )?;
     let seconds = started.elapsed().as_secs_f64();

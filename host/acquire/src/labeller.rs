@@ -7,6 +7,18 @@
 
 use crate::label::{pair_with_arrivals, step_for, Arrivals, FrameTime, Pairing, StepTime};
 
+/// How far a running sequence is, as its controller reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct SequenceSteps {
+    /// Steps reported.
+    pub done: usize,
+    /// Steps in the sequence.
+    pub of: usize,
+    /// The step period on the controller's clock, µs (None until two steps are in).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub period_us: Option<u64>,
+}
+
 /// Frames (and step reports) before the clock mapping is first fitted.
 const MIN_FRAMES_TO_ANCHOR: usize = 8;
 
@@ -350,6 +362,22 @@ impl Labeller {
     /// Why frames wait for their labels now (None: they do not).
     pub fn waiting(&self) -> Option<Waiting> {
         self.waiting
+    }
+
+    /// How far the controller is: the steps it has reported, and its step period on
+    /// its own clock, µs (None until two steps are in).
+    pub fn steps(&self) -> SequenceSteps {
+        let period_us = match (self.steps.first(), self.steps.last()) {
+            (Some(a), Some(b)) if b.step > a.step => {
+                Some(b.trigger_ns.saturating_sub(a.trigger_ns) / (b.step - a.step) as u64 / 1000)
+            }
+            _ => None,
+        };
+        SequenceSteps {
+            done: self.steps.len(),
+            of: self.sequence_len,
+            period_us,
+        }
     }
 
     /// The index into the steps of the one step in whose window the frame's mapped

@@ -62,6 +62,7 @@ pub fn acquire(
         frames,
         of,
         labelling: None,
+        steps: None,
         cancelled: control.is_cancelled(),
         paused: false,
     };
@@ -78,6 +79,7 @@ pub fn acquire(
             arrived += 1;
             watcher.progress(&progress(arrived, Phase::Capturing));
         },
+        |_| {},
         |_| {},
     )?;
     let last_frame = Instant::now();

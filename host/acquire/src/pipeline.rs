@@ -409,6 +409,11 @@ fn run(
                             watch(&mut acq, &mut watcher);
                             return;
                         }
+                        Live::Steps(steps) => {
+                            acq.handle(Event::Steps(steps));
+                            watch(&mut acq, &mut watcher);
+                            return;
+                        }
                     };
                     if let Some(j) = journal.as_mut().filter(|_| captures) {
                         if let Err(e) = j.frame(&shot) {

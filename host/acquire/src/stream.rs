@@ -27,7 +27,7 @@ const QUEUE_BYTES: usize = 256 << 20;
 /// How much lower than the acquisition's the stream thread's priority is (its nice
 /// value, on Linux).
 #[cfg(target_os = "linux")]
-const NICER: i32 = 10;
+const NICER: i32 = 5;
 
 /// A labelled frame, owned: what [`ShotView::lit_frame`] needs.
 struct Handed {

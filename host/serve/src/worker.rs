@@ -36,8 +36,9 @@ pub enum Event {
         state: JobState,
         error: Option<String>,
     },
-    /// How far the running job is; `eta_s` is the capture's time left at its rate so
-    /// far (while it captures).
+    /// How far the running job is; `eta_s` is the capture's time left (while it
+    /// captures), from the steps the controller has still to run at its measured
+    /// period.
     Progress {
         job: i64,
         #[schema(value_type = Object)]
@@ -695,12 +696,15 @@ impl<'a> JobWatcher<'a> {
         self
     }
 
-    /// The capture's time left, s: the LEDs still to label at the controller's step
-    /// (labels that lag the controller count in as the steps they lag by), or at the
-    /// pace frames have been labelled since the first one, when that is slower (a
-    /// camera that cannot keep up with the steps). The pace alone, from the start, read
-    /// the wait before labelling commits as slowness: 48 % too long at a quarter of
-    /// the capture on the default rig (docs/results.md).
+    /// The capture's time left, s: the LEDs still to label (or the steps the controller
+    /// has still to run and one, if more) at the step period the controller's own clock
+    /// measures (before two steps are in, the plan's). Frames that lag the steps count
+    /// in: beside a busy CPU the virtual camera falls behind the controller, and the
+    /// steps left alone said 0 while a quarter of the frames were still to come. When
+    /// frames are labelled at a pace well below the steps' (two thirds or less: a
+    /// camera that cannot keep up), the LEDs still to label at that pace. Reading the
+    /// labelled pace from the capture's start took the wait before labelling commits
+    /// for slowness: 48 % too long at a quarter of the capture (docs/results.md).
     fn eta_s(&mut self, p: &Progress) -> Option<f64> {
         use fpm_acquire::Phase;
         if !matches!(p.phase, Phase::Capturing | Phase::Retaking) || p.of == 0 {
@@ -717,13 +721,18 @@ impl<'a> JobWatcher<'a> {
             let (n, s) = (p.frames.saturating_sub(f), t.elapsed().as_secs_f64());
             (n >= 16 && s >= 2.0).then(|| s / n as f64)
         });
-        let period = match (self.step_s, pace_s) {
-            (Some(step), Some(pace)) => step.max(pace),
-            (Some(step), None) => step,
-            (None, Some(pace)) => pace,
-            (None, None) => return None,
-        };
-        Some(p.of.saturating_sub(p.frames) as f64 * period)
+        let period_s = p
+            .steps
+            .and_then(|s| s.period_us)
+            .map(|us| us as f64 / 1e6)
+            .or(self.step_s);
+        let to_label = p.of.saturating_sub(p.frames);
+        let steps_left = p.steps.map_or(0, |s| s.of.saturating_sub(s.done) + 1);
+        match (period_s, pace_s) {
+            (Some(step), Some(pace)) if pace > 1.5 * step => Some(to_label as f64 * pace),
+            (Some(step), _) => Some(to_label.max(steps_left) as f64 * step),
+            (None, pace) => pace.map(|pace| to_label as f64 * pace),
+        }
     }
 }
 

@@ -465,3 +465,35 @@ fn log_residuals(p: &Pairing, steps: &[StepTime], frames: &[FrameTime]) {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_step_period_is_read_on_the_controller_clock_whatever_the_reports_arrival() {
+        let mut labeller = Labeller::new(10, 1_000_000);
+        assert_eq!(
+            labeller.steps(),
+            SequenceSteps {
+                done: 0,
+                of: 10,
+                period_us: None
+            }
+        );
+        // Steps 49.5 ms apart on the controller; their reports arrive in a batch (USB
+        // CDC hands several over at once), all at the same host time.
+        for step in 0..4 {
+            let trigger_ns = 1_000_000 + step as u64 * 49_500_000;
+            labeller.step(StepTime { step, trigger_ns }, 300_000_000);
+        }
+        assert_eq!(
+            labeller.steps(),
+            SequenceSteps {
+                done: 4,
+                of: 10,
+                period_us: Some(49_500)
+            }
+        );
+    }
+}

@@ -26,8 +26,6 @@ use fpm_host::dataset::{CameraSection, Dataset, FrameEntry, Manifest};
 use fpm_host::reconstruction::{Reconstruction, Report, Request};
 use fpm_physics::calibrate::{calibration_grid, Options, GRID_HALF};
 use fpm_physics::reconstruct::{limits, tiled, Flatten, Settings, TiledStreaming};
-
-use crate::stream::StreamWorker;
 use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{BoardCalibration, LedIndex, Rgb};
 use serde::Serialize;
@@ -36,6 +34,7 @@ use crate::board_geometry;
 use crate::capture::{CaptureReport, Shot, ShotView};
 use crate::labeller::{SequenceSteps, Waiting};
 use crate::stage::{Slide, StagePosition};
+use crate::stream::StreamWorker;
 use crate::summary::AcquireSummary;
 
 /// What to acquire and how.
@@ -1049,17 +1048,10 @@ impl Acquisition {
     /// pairing changed.
     fn reconstruct(&mut self) -> Step {
         let capture_failed = self.capture.as_ref().is_none_or(|r| r.failed);
-        let streaming = self.streaming.take();
-        if let Some(worker) = &streaming {
-            self.update_us = worker.update_us();
+        if capture_failed || self.stream_error.is_some() || self.cut.is_some() {
+            self.stop_stream();
         }
-        let (Some(worker), false, None, false, Some(ds)) = (
-            streaming,
-            capture_failed,
-            &self.stream_error,
-            self.cut.is_some(),
-            &self.dataset,
-        ) else {
+        let (Some(worker), Some(ds)) = (self.streaming.take(), &self.dataset) else {
             return self.summarise();
         };
         let relabelled = self.relabelled();

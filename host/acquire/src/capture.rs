@@ -426,9 +426,10 @@ pub fn capture_steps(
             // Keep what arrived: the caller writes it and reports the failure.
             Err(e) => failure = Some(format!("the LED controller was lost mid-sequence: {e}")),
         }
-        if labeller.steps().done != steps_told {
-            steps_told = labeller.steps().done;
-            on_steps(labeller.steps());
+        let steps = labeller.steps();
+        if steps.done != steps_told {
+            steps_told = steps.done;
+            on_steps(steps);
         }
         // Hand frames on while they arrive; the final pairing below checks every label.
         let labels = labeller.labels();

@@ -37,8 +37,8 @@ pub enum Event {
         error: Option<String>,
     },
     /// How far the running job is; `eta_s` is the capture's time left (while it
-    /// captures), from the steps the controller has still to run at its measured
-    /// period.
+    /// captures): the LEDs still to label at the step period the controller measures
+    /// (`JobWatcher::eta_s`).
     Progress {
         job: i64,
         #[schema(value_type = Object)]

@@ -4,6 +4,7 @@
 //! (python/tests/, which also runs examples/python_session.py) against the real USAF
 //! data, simulated sets, and the `fpm` command for comparison.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -26,15 +27,18 @@ fn package_environment() -> (&'static Path, PathBuf, PathBuf) {
     (workspace, python, venv)
 }
 
-/// The wheel users get (`maturin build --strip`, abi3, one file for every CPython from
-/// 3.9, manylinux x86_64: the package's files, metadata and entry points as released),
-/// built once per run under `target/python-wheel` and shared by both tests: the pytest
-/// suite runs against it installed, as a user's `pip install` gives it. It is built in
-/// the test profile rather than the release one: the same crates, packaging and
+/// The wheel users get (abi3, one file for every CPython from 3.9, manylinux x86_64,
+/// the extension's symbols stripped: the package's files, metadata and entry points as
+/// released), built once per run under `target/python-wheel` and shared by both tests:
+/// the pytest suite runs against it installed, as a user's `pip install` gives it. It is
+/// built in the test profile rather than the release one: the same crates, packaging and
 /// settings, compiled as the rest of the suite is (dependencies and the physics
-/// optimised, with debug assertions and overflow checks on), so it reuses the test
-/// build's dependencies; `--release` compiled the whole tree a second time, about 10 of
-/// the suite's CPU-minutes, against about 3 for the crates whose features differ.
+/// optimised, with debug assertions and overflow checks on), so that only the extension
+/// itself is compiled and the test build's libraries are linked in. `--release` compiled
+/// the whole tree a second time (about 10 of the suite's CPU-minutes); so did, for
+/// fpm-physics and the crates using it, `--strip` (it strips every workspace crate: the
+/// profile strips the extension instead) and features that differed from the
+/// workspace's ([`the_wheel_reuses_the_test_build_s_libraries`]).
 fn package_wheel() -> PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL
@@ -44,7 +48,7 @@ fn package_wheel() -> PathBuf {
                 let wheels = workspace.join("target/python-wheel");
                 let _ = std::fs::remove_dir_all(&wheels);
                 let build = Command::new(venv.join("bin/maturin"))
-                    .args(["build", "--profile", "dev", "--strip", "--quiet", "-m"])
+                    .args(["build", "--profile", "dev", "--quiet", "-m"])
                     .arg(workspace.join("python/Cargo.toml"))
                     .arg("--out")
                     .arg(&wheels)
@@ -190,4 +194,62 @@ fn the_wheel_installs_into_a_fresh_environment_and_runs_the_example_without_rust
         "{stdout}"
     );
     assert!(out.join("usaf/amplitude.tif").exists());
+}
+
+/// The crates the package shares with the rest of the workspace get the features the
+/// test build gives them (python/Cargo.toml lists the ones only the rest turns on):
+/// cargo unifies features over the packages of one build, and maturin builds the
+/// package alone, so a crate whose features differ is compiled again for the wheel, and
+/// with it everything above it up to fpm-physics and fpm-host.
+#[test]
+fn the_wheel_reuses_the_test_build_s_libraries() {
+    let workspace = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    // Each package of the selection's build with the features it is built with.
+    let features = |edges: &str, selection: &[&str]| -> BTreeMap<String, BTreeSet<String>> {
+        let out = Command::new(&cargo)
+            .args(["tree", "--locked", "--prefix", "none", "-f", "{p}|{f}", "-e", edges])
+            .args(selection)
+            .current_dir(workspace)
+            .output()
+            .expect("running cargo tree");
+        assert!(
+            out.status.success(),
+            "cargo tree {selection:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let mut map = BTreeMap::<String, BTreeSet<String>>::new();
+        for line in String::from_utf8_lossy(&out.stdout).lines() {
+            let line = line.trim_end_matches(" (*)");
+            if let Some((package, on)) = line.split_once('|') {
+                map.entry(package.to_string())
+                    .or_default()
+                    .extend(on.split(',').filter(|f| !f.is_empty()).map(String::from));
+            }
+        }
+        map
+    };
+    // The test build: every member with its tests, so dev-dependencies count.
+    let tested = features("normal,dev", &["--workspace"]);
+    let wheel = features("normal", &["-p", "fpm-python"]);
+    assert!(wheel.len() > 100, "{} packages in the wheel", wheel.len());
+    let differ: Vec<String> = wheel
+        .iter()
+        .filter_map(|(package, on)| {
+            let theirs = tested.get(package)?;
+            (theirs != on).then(|| {
+                format!(
+                    "{package}: the test build turns on {:?}, the wheel's build {:?}",
+                    theirs.difference(on).collect::<Vec<_>>(),
+                    on.difference(theirs).collect::<Vec<_>>()
+                )
+            })
+        })
+        .collect();
+    assert!(
+        differ.is_empty(),
+        "the wheel's build would compile these again: give them the same features in \
+         python/Cargo.toml's list\n{}",
+        differ.join("\n")
+    );
 }

@@ -208,7 +208,9 @@ fn the_wheel_reuses_the_test_build_s_libraries() {
     // Each package of the selection's build with the features it is built with.
     let features = |edges: &str, selection: &[&str]| -> BTreeMap<String, BTreeSet<String>> {
         let out = Command::new(&cargo)
-            .args(["tree", "--locked", "--prefix", "none", "-f", "{p}|{f}", "-e", edges])
+            .args([
+                "tree", "--locked", "--prefix", "none", "-f", "{p}|{f}", "-e", edges,
+            ])
             .args(selection)
             .current_dir(workspace)
             .output()

@@ -148,6 +148,10 @@ pub struct ServeArgs {
     /// Acquisitions per side in the overhead comparison (alternating).
     #[arg(long, default_value_t = 3)]
     rounds: usize,
+    /// The virtual rig's controller the real firmware image (the UF2 users flash) in an
+    /// emulated RP2040, on both sides (`fpm serve --virtual-firmware`).
+    #[arg(long, value_name = "UF2")]
+    firmware: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -267,6 +271,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             size: a.size,
             step_ms: a.step_ms,
             rounds: a.rounds,
+            firmware: a.firmware,
             json: a.json,
         }),
     }

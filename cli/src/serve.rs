@@ -38,6 +38,11 @@ pub struct ServeArgs {
     /// With --virtual: the virtual camera's sensor side, pixels.
     #[arg(long, default_value_t = 256, requires = "virtual")]
     pub virtual_size: usize,
+    /// With --virtual: run the real firmware image (the UF2 users flash) in an emulated
+    /// RP2040 as the controller, as `fpm demo --firmware` does, instead of the
+    /// host-compiled controller logic.
+    #[arg(long, value_name = "UF2", requires = "virtual")]
+    pub virtual_firmware: Option<PathBuf>,
     /// With --virtual: the sample is a slide this wide, µm, larger than one field, and
     /// the stage's X and Y move over it (for scans); the stage misses each position by
     /// up to --virtual-stage-error-um. Absent: one field, wherever the stage is.
@@ -79,13 +84,23 @@ pub fn run(a: ServeArgs) -> Result<()> {
             ]);
         }
         let camera: Vec<&str> = camera.iter().map(String::as_str).collect();
-        let started = VirtualRig::start(&fpm, &name, &state_dir.join("virtual-rig"), &camera)?;
+        let started = VirtualRig::start_with_firmware(
+            &fpm,
+            &name,
+            &state_dir.join("virtual-rig"),
+            a.virtual_firmware.as_deref(),
+            &camera,
+        )?;
+        let controller = match &a.virtual_firmware {
+            Some(uf2) => format!("the firmware image {} in an emulated RP2040", uf2.display()),
+            None => "emulated controller".to_string(),
+        };
         let rig = Rig {
             port: started.emulator.port(),
             camera: ServiceNames::for_camera(&name),
             stage: virtual_stage(name.clone()),
             description: format!(
-                "virtual rig {name}: emulated controller, virtual {size}² camera, virtual stage"
+                "virtual rig {name}: {controller}, virtual {size}² camera, virtual stage"
             ),
         };
         supervisor = Some(Supervisor::start(started)?);

@@ -237,6 +237,7 @@ pub struct VirtualRig {
     /// How they were started (to start them again).
     fpm: PathBuf,
     dir: PathBuf,
+    emulator_args: Vec<String>,
     camera_args: Vec<String>,
 }
 
@@ -244,8 +245,33 @@ impl VirtualRig {
     /// Start it from the executable `fpm`, its link and the camera's truth in `dir`, the
     /// camera with `camera_args` (`--size`, `--seed`, …).
     pub fn start(fpm: &Path, name: &str, dir: &Path, camera_args: &[&str]) -> Result<Self> {
+        Self::start_with_firmware(fpm, name, dir, None, camera_args)
+    }
+
+    /// [`Self::start`], the controller the real firmware image `firmware` (a UF2) in an
+    /// emulated RP2040 when given, as `fpm demo --firmware` runs it, else the
+    /// host-compiled controller logic.
+    pub fn start_with_firmware(
+        fpm: &Path,
+        name: &str,
+        dir: &Path,
+        firmware: Option<&Path>,
+        camera_args: &[&str],
+    ) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let emulator = Self::start_emulator(fpm, name, dir)?;
+        let mut emulator_args: Vec<String> = ["--rig", name, "--camera-exposure-us", "2000"]
+            .map(String::from)
+            .to_vec();
+        if let Some(uf2) = firmware {
+            if !uf2.is_file() {
+                anyhow::bail!(
+                    "the firmware image {}: no such file (build it with `cargo build --release` in firmware/rp2040, then `cargo run -p fpm-fwtool -- uf2 ELF UF2`; docs/hardware.md)",
+                    uf2.display()
+                );
+            }
+            emulator_args.extend(["--firmware".into(), uf2.to_string_lossy().into_owned()]);
+        }
+        let emulator = Self::start_emulator(fpm, dir, &emulator_args)?;
         let camera = VirtualCameraProcess::start(fpm, name, name, &dir.join("truth"), camera_args)?;
         Ok(Self {
             name: name.into(),
@@ -253,17 +279,14 @@ impl VirtualRig {
             camera,
             fpm: fpm.to_path_buf(),
             dir: dir.to_path_buf(),
+            emulator_args,
             camera_args: camera_args.iter().map(|a| a.to_string()).collect(),
         })
     }
 
-    fn start_emulator(fpm: &Path, name: &str, dir: &Path) -> Result<EmulatorProcess> {
-        EmulatorProcess::start_at(
-            fpm,
-            &dir.join("controller.tty"),
-            &["--rig", name, "--camera-exposure-us", "2000"],
-            Stdio::null(),
-        )
+    fn start_emulator(fpm: &Path, dir: &Path, args: &[String]) -> Result<EmulatorProcess> {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        EmulatorProcess::start_at(fpm, &dir.join("controller.tty"), &args, Stdio::null())
     }
 
     /// Start again whichever of its processes has exited (killed, crashed), as a board
@@ -273,7 +296,7 @@ impl VirtualRig {
         let mut revived = vec![];
         if let Some(status) = self.emulator.process.try_wait() {
             tracing::warn!("the virtual rig's controller exited ({status}); starting it again");
-            self.emulator = Self::start_emulator(&self.fpm, &self.name, &self.dir)?;
+            self.emulator = Self::start_emulator(&self.fpm, &self.dir, &self.emulator_args)?;
             revived.push("controller");
         }
         if let Some(status) = self.camera.process.try_wait() {

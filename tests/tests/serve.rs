@@ -1254,3 +1254,41 @@ fn a_default_service_killed_mid_capture_keeps_its_frames_and_resumes_the_rest() 
     assert_eq!(done["summary"]["capture"]["requested"], 441 - n, "{done}");
     assert_every_led_once_and_true(&out, &hidden);
 }
+
+/// `fpm serve --virtual --virtual-firmware UF2`: the virtual rig's controller is the
+/// firmware image users flash, in an emulated RP2040 (as `fpm demo --firmware`), and a
+/// job runs on it: the status names the image, and a raw sequence of LEDs given out of
+/// order comes back as one frame per LED, in that order, under its LED.
+#[test]
+fn the_virtual_rig_runs_on_the_real_firmware_image() {
+    let dir = TempDir::new("serve-firmware");
+    let uf2 = fpm_tests::firmware_uf2().to_string_lossy().into_owned();
+    let service = VirtualService::start_with(
+        fpm_bin(),
+        &dir.0.join("state"),
+        &["--virtual-size", "64", "--virtual-firmware", &uf2],
+        Stdio::inherit(),
+    )
+    .unwrap();
+    let status = service.get("/api/status").unwrap().json().unwrap();
+    let rig = status["rig"].as_str().unwrap_or_default();
+    assert!(
+        rig.contains("fpm-led-controller.uf2") && rig.contains("emulated RP2040"),
+        "{status}"
+    );
+    let leds: [[u8; 2]; 5] = [[10, 10], [0, 0], [20, 20], [10, 11], [3, 17]];
+    let out = dir.0.join("seq");
+    let job = serde_json::json!({
+        "kind": "sequence", "leds": leds, "out": out, "step_ms": 15.0,
+    });
+    let id = service.submit(&job).unwrap();
+    let record = service.wait(id, Duration::from_secs(120)).unwrap();
+    assert_eq!(record["state"], "done", "{record}");
+    let ds = Dataset::load(&out).unwrap();
+    let got: Vec<[u8; 2]> = ds
+        .frames
+        .iter()
+        .map(|f| [f.entry.led.row, f.entry.led.col])
+        .collect();
+    assert_eq!(got, leds.to_vec());
+}

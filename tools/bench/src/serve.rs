@@ -24,7 +24,7 @@
 //!   `acquisition.json`) and the whole run's, as ratios service / CLI.
 
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -49,6 +49,9 @@ pub struct ServeOptions {
     pub step_ms: Option<f64>,
     /// Acquisitions per side in the overhead comparison.
     pub rounds: usize,
+    /// The controller the real firmware image (a UF2) in an emulated RP2040 (None: the
+    /// host-compiled controller logic).
+    pub firmware: Option<PathBuf>,
     /// Print JSON.
     pub json: bool,
 }
@@ -58,6 +61,8 @@ struct Report {
     /// None: the service's defaults.
     virtual_camera_px: Option<usize>,
     step_ms: Option<f64>,
+    /// The controller: "host-compiled emulator" or the firmware image's path.
+    controller: String,
     round_trip_1_client: Percentiles,
     round_trip_clients: usize,
     round_trip_n_clients: Percentiles,
@@ -399,6 +404,7 @@ fn cli_acquisition(
     dir: &Path,
     size: Option<usize>,
     step_ms: Option<f64>,
+    firmware: Option<&Path>,
 ) -> Result<(f64, f64)> {
     let name = format!(
         "bench-serve-{}-{}",
@@ -410,7 +416,13 @@ fn cli_acquisition(
         step_ms.map(|ms| ms.to_string()),
     );
     let rig_args: Vec<&str> = optional_flag("--size", &size).collect();
-    let rig = fpm_rig::process::VirtualRig::start(fpm, &name, &dir.join("rig"), &rig_args)?;
+    let rig = fpm_rig::process::VirtualRig::start_with_firmware(
+        fpm,
+        &name,
+        &dir.join("rig"),
+        firmware,
+        &rig_args,
+    )?;
     let out = dir.join("out");
     let start = Instant::now();
     let status = Command::new(fpm)
@@ -467,7 +479,13 @@ pub fn run(o: ServeOptions) -> Result<()> {
     };
     say("starting fpm serve --virtual …");
     let size = o.size.map(|s| s.to_string());
-    let serve_args: Vec<&str> = optional_flag("--virtual-size", &size).collect();
+    let firmware = o
+        .firmware
+        .as_ref()
+        .map(|p| p.to_string_lossy().into_owned());
+    let serve_args: Vec<&str> = optional_flag("--virtual-size", &size)
+        .chain(optional_flag("--virtual-firmware", &firmware))
+        .collect();
     let service = VirtualService::start_with(&fpm, &dir.join("state"), &serve_args, Stdio::null())?;
     say("API round trips …");
     let one = round_trips(service.address, 1, o.requests)?;
@@ -496,7 +514,13 @@ pub fn run(o: ServeOptions) -> Result<()> {
     };
     for round in 0..o.rounds {
         say(&format!("overhead, round {} of {} …", round + 1, o.rounds));
-        let (c, r) = cli_acquisition(&fpm, &dir.join(format!("cli-{round}")), o.size, o.step_ms)?;
+        let (c, r) = cli_acquisition(
+            &fpm,
+            &dir.join(format!("cli-{round}")),
+            o.size,
+            o.step_ms,
+            o.firmware.as_deref(),
+        )?;
         overhead.cli_capture_s.push(c);
         overhead.cli_run_s.push(r);
         let (c, r) = service_acquisition(&service, o.step_ms)?;
@@ -508,6 +532,9 @@ pub fn run(o: ServeOptions) -> Result<()> {
     let report = Report {
         virtual_camera_px: o.size,
         step_ms: o.step_ms,
+        controller: firmware
+            .clone()
+            .unwrap_or_else(|| "host-compiled emulator".into()),
         round_trip_1_client: one,
         round_trip_clients: o.clients,
         round_trip_n_clients: many,
@@ -529,7 +556,10 @@ pub fn run(o: ServeOptions) -> Result<()> {
             step.map_or("default".into(), |ms| format!("{ms} ms"))
         ),
     };
-    println!("fpm serve on a virtual rig ({rig})");
+    println!(
+        "fpm serve on a virtual rig ({rig}; controller: {})",
+        report.controller
+    );
     println!(
         "  GET /api/status, 1 client:     {}",
         ms(&report.round_trip_1_client)

@@ -53,6 +53,11 @@ pub struct EmulatorArgs {
     /// the host-compiled controller logic (needs Node and `npm ci` in tools/rp2040).
     #[arg(long)]
     pub firmware: Option<PathBuf>,
+    /// With --firmware: keep the emulated RP2040's clock from running ahead of the wall
+    /// clock, as a board's cannot (unpaced, it jumps through the firmware's sleeps and
+    /// runs sequences several times faster than real time).
+    #[arg(long, requires = "firmware")]
+    pub real_time: bool,
 }
 
 /// Run it.
@@ -71,5 +76,6 @@ pub fn run(a: EmulatorArgs) -> Result<()> {
         flash: a.flash,
         power_cut_after: a.power_cut_after,
         firmware: a.firmware,
+        real_time: a.real_time,
     })
 }

@@ -249,8 +249,8 @@ impl VirtualRig {
     }
 
     /// [`Self::start`], the controller the real firmware image `firmware` (a UF2) in an
-    /// emulated RP2040 when given, as `fpm demo --firmware` runs it, else the
-    /// host-compiled controller logic.
+    /// emulated RP2040 paced to the wall clock (`fpm emulator --firmware --real-time`)
+    /// when given, else the host-compiled controller logic.
     pub fn start_with_firmware(
         fpm: &Path,
         name: &str,
@@ -269,7 +269,13 @@ impl VirtualRig {
                     uf2.display()
                 );
             }
-            emulator_args.extend(["--firmware".into(), uf2.to_string_lossy().into_owned()]);
+            // Paced to the wall clock, as a board is: unpaced, the emulator runs the
+            // sequence several times faster and the camera falls far behind it.
+            emulator_args.extend([
+                "--firmware".into(),
+                uf2.to_string_lossy().into_owned(),
+                "--real-time".into(),
+            ]);
         }
         let emulator = Self::start_emulator(fpm, dir, &emulator_args)?;
         let camera = VirtualCameraProcess::start(fpm, name, name, &dir.join("truth"), camera_args)?;

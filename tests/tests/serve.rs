@@ -1256,9 +1256,11 @@ fn a_default_service_killed_mid_capture_keeps_its_frames_and_resumes_the_rest() 
 }
 
 /// `fpm serve --virtual --virtual-firmware UF2`: the virtual rig's controller is the
-/// firmware image users flash, in an emulated RP2040 (as `fpm demo --firmware`), and a
-/// job runs on it: the status names the image, and a raw sequence of LEDs given out of
-/// order comes back as one frame per LED, in that order, under its LED.
+/// firmware image users flash, in an emulated RP2040 paced to the wall clock, and jobs
+/// run on it: the status names the image; a raw sequence of LEDs given out of order
+/// comes back as one frame per LED, in that order, under its LED; and 60 steps of
+/// 50 ms take the 3 s a board takes (unpaced, the emulator ran such a sequence about six
+/// times faster than real time, and the camera fell behind it).
 #[test]
 fn the_virtual_rig_runs_on_the_real_firmware_image() {
     let dir = TempDir::new("serve-firmware");
@@ -1291,4 +1293,17 @@ fn the_virtual_rig_runs_on_the_real_firmware_image() {
         .map(|f| [f.entry.led.row, f.entry.led.col])
         .collect();
     assert_eq!(got, leds.to_vec());
+    let paced: Vec<[u8; 2]> = (0..60u8).map(|k| [k / 21, k % 21]).collect();
+    let job = serde_json::json!({
+        "kind": "sequence", "leds": paced, "out": dir.0.join("paced"), "step_ms": 50.0,
+    });
+    let record = service
+        .wait(service.submit(&job).unwrap(), Duration::from_secs(120))
+        .unwrap();
+    assert_eq!(record["state"], "done", "{record}");
+    let seconds = record["summary"]["capture"]["seconds"].as_f64().unwrap();
+    assert!(
+        seconds >= 0.95 * 60.0 * 0.050,
+        "60 steps of 50 ms captured in {seconds:.2} s"
+    );
 }

@@ -54,6 +54,7 @@ function args(argv) {
     else if (a === '--flash-image') out.flashImage = next();
     else if (a === '--uid') out.uid = next();
     else if (a === '--power-cut-after') out.powerCutAfter = Number(next());
+    else if (a === '--real-time') out.realTime = true;
     else fail(`unknown argument ${a}`);
   }
   if (!out.uf2 || !out.bootrom) fail('--uf2 FILE and --bootrom FILE are required');
@@ -530,15 +531,26 @@ const cycleNanos = 1e9 / CPU_HZ;
 const MAX_SLEEP_NS = 1e6;
 let wallStart = Date.now();
 let lastReport = 0;
+// --real-time: emulated time may not run ahead of the wall clock since the first turn
+// (a sleep is cut where the wall clock is, and the loop waits a millisecond for it);
+// behind it, the emulator runs flat out as without the flag.
+let paceFrom = null;
 function run() {
   const clock = mcu.clock;
+  if (opt.realTime && paceFrom === null) paceFrom = { wallMs: performance.now(), nanos: clock.nanos };
+  const wallNanos = () => paceFrom.nanos + (performance.now() - paceFrom.wallMs) * 1e6;
   for (let i = 0; i < 200000; i++) {
+    if (opt.realTime && mcu.core.waiting && clock.nanos >= wallNanos()) {
+      setTimeout(run, 1);
+      return;
+    }
     if (mcu.core.waiting) {
       // Asleep until the next alarm; the PIO keeps running meanwhile. At most
       // MAX_SLEEP_NS at a time: with no alarm armed (the firmware waiting for USB)
       // rp2040js reports the timer's wrap-around, and jumping there would put the
       // device clock years ahead and cost the µs timestamps their precision.
-      const skip = Math.min(Math.max(clock.nanosToNextAlarm, cycleNanos), MAX_SLEEP_NS);
+      let skip = Math.min(Math.max(clock.nanosToNextAlarm, cycleNanos), MAX_SLEEP_NS);
+      if (opt.realTime) skip = Math.max(Math.min(skip, wallNanos() - clock.nanos), cycleNanos);
       const cycles = skip / cycleNanos;
       if (!pio0.stopped && cycles > PIO_SLICE_CYCLES && !pioIdle()) {
         // Step through the sleep in slices, so the PIO's pin changes land in time; at

@@ -39,4 +39,10 @@ pub struct EmulatorOptions {
     /// Run this firmware image (the UF2 users flash) in an emulated RP2040 instead of
     /// the host-compiled controller logic (needs Node and `npm ci` in tools/rp2040).
     pub firmware: Option<PathBuf>,
+    /// With `firmware`: keep the emulated RP2040's clock from running ahead of the wall
+    /// clock. Unpaced, the emulator jumps through the firmware's sleeps and runs a
+    /// sequence of 40 ms steps about six times faster than a board would, so a camera
+    /// it triggers falls behind it as it never would behind a real board; the emulated
+    /// time stays exact either way.
+    pub real_time: bool,
 }

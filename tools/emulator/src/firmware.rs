@@ -89,6 +89,9 @@ pub fn run_firmware(args: &EmulatorOptions, uf2: &Path) -> Result<()> {
     if let Some(n) = args.power_cut_after {
         command.args(["--power-cut-after", &n.to_string()]);
     }
+    if args.real_time {
+        command.arg("--real-time");
+    }
     let mut harness = Harness(
         command
             .spawn()

@@ -250,7 +250,9 @@ fn start_emulator(demo: &Demo, fpm: &Path, rig: &str) -> Result<EmulatorProcess>
         .map(|p| p.to_string_lossy().into_owned());
     let mut options = vec!["--camera-exposure-us", &exposure, "--rig", rig];
     match &firmware {
-        Some(uf2) => options.extend(["--firmware", uf2.as_str()]),
+        // Paced to the wall clock, as a board is (unpaced, the emulator runs the
+        // sequence several times faster than real time and the camera trails it).
+        Some(uf2) => options.extend(["--firmware", uf2.as_str(), "--real-time"]),
         None => options.extend(["--lanes", lanes.as_str()]),
     }
     // Named by its rig: rigs side by side in one process get links of their own.

@@ -22,7 +22,7 @@ use fpm_physics::{LedGeometry, System};
 use fpm_protocol::{DeviceInfo, Half, LinkStats, Lit, Pattern, Rgb};
 use serde::Serialize;
 
-use crate::process::{EmulatorProcess, VirtualCameraProcess};
+use crate::process::{EmulatorProcess, VirtualCameraProcess, BUILD_FIRMWARE_IMAGE};
 use crate::stage::VirtualStage;
 
 /// What the demo runs.
@@ -93,7 +93,7 @@ impl Demo {
         if let Some(uf2) = &self.firmware {
             if !uf2.is_file() {
                 bail!(
-                    "--firmware {}: no such file (build the image with `cargo build --release` in firmware/rp2040, then `cargo run -p fpm-fwtool -- uf2 ELF UF2`; docs/hardware.md)",
+                    "--firmware {}: no such file ({BUILD_FIRMWARE_IMAGE})",
                     uf2.display()
                 );
             }

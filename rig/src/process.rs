@@ -224,6 +224,9 @@ impl VirtualCameraProcess {
     }
 }
 
+/// How to make the firmware image a virtual rig runs, for the error naming a missing one.
+pub const BUILD_FIRMWARE_IMAGE: &str = "build the image with `cargo build --release` in firmware/rp2040, then `cargo run -p fpm-fwtool -- uf2 ELF UF2`; docs/hardware.md";
+
 /// The whole virtual rig as children: the emulated controller and the virtual camera on
 /// one rig bus (its stage is moved through that bus by whoever opens a
 /// [`crate::stage::VirtualStage`] on it).
@@ -264,8 +267,8 @@ impl VirtualRig {
             .to_vec();
         if let Some(uf2) = firmware {
             if !uf2.is_file() {
-                anyhow::bail!(
-                    "the firmware image {}: no such file (build it with `cargo build --release` in firmware/rp2040, then `cargo run -p fpm-fwtool -- uf2 ELF UF2`; docs/hardware.md)",
+                bail!(
+                    "the firmware image {}: no such file ({BUILD_FIRMWARE_IMAGE})",
                     uf2.display()
                 );
             }

@@ -265,7 +265,8 @@ impl<'a> DiscGrid<'a> {
         // 1 % wider than the cutoff: a centre within the cutoff of a point is in the
         // point's cell or a neighbour despite the rounding of the division.
         let cell = cutoff * 1.01;
-        if !(cell.is_finite() && cell > 0.0)
+        if discs.is_empty()
+            || !(cell.is_finite() && cell > 0.0)
             || discs.iter().any(|f| !(f.0.is_finite() && f.1.is_finite()))
         {
             return one_cell(discs);
@@ -276,9 +277,6 @@ impl<'a> DiscGrid<'a> {
             let (x, y) = index(f);
             lo = (lo.0.min(x), lo.1.min(y));
             hi = (hi.0.max(x), hi.1.max(y));
-        }
-        if discs.is_empty() {
-            return one_cell(discs);
         }
         let (columns, rows) = ((hi.0 - lo.0 + 1) as usize, (hi.1 - lo.1 + 1) as usize);
         if columns.saturating_mul(rows) > Self::MAX_CELLS {

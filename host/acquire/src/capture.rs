@@ -252,22 +252,20 @@ impl Drop for FrameDrain {
 
 /// Run one capture sequence lighting `leds` in order, one frame per LED, with the
 /// frames of camera `camera`. Frames are labelled as soon as their step is closed (the
-/// next step's trigger was seen, or the sequence ended) and given to `on_frame` at
-/// once; the final pairing over everything is authoritative and is what the returned
-/// shots follow. Every labelled frame reaches `on_frame` exactly once (those that could
-/// not be labelled while acquiring, right after the final pairing); a frame handed out
-/// early that the final pairing contradicts is counted in `relabelled`. Once `stop`
-/// says so (a cancel, a pause) the sequence is aborted; the frames that came are
-/// labelled as ever.
+/// next step's trigger was seen, or the sequence ended) and told to `on_news` at once
+/// ([`News::Labelled`]: the step indexes `leds`); the final pairing over everything is
+/// authoritative and is what the returned shots follow. Every labelled frame is told
+/// exactly once (those that could not be labelled while acquiring, right after the
+/// final pairing); a frame handed out early that the final pairing contradicts is
+/// counted in `relabelled`. Once `stop` says so (a cancel, a pause) the sequence is
+/// aborted; the frames that came are labelled as ever.
 pub fn capture(
     dev: &Controller,
     camera: &ServiceNames,
     sequence: &Sequence<'_>,
     stop: impl Fn() -> bool,
-    on_live: impl FnMut(Live<'_>),
+    on_news: impl FnMut(News<'_>),
 ) -> Result<(Vec<Shot>, CaptureReport)> {
-    // One callback for both kinds of news; capture_steps never gives both at once.
-    let on_live = std::cell::RefCell::new(on_live);
     let &Sequence {
         id,
         leds,
@@ -288,15 +286,7 @@ pub fn capture(
         Lighting::Steps(&steps),
         exposure_us,
         stop,
-        |step, header, pixels| {
-            (on_live.borrow_mut())(Live::Frame(ShotView {
-                led: leds[step],
-                header,
-                pixels,
-            }))
-        },
-        |waiting| (on_live.borrow_mut())(Live::Labelling(waiting)),
-        |steps| (on_live.borrow_mut())(Live::Steps(steps)),
+        on_news,
     )?;
     report.missing = frames
         .iter()
@@ -318,13 +308,51 @@ pub fn capture(
     Ok((shots, report))
 }
 
-/// What a running [`capture`] tells its caller.
-pub enum Live<'a> {
-    /// A frame labelled with its LED (every labelled frame exactly once).
-    Frame(ShotView<'a>),
-    /// Why labels wait now (None: they flow again); given when it changes.
+/// What a running capture tells its caller, as it happens. The first three are the
+/// raw record (what a journal keeps, so that frames that arrived can be labelled
+/// again after a crash, whatever the labeller knew): replayed into a [`Labeller`] in
+/// the order told, they give the capture's own pairing.
+pub enum News<'a> {
+    /// The sequence is started: a [`Labeller`] for it takes this tolerance.
+    Started {
+        /// Steps in the sequence.
+        steps: usize,
+        /// See [`Labeller::new`].
+        tolerance_ns: u64,
+    },
+    /// The controller reported a step: its trigger on the controller's clock, and
+    /// when that was on the host's (ns since the sequence was started).
+    Step {
+        /// The step and its trigger.
+        step: StepTime,
+        /// As [`Labeller::step`] takes it.
+        arrived_ns: i64,
+    },
+    /// A frame arrived, not yet labelled; `index` is how labels name it.
+    Arrived {
+        /// Frames before it in this sequence.
+        index: usize,
+        /// As [`Labeller::frame`] takes it.
+        arrived_ns: i64,
+        /// The camera's header.
+        header: &'a FrameHeader,
+        /// Pixels `[row, col]`.
+        pixels: ArrayView2<'a, u16>,
+    },
+    /// Frame `index` labelled with its step (every labelled frame exactly once).
+    Labelled {
+        /// The sequence step that lit it.
+        step: usize,
+        /// As [`News::Arrived`] named it.
+        index: usize,
+        /// The camera's header.
+        header: &'a FrameHeader,
+        /// Pixels `[row, col]`.
+        pixels: ArrayView2<'a, u16>,
+    },
+    /// Why labels wait now (None: they flow again); told when it changes.
     Labelling(Option<Waiting>),
-    /// How far the controller is; given when it reports a step.
+    /// How far the controller is; told when it reports a step.
     Steps(SequenceSteps),
 }
 
@@ -357,10 +385,9 @@ impl Lighting<'_> {
 }
 
 /// [`capture`] for any steps (patterns, LED sets, dark frames): one frame per
-/// step, each labelled with its step's index. `on_frame(step, header, pixels)` as
-/// there. Returns each step's frame (None: missing) in step order, and the report
-/// (its `missing` left empty: what a step lit is the caller's to name).
-#[allow(clippy::too_many_arguments)] // the sequence's parts and the two callbacks
+/// step, each labelled with its step's index, told to `on_news` as there. Returns each
+/// step's frame (None: missing) in step order, and the report (its `missing` left
+/// empty: what a step lit is the caller's to name).
 pub fn capture_steps(
     dev: &Controller,
     camera: &ServiceNames,
@@ -368,9 +395,7 @@ pub fn capture_steps(
     steps: Lighting<'_>,
     exposure_us: u32,
     stop: impl Fn() -> bool,
-    mut on_frame: impl for<'b> FnMut(usize, &'b FrameHeader, ArrayView2<'b, u16>),
-    mut on_labelling: impl FnMut(Option<Waiting>),
-    mut on_steps: impl FnMut(SequenceSteps),
+    mut on_news: impl FnMut(News<'_>),
 ) -> Result<(Vec<Option<StepFrame>>, CaptureReport)> {
     let n = steps.len();
     let timing = timing(exposure_us);
@@ -389,6 +414,10 @@ pub fn capture_steps(
     // Arrival times are ns since `start`, taken before the sequence started.
     let since_start = || start.elapsed().as_nanos() as i64;
     let mut labeller = Labeller::new(n, tolerance);
+    on_news(News::Started {
+        steps: n,
+        tolerance_ns: tolerance,
+    });
     let mut waiting = None;
     let mut steps_told = 0;
     // When each frame arrived and when its label was handed on (ns since `start`; by
@@ -414,13 +443,18 @@ pub fn capture_steps(
         }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             let at = since_start();
-            arrived_ns.push(at);
-            labelled_ns.push(None);
-            labeller.frame(frame_time(&f.0), at);
-            received.push(f);
+            arrive(
+                f,
+                &mut labeller,
+                &mut received,
+                &mut arrived_ns,
+                &mut labelled_ns,
+                &mut on_news,
+                at,
+            );
             last_frame = Instant::now();
         }
-        match next_event(&mut events, &mut labeller, since_start) {
+        match next_event(&mut events, &mut labeller, since_start, &mut on_news) {
             Ok(Some(end)) => ended = Some(end),
             Ok(None) => {}
             // Keep what arrived: the caller writes it and reports the failure.
@@ -429,7 +463,7 @@ pub fn capture_steps(
         let steps = labeller.steps();
         if steps.done != steps_told {
             steps_told = steps.done;
-            on_steps(steps);
+            on_news(News::Steps(steps));
         }
         // Hand frames on while they arrive; the final pairing below checks every label.
         let labels = labeller.labels();
@@ -438,11 +472,16 @@ pub fn capture_steps(
             if let Some(why) = waiting.filter(|w| *w != Waiting::FirstFrames) {
                 tracing::info!("{why}");
             }
-            on_labelling(waiting);
+            on_news(News::Labelling(waiting));
         }
         for l in &labels {
             let (header, pixels) = &received[l.frame];
-            on_frame(l.step, header, pixels.view());
+            on_news(News::Labelled {
+                step: l.step,
+                index: l.frame,
+                header,
+                pixels: pixels.view(),
+            });
             labelled_ns[l.frame] = Some(since_start());
             live += usize::from(ended.is_none());
         }
@@ -472,10 +511,15 @@ pub fn capture_steps(
             std::thread::sleep(Duration::from_millis(300));
             while let Ok(f) = drain.rx.try_recv() {
                 let at = since_start();
-                arrived_ns.push(at);
-                labelled_ns.push(None);
-                labeller.frame(frame_time(&f.0), at);
-                received.push(f);
+                arrive(
+                    f,
+                    &mut labeller,
+                    &mut received,
+                    &mut arrived_ns,
+                    &mut labelled_ns,
+                    &mut on_news,
+                    at,
+                );
             }
             break;
         }
@@ -489,7 +533,7 @@ pub fn capture_steps(
     drop(drain);
     let seconds = start.elapsed().as_secs_f64();
     if waiting.is_some() {
-        on_labelling(None);
+        on_news(News::Labelling(None));
     }
     let Labelled {
         pairing: p,
@@ -507,7 +551,12 @@ pub fn capture_steps(
     // acquiring go now, with their final label.
     for l in late {
         let (header, pixels) = &received[l.frame];
-        on_frame(l.step, header, pixels.view());
+        on_news(News::Labelled {
+            step: l.step,
+            index: l.frame,
+            header,
+            pixels: pixels.view(),
+        });
         labelled_ns[l.frame] = Some(since_start());
     }
     // Arrival → label handed on, ms, over the frames the final pairing kept.
@@ -561,6 +610,7 @@ fn next_event(
     events: &mut SequenceEvents,
     labeller: &mut Labeller,
     since_start: impl Fn() -> i64,
+    on_news: &mut impl FnMut(News<'_>),
 ) -> Result<Option<SequenceEnd>, ControllerError> {
     loop {
         match events.next(Duration::from_millis(1)) {
@@ -569,19 +619,42 @@ fn next_event(
             Ok(SequenceEvent::End(e)) => return Ok(Some(e)),
             Ok(step) => {
                 if let Some((_, index, trigger_us, end_us)) = step.step_times() {
-                    labeller.step(
-                        StepTime {
-                            step: index as usize,
-                            trigger_ns: trigger_us * 1000,
-                        },
-                        since_start() - (end_us.saturating_sub(trigger_us) * 1000) as i64,
-                    )
+                    let step = StepTime {
+                        step: index as usize,
+                        trigger_ns: trigger_us * 1000,
+                    };
+                    let arrived_ns =
+                        since_start() - (end_us.saturating_sub(trigger_us) * 1000) as i64;
+                    labeller.step(step, arrived_ns);
+                    on_news(News::Step { step, arrived_ns });
                 }
             }
             Err(ControllerError::Timeout { .. }) => return Ok(None),
             Err(e) => return Err(e),
         }
     }
+}
+
+/// A frame taken off the camera: given to the labeller, told (before any label), kept.
+fn arrive(
+    (header, pixels): (FrameHeader, Array2<u16>),
+    labeller: &mut Labeller,
+    received: &mut Vec<(FrameHeader, Array2<u16>)>,
+    arrived_ns: &mut Vec<i64>,
+    labelled_ns: &mut Vec<Option<i64>>,
+    on_news: &mut impl FnMut(News<'_>),
+    at: i64,
+) {
+    let index = labeller.frame(frame_time(&header), at);
+    on_news(News::Arrived {
+        index,
+        arrived_ns: at,
+        header: &header,
+        pixels: pixels.view(),
+    });
+    arrived_ns.push(at);
+    labelled_ns.push(None);
+    received.push((header, pixels));
 }
 
 /// What the pairing needs of a frame's header.

@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use anyhow::{bail, Context, Result};
-use fpm_frames::{FrameHeader, ServiceNames};
+use fpm_frames::ServiceNames;
 use fpm_physics::dpc::{Dpc, Half, Regularisation, Transfer, WeakObject};
 use fpm_physics::{Complex32, Image, LedGeometry, System};
 use fpm_protocol::{BoardGeometry, Illumination, LedIndex, Pattern, Rgb, Step};
@@ -19,7 +19,7 @@ use ndarray::{Array2, ArrayView2};
 use serde::Serialize;
 
 use crate::acquisition::{Phase, Progress, Snapshot};
-use crate::capture::{capture_steps, Lighting};
+use crate::capture::{capture_steps, Lighting, News};
 use crate::controller::Controller;
 use crate::pipeline::{Control, Watcher};
 
@@ -228,7 +228,16 @@ pub fn live(
         Lighting::Steps(&steps),
         exposure_us,
         || control.is_cancelled(),
-        |step, header: &FrameHeader, pixels| {
+        |news| {
+            let News::Labelled {
+                step,
+                header,
+                pixels,
+                ..
+            } = news
+            else {
+                return;
+            };
             frames += 1;
             watcher.progress(&progress(frames, Phase::Capturing));
             round[step % 4] = Some((pixels.to_owned(), header.exposure_us));
@@ -265,8 +274,6 @@ pub fn live(
                 last = Some(object);
             }
         },
-        |_| {},
-        |_| {},
     )?;
     let seconds = started.elapsed().as_secs_f64();
     let Some(object) = last else {

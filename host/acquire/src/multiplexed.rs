@@ -16,7 +16,7 @@ use fpm_physics::reconstruct::Settings;
 use fpm_protocol::SetStep;
 
 use crate::acquisition::{sequence_id, Phase, Plan, Progress, Snapshot};
-use crate::capture::{capture_steps, Lighting};
+use crate::capture::{capture_steps, Lighting, News};
 use crate::controller::Controller;
 use crate::pipeline::{Control, Watcher};
 use crate::summary::AcquireSummary;
@@ -75,12 +75,12 @@ pub fn acquire(
         Lighting::Sets(&steps),
         plan.step_us(),
         || control.is_cancelled(),
-        |_, _, _| {
-            arrived += 1;
-            watcher.progress(&progress(arrived, Phase::Capturing));
+        |news| {
+            if let News::Labelled { .. } = news {
+                arrived += 1;
+                watcher.progress(&progress(arrived, Phase::Capturing));
+            }
         },
-        |_| {},
-        |_| {},
     )?;
     let last_frame = Instant::now();
     watcher.progress(&progress(arrived, Phase::Writing));

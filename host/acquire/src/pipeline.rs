@@ -21,7 +21,7 @@ use crate::acquisition::sequence_id;
 pub use crate::acquisition::Plan;
 use crate::acquisition::{Acquisition, Action, Event, Progress, Rig, Snapshot};
 use crate::board_geometry;
-use crate::capture::{capture, Live, Sequence, ShotView};
+use crate::capture::{capture, News, Sequence, ShotView};
 use crate::controller::Controller;
 use crate::journal::Journal;
 use crate::page;
@@ -401,25 +401,68 @@ fn run(
                 if captures && journal.is_none() {
                     journal = start_journal(plan, &nominal, camera, &adopted);
                 }
-                let mut on_live = |live: Live<'_>| {
-                    let shot = match live {
-                        Live::Frame(shot) => shot,
-                        Live::Labelling(waiting) => {
+                // Journal trouble is an optional extra's: warned once, then the frames
+                // are written when the capture ends, as ever.
+                let keep = |journal: &mut Option<Journal>, written: Result<()>| {
+                    if let Err(e) = written {
+                        tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
+                        *journal = None;
+                    }
+                };
+                let mut on_news = |news: News<'_>| {
+                    let capturing = journal.as_mut().filter(|_| captures);
+                    let (step, index, header, pixels) = match news {
+                        News::Labelling(waiting) => {
                             acq.handle(Event::Labelling(waiting));
                             watch(&mut acq, &mut watcher);
                             return;
                         }
-                        Live::Steps(steps) => {
+                        News::Steps(steps) => {
                             acq.handle(Event::Steps(steps));
                             watch(&mut acq, &mut watcher);
                             return;
                         }
-                    };
-                    if let Some(j) = journal.as_mut().filter(|_| captures) {
-                        if let Err(e) = j.frame(&shot) {
-                            tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
-                            journal = None;
+                        News::Started { tolerance_ns, .. } => {
+                            if let Some(j) = capturing {
+                                let written = j.sequence(&leds, tolerance_ns);
+                                keep(&mut journal, written);
+                            }
+                            return;
                         }
+                        News::Step { step, arrived_ns } => {
+                            if let Some(j) = capturing {
+                                let written = j.step(step, arrived_ns);
+                                keep(&mut journal, written);
+                            }
+                            return;
+                        }
+                        News::Arrived {
+                            index,
+                            arrived_ns,
+                            header,
+                            pixels,
+                        } => {
+                            if let Some(j) = capturing {
+                                let written = j.arrived(index, arrived_ns, header, pixels);
+                                keep(&mut journal, written);
+                            }
+                            return;
+                        }
+                        News::Labelled {
+                            step,
+                            index,
+                            header,
+                            pixels,
+                        } => (step, index, header, pixels),
+                    };
+                    let shot = ShotView {
+                        led: leds[step],
+                        header,
+                        pixels,
+                    };
+                    if let Some(j) = capturing {
+                        let written = j.frame(&shot, Some(index));
+                        keep(&mut journal, written);
                     }
                     watcher.frame(&shot);
                     acq.handle(Event::Frame(shot));
@@ -440,7 +483,7 @@ fn run(
                     }
                     control.is_cancelled() || pause
                 };
-                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_live))
+                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_news))
             }
             Action::Finished(result) => return *result,
             write => {

@@ -140,11 +140,11 @@ fn recover_interrupted(store: &store::Store) {
         let out = Path::new(&job.out);
         let said = match fpm_acquire::journal::recover(out) {
             Ok(Some(n)) if n > 0 => format!(
-                "the service stopped while the job ran; the {n} frames it had labelled are a partial dataset in {} (the LEDs without a frame are missing from it); resume it (POST /api/jobs/{}/resume, fpm.Client.resume) to light only those",
+                "the service stopped while the job ran; the {n} frames it had taken are a partial dataset in {} (the LEDs without a frame are missing from it); resume it (POST /api/jobs/{}/resume, fpm.Client.resume) to light only those",
                 out.display(),
                 id
             ),
-            Ok(_) => "the service stopped while the job ran, before any frame of its capture was labelled; queue it again".into(),
+            Ok(_) => "the service stopped while the job ran, before any frame of its capture arrived; queue it again".into(),
             Err(e) => format!(
                 "the service stopped while the job ran, and its frames in {} could not be recovered ({e:#}); queue it again",
                 out.display()

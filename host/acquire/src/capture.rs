@@ -118,6 +118,14 @@ pub struct CaptureReport {
     pub label_lag_p50_ms: f64,
     /// The same, 99th percentile.
     pub label_lag_p99_ms: f64,
+    /// When the controller confirmed the sequence aborted, its LEDs off (it commits
+    /// them dark before it answers).
+    #[serde(skip)]
+    pub leds_off_at: Option<Instant>,
+    /// A cancel's request to the controller's LEDs off, ms (the caller's to fill in:
+    /// it knows when the cancel was asked for).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cancel_to_leds_off_ms: Option<f64>,
 }
 
 impl CaptureReport {
@@ -143,6 +151,8 @@ impl CaptureReport {
         // The worse sequence's (the two are not pooled).
         self.label_lag_p50_ms = self.label_lag_p50_ms.max(later.label_lag_p50_ms);
         self.label_lag_p99_ms = self.label_lag_p99_ms.max(later.label_lag_p99_ms);
+        self.leds_off_at = later.leds_off_at.or(self.leds_off_at);
+        self.cancel_to_leds_off_ms = later.cancel_to_leds_off_ms.or(self.cancel_to_leds_off_ms);
     }
 }
 
@@ -432,13 +442,17 @@ pub fn capture_steps(
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
     let mut failure: Option<String> = None;
     let mut aborted = false;
+    let mut leds_off_at = None;
     loop {
         if !aborted && ended.is_none() && stop() {
             aborted = true;
-            if let Err(e) = dev.abort_sequence() {
-                failure = Some(format!(
-                    "the LED controller did not abort the sequence: {e}"
-                ));
+            match dev.abort_sequence() {
+                Ok(_) => leds_off_at = Some(Instant::now()),
+                Err(e) => {
+                    failure = Some(format!(
+                        "the LED controller did not abort the sequence: {e}"
+                    ))
+                }
             }
         }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
@@ -600,6 +614,8 @@ pub fn capture_steps(
         labelled_live: live.min(labelled),
         label_lag_p50_ms: quantile(0.5),
         label_lag_p99_ms: quantile(0.99),
+        leds_off_at,
+        cancel_to_leds_off_ms: None,
     };
     Ok((frames, report))
 }

@@ -146,6 +146,8 @@ impl<F: FnMut(&Progress)> Watcher for F {
 pub struct Control {
     cancel: Arc<AtomicBool>,
     pause: Arc<AtomicBool>,
+    /// When [`Control::cancel`] was first called (a flag set elsewhere has none).
+    cancelled_at: Arc<std::sync::OnceLock<std::time::Instant>>,
 }
 
 impl Control {
@@ -165,7 +167,13 @@ impl Control {
     /// Stop: no new sequence starts, what was captured is written, the run fails
     /// saying it was cancelled.
     pub fn cancel(&self) {
+        self.cancelled_at.get_or_init(std::time::Instant::now);
         self.cancel.store(true, Ordering::SeqCst);
+    }
+
+    /// When [`Control::cancel`] was first called.
+    pub fn cancelled_at(&self) -> Option<std::time::Instant> {
+        self.cancelled_at.get().copied()
     }
 
     /// Hold between LEDs (and before any stage move) until [`Control::resume`].
@@ -483,7 +491,13 @@ fn run(
                     }
                     control.is_cancelled() || pause
                 };
-                Event::SequenceEnded(capture(dev, &plan.camera, &sequence, stop, &mut on_news))
+                let mut captured = capture(dev, &plan.camera, &sequence, stop, &mut on_news);
+                if let (Ok((_, report)), Some(asked)) = (&mut captured, control.cancelled_at()) {
+                    report.cancel_to_leds_off_ms = report
+                        .leds_off_at
+                        .map(|off| off.saturating_duration_since(asked).as_secs_f64() * 1e3);
+                }
+                Event::SequenceEnded(captured)
             }
             Action::Finished(result) => return *result,
             write => {

@@ -15,7 +15,11 @@
 //! * Pause: from the client's pause request to the job's progress saying `paused` (the
 //!   capture sequence cut at its LED, the rig holding).
 //! * Cancel: from the client's cancel request to the job's `cancelled` state (the
-//!   sequence aborted, the frames so far labelled and written).
+//!   sequence aborted, the frames so far labelled and written); and from the service
+//!   taking the request to the controller's answer that the sequence is aborted, its
+//!   LEDs committed dark (the capture's own figure, `acquisition.json`'s
+//!   `capture.cancel_to_leds_off_ms`; the request's way to the service, a loopback
+//!   round trip, is the first figure's).
 //! * Each of the live figures, pause and cancel twice: with the machine idle, and with
 //!   a CPU hog beside the service (two busy threads of the bench's own, stopped
 //!   afterwards), as a lab's PC running napari or the previous field's reconstruction.
@@ -85,6 +89,8 @@ struct Live {
     eta: Vec<Eta>,
     pause_to_paused: Percentiles,
     cancel_to_cancelled: Percentiles,
+    /// The service taking the cancel → the controller's LEDs off.
+    cancel_to_leds_off: Percentiles,
 }
 
 /// One poll of `/api/status` while the job ran.
@@ -286,6 +292,7 @@ fn follow_live(service: &VirtualService, step_ms: Option<f64>) -> Result<Live> {
         eta: eta_errors(&polled),
         pause_to_paused: Percentiles::of(&mut []),
         cancel_to_cancelled: Percentiles::of(&mut []),
+        cancel_to_leds_off: Percentiles::of(&mut []),
     })
 }
 
@@ -348,13 +355,14 @@ impl Drop for Hog {
 
 /// Acquisitions paused a second into their capture, resumed, then cancelled: µs from
 /// each request to the event that says it took effect (progress `paused`; the job
-/// `cancelled`).
+/// `cancelled`), and from the service taking the cancel to the LEDs off (as the
+/// capture measured it).
 fn pauses_and_cancels(
     service: &VirtualService,
     step_ms: Option<f64>,
     count: usize,
-) -> Result<(Percentiles, Percentiles)> {
-    let (mut pauses, mut cancels) = (vec![], vec![]);
+) -> Result<(Percentiles, Percentiles, Percentiles)> {
+    let (mut pauses, mut cancels, mut dark) = (vec![], vec![], vec![]);
     for _ in 0..count {
         let mut lines = event_lines(service.address, None)?;
         let job = service.submit(&acquire_request(step_ms))?;
@@ -394,8 +402,29 @@ fn pauses_and_cancels(
         cancels.push(until(asked, &|e| {
             e["event"] == "state" && e["state"] == "cancelled"
         })?);
+        let record = service.get(&format!("/api/jobs/{job}"))?.json()?;
+        let out = record["out"].as_str().unwrap_or_default();
+        let summary = Path::new(out).join("acquisition.json");
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(&summary)
+                .with_context(|| format!("reading {}", summary.display()))?,
+        )
+        .with_context(|| format!("{}", summary.display()))?;
+        let off = summary["capture"]["cancel_to_leds_off_ms"]
+            .as_f64()
+            .ok_or_else(|| {
+                anyhow!(
+                    "{}: no capture.cancel_to_leds_off_ms (the cancel found no sequence running?)",
+                    out
+                )
+            })?;
+        dark.push(off * 1e3);
     }
-    Ok((Percentiles::of(&mut pauses), Percentiles::of(&mut cancels)))
+    Ok((
+        Percentiles::of(&mut pauses),
+        Percentiles::of(&mut cancels),
+        Percentiles::of(&mut dark),
+    ))
 }
 
 /// `fpm acquire` on a virtual rig of its own: (capture s, run s).
@@ -498,8 +527,11 @@ pub fn run(o: ServeOptions) -> Result<()> {
         ));
         let mut live = follow_live(&service, o.step_ms)?;
         say(&format!("pauses and cancels{beside} …"));
-        (live.pause_to_paused, live.cancel_to_cancelled) =
-            pauses_and_cancels(&service, o.step_ms, 5)?;
+        (
+            live.pause_to_paused,
+            live.cancel_to_cancelled,
+            live.cancel_to_leds_off,
+        ) = pauses_and_cancels(&service, o.step_ms, 5)?;
         Ok(live)
     };
     let (idle, hog) = (live(false)?, live(true)?);
@@ -601,6 +633,10 @@ pub fn run(o: ServeOptions) -> Result<()> {
         println!(
             "    cancel → job cancelled:        {}",
             ms(&live.cancel_to_cancelled)
+        );
+        println!(
+            "    cancel → LEDs off:             {}",
+            ms(&live.cancel_to_leds_off)
         );
     }
     let o = &report.overhead;

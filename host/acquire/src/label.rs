@@ -109,7 +109,10 @@ const DECISIVE_RMS_RATIO: f64 = 4.0;
 /// See [`DECISIVE_RMS_RATIO`]: below this, both are within any camera's stamp jitter.
 const MIN_RMS_DIFFERENCE_NS: f64 = 100_000.0;
 /// Stamp residuals decide between offsets only over at least this many pairs: with
-/// offset and drift fitted to a handful, any candidate can look tight.
+/// offset and drift fitted to a handful, any candidate can look tight. Measured with
+/// the labeller's property test (host/acquire/tests/labeller.rs, 4·10⁵ generated
+/// captures): at 4 it labels frames wrongly within 10⁴, at 6 a clean 7-step capture
+/// had 5 frames labelled online and relabelled; at 8, none.
 const MIN_PAIRS_TO_COMPARE: usize = 8;
 
 /// A frame may come this many tolerances late after its trigger but only one early:

@@ -397,8 +397,12 @@ fn live_events(r: &LiveRig) -> (Vec<(i64, Event)>, u64) {
 /// nor relabelled (issue 61).
 #[test]
 fn labels_come_out_while_frames_arrive() {
+    let cases = std::env::var("FPM_LABELLER_LIVE_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1_500);
     let config = Config {
-        cases: 1_500,
+        cases,
         failure_persistence: None,
         ..Config::default()
     };

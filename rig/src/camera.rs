@@ -4,7 +4,7 @@
 //! like a camera driver would. It knows the hidden geometry; nothing downstream does.
 
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use fpm_camera::settings::AppliedSettings;
@@ -204,11 +204,13 @@ pub fn run(a: VirtualCamera) -> Result<()> {
     );
     let mut frame_number = 0u64;
     let mut clock_rng = rand::rngs::StdRng::seed_from_u64(a.seed ^ 0xC10C);
+    let mut pace = Pace::default();
     while !fpm_rig_bus::stop::requested() {
         settings.serve();
         let Some(pulse) = rig.next_pulse(Duration::from_millis(100))? else {
             continue;
         };
+        pace.triggered(pulse.time_us, Instant::now());
         let stage = rig.stage()?;
         // On a slide the field under the stage, and the slide's surface height there.
         let (object, renderer, surface_um) = if stage.slide == Stage::CALIBRATION_TARGET {
@@ -297,6 +299,11 @@ pub fn run(a: VirtualCamera) -> Result<()> {
             },
             pixels,
         )?;
+        if let Some(late_ms) = pace.published(pulse.time_us, Instant::now()) {
+            tracing::warn!(
+                "the virtual camera renders slower than the controller triggers it: frame {frame_number} left {late_ms:.0} ms after its trigger, and later frames fall further behind (they are labelled all the same, but arrive late). Run a release build (cargo run --release), a smaller --virtual-size, or longer steps"
+            );
+        }
         tracing::debug!(
             "frame {frame_number}: pulse {} at {} µs, {} LED(s), z {} µm, {:.1} ms",
             pulse.pulse_number,
@@ -307,8 +314,72 @@ pub fn run(a: VirtualCamera) -> Result<()> {
         );
         frame_number += 1;
     }
-    tracing::info!("virtual camera stopped after {frame_number} frames");
+    tracing::info!(
+        "virtual camera stopped after {frame_number} frames{}",
+        pace.summary()
+    );
     Ok(())
+}
+
+/// How far behind its triggers the virtual camera publishes: it renders each frame with
+/// the full wave-optics model, and on a slow or busy machine that can take longer than
+/// a step. A real camera exposes at the trigger whatever its host does and hands the
+/// frame over late (or drops it when its buffer is full); this one stamps the trigger's
+/// time, so its frames keep their labels, and says that they are late.
+#[derive(Debug, Default)]
+struct Pace {
+    /// The earliest a trigger was seen, as (this host's instant − the trigger's
+    /// controller µs): a trigger's host time is this plus its own µs.
+    reference: Option<(Instant, u64)>,
+    /// The step between the last two triggers, µs.
+    step_us: u64,
+    last_trigger_us: Option<u64>,
+    late: u64,
+    worst_ms: f64,
+    warned: bool,
+}
+
+impl Pace {
+    /// A trigger at `time_us` (controller clock) reached the camera at `now`.
+    fn triggered(&mut self, time_us: u64, now: Instant) {
+        if let Some(last) = self.last_trigger_us {
+            self.step_us = time_us.saturating_sub(last);
+        }
+        self.last_trigger_us = Some(time_us);
+        let earlier = self.reference.is_none_or(|(at, us)| {
+            // This trigger's arrival implies an earlier host time for trigger 0.
+            let implied = now.checked_sub(Duration::from_micros(time_us.saturating_sub(us)));
+            implied.is_some_and(|i| i < at)
+        });
+        if earlier {
+            self.reference = Some((now, time_us));
+        }
+    }
+
+    /// The frame of the trigger at `time_us` is published at `now`: how late, ms, the
+    /// first time it is later than a step (and 50 ms) after its trigger; None otherwise.
+    fn published(&mut self, time_us: u64, now: Instant) -> Option<f64> {
+        let (at, us) = self.reference?;
+        let due = at + Duration::from_micros(time_us.saturating_sub(us));
+        let late_ms = now.saturating_duration_since(due).as_secs_f64() * 1e3;
+        if late_ms <= (self.step_us as f64 / 1e3).max(50.0) {
+            return None;
+        }
+        self.late += 1;
+        self.worst_ms = self.worst_ms.max(late_ms);
+        (!std::mem::replace(&mut self.warned, true)).then_some(late_ms)
+    }
+
+    /// What the log says at the end: the frames that were late, if any.
+    fn summary(&self) -> String {
+        match self.late {
+            0 => String::new(),
+            n => format!(
+                "; {n} published more than a step after their trigger (the latest {:.0} ms)",
+                self.worst_ms
+            ),
+        }
+    }
 }
 
 /// The settings the virtual camera works with, in the document a GenICam camera's
@@ -592,5 +663,41 @@ impl Sensor {
                 self.x0..self.x0 + self.width
             ])
             .to_owned()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_published_more_than_a_step_after_their_trigger_are_said_once_and_counted() {
+        let start = Instant::now();
+        let at = |ms: u64| start + Duration::from_millis(ms);
+        let mut pace = Pace::default();
+        // Triggers 40 ms apart on the controller's clock, seen 1 ms after they fire;
+        // the first three frames rendered in 10 ms.
+        for k in 0..3u64 {
+            pace.triggered(5_000_000 + k * 40_000, at(1 + k * 40));
+            assert_eq!(
+                pace.published(5_000_000 + k * 40_000, at(11 + k * 40)),
+                None
+            );
+        }
+        // Then rendering takes 70 ms a frame: the camera falls behind, by 30 ms more
+        // each frame; the frame that leaves more than 50 ms late is said, once.
+        let mut said = vec![];
+        let mut done = 81;
+        for k in 3..10u64 {
+            let trigger = 5_000_000 + k * 40_000;
+            pace.triggered(trigger, at(1 + k * 40).max(at(done)));
+            done += 70;
+            if let Some(ms) = pace.published(trigger, at(done)) {
+                said.push((k, ms.round()));
+            }
+        }
+        assert_eq!(said, vec![(4, 60.0)]);
+        assert_eq!(pace.late, 6);
+        assert!(pace.summary().contains("6 published more than a step"));
     }
 }

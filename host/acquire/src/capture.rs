@@ -555,11 +555,19 @@ pub fn capture_steps(
         late,
         relabelled,
     } = labeller.finish();
-    if let Some(problem) = &p.clock_problem {
-        bail!(
+    match &p.clock_problem {
+        // A sequence cut short by a cancel or a pause may hold too few frames to tell
+        // its clock offset (a handful of periodic steps): its LEDs are left missing,
+        // as a dropped frame's are, and what earlier sequences took is kept.
+        Some(problem) if aborted => tracing::warn!(
+            "the {} frames of the sequence cut short could not be labelled ({problem}): their LEDs are left missing",
+            received.len()
+        ),
+        Some(problem) => bail!(
             "none of the {} frames could be labelled with its LED: {problem}; is the camera triggered by the controller's trigger-out, and its clock steady?",
             received.len()
-        );
+        ),
+        None => {}
     }
     // Every labelled frame reaches the stream once: those not handed out while
     // acquiring go now, with their final label.

@@ -89,7 +89,8 @@ struct Live {
     eta: Vec<Eta>,
     pause_to_paused: Percentiles,
     cancel_to_cancelled: Percentiles,
-    /// The service taking the cancel → the controller's LEDs off.
+    /// The service taking the cancel → the controller's LEDs off (over the cancels
+    /// that found a sequence running).
     cancel_to_leds_off: Percentiles,
 }
 
@@ -374,6 +375,9 @@ fn pauses_and_cancels(
                     continue;
                 };
                 let event: serde_json::Value = serde_json::from_str(data.trim())?;
+                if event["job"] == job && event["event"] == "state" && event["state"] == "failed" {
+                    bail!("job {job} failed: {}", event["error"]);
+                }
                 if event["job"] == job && took_effect(&event) {
                     let at = event["at_s"].as_f64().unwrap_or_else(now_s);
                     return Ok((at - asked) * 1e6);
@@ -405,20 +409,21 @@ fn pauses_and_cancels(
         let record = service.get(&format!("/api/jobs/{job}"))?.json()?;
         let out = record["out"].as_str().unwrap_or_default();
         let summary = Path::new(out).join("acquisition.json");
-        let summary: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(&summary)
-                .with_context(|| format!("reading {}", summary.display()))?,
-        )
-        .with_context(|| format!("{}", summary.display()))?;
-        let off = summary["capture"]["cancel_to_leds_off_ms"]
-            .as_f64()
-            .ok_or_else(|| {
-                anyhow!(
-                    "{}: no capture.cancel_to_leds_off_ms (the cancel found no sequence running?)",
-                    out
-                )
-            })?;
-        dark.push(off * 1e3);
+        let Ok(text) = std::fs::read_to_string(&summary) else {
+            // (On stderr, which --json leaves to the log: stdout is the report.)
+            eprintln!(
+                "  (job {job} was cancelled before its capture wrote {})",
+                summary.display()
+            );
+            continue;
+        };
+        let summary: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}", summary.display()))?;
+        // None when the cancel found no sequence running (between the paused
+        // sequence and the next): the LEDs were off already.
+        if let Some(off) = summary["capture"]["cancel_to_leds_off_ms"].as_f64() {
+            dark.push(off * 1e3);
+        }
     }
     Ok((
         Percentiles::of(&mut pauses),

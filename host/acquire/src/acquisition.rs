@@ -1025,6 +1025,12 @@ impl Acquisition {
             self.tiles = Some(worker.tiles());
         }
         let shots = std::mem::take(&mut self.shots);
+        if shots.is_empty() {
+            // Cancelled (or cut off) before any frame was labelled: no dataset (one has
+            // frames), only the summary saying every LED is missing.
+            tracing::info!("no frame was labelled: no dataset is written");
+            return self.reconstruct();
+        }
         match dataset(
             self.plan.out.clone(),
             &self.plan.system,

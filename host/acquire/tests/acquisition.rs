@@ -269,8 +269,10 @@ fn run(case: &Case) -> Result<bool, TestCaseError> {
     let defocus_um = plan.defocus_um;
     // Half the runs with a camera that states its settings as the virtual camera
     // does (its gamma needs a bit depth even in a dataset without frames).
-    let camera_settings =
-        (case.seed % 2 == 0).then(|| serde_json::json!({"encoding_gamma": 1.0, "bit_depth": 12}));
+    let camera_settings = case
+        .seed
+        .is_multiple_of(2)
+        .then(|| serde_json::json!({"encoding_gamma": 1.0, "bit_depth": 12}));
     let rig = Rig {
         nominal,
         stored: None,

@@ -144,7 +144,7 @@ fn recover_interrupted(store: &store::Store) {
                 out.display(),
                 id
             ),
-            Ok(_) => "the service stopped while the job ran, before any frame of its capture arrived; queue it again".into(),
+            Ok(_) => "the service stopped while the job ran, before any frame of its capture could be labelled; queue it again".into(),
             Err(e) => format!(
                 "the service stopped while the job ran, and its frames in {} could not be recovered ({e:#}); queue it again",
                 out.display()

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::controller::{Controller, ControllerError, SequenceEvent, SequenceEvents};
 use crate::label::{FrameTime, StepTime};
-use crate::labeller::{Labelled, Labeller, SequenceSteps, Waiting};
+use crate::labeller::{Label, Labelled, Labeller, SequenceSteps, Waiting};
 
 /// A frame with the LED that lit it.
 pub struct Shot {
@@ -323,13 +323,9 @@ pub fn capture(
 /// again after a crash, whatever the labeller knew): replayed into a [`Labeller`] in
 /// the order told, they give the capture's own pairing.
 pub enum News<'a> {
-    /// The sequence is started: a [`Labeller`] for it takes this tolerance.
-    Started {
-        /// Steps in the sequence.
-        steps: usize,
-        /// See [`Labeller::new`].
-        tolerance_ns: u64,
-    },
+    /// The sequence is started: a [`Labeller`] for it takes this tolerance (see
+    /// [`Labeller::new`]).
+    Started { tolerance_ns: u64 },
     /// The controller reported a step: its trigger on the controller's clock, and
     /// when that was on the host's (ns since the sequence was started).
     Step {
@@ -425,18 +421,13 @@ pub fn capture_steps(
     let since_start = || start.elapsed().as_nanos() as i64;
     let mut labeller = Labeller::new(n, tolerance);
     on_news(News::Started {
-        steps: n,
         tolerance_ns: tolerance,
     });
     let mut waiting = None;
     let mut steps_told = 0;
-    // When each frame arrived and when its label was handed on (ns since `start`; by
-    // frame index), and how many were labelled before the sequence ended: the live
-    // figures.
-    let mut arrived_ns: Vec<i64> = vec![];
-    let mut labelled_ns: Vec<Option<i64>> = vec![];
+    // How many frames were labelled before the sequence ended: a live figure.
     let mut live = 0usize;
-    let mut received: Vec<(FrameHeader, Array2<u16>)> = vec![];
+    let mut received = Received::default();
     let mut ended = None;
     let mut last_frame = Instant::now();
     let idle_after_end = Duration::from_millis(1500) + Duration::from_nanos(period_ns * 4);
@@ -456,16 +447,7 @@ pub fn capture_steps(
             }
         }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
-            let at = since_start();
-            arrive(
-                f,
-                &mut labeller,
-                &mut received,
-                &mut arrived_ns,
-                &mut labelled_ns,
-                &mut on_news,
-                at,
-            );
+            received.arrive(f, since_start(), &mut labeller, &mut on_news);
             last_frame = Instant::now();
         }
         match next_event(&mut events, &mut labeller, since_start, &mut on_news) {
@@ -489,21 +471,14 @@ pub fn capture_steps(
             on_news(News::Labelling(waiting));
         }
         for l in &labels {
-            let (header, pixels) = &received[l.frame];
-            on_news(News::Labelled {
-                step: l.step,
-                index: l.frame,
-                header,
-                pixels: pixels.view(),
-            });
-            labelled_ns[l.frame] = Some(since_start());
+            received.label(l, since_start(), &mut on_news);
             live += usize::from(ended.is_none());
         }
         if !labels.is_empty() {
             // Time spent streaming is not the camera being idle.
             last_frame = Instant::now();
         }
-        let complete = received.len() >= n;
+        let complete = received.frames.len() >= n;
         // Frames still on their way are waited for; after a cancel only briefly (the
         // LEDs it lit last, a few periods), and not at all once a frame has come for
         // every step the controller finished and a period has passed without another:
@@ -514,7 +489,7 @@ pub fn capture_steps(
         };
         let all_in = ended.as_ref().is_some_and(|e| {
             aborted
-                && received.len() >= usize::from(e.completed)
+                && received.frames.len() >= usize::from(e.completed)
                 && last_frame.elapsed() > Duration::from_nanos(period_ns)
         });
         if ended.is_some() && (complete || all_in || last_frame.elapsed() > idle) {
@@ -524,16 +499,7 @@ pub fn capture_steps(
             // Frames already on their way still count.
             std::thread::sleep(Duration::from_millis(300));
             while let Ok(f) = drain.rx.try_recv() {
-                let at = since_start();
-                arrive(
-                    f,
-                    &mut labeller,
-                    &mut received,
-                    &mut arrived_ns,
-                    &mut labelled_ns,
-                    &mut on_news,
-                    at,
-                );
+                received.arrive(f, since_start(), &mut labeller, &mut on_news);
             }
             break;
         }
@@ -561,30 +527,25 @@ pub fn capture_steps(
         // as a dropped frame's are, and what earlier sequences took is kept.
         Some(problem) if aborted => tracing::warn!(
             "the {} frames of the sequence cut short could not be labelled ({problem}): their LEDs are left missing",
-            received.len()
+            received.frames.len()
         ),
         Some(problem) => bail!(
             "none of the {} frames could be labelled with its LED: {problem}; is the camera triggered by the controller's trigger-out, and its clock steady?",
-            received.len()
+            received.frames.len()
         ),
         None => {}
     }
     // Every labelled frame reaches the stream once: those not handed out while
     // acquiring go now, with their final label.
-    for l in late {
-        let (header, pixels) = &received[l.frame];
-        on_news(News::Labelled {
-            step: l.step,
-            index: l.frame,
-            header,
-            pixels: pixels.view(),
-        });
-        labelled_ns[l.frame] = Some(since_start());
+    for l in &late {
+        received.label(l, since_start(), &mut on_news);
     }
     // Arrival → label handed on, ms, over the frames the final pairing kept.
     let mut lags: Vec<f64> = matched
         .iter()
-        .filter_map(|&(_, fi)| Some(((*labelled_ns.get(fi)?)? - arrived_ns.get(fi)?) as f64 / 1e6))
+        .filter_map(|&(_, fi)| {
+            Some(((*received.labelled_ns.get(fi)?)? - received.arrived_ns.get(fi)?) as f64 / 1e6)
+        })
         .collect();
     lags.sort_by(f64::total_cmp);
     let quantile = |q: f64| match lags.len() {
@@ -594,7 +555,8 @@ pub fn capture_steps(
     let mut frames: Vec<Option<StepFrame>> = (0..n).map(|_| None).collect();
     for &(step, fi) in &matched {
         if let Some(slot) = frames.get_mut(step) {
-            *slot = Some((received[fi].0, std::mem::take(&mut received[fi].1)));
+            let (header, pixels) = &mut received.frames[fi];
+            *slot = Some((*header, std::mem::take(pixels)));
         }
     }
     let labelled = frames.iter().filter(|f| f.is_some()).count();
@@ -659,26 +621,49 @@ fn next_event(
     }
 }
 
-/// A frame taken off the camera: given to the labeller, told (before any label), kept.
-fn arrive(
-    (header, pixels): (FrameHeader, Array2<u16>),
-    labeller: &mut Labeller,
-    received: &mut Vec<(FrameHeader, Array2<u16>)>,
-    arrived_ns: &mut Vec<i64>,
-    labelled_ns: &mut Vec<Option<i64>>,
-    on_news: &mut impl FnMut(News<'_>),
-    at: i64,
-) {
-    let index = labeller.frame(frame_time(&header), at);
-    on_news(News::Arrived {
-        index,
-        arrived_ns: at,
-        header: &header,
-        pixels: pixels.view(),
-    });
-    arrived_ns.push(at);
-    labelled_ns.push(None);
-    received.push((header, pixels));
+/// The frames that arrived, by index (as the labeller names them): each frame, when it
+/// arrived and when its label was handed on (ns since the sequence was started: the
+/// live figures).
+#[derive(Default)]
+struct Received {
+    frames: Vec<StepFrame>,
+    arrived_ns: Vec<i64>,
+    labelled_ns: Vec<Option<i64>>,
+}
+
+impl Received {
+    /// A frame taken off the camera at `at`: given to the labeller, told (before any
+    /// label), kept.
+    fn arrive(
+        &mut self,
+        (header, pixels): StepFrame,
+        at: i64,
+        labeller: &mut Labeller,
+        on_news: &mut impl FnMut(News<'_>),
+    ) {
+        let index = labeller.frame(frame_time(&header), at);
+        on_news(News::Arrived {
+            index,
+            arrived_ns: at,
+            header: &header,
+            pixels: pixels.view(),
+        });
+        self.arrived_ns.push(at);
+        self.labelled_ns.push(None);
+        self.frames.push((header, pixels));
+    }
+
+    /// Label `l` handed on at `at`.
+    fn label(&mut self, l: &Label, at: i64, on_news: &mut impl FnMut(News<'_>)) {
+        let (header, pixels) = &self.frames[l.frame];
+        on_news(News::Labelled {
+            step: l.step,
+            index: l.frame,
+            header,
+            pixels: pixels.view(),
+        });
+        self.labelled_ns[l.frame] = Some(at);
+    }
 }
 
 /// What the pairing needs of a frame's header.

@@ -25,7 +25,7 @@ use fpm_protocol::LedIndex;
 use ndarray::ArrayView2;
 use serde::{Deserialize, Serialize};
 
-use crate::capture::ShotView;
+use crate::capture::{News, ShotView};
 use crate::label::{FrameTime, StepTime};
 use crate::labeller::Labeller;
 
@@ -126,27 +126,55 @@ impl Journal {
         let path = out.join(JOURNAL);
         std::fs::create_dir_all(out.join(ARRIVED))
             .with_context(|| format!("creating {}", out.join(ARRIVED).display()))?;
-        let mut file =
+        let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
-        let manifest = Box::new(Manifest {
-            frames: vec![],
-            ..manifest.clone()
-        });
-        let mut line = serde_json::to_string(&Line::Start { manifest })?;
-        line.push('\n');
-        file.write_all(line.as_bytes())
-            .with_context(|| format!("writing {}", path.display()))?;
-        Ok(Self {
+        let mut journal = Self {
             out: out.to_path_buf(),
             file,
             written: HashMap::new(),
             sequences: 0,
             waiting: HashMap::new(),
-        })
+        };
+        let manifest = Box::new(Manifest {
+            frames: vec![],
+            ..manifest.clone()
+        });
+        journal.line(&Line::Start { manifest })?;
+        Ok(journal)
+    }
+
+    /// What the capture of `leds` told, as it happened (see [`News`]): the sequence's
+    /// start, its step reports and its frames as they arrive, each label as it is
+    /// given.
+    pub fn record(&mut self, news: &News<'_>, leds: &[LedIndex]) -> Result<()> {
+        match *news {
+            News::Started { tolerance_ns } => self.sequence(leds, tolerance_ns),
+            News::Step { step, arrived_ns } => self.step(step, arrived_ns),
+            News::Arrived {
+                index,
+                arrived_ns,
+                header,
+                pixels,
+            } => self.arrived(index, arrived_ns, header, pixels),
+            News::Labelled {
+                step,
+                index,
+                header,
+                pixels,
+            } => {
+                let shot = ShotView {
+                    led: leds[step],
+                    header,
+                    pixels,
+                };
+                self.frame(&shot, Some(index))
+            }
+            News::Labelling(_) | News::Steps(_) => Ok(()),
+        }
     }
 
     /// A capture sequence lighting `leds` started, its labeller taking `tolerance_ns`.
-    pub fn sequence(&mut self, leds: &[LedIndex], tolerance_ns: u64) -> Result<()> {
+    fn sequence(&mut self, leds: &[LedIndex], tolerance_ns: u64) -> Result<()> {
         self.sequences += 1;
         self.waiting.clear();
         self.line(&Line::Sequence {
@@ -156,7 +184,7 @@ impl Journal {
     }
 
     /// The controller reported a step of the latest sequence.
-    pub fn step(&mut self, step: StepTime, arrived_ns: i64) -> Result<()> {
+    fn step(&mut self, step: StepTime, arrived_ns: i64) -> Result<()> {
         self.line(&Line::Step {
             step: step.step,
             trigger_ns: step.trigger_ns,
@@ -166,7 +194,7 @@ impl Journal {
 
     /// A frame of the latest sequence arrived (`index`: as the capture names it): its
     /// pixels written, then its line.
-    pub fn arrived(
+    fn arrived(
         &mut self,
         index: usize,
         arrived_ns: i64,
@@ -192,7 +220,7 @@ impl Journal {
     /// A frame of the capture labelled (`arrival`: its index in the latest sequence):
     /// the file it arrived in becomes its LED's (written now if it has none), then its
     /// line.
-    pub fn frame(&mut self, shot: &ShotView<'_>, arrival: Option<usize>) -> Result<()> {
+    fn frame(&mut self, shot: &ShotView<'_>, arrival: Option<usize>) -> Result<()> {
         let entry = entry_for(shot.led, shot.header.exposure_us);
         let path = self.out.join(&entry.file);
         let sum = match arrival.and_then(|k| self.waiting.remove(&k)) {

@@ -409,71 +409,35 @@ fn run(
                 if captures && journal.is_none() {
                     journal = start_journal(plan, &nominal, camera, &adopted);
                 }
-                // Journal trouble is an optional extra's: warned once, then the frames
-                // are written when the capture ends, as ever.
-                let keep = |journal: &mut Option<Journal>, written: Result<()>| {
-                    if let Err(e) = written {
-                        tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
-                        *journal = None;
-                    }
-                };
                 let mut on_news = |news: News<'_>| {
-                    let capturing = journal.as_mut().filter(|_| captures);
-                    let (step, index, header, pixels) = match news {
-                        News::Labelling(waiting) => {
-                            acq.handle(Event::Labelling(waiting));
-                            watch(&mut acq, &mut watcher);
-                            return;
+                    // Journal trouble is an optional extra's: warned once, then the
+                    // frames are written when the capture ends, as ever.
+                    if let Some(j) = journal.as_mut().filter(|_| captures) {
+                        if let Err(e) = j.record(&news, &leds) {
+                            tracing::warn!("frames are no longer written as they arrive ({e:#}); they are written when the capture ends");
+                            journal = None;
                         }
-                        News::Steps(steps) => {
-                            acq.handle(Event::Steps(steps));
-                            watch(&mut acq, &mut watcher);
-                            return;
-                        }
-                        News::Started { tolerance_ns, .. } => {
-                            if let Some(j) = capturing {
-                                let written = j.sequence(&leds, tolerance_ns);
-                                keep(&mut journal, written);
-                            }
-                            return;
-                        }
-                        News::Step { step, arrived_ns } => {
-                            if let Some(j) = capturing {
-                                let written = j.step(step, arrived_ns);
-                                keep(&mut journal, written);
-                            }
-                            return;
-                        }
-                        News::Arrived {
-                            index,
-                            arrived_ns,
-                            header,
-                            pixels,
-                        } => {
-                            if let Some(j) = capturing {
-                                let written = j.arrived(index, arrived_ns, header, pixels);
-                                keep(&mut journal, written);
-                            }
-                            return;
-                        }
+                    }
+                    match news {
+                        News::Labelling(waiting) => acq.handle(Event::Labelling(waiting)),
+                        News::Steps(steps) => acq.handle(Event::Steps(steps)),
                         News::Labelled {
                             step,
-                            index,
                             header,
                             pixels,
-                        } => (step, index, header, pixels),
-                    };
-                    let shot = ShotView {
-                        led: leds[step],
-                        header,
-                        pixels,
-                    };
-                    if let Some(j) = capturing {
-                        let written = j.frame(&shot, Some(index));
-                        keep(&mut journal, written);
+                            ..
+                        } => {
+                            let shot = ShotView {
+                                led: leds[step],
+                                header,
+                                pixels,
+                            };
+                            watcher.frame(&shot);
+                            acq.handle(Event::Frame(shot));
+                        }
+                        // The raw record: the journal's alone.
+                        News::Started { .. } | News::Step { .. } | News::Arrived { .. } => return,
                     }
-                    watcher.frame(&shot);
-                    acq.handle(Event::Frame(shot));
                     watch(&mut acq, &mut watcher);
                 };
                 let sequence = Sequence {

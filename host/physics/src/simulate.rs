@@ -384,6 +384,10 @@ pub struct Renderer {
     small: Fft2,
     buf: Vec<Complex32>,
     low: Vec<Complex32>,
+    /// The simulation grid's columns whose frequencies the camera grid holds (its low
+    /// half, then its high half, ascending): the only ones the forward transform
+    /// finishes, a quarter of them at 4× oversampling (37 % of that transform saved).
+    kept_cols: Vec<usize>,
 }
 
 impl Renderer {
@@ -396,6 +400,7 @@ impl Renderer {
             small: Fft2::new(m, m),
             buf: vec![Complex32::default(); object.n * object.n],
             low: vec![Complex32::default(); m * m],
+            kept_cols: camera_band(object.n, m),
         }
     }
 
@@ -436,7 +441,7 @@ impl Renderer {
         for r in 0..n {
             for c in 0..n {
                 let (x, y) = object.position(r, c);
-                let (s, co) = (reduced(chirp * (x * x + y * y)) as f32).sin_cos();
+                let (s, co) = sin_cos(chirp * (x * x + y * y));
                 self.buf[r * n + c] *= Complex32::new(co, s);
             }
         }
@@ -467,26 +472,40 @@ impl Renderer {
         let defocus_first = to_pupil != 0.0 && defocus_um != 0.0;
         // Spherical wave from the LED, phase relative to the field centre (f64, then
         // reduced: k·R is ~10⁶ rad).
-        for r in 0..n {
-            for c in 0..n {
-                let (x, y) = object.position(r, c);
-                let rr = if self.spherical {
-                    ((x - lx).powi(2) + (y - ly).powi(2) + h * h).sqrt() - r0
-                } else {
-                    (x * (-lx) + y * (-ly)) / r0
-                } + if defocus_first {
-                    0.0
-                } else {
-                    to_pupil * (x * x + y * y)
-                };
-                let (s, co) = (reduced(k * rr) as f32).sin_cos();
-                self.buf[r * n + c] = object.field[r * n + c] * Complex32::new(co, s);
+        // Row by row: the phases first, from integer indices, in a loop the compiler
+        // keeps in vector registers, then their sines and cosines (libm's). One loop
+        // with the libm call in it ran one pixel at a time: this is 30 % of a frame.
+        // The same sums in the same order as the plain loop: the same bits.
+        let (d, centre) = (object.pitch_um(), (n / 2) as f64);
+        let chirp = if defocus_first { 0.0 } else { to_pupil };
+        let mut phases = vec![0.0f64; n];
+        let rows = self
+            .buf
+            .chunks_exact_mut(n)
+            .zip(object.field.chunks_exact(n));
+        for (r, (row, field)) in rows.enumerate() {
+            let y = (r as f64 - centre) * d;
+            let (dy2, h2) = ((y - ly).powi(2), h * h);
+            if self.spherical {
+                for (c, p) in phases.iter_mut().enumerate() {
+                    let x = (c as u32 as f64 - centre) * d;
+                    *p = k * (((x - lx).powi(2) + dy2 + h2).sqrt() - r0 + chirp * (x * x + y * y));
+                }
+            } else {
+                for (c, p) in phases.iter_mut().enumerate() {
+                    let x = (c as u32 as f64 - centre) * d;
+                    *p = k * ((x * (-lx) + y * (-ly)) / r0 + chirp * (x * x + y * y));
+                }
+            }
+            for ((out, &f), &p) in row.iter_mut().zip(field).zip(&phases) {
+                let (s, co) = sin_cos(p);
+                *out = f * Complex32::new(co, s);
             }
         }
         if defocus_first {
             self.defocus_then_chirp(object, defocus_um, system.wavelength_um, k * to_pupil);
         }
-        self.big.forward(&mut self.buf);
+        self.big.forward_wanted_cols(&mut self.buf, &self.kept_cols);
         // Keep the frequencies the camera grid can hold; apply pupil and defocus there.
         let m = n / object.upsample;
         let d_cam = object.camera_pixel_um;
@@ -516,19 +535,24 @@ impl Renderer {
     }
 }
 
-/// `phase` brought within ±π (f64, before its sine and cosine): k·R is up to ~10⁶ rad.
-/// Rounding the turns off costs a multiply; `rem_euclid` is a software `fmod`, and with
-/// the sines it was most of a frame's rendering (the virtual camera's frame rate).
-/// Once within ±π the phase is exact enough in f32, whose sine and cosine (the field's
-/// own precision) cost half the f64 ones.
+/// The bins of an `n`-point transform that an `m`-point one holds, ascending: the
+/// simulation grid's bin of each camera bin `k` is `k` below `m / 2`, else `n - (m - k)`.
+fn camera_band(n: usize, m: usize) -> Vec<usize> {
+    (0..m / 2).chain(n - (m - m / 2)..n).collect()
+}
+
+/// The sine and cosine of `phase` (f64: k·R is up to ~10⁶ rad), in f32, the field's own
+/// precision: the phase is brought within ±π in f64 first, then f32's sine and cosine
+/// (half the cost of f64's) take it. Rounding the turns off costs a multiply:
+/// `rem_euclid` is a software `fmod`, and `round` a libm call on baseline x86-64;
+/// adding and taking away 1.5·2⁵² rounds to a whole number in two additions (exact
+/// below 2⁵¹ turns).
 #[inline]
-fn reduced(phase: f64) -> f64 {
+fn sin_cos(phase: f64) -> (f32, f32) {
     use std::f64::consts::TAU;
-    // Adding and taking away 1.5·2⁵² rounds to a whole number in two additions (exact
-    // below 2⁵¹ turns), where `round` is a libm call on baseline x86-64.
     const ROUND: f64 = 6_755_399_441_055_744.0;
     let turns = (phase * (1.0 / TAU) + ROUND) - ROUND;
-    phase - turns * TAU
+    ((phase - turns * TAU) as f32).sin_cos()
 }
 
 /// A camera's response and noise.

@@ -463,7 +463,16 @@ fn run(
                 }
                 Event::SequenceEnded(captured)
             }
-            Action::Finished(result) => return *result,
+            Action::Finished(result) => {
+                // A run that ended without a dataset of its own (no frame labelled: a
+                // cancel before the first) is over too: its journal has served.
+                if result.is_ok() {
+                    if let Some(j) = journal.take() {
+                        j.finish();
+                    }
+                }
+                return *result;
+            }
             write => {
                 write_out(write, dev, plan, &nominal, &mut journal)?;
                 Event::Done

@@ -209,24 +209,11 @@ fn clear_glass_variation(raw: &Array2<f32>, amplitude: &Array2<f32>, raw_pixel_u
     }
     let f = amplitude.dim().0 / raw.dim().0;
     let (h, w) = amplitude.dim();
-    let mut fine = Array2::from_shape_fn((h, w), |(r, c)| clear[[r / f, c / f]]);
+    let fine = Array2::from_shape_fn((h, w), |(r, c)| clear[[r / f, c / f]]);
     let ringing_px = (2.0 / (raw_pixel_um / f as f64)).round() as usize;
     // Outside the field counts as an edge: the field's own border holds the FFT's
     // wrap-around (a crop's two sides do not meet), not the sample's background.
-    for _ in 0..ringing_px {
-        let c = fine.clone();
-        for ((r, k), v) in fine.indexed_iter_mut() {
-            *v = c[[r, k]]
-                && r > 0
-                && c[[r - 1, k]]
-                && r + 1 < h
-                && c[[r + 1, k]]
-                && k > 0
-                && c[[r, k - 1]]
-                && k + 1 < w
-                && c[[r, k + 1]];
-        }
-    }
+    let fine = eroded(&fine, ringing_px);
     let is_clear = |r: usize, c: usize| fine[[r, c]];
     // Integral images of the clear pixels' amplitude and count.
     let mut sum = Array2::<f64>::zeros((h + 1, w + 1));
@@ -255,6 +242,67 @@ fn clear_glass_variation(raw: &Array2<f32>, amplitude: &Array2<f32>, raw_pixel_u
         .collect();
     let mean = ratios.iter().sum::<f64>() / ratios.len() as f64;
     (ratios.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / ratios.len() as f64).sqrt()
+}
+
+/// `mask` eroded `n` times by the 4-neighbour cross, outside the array counting as
+/// false: a pixel stays where no false pixel, nor the outside, lies within city-block
+/// distance `n`. Two passes of the city-block distance transform, where `n` passes of
+/// the cross over the 25-Mpixel grid of the ring-array test took a minute of one core
+/// (a unit test below checks the two agree).
+fn eroded(mask: &Array2<bool>, n: usize) -> Array2<bool> {
+    let (h, w) = mask.dim();
+    let mut d = vec![0u32; h * w];
+    for ((r, c), &v) in mask.indexed_iter() {
+        let i = r * w + c;
+        if v {
+            let up = if r > 0 { d[i - w] } else { 0 };
+            let left = if c > 0 { d[i - 1] } else { 0 };
+            d[i] = up.min(left) + 1;
+        }
+    }
+    for i in (0..h * w).rev() {
+        let (r, c) = (i / w, i % w);
+        if d[i] > 0 {
+            let down = if r + 1 < h { d[i + w] } else { 0 };
+            let right = if c + 1 < w { d[i + 1] } else { 0 };
+            d[i] = d[i].min(down.min(right) + 1);
+        }
+    }
+    Array2::from_shape_vec((h, w), d.into_iter().map(|v| v as usize > n).collect())
+        .expect("the mask's shape")
+}
+
+#[test]
+fn the_distance_transform_erodes_as_the_cross_does() {
+    let mut x = 12345u32;
+    for (h, w, n) in [(1, 1, 1), (7, 5, 1), (19, 23, 2), (40, 31, 5), (64, 64, 9)] {
+        for density in [60u32, 90, 99] {
+            let mask = Array2::from_shape_fn((h, w), |_| {
+                x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (x >> 8) % 100 < density
+            });
+            let mut crossed = mask.clone();
+            for _ in 0..n {
+                let c = crossed.clone();
+                for ((r, k), v) in crossed.indexed_iter_mut() {
+                    *v = c[[r, k]]
+                        && r > 0
+                        && c[[r - 1, k]]
+                        && r + 1 < h
+                        && c[[r + 1, k]]
+                        && k > 0
+                        && c[[r, k - 1]]
+                        && k + 1 < w
+                        && c[[r, k + 1]];
+                }
+            }
+            assert_eq!(
+                eroded(&mask, n),
+                crossed,
+                "{h}×{w}, {n} passes, {density} % true"
+            );
+        }
+    }
 }
 
 /// Dark-field frames of the real USAF set sit on backgrounds the dataset does not state

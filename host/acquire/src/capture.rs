@@ -362,6 +362,26 @@ pub enum News<'a> {
     Steps(SequenceSteps),
 }
 
+impl<'a> News<'a> {
+    /// A labelled frame as the shot of its LED, the sequence lighting `leds` (None for
+    /// the other news).
+    pub fn shot(&self, leds: &[LedIndex]) -> Option<ShotView<'a>> {
+        match *self {
+            News::Labelled {
+                step,
+                header,
+                pixels,
+                ..
+            } => Some(ShotView {
+                led: leds[step],
+                header,
+                pixels,
+            }),
+            _ => None,
+        }
+    }
+}
+
 /// A step's frame: the camera's header and the pixels.
 pub type StepFrame = (FrameHeader, Array2<u16>);
 

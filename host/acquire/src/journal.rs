@@ -156,19 +156,10 @@ impl Journal {
                 header,
                 pixels,
             } => self.arrived(index, arrived_ns, header, pixels),
-            News::Labelled {
-                step,
-                index,
-                header,
-                pixels,
-            } => {
-                let shot = ShotView {
-                    led: leds[step],
-                    header,
-                    pixels,
-                };
-                self.frame(&shot, Some(index))
-            }
+            News::Labelled { index, .. } => match news.shot(leds) {
+                Some(shot) => self.frame(&shot, Some(index)),
+                None => Ok(()),
+            },
             News::Labelling(_) | News::Steps(_) => Ok(()),
         }
     }

@@ -421,19 +421,11 @@ fn run(
                     match news {
                         News::Labelling(waiting) => acq.handle(Event::Labelling(waiting)),
                         News::Steps(steps) => acq.handle(Event::Steps(steps)),
-                        News::Labelled {
-                            step,
-                            header,
-                            pixels,
-                            ..
-                        } => {
-                            let shot = ShotView {
-                                led: leds[step],
-                                header,
-                                pixels,
-                            };
-                            watcher.frame(&shot);
-                            acq.handle(Event::Frame(shot));
+                        News::Labelled { .. } => {
+                            if let Some(shot) = news.shot(&leds) {
+                                watcher.frame(&shot);
+                                acq.handle(Event::Frame(shot));
+                            }
                         }
                         // The raw record: the journal's alone.
                         News::Started { .. } | News::Step { .. } | News::Arrived { .. } => return,

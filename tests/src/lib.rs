@@ -320,6 +320,22 @@ pub fn acquisition_report(out: &Path) -> serde_json::Value {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// A capture (`acquisition.json`'s `capture`) labelled at least half its frames while
+/// the controller's sequence still ran, and relabelled none at the end (issue 61: a
+/// labeller that waits for the sequence's end labels none of them live). For rigs whose
+/// camera keeps up with the steps: a camera that falls behind delivers most frames
+/// after the sequence has ended.
+pub fn assert_labelled_live(capture: &serde_json::Value) {
+    let labelled = capture["labelled"].as_u64().unwrap_or(0);
+    let live = capture["labelled_live"].as_u64().unwrap_or(0);
+    eprintln!(
+        "{live} of {labelled} frames labelled while the sequence ran; arrival → label p50 {} ms, p99 {} ms",
+        capture["label_lag_p50_ms"], capture["label_lag_p99_ms"]
+    );
+    assert!(labelled > 0 && 2 * live >= labelled, "{capture}");
+    assert_eq!(capture["relabelled"], 0, "{capture}");
+}
+
 /// The real data sets vendored in the repository (`data/`, each with its source and
 /// licence in its README).
 pub fn data_dir() -> PathBuf {

@@ -401,7 +401,7 @@ fn an_acquisition_with_the_fake_camera_labels_every_led() {
         "{report}"
     );
     assert_eq!(capture["ambiguous_frames"], 0, "{capture}");
-    assert_eq!(capture["relabelled"], 0, "{capture}");
+    fpm_tests::assert_labelled_live(capture);
     assert_eq!(report["frames_in_dataset"], 441);
     // What the camera applied, as it reported it, is in the acquisition's record.
     let settings = &report["camera_settings"];

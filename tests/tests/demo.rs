@@ -36,6 +36,9 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
     );
     assert!(text.contains("441/441 LEDs labelled"), "{text}");
     assert!(text.contains("missing 0, extra 0, ambiguous 0"), "{text}");
+    // The demo as it starts labels its frames as they arrive, and says so (issue 61).
+    let live = number_after(&text, "\nlabelling");
+    assert!(live >= 50.0, "{live} % labelled live: {text}");
     // The recovered array against the hidden one (rows: hidden, recovered).
     let truth: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("truth.json")).unwrap()).unwrap();
@@ -137,7 +140,8 @@ fn the_demo_runs_the_real_firmware_image() {
     let capture = &report["acquisition"]["capture"];
     assert_eq!(capture["labelled"], 441, "{capture}");
     assert_eq!(capture["requested"], 441);
-    assert_eq!(capture["relabelled"], 0);
+    // Paced to the wall clock, as a board is: labelled while the sequence runs.
+    fpm_tests::assert_labelled_live(capture);
     let calibrated = report["complex_nrmse"]["calibrated"].as_f64().unwrap();
     let nominal = report["complex_nrmse"]["nominal"].as_f64().unwrap();
     assert!(

@@ -1189,6 +1189,62 @@ fn the_default_service_labels_frames_all_through_the_capture() {
     );
 }
 
+/// Labelling is live at each step length and camera size the service is used with
+/// (issue 61): `fpm serve --virtual` as it starts (its 256² camera) running sequences of
+/// 15 ms and of 100 ms steps, and with `--virtual-size 1024` (a megapixel sensor, its
+/// frames rendered with the full wave-optics model on the same two cores) one of 40 ms
+/// steps. Each capture labels every LED, relabels none, and its frames wait for their
+/// labels a small part of the capture: a labeller that waited for the sequence's end
+/// (as this one did on the default rig) keeps the median frame waiting half of it.
+/// 60 LEDs a run: enough that the first 8, which wait to fit the camera's clock, are
+/// few, and short enough to run the three side by side.
+#[test]
+fn frames_are_labelled_as_they_arrive_at_every_step_and_camera_size() {
+    let dir = TempDir::new("serve-live-matrix");
+    let leds: Vec<[u8; 2]> = (0..60u8).map(|k| [k / 21 + 6, k % 21]).collect();
+    let run = |tag: &str, args: &[&str], steps_ms: &[f64]| -> Vec<serde_json::Value> {
+        let service =
+            VirtualService::start_with(fpm_bin(), &dir.0.join(tag), args, Stdio::inherit())
+                .unwrap();
+        steps_ms
+            .iter()
+            .map(|&step_ms| {
+                let out = dir.0.join(format!("{tag}-{step_ms}"));
+                let job = serde_json::json!({
+                    "kind": "sequence", "leds": leds, "out": out, "step_ms": step_ms,
+                });
+                let record = service
+                    .wait(service.submit(&job).unwrap(), Duration::from_secs(180))
+                    .unwrap();
+                assert_eq!(record["state"], "done", "{tag}, {step_ms} ms: {record}");
+                let capture = record["summary"]["capture"].clone();
+                eprintln!("{tag}, {step_ms} ms steps: {capture}");
+                capture
+            })
+            .collect()
+    };
+    let (default, megapixel) = std::thread::scope(|s| {
+        let default = s.spawn(|| run("default", &[], &[15.0, 100.0]));
+        let megapixel = s.spawn(|| run("1024", &["--virtual-size", "1024"], &[40.0]));
+        (default.join().unwrap(), megapixel.join().unwrap())
+    });
+    for capture in default.iter().chain(&megapixel) {
+        assert_eq!(capture["labelled"], leds.len(), "{capture}");
+        assert_eq!(capture["relabelled"], 0, "{capture}");
+        let seconds = capture["seconds"].as_f64().unwrap();
+        let lag_s = capture["label_lag_p50_ms"].as_f64().unwrap() / 1e3;
+        assert!(
+            lag_s <= 0.25 * seconds,
+            "frames waited {lag_s:.2} s on the median for their labels in a {seconds:.2} s capture: {capture}"
+        );
+    }
+    // The 256² camera keeps up with the steps: most frames are labelled before the
+    // sequence ends.
+    for capture in &default {
+        fpm_tests::assert_labelled_live(capture);
+    }
+}
+
 /// `fpm serve --virtual` as it starts, on the state directory `state`, with one acquire
 /// job with `reconstruct` into `out` submitted: the service, the event stream, the job.
 fn default_acquire_job(
@@ -1397,7 +1453,11 @@ fn the_virtual_rig_runs_on_the_real_firmware_image() {
         .wait(service.submit(&job).unwrap(), Duration::from_secs(120))
         .unwrap();
     assert_eq!(record["state"], "done", "{record}");
-    let seconds = record["summary"]["capture"]["seconds"].as_f64().unwrap();
+    let capture = &record["summary"]["capture"];
+    // Paced to the wall clock (a board cannot run ahead of it), the frames are labelled
+    // while the sequence runs.
+    fpm_tests::assert_labelled_live(capture);
+    let seconds = capture["seconds"].as_f64().unwrap();
     assert!(
         seconds >= 0.95 * 60.0 * 0.050,
         "60 steps of 50 ms captured in {seconds:.2} s"

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use clap::Args;
 use fpm_physics::background::Correction;
-use fpm_physics::reconstruct::{GammaScan, Refine, Settings};
+use fpm_physics::reconstruct::{defaults, GammaScan, Refine, Settings};
 
 use fpm_host::dataset::image_io::TiffOptions;
 use fpm_host::reconstruction::{
@@ -92,10 +92,10 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "UM|auto", allow_hyphen_values = true, value_parser = refocus)]
     refocus_um: Option<Refocus>,
     /// HR pixels per camera pixel.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = defaults::UPSAMPLE)]
     upsample: usize,
     /// Passes over all frames.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = defaults::PASSES)]
     passes: usize,
     /// Object step size α (1 = the full ePIE step).
     #[arg(long, default_value_t = Settings::default().alpha)]
@@ -123,7 +123,7 @@ pub struct ReconstructArgs {
     background: BackgroundArg,
     /// With `--background per-frame`: the floor, in standard deviations of the
     /// dark-field frame's background noise (0: only the level is taken off).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = defaults::FLOOR_SIGMA)]
     floor_sigma: f32,
     /// With `--background per-frame`: how the floor treats the light near it. soft
     /// (default): light v counts as v·(v²/(v² + floor²))², so noise barely counts and
@@ -135,7 +135,7 @@ pub struct ReconstructArgs {
     /// deviations of that noise. Where the model's light lies within it of a measured
     /// pixel the model keeps it, so such frames' noise is not pressed into the object
     /// (docs/results.md, "Noise band"). 0: every pixel imposed exactly
-    #[arg(long, default_value_t = fpm_physics::reconstruct::NOISE_BAND_SIGMA)]
+    #[arg(long, default_value_t = defaults::NOISE_BAND_SIGMA)]
     noise_band_sigma: f32,
     /// Refine each LED's position inside the passes, from the second pass on: for
     /// boards with LEDs off their grid or mounted at a tilt. Each frame's place is

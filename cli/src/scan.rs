@@ -141,7 +141,7 @@ pub struct StitchArgs {
     #[arg(long, default_value_t = 2)]
     pub upsample: usize,
     /// Passes over all frames, each field.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = fpm_physics::reconstruct::defaults::PASSES)]
     pub passes: usize,
     #[command(flatten)]
     pub flatten: FlattenArgs,

@@ -8,6 +8,10 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+RECONSTRUCT_DEFAULTS: dict[str, int | float]
+"""The reconstruction's defaults (upsample, passes, floor_sigma, noise_band_sigma)."""
+RECONSTRUCT_LIMITS: dict[str, tuple[int, int]]
+"""Inclusive ranges of upsample, passes and tile (camera pixels)."""
 
 Led = Tuple[int, int]
 Progress = Callable[[int, int], Any]

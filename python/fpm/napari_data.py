@@ -188,12 +188,15 @@ class ReconstructWidget(QWidget):
         row = QHBoxLayout()
         row.addWidget(self.dataset)
         row.addWidget(browse)
+        # The library's ranges and defaults (what `fpm reconstruct` takes).
+        from . import RECONSTRUCT_DEFAULTS, RECONSTRUCT_LIMITS
+
         self.passes = QSpinBox()
-        self.passes.setRange(1, 100)
-        self.passes.setValue(10)
+        self.passes.setRange(*RECONSTRUCT_LIMITS["passes"])
+        self.passes.setValue(RECONSTRUCT_DEFAULTS["passes"])
         self.upsample = QSpinBox()
-        self.upsample.setRange(1, 8)
-        self.upsample.setValue(4)
+        self.upsample.setRange(*RECONSTRUCT_LIMITS["upsample"])
+        self.upsample.setValue(RECONSTRUCT_DEFAULTS["upsample"])
         self.run = QPushButton("Reconstruct")
         self.run.clicked.connect(self.start)
         self.progress = QProgressBar()

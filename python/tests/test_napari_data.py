@@ -108,6 +108,17 @@ def test_the_widget_reconstructs_shows_and_saves_and_the_result_opens_again(
     assert len(layers) == 4  # and the pupil's amplitude and phase
 
 
+def test_the_widget_offers_the_librarys_ranges_and_defaults(qtbot, tmp_path):
+    """The widget's passes and upsample start at the library's defaults and reach its
+    limits (it once allowed upsample 1-8 where `fpm reconstruct` takes 1-64)."""
+    widget = ReconstructWidget(ViewerModel(), dataset=tmp_path)
+    qtbot.addWidget(widget)
+    for name in ("passes", "upsample"):
+        box = getattr(widget, name)
+        assert (box.minimum(), box.maximum()) == fpm.RECONSTRUCT_LIMITS[name], name
+        assert box.value() == fpm.RECONSTRUCT_DEFAULTS[name], name
+
+
 def test_a_folder_that_is_not_a_dataset_is_said_in_the_widget(qtbot, tmp_path):
     widget = ReconstructWidget(ViewerModel(), dataset=tmp_path)
     qtbot.addWidget(widget)

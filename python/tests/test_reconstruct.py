@@ -195,6 +195,30 @@ def test_bad_arguments_are_refused(usaf):
         fpm.reconstruct(usaf, refocus_um=float("nan"))
 
 
+def test_the_defaults_are_the_librarys_and_its_limits_are_enforced(usaf):
+    """`reconstruct` and `Streaming` default as the library (and `fpm reconstruct`)
+    does, and the limits it exports are the ones its checks refuse beyond."""
+    import inspect
+
+    defaults = fpm.RECONSTRUCT_DEFAULTS
+    checked = 0
+    for function in (fpm.reconstruct, fpm.Streaming):
+        parameters = inspect.signature(function).parameters
+        for name, value in defaults.items():
+            if name in parameters:
+                assert parameters[name].default == value, (function, name)
+                checked += 1
+    # reconstruct's four and Streaming's three (it has no passes).
+    assert checked == 7, checked
+    low, high = fpm.RECONSTRUCT_LIMITS["upsample"]
+    for bad in (low - 1, high + 1):
+        with pytest.raises(ValueError, match=f"upsample {bad}: must be {low}-{high}"):
+            fpm.reconstruct(usaf, upsample=bad)
+    low, high = fpm.RECONSTRUCT_LIMITS["passes"]
+    with pytest.raises(ValueError, match=f"passes {high + 1}: must be {low}-{high}"):
+        fpm.reconstruct(usaf, passes=high + 1)
+
+
 def test_ome_zarr_pyramid_opens_with_zarr(usaf, tmp_path):
     import zarr
 

@@ -137,7 +137,7 @@ impl Default for Job {
             camera_gamma: None,
             settings: Settings::default(),
             refocus: Refocus::default(),
-            passes: 10,
+            passes: fpm_physics::reconstruct::defaults::PASSES,
             tile: None,
             frame_memory_gb: 8.0,
         }

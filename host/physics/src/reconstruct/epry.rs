@@ -75,12 +75,12 @@ pub struct Settings {
 impl Default for Settings {
     fn default() -> Self {
         Self {
-            upsample: 4,
+            upsample: defaults::UPSAMPLE,
             alpha: 0.5,
             beta: 0.5,
             update_pupil: true,
             background: Correction::PerFrame {
-                floor_sigma: 3.0,
+                floor_sigma: defaults::FLOOR_SIGMA,
                 soft: true,
                 band_sigma: NOISE_BAND_SIGMA,
             },
@@ -99,6 +99,21 @@ impl Default for Settings {
 /// glass a little cleaner (1.16× → 1.12×) and the 12-bit sets as they were
 /// (docs/results.md, "Noise band"). The gamma scan compares its candidates without it.
 pub const NOISE_BAND_SIGMA: f32 = 7.5;
+
+/// The defaults of a reconstruction, in one place: the CLI's flags, the service's
+/// requests, the Python functions and the napari widget take theirs from here (Python's
+/// signatures spell them out for `help()`, checked against these when compiled).
+pub mod defaults {
+    /// HR pixels per camera pixel: enough for the synthetic apertures of the usual
+    /// arrays (an NA of illumination up to about 3× the objective's).
+    pub const UPSAMPLE: usize = 4;
+    /// Passes over all frames of an offline run.
+    pub const PASSES: usize = 10;
+    /// The per-frame floor, in standard deviations of a dark-field frame's background
+    /// noise ([`super::Correction::PerFrame`]).
+    pub const FLOOR_SIGMA: f32 = 3.0;
+    pub use super::NOISE_BAND_SIGMA;
+}
 
 /// The ranges a reconstruction's settings must be in (a job's, a stream's, an
 /// acquisition's): beyond them a run is refused up front, naming the setting.

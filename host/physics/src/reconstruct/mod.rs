@@ -24,7 +24,7 @@ pub mod tiled;
 
 pub use contrast::{ContrastFit, ContrastSums};
 pub use epry::{
-    amplitude, complex_nrmse, limits, remove_illumination_curvature, Epry, Settings,
+    amplitude, complex_nrmse, defaults, limits, remove_illumination_curvature, Epry, Settings,
     NOISE_BAND_SIGMA,
 };
 pub use flatten::{flatten_background_phase, Flatten, Flattening};

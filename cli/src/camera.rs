@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 
 /// Cameras.
@@ -48,7 +48,21 @@ pub fn run(cmd: CameraCommand) -> Result<()> {
             Ok(())
         }
         CameraCommand::Run(args) => {
-            let summary = fpm_camera::run::run(args.options())?;
+            fpm_rig_bus::stop::install().context("installing signal handlers")?;
+            let mut rig = match &args.rig {
+                Some(name) => Some(RigPulses(
+                    fpm_rig_bus::RigListener::create(name)
+                        .with_context(|| format!("listening to the virtual rig {name}"))?,
+                )),
+                None => None,
+            };
+            let hooks = fpm_camera::run::Hooks {
+                pulses: rig
+                    .as_mut()
+                    .map(|r| r as &mut dyn fpm_camera::run::TriggerPulses),
+                stop: &fpm_rig_bus::stop::requested,
+            };
+            let summary = fpm_camera::run::run(args.options(), hooks)?;
             tracing::info!(
                 "camera stopped: {} frames published, {} incomplete, {} software triggers",
                 summary.published,
@@ -126,6 +140,15 @@ fn parse_roi(s: &str) -> Result<[i32; 4], String> {
         .collect::<Result<_, _>>()
         .map_err(|e| format!("{s}: {e} (expected X,Y,WIDTH,HEIGHT)"))?;
     <[i32; 4]>::try_from(v).map_err(|_| format!("{s}: expected X,Y,WIDTH,HEIGHT"))
+}
+
+/// A virtual rig's trigger-out pulses, each a software trigger (`--rig`).
+struct RigPulses(fpm_rig_bus::RigListener);
+
+impl fpm_camera::run::TriggerPulses for RigPulses {
+    fn take(&mut self) -> Result<bool> {
+        Ok(self.0.next_pulse(std::time::Duration::ZERO)?.is_some())
+    }
 }
 
 impl RunArgs {

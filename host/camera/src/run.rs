@@ -124,9 +124,30 @@ fn cpu_seconds() -> Option<f64> {
     Some((utime + stime) / 100.0)
 }
 
-/// Run until SIGINT/SIGTERM, `--frames`, or the camera is lost (an error).
-pub fn run(args: RunOptions) -> Result<RunSummary> {
-    fpm_rig_bus::stop::install().context("installing signal handlers")?;
+/// Pulses that each fire one software trigger: a stand-in for the trigger cable (a
+/// virtual rig's trigger-out). The caller wires them, so the driver knows nothing of
+/// where they come from.
+pub trait TriggerPulses {
+    /// Whether a pulse is waiting now (taken: each `true` fires one trigger).
+    fn take(&mut self) -> Result<bool>;
+}
+
+/// What drives a run from outside the driver.
+pub struct Hooks<'a> {
+    /// With [`RunOptions::rig`]: the pulses to trigger on.
+    pub pulses: Option<&'a mut dyn TriggerPulses>,
+    /// Polled between frames: true ends the run (a signal, say).
+    pub stop: &'a dyn Fn() -> bool,
+}
+
+/// Run until `hooks.stop`, `--frames`, or the camera is lost (an error).
+pub fn run(args: RunOptions, hooks: Hooks<'_>) -> Result<RunSummary> {
+    if args.rig.is_some() != hooks.pulses.is_some() {
+        bail!(
+            "camera {}: software triggers from a rig need its pulses, and only then",
+            args.aravis
+        );
+    }
     let settings = args.settings()?;
     let aravis = Aravis::load()?;
     let camera = aravis.open(&args.aravis)?;
@@ -188,13 +209,6 @@ pub fn run(args: RunOptions) -> Result<RunSummary> {
     for _ in 0..args.buffers.max(2) {
         stream.push(stream.new_buffer(payload)?);
     }
-    let mut rig = match &args.rig {
-        Some(name) => Some(
-            fpm_rig_bus::RigListener::create(name)
-                .with_context(|| format!("listening to the virtual rig {name}"))?,
-        ),
-        None => None,
-    };
     camera.start()?;
     let cpu_at_start = cpu_seconds();
     tracing::info!(
@@ -208,7 +222,7 @@ pub fn run(args: RunOptions) -> Result<RunSummary> {
         publisher: &publisher,
         settings: &settings_channel,
     };
-    let result = stream_frames(&args, channel, &ends, rig.as_mut(), &applied);
+    let result = stream_frames(&args, channel, &ends, hooks, &applied);
     let stats = stream.stats();
     if let Err(e) = camera.stop() {
         tracing::debug!("stopping the acquisition: {e}");
@@ -295,9 +309,10 @@ fn stream_frames(
     args: &RunOptions,
     channel: Option<Channel>,
     ends: &Ends<'_>,
-    mut rig: Option<&mut fpm_rig_bus::RigListener>,
+    hooks: Hooks<'_>,
     applied: &AppliedSettings,
 ) -> Result<RunSummary> {
+    let Hooks { mut pulses, stop } = hooks;
     let Ends {
         camera,
         stream,
@@ -315,18 +330,18 @@ fn stream_frames(
     let lost_after = Duration::from_secs_f64(args.lost_after_s.max(0.5));
     let mut last_sign_of_life = Instant::now();
     let mut last_stats = Instant::now();
-    let poll = if rig.is_some() {
+    let poll = if pulses.is_some() {
         Duration::from_millis(1)
     } else {
         Duration::from_millis(20)
     };
-    while !fpm_rig_bus::stop::requested() {
+    while !stop() {
         if args.frames.is_some_and(|n| summary.published >= n) {
             break;
         }
         settings_channel.serve();
-        if let Some(rig) = rig.as_deref_mut() {
-            while rig.next_pulse(Duration::ZERO)?.is_some() {
+        if let Some(pulses) = pulses.as_deref_mut() {
+            while pulses.take()? {
                 camera
                     .software_trigger()
                     .with_context(|| format!("camera {} is gone", args.aravis))?;

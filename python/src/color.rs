@@ -14,7 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::convert::{failed, to_py, Progress};
-use crate::reconstruct::Reconstruction;
+use crate::result::{output_options, Reconstruction};
 
 /// A colour reconstruction: each channel reconstructed with its own wavelength, LEDs
 /// and pupil, then registered to the reference channel.
@@ -118,7 +118,7 @@ impl ColorResult {
     /// report.json, and each channel's own outputs in `dir/<name>/`.
     #[pyo3(signature = (dir, *, format = "tiff", compress = false))]
     fn save(&self, py: Python<'_>, dir: PathBuf, format: &str, compress: bool) -> PyResult<()> {
-        let options = crate::reconstruct::output_options(format, compress)?;
+        let options = output_options(format, compress)?;
         py.detach(|| -> anyhow::Result<()> {
             for c in &self.inner.channels {
                 let out = dir.join(&c.name);

@@ -13,6 +13,7 @@ mod convert;
 mod dataset;
 mod dpc;
 mod reconstruct;
+mod result;
 mod simulate;
 mod streaming;
 
@@ -56,7 +57,7 @@ fn _fpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     add_reconstruct_settings(m)?;
     m.add_class::<dataset::Dataset>()?;
     m.add_class::<calibrate::Calibration>()?;
-    m.add_class::<reconstruct::Reconstruction>()?;
+    m.add_class::<result::Reconstruction>()?;
     m.add_class::<color::ColorResult>()?;
     m.add_class::<streaming::Streaming>()?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;

@@ -15,7 +15,8 @@ use pyo3::prelude::*;
 
 use crate::convert::{from_py, system_from_py, FpmError, Progress};
 use crate::dataset::pixels;
-use crate::reconstruct::{settings, Reconstruction};
+use crate::reconstruct::settings;
+use crate::result::Reconstruction;
 
 /// A frame kept for the finish: its LED, counts and exposure.
 struct Kept {

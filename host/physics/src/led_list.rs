@@ -11,7 +11,9 @@ use std::sync::Mutex;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::optics::LedIndex;
+// The protocol's type itself (optics re-exports it): taken from optics, the two modules
+// imported each other.
+use fpm_protocol::LedIndex;
 
 /// One LED of a list: its id (what frames name it by) and its place in the array's own
 /// frame, mm (x, y in the board's plane; z along its normal, + away from the sample).

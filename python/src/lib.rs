@@ -18,8 +18,9 @@ mod simulate;
 mod streaming;
 
 /// The reconstruction's defaults as Python's signatures state them (`upsample = 4`, …,
-/// in reconstruct.rs and streaming.rs), held to the library's: a default changed there
-/// and not here fails the build.
+/// in reconstruct.rs and streaming.rs): a default changed in the library fails this
+/// build until the signatures follow. That the signatures say these numbers is checked
+/// by pytest (test_the_defaults_are_the_librarys_and_its_limits_are_enforced).
 const _: () = {
     use fpm_physics::reconstruct::defaults;
     assert!(defaults::UPSAMPLE == 4);

@@ -148,8 +148,8 @@ pub(crate) fn settings(
 /// or of one calibration for every channel, which the result warns of).
 /// Raises FpmError when it cannot run.
 #[pyfunction]
-// The defaults are spelled out for `help()` (PyO3 shows a constant as `...`); the
-// library's, which they must be, are checked when this compiles.
+// The defaults are spelled out for `help()` (PyO3 shows a constant as `...`): a change
+// of the library's fails the build (lib.rs), and pytest checks these against it.
 #[pyo3(signature = (dataset, *, geometry = None, upsample = 4, passes = 10, tile = None, refine_leds = false, fixed_pupil = false, background = "per-frame", floor = "soft", floor_sigma = 3.0, noise_band_sigma = 7.5, flatten_background = false, background_block_um = None, entrance_pupil_mm = None, refocus_um = None, progress = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one parameter each
 pub fn reconstruct(

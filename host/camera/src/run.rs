@@ -144,8 +144,9 @@ pub struct Hooks<'a> {
 pub fn run(args: RunOptions, hooks: Hooks<'_>) -> Result<RunSummary> {
     if args.rig.is_some() != hooks.pulses.is_some() {
         bail!(
-            "camera {}: software triggers from a rig need its pulses, and only then",
-            args.aravis
+            "camera {}: RunOptions::rig ({:?}) and Hooks::pulses go together: the rig's name sets the trigger to Software, its pulses fire it",
+            args.aravis,
+            args.rig
         );
     }
     let settings = args.settings()?;

@@ -102,7 +102,8 @@ pub const NOISE_BAND_SIGMA: f32 = 7.5;
 
 /// The defaults of a reconstruction, in one place: the CLI's flags, the service's
 /// requests, the Python functions and the napari widget take theirs from here (Python's
-/// signatures spell them out for `help()`, checked against these when compiled).
+/// signatures spell them out for `help()`: a change here fails the Python crate's build
+/// until they follow, and its tests compare the two).
 pub mod defaults {
     /// HR pixels per camera pixel: enough for the synthetic apertures of the usual
     /// arrays (an NA of illumination up to about 3× the objective's).

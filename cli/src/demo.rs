@@ -161,9 +161,13 @@ fn print_result(r: &DemoReport) {
         println!("streaming EPRY  {us:.0} µs per frame as it arrived; last frame → final image {ms:.0} ms");
     }
     // How live the labelling was: a frame is streamed only once it is labelled.
+    // Both shares: of all frames, and of those that had arrived (the camera's lateness
+    // against the labeller's).
     println!(
-        "labelling       {:.0} % of the frames labelled while the sequence ran; frame → label {:.0} ms median, {:.0} ms p99",
+        "labelling       {:.0} % of the frames labelled while the sequence ran ({:.0} % of the {} that had arrived); frame → label {:.0} ms median, {:.0} ms p99",
         100.0 * c.labelled_live as f64 / c.labelled.max(1) as f64,
+        100.0 * c.labelled_live as f64 / c.arrived_live.max(1) as f64,
+        c.arrived_live,
         c.label_lag_p50_ms,
         c.label_lag_p99_ms
     );

@@ -320,19 +320,23 @@ pub fn acquisition_report(out: &Path) -> serde_json::Value {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// A capture (`acquisition.json`'s `capture`) labelled at least half its frames while
-/// the controller's sequence still ran, and relabelled none at the end (issue 61: a
-/// labeller that waits for the sequence's end labels none of them live). For rigs whose
-/// camera keeps up with the steps: a camera that falls behind delivers most frames
-/// after the sequence has ended.
+/// A capture (`acquisition.json`'s `capture`) labelled its frames as they arrived:
+/// at least three quarters of those that came while the controller's sequence still
+/// ran were labelled before it ended (a labeller that waits for the sequence's end
+/// labels none of them live, issue 61), at least 8 came then (enough to anchor the
+/// clocks: a check on fewer proves nothing), and none was relabelled at the end.
+/// Judged against the frames that had arrived, not against all of them: a camera that
+/// falls behind its triggers on a loaded machine delivers the rest after the end,
+/// however quick the labeller, and that is the camera's lateness, reported as such.
 pub fn assert_labelled_live(capture: &serde_json::Value) {
     let labelled = capture["labelled"].as_u64().unwrap_or(0);
     let live = capture["labelled_live"].as_u64().unwrap_or(0);
+    let arrived = capture["arrived_live"].as_u64().unwrap_or(0);
     eprintln!(
-        "{live} of {labelled} frames labelled while the sequence ran; arrival → label p50 {} ms, p99 {} ms",
+        "{live} of {labelled} frames labelled while the sequence ran, {arrived} arrived then; arrival → label p50 {} ms, p99 {} ms",
         capture["label_lag_p50_ms"], capture["label_lag_p99_ms"]
     );
-    assert!(labelled > 0 && 2 * live >= labelled, "{capture}");
+    assert!(arrived >= 8 && 4 * live >= 3 * arrived, "{capture}");
     assert_eq!(capture["relabelled"], 0, "{capture}");
 }
 

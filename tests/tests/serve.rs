@@ -1238,8 +1238,11 @@ fn frames_are_labelled_as_they_arrive_at_every_step_and_camera_size() {
             "frames waited {lag_s:.2} s on the median for their labels in a {seconds:.2} s capture: {capture}"
         );
     }
-    // The 256² camera keeps up with the steps: most frames are labelled before the
-    // sequence ends.
+    // The 256² camera delivers most frames while the sequence runs (all of them on an
+    // idle machine; fewer beside the megapixel service on a loaded CI machine), and
+    // those are labelled as they come. The megapixel camera falls so far behind its
+    // triggers that too few frames arrive before the end to judge; its median lag
+    // above is its check.
     for capture in &default {
         fpm_tests::assert_labelled_live(capture);
     }

@@ -113,6 +113,10 @@ pub struct CaptureReport {
     /// Frames labelled while the controller's sequence still ran, as they arrived (the
     /// rest waited for the final pairing).
     pub labelled_live: usize,
+    /// Frames that arrived while the controller's sequence still ran: the most that
+    /// could be labelled live (a camera that falls behind its triggers delivers the
+    /// rest after the end, however quick the labeller).
+    pub arrived_live: usize,
     /// A frame's arrival to its label being handed on, ms: the median over the
     /// labelled frames (those the final pairing labelled too).
     pub label_lag_p50_ms: f64,
@@ -148,6 +152,7 @@ impl CaptureReport {
         self.relabelled += later.relabelled;
         self.sequences += later.sequences;
         self.labelled_live += later.labelled_live;
+        self.arrived_live += later.arrived_live;
         // The worse sequence's (the two are not pooled).
         self.label_lag_p50_ms = self.label_lag_p50_ms.max(later.label_lag_p50_ms);
         self.label_lag_p99_ms = self.label_lag_p99_ms.max(later.label_lag_p99_ms);
@@ -447,6 +452,7 @@ pub fn capture_steps(
     let mut steps_told = 0;
     // How many frames were labelled before the sequence ended: a live figure.
     let mut live = 0usize;
+    let mut arrived_live = 0usize;
     let mut received = Received::default();
     let mut ended = None;
     let mut last_frame = Instant::now();
@@ -468,6 +474,7 @@ pub fn capture_steps(
         }
         while let Ok(f) = drain.rx.recv_timeout(Duration::from_millis(1)) {
             received.arrive(f, since_start(), &mut labeller, &mut on_news);
+            arrived_live += usize::from(ended.is_none());
             last_frame = Instant::now();
         }
         match next_event(&mut events, &mut labeller, since_start, &mut on_news) {
@@ -602,6 +609,7 @@ pub fn capture_steps(
         failed: failure.is_some(),
         sequences: 1,
         labelled_live: live.min(labelled),
+        arrived_live,
         label_lag_p50_ms: quantile(0.5),
         label_lag_p99_ms: quantile(0.99),
         leds_off_at,

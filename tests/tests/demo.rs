@@ -39,7 +39,10 @@ fn the_demo_calibrates_acquires_and_reconstructs() {
     // The demo as it starts labels its frames as they arrive, and says so (issue 61):
     // judged on the frames that had arrived while the sequence ran.
     let live = number_after(&text, "labelled while the sequence ran (");
-    assert!(live >= 75.0, "{live} % of the arrived frames labelled live: {text}");
+    assert!(
+        live >= 75.0,
+        "{live} % of the arrived frames labelled live: {text}"
+    );
     let capture = &fpm_tests::acquisition_report(&out)["capture"];
     fpm_tests::assert_labelled_live(capture);
     // The recovered array against the hidden one (rows: hidden, recovered).

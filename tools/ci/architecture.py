@@ -10,6 +10,10 @@
   a module; its `crate::`, `super::` and `self::` paths outside comments and test
   modules are its imports). The one circle left is listed in KNOWN_CIRCLES with the
   issue that removes it; a new one fails.
+- No function in the product's code (tests, benches and examples aside) is longer than
+  80 lines, but those listed in tools/ci/long-functions.txt: tables and declarations
+  that say so, and functions still to be split, each at its length today (a listed
+  function may shrink, and its entry then goes; it may not grow).
 
 Reads `cargo metadata`, so the dependencies are the ones cargo resolves, whatever the
 manifests' spelling. Exits 1 listing every breach.
@@ -20,6 +24,9 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+
+# The longest a function may be, lines from `fn` to its closing brace.
+MAX_FUNCTION_LINES = 80
 
 # Circles being taken apart, by crate: remove an entry when its circle is gone.
 KNOWN_CIRCLES = {
@@ -97,6 +104,163 @@ def circles(src: Path) -> list:
     return found
 
 
+def blank(text: str) -> str:
+    """Rust source with comments, strings and char literals blanked to spaces (newlines
+    kept, so line numbers hold): braces left are the code's own."""
+    out = list(text)
+    n = len(text)
+    i = 0
+    def clear(a, b):
+        for k in range(a, b):
+            if out[k] != "\n":
+                out[k] = " "
+    while i < n:
+        c = text[i]
+        if text.startswith("//", i):
+            j = text.find("\n", i)
+            j = n if j < 0 else j
+            clear(i, j)
+            i = j
+        elif text.startswith("/*", i):
+            depth, j = 1, i + 2
+            while j < n and depth:
+                if text.startswith("/*", j):
+                    depth, j = depth + 1, j + 2
+                elif text.startswith("*/", j):
+                    depth, j = depth - 1, j + 2
+                else:
+                    j += 1
+            clear(i, j)
+            i = j
+        elif (m := re.compile(r'b?r(#*)"').match(text, i)) and (i == 0 or not (text[i-1].isalnum() or text[i-1] == "_")):
+            end = '"' + m.group(1)
+            j = text.find(end, m.end())
+            j = n if j < 0 else j + len(end)
+            clear(m.end(), j - len(end))
+            i = j
+        elif c == '"':
+            j = i + 1
+            while j < n and text[j] != '"':
+                j += 2 if text[j] == "\\" else 1
+            clear(i + 1, j)
+            i = j + 1
+        elif c == "'":
+            if text.startswith("\\", i + 1):
+                j = text.find("'", i + 2)
+                clear(i + 1, j)
+                i = j + 1
+            elif i + 2 < n and text[i + 2] == "'":
+                clear(i + 1, i + 2)
+                i += 3
+            else:
+                i += 1
+        else:
+            i += 1
+    return "".join(out)
+
+def test_modules_removed(text: str) -> str:
+    """`#[cfg(test)] mod … { … }` blanked (brace-matched)."""
+    out = list(text)
+    for m in re.finditer(r"#\[cfg\(test\)\]\s*(pub\s+)?mod\s+\w+\s*\{", text):
+        depth, j = 1, m.end()
+        while j < len(text) and depth:
+            depth += {"{": 1, "}": -1}.get(text[j], 0)
+            j += 1
+        for k in range(m.start(), j):
+            if out[k] != "\n":
+                out[k] = " "
+    return "".join(out)
+
+def functions(text: str):
+    """(name, first line, lines) of every fn with a body."""
+    code = test_modules_removed(blank(text))
+    for m in re.finditer(r"\bfn\s+(\w+)", code):
+        j, depth = m.end(), 0
+        while j < len(code):
+            ch = code[j]
+            if ch in "([<":
+                depth += 1
+            elif ch in ")]>":
+                depth -= 1 if code[j-1] != "-" else 0
+            elif ch == ";" and depth <= 0:
+                j = -1
+                break
+            elif ch == "{" and depth <= 0:
+                break
+            j += 1
+        if j < 0 or j >= len(code):
+            continue
+        start, braces = j, 0
+        while j < len(code):
+            braces += {"{": 1, "}": -1}.get(code[j], 0)
+            j += 1
+            if braces == 0:
+                break
+        first = code.count("\n", 0, m.start()) + 1
+        last = code.count("\n", 0, j) + 1
+        yield m.group(1), first, last - first + 1
+
+
+def long_functions(root: Path) -> dict:
+    """Every function over MAX_FUNCTION_LINES in tracked sources outside tests,
+    benches, examples and fuzz targets: {(path, name): lines} (the longest of a name
+    in a file)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "*.rs"], cwd=root, check=True, capture_output=True, text=True
+    ).stdout.split()
+    found = {}
+    for name in listed:
+        path = Path(name)
+        if {"tests", "benches", "examples", "fuzz"} & set(path.parts):
+            continue
+        for fn, _, lines in functions((root / path).read_text()):
+            if lines > MAX_FUNCTION_LINES:
+                key = (name, fn)
+                found[key] = max(found.get(key, 0), lines)
+    return found
+
+
+def known_long(root: Path) -> dict:
+    """tools/ci/long-functions.txt: `lines path fn  # why`, one per line."""
+    known = {}
+    for raw in (root / "tools/ci/long-functions.txt").read_text().splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if line:
+            lines, path, fn = line.split()
+            known[(path, fn)] = int(lines)
+    return known
+
+
+def length_breaches(root: Path) -> list:
+    found, known = long_functions(root), known_long(root)
+    breaches = []
+    for (path, fn), lines in sorted(found.items()):
+        allowed = known.get((path, fn))
+        if allowed is None:
+            breaches.append(
+                f"{path}: fn {fn} is {lines} lines (at most {MAX_FUNCTION_LINES}): split it "
+                "into functions that each do one thing, or, for a table or declaration, "
+                "list it in tools/ci/long-functions.txt saying so"
+            )
+        elif lines > allowed:
+            breaches.append(
+                f"{path}: fn {fn} grew to {lines} lines (listed at {allowed} in "
+                "tools/ci/long-functions.txt, to be split): split it rather than grow it"
+            )
+    for (path, fn), allowed in sorted(known.items()):
+        if (path, fn) not in found:
+            breaches.append(
+                f"tools/ci/long-functions.txt: {path} fn {fn} is no longer over "
+                f"{MAX_FUNCTION_LINES} lines (or gone): remove its entry"
+            )
+        elif found[(path, fn)] < allowed:
+            breaches.append(
+                f"tools/ci/long-functions.txt: {path} fn {fn} is {found[(path, fn)]} lines "
+                f"now, listed at {allowed}: lower its entry, so it cannot grow back"
+            )
+    return breaches
+
+
 def main() -> int:
     root = Path(__file__).resolve().parents[2]
     meta = json.loads(
@@ -142,12 +306,14 @@ def main() -> int:
                     f"round a circle: {', '.join(sorted(group))}; move what they share into a "
                     "module of its own, or pass it in"
                 )
+    breaches += length_breaches(root)
     for b in breaches:
         print(b, file=sys.stderr)
     if not breaches:
         print(
             f"architecture: {len(members)} crates checked (host/ imports nothing from rig/; "
-            "clap only in cli/ and tools/; no module circles but the known one)"
+            "clap only in cli/ and tools/; no module circles but the known one; no function "
+            f"over {MAX_FUNCTION_LINES} lines but the {len(known_long(root))} listed)"
         )
     return 1 if breaches else 0
 

@@ -26,12 +26,14 @@ use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 use utoipa::{OpenApi, ToSchema};
 
+pub use crate::error::ApiError;
+use crate::error::ErrorBody;
 use crate::jobs::{
     AcquireRequest, CalibrateRequest, DpcRequest, JobRequest, ReconstructRequest, ResumeRequest,
     ScanRequest, SequenceRequest,
 };
 use crate::store::{Job, JobState};
-use crate::worker::{resumable_request, CancelError, Event, Handle, Shared, SteerError};
+use crate::worker::{resumable_request, Event, Handle, Shared};
 
 /// The largest request body, bytes: a job request is a few hundred.
 pub const MAX_BODY: usize = 64 * 1024;
@@ -110,30 +112,6 @@ pub struct State {
     pub stopping: tokio::sync::watch::Receiver<bool>,
 }
 
-/// An error as the API answers it: a status and a message naming what is wrong.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct ApiError {
-    /// What is wrong, naming the field, header or job.
-    pub error: String,
-    #[serde(skip)]
-    status: StatusCode,
-}
-
-impl ApiError {
-    fn new(status: StatusCode, error: impl Into<String>) -> Self {
-        Self {
-            error: error.into(),
-            status,
-        }
-    }
-}
-
-impl IntoResponse for ApiError {
-    fn into_response(self) -> Response {
-        (self.status, Json(self)).into_response()
-    }
-}
-
 /// The API's OpenAPI document.
 #[derive(OpenApi)]
 #[openapi(
@@ -168,7 +146,7 @@ impl IntoResponse for ApiError {
         ResumeRequest,
         DpcRequest,
         ScanRequest,
-        ApiError,
+        ErrorBody,
         Event
     ))
 )]
@@ -210,12 +188,9 @@ async fn guard(Extract(state): Extract<State>, request: Request, next: Next) -> 
     let headers = request.headers();
     let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
     if !host.is_some_and(ours) {
-        return ApiError::new(
-            StatusCode::FORBIDDEN,
-            format!(
-                "Host {host:?}: this service answers only to 127.0.0.1:{port} or localhost:{port}"
-            ),
-        )
+        return ApiError::Forbidden(format!(
+            "Host {host:?}: this service answers only to 127.0.0.1:{port} or localhost:{port}"
+        ))
         .into_response();
     }
     if let Some(origin) = headers.get(header::ORIGIN) {
@@ -225,10 +200,9 @@ async fn guard(Extract(state): Extract<State>, request: Request, next: Next) -> 
             .and_then(|o| o.strip_prefix("http://"))
             .is_some_and(ours);
         if !from_us {
-            return ApiError::new(
-                StatusCode::FORBIDDEN,
-                format!("Origin {origin:?}: requests from other sites are refused"),
-            )
+            return ApiError::Forbidden(format!(
+                "Origin {origin:?}: requests from other sites are refused"
+            ))
             .into_response();
         }
     }
@@ -239,13 +213,10 @@ async fn guard(Extract(state): Extract<State>, request: Request, next: Next) -> 
         } else {
             "this request changes the rig and"
         };
-        return ApiError::new(
-            StatusCode::UNAUTHORIZED,
-            format!(
-                "Authorization: {why} needs `Bearer <token>` (the token is in {})",
-                state.token.path.display()
-            ),
-        )
+        return ApiError::Unauthorized(format!(
+            "Authorization: {why} needs `Bearer <token>` (the token is in {})",
+            state.token.path.display()
+        ))
         .into_response();
     }
     next.run(request).await
@@ -293,7 +264,7 @@ async fn list_jobs(Extract(state): Extract<State>) -> Result<Json<Vec<Job>>, Api
         .store
         .list()
         .map(Json)
-        .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))
+        .map_err(ApiError::internal)
 }
 
 /// A queued job.
@@ -304,138 +275,88 @@ pub struct Submitted {
 }
 
 #[utoipa::path(post, path = "/api/jobs", request_body = JobRequest,
-    responses((status = 202, body = Submitted), (status = 400, body = ApiError), (status = 401, body = ApiError)),
+    responses((status = 202, body = Submitted), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody)),
     security(("token" = [])))]
 async fn submit(
     Extract(state): Extract<State>,
     body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<(StatusCode, Json<Submitted>), ApiError> {
-    let body = body.map_err(|e| ApiError::new(e.status(), e.body_text()))?;
-    let mut request =
-        JobRequest::parse(&body).map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e))?;
+    let mut request = JobRequest::parse(&body?).map_err(ApiError::BadRequest)?;
     request.place(&state.shared.runs);
     // Checked now, not when the rig gets to it: a bad value is said to the one who sent it.
     match &mut request {
-        JobRequest::Acquire(a) => {
-            a.plan(&state.shared.camera)
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
-        JobRequest::Calibrate(c) => {
-            c.plan(&state.shared.camera)
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
-        JobRequest::Sequence(s) => {
-            s.as_acquisition()
-                .plan(&state.shared.camera)
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
-        JobRequest::Reconstruct(r) => {
-            r.job()
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
         JobRequest::Resume(r) => r.out = Some(resumable(&state, r.job)?),
-        JobRequest::Scan(s) => {
-            s.plan(&state.shared.camera)
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
-        JobRequest::Dpc(d) => {
-            // The LEDs' places are the board's, read when the job runs: here only the
-            // request's own values are checked.
-            d.plan(&state.shared.camera, fpm_physics::LedGeometry::paper())
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
-        }
+        other => other
+            .check(&state.shared.camera)
+            .map_err(ApiError::invalid)?,
     }
     let id = state
         .worker
         .submit(&request)
-        .map_err(|e| ApiError::new(StatusCode::SERVICE_UNAVAILABLE, format!("{e:#}")))?;
+        .map_err(|e| ApiError::Unavailable(format!("{e:#}")))?;
     Ok((StatusCode::ACCEPTED, Json(Submitted { id })))
 }
 
 #[utoipa::path(get, path = "/api/jobs/{id}", params(("id" = i64, Path, description = "The job's id")),
-    responses((status = 200, body = Job), (status = 404, body = ApiError)))]
+    responses((status = 200, body = Job), (status = 404, body = ErrorBody)))]
 async fn get_job(
     Extract(state): Extract<State>,
     id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
 ) -> Result<Json<Job>, ApiError> {
-    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
-    match state.shared.store.get(id) {
-        Ok(Some(job)) => Ok(Json(job)),
-        Ok(None) => Err(ApiError::new(StatusCode::NOT_FOUND, format!("no job {id}"))),
-        Err(e) => Err(ApiError::new(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            format!("{e:#}"),
-        )),
-    }
+    let UrlPath(id) = id?;
+    Ok(Json(stored_job(&state, id)?))
 }
 
 #[utoipa::path(post, path = "/api/jobs/{id}/cancel", params(("id" = i64, Path, description = "The job's id")),
     responses((status = 202, description = "Cancelling: a running job stops within its next step"),
-        (status = 404, body = ApiError), (status = 409, body = ApiError)),
+        (status = 404, body = ErrorBody), (status = 409, body = ErrorBody)),
     security(("token" = [])))]
 async fn cancel(
     Extract(state): Extract<State>,
     id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
 ) -> Result<StatusCode, ApiError> {
-    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
-    match state.worker.cancel(id) {
-        Ok(()) => Ok(StatusCode::ACCEPTED),
-        Err(e @ CancelError::Unknown(_)) => {
-            Err(ApiError::new(StatusCode::NOT_FOUND, e.to_string()))
-        }
-        Err(e @ (CancelError::Ended(..) | CancelError::Unstoppable(_))) => {
-            Err(ApiError::new(StatusCode::CONFLICT, e.to_string()))
-        }
-        Err(e) => Err(ApiError::new(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            e.to_string(),
-        )),
-    }
+    let UrlPath(id) = id?;
+    state.worker.cancel(id)?;
+    Ok(StatusCode::ACCEPTED)
 }
 
 /// Where job `id`'s frames are, if it can be completed by a resume job: it is an
 /// acquisition or a scan (or a resume of one) that ended part-way.
 fn resumable(state: &State, id: i64) -> Result<PathBuf, ApiError> {
-    let steer = steer_error;
-    let job = state
-        .shared
-        .store
-        .get(id)
-        .map_err(|e| steer(SteerError::Store(e)))?
-        .ok_or_else(|| steer(SteerError::Unknown(id)))?;
-    resumable_request(&state.shared.store, id).map_err(steer)?;
+    let job = stored_job(state, id)?;
+    resumable_request(&state.shared.store, id)?;
     match job.state {
         JobState::Interrupted | JobState::Cancelled | JobState::Failed => Ok(PathBuf::from(job.out)),
-        JobState::Done => Err(ApiError::new(
-            StatusCode::CONFLICT,
-            format!("job {id}: done, every LED has its frame; nothing to resume"),
-        )),
-        JobState::Queued | JobState::Running => Err(ApiError::new(
-            StatusCode::CONFLICT,
-            format!("job {id}: {:?}, not ended; pause and resume a running job with /api/jobs/{id}/pause and /resume", job.state),
-        )),
+        JobState::Done => Err(ApiError::Conflict(format!(
+            "job {id}: done, every LED has its frame; nothing to resume"
+        ))),
+        JobState::Queued | JobState::Running => Err(ApiError::Conflict(format!(
+            "job {id}: {:?}, not ended; pause and resume a running job with /api/jobs/{id}/pause and /resume",
+            job.state
+        ))),
     }
 }
 
-fn steer_error(e: SteerError) -> ApiError {
-    let status = match e {
-        SteerError::Unknown(_) => StatusCode::NOT_FOUND,
-        SteerError::Conflict(_) => StatusCode::CONFLICT,
-        SteerError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
-    };
-    ApiError::new(status, e.to_string())
+/// Job `id` as stored: 404 when there is none.
+fn stored_job(state: &State, id: i64) -> Result<Job, ApiError> {
+    state
+        .shared
+        .store
+        .get(id)
+        .map_err(ApiError::internal)?
+        .ok_or_else(|| ApiError::NotFound(format!("no job {id}")))
 }
 
 #[utoipa::path(post, path = "/api/jobs/{id}/pause", params(("id" = i64, Path, description = "The job's id")),
     responses((status = 202, description = "Pausing: the rig holds before its next LED (the capture's sequence is cut at the LED it is on; those it did not reach wait)"),
-        (status = 404, body = ApiError), (status = 409, body = ApiError)),
+        (status = 404, body = ErrorBody), (status = 409, body = ErrorBody)),
     security(("token" = [])))]
 async fn pause(
     Extract(state): Extract<State>,
     id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
 ) -> Result<StatusCode, ApiError> {
-    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
-    state.worker.pause(id).map_err(steer_error)?;
+    let UrlPath(id) = id?;
+    state.worker.pause(id)?;
     Ok(StatusCode::ACCEPTED)
 }
 
@@ -451,15 +372,15 @@ pub struct Resumed {
 
 #[utoipa::path(post, path = "/api/jobs/{id}/resume", params(("id" = i64, Path, description = "The job's id")),
     responses((status = 202, body = Resumed, description = "A paused job goes on; a job that ended part-way (interrupted, cancelled, failed) is completed by a new resume job, which lights only the LEDs its frames lack"),
-        (status = 404, body = ApiError), (status = 409, body = ApiError)),
+        (status = 404, body = ErrorBody), (status = 409, body = ErrorBody)),
     security(("token" = [])))]
 async fn resume(
     Extract(state): Extract<State>,
     id: Result<UrlPath<i64>, axum::extract::rejection::PathRejection>,
 ) -> Result<(StatusCode, Json<Resumed>), ApiError> {
-    let UrlPath(id) = id.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
+    let UrlPath(id) = id?;
     if state.worker.is_paused(id) {
-        state.worker.resume_running(id).map_err(steer_error)?;
+        state.worker.resume_running(id)?;
         return Ok((StatusCode::ACCEPTED, Json(Resumed { id, queued: false })));
     }
     let out = resumable(&state, id)?;
@@ -470,7 +391,7 @@ async fn resume(
     let new = state
         .worker
         .submit(&request)
-        .map_err(|e| ApiError::new(StatusCode::SERVICE_UNAVAILABLE, format!("{e:#}")))?;
+        .map_err(|e| ApiError::Unavailable(format!("{e:#}")))?;
     Ok((
         StatusCode::ACCEPTED,
         Json(Resumed {
@@ -511,10 +432,6 @@ async fn openapi() -> impl IntoResponse {
         [(header::CONTENT_TYPE, "application/json")],
         ApiDoc::openapi().to_pretty_json().unwrap_or_default(),
     )
-}
-
-fn bad_request(e: impl std::fmt::Display) -> ApiError {
-    ApiError::new(StatusCode::BAD_REQUEST, e.to_string())
 }
 
 /// How a live image is sent.
@@ -566,11 +483,10 @@ fn image(bytes: Vec<u8>, content_type: &'static str, meta: &[(&'static str, Stri
 async fn encoded(
     encode: impl FnOnce() -> anyhow::Result<Vec<u8>> + Send + 'static,
 ) -> Result<Vec<u8>, ApiError> {
-    let internal = |e: String| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e);
     tokio::task::spawn_blocking(encode)
         .await
-        .map_err(|e| internal(e.to_string()))?
-        .map_err(|e| internal(format!("{e:#}")))
+        .map_err(ApiError::internal)?
+        .map_err(ApiError::internal)
 }
 
 fn le_bytes<T: Copy, const N: usize>(a: &ndarray::Array2<T>, to: fn(T) -> [u8; N]) -> Vec<u8> {
@@ -583,28 +499,27 @@ fn le_bytes<T: Copy, const N: usize>(a: &ndarray::Array2<T>, to: fn(T) -> [u8; N
         ("format" = Option<ImageFormat>, Query, description = "png (default) or f32")),
     responses((status = 200, description = "The job's newest snapshot; X-Fpm-Shape (rows,cols), X-Fpm-Pixel-Um, X-Fpm-Frames, X-Fpm-Of, X-Fpm-Seq, X-Fpm-Finished",
             content_type = "image/png"),
-        (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+        (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
 async fn snapshot(
     Extract(state): Extract<State>,
     path: Result<UrlPath<(i64, String)>, axum::extract::rejection::PathRejection>,
     query: Result<axum::extract::Query<Format>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, ApiError> {
-    let UrlPath((id, part)) = path.map_err(|e| bad_request(e.body_text()))?;
-    let format = query.map_err(|e| bad_request(e.body_text()))?.0.format;
+    let UrlPath((id, part)) = path?;
+    let format = query?.0.format;
     let phase = match part.as_str() {
         "amplitude" => false,
         "phase" => true,
         other => {
-            return Err(bad_request(format!(
+            return Err(ApiError::BadRequest(format!(
                 "part \"{other}\": give amplitude or phase"
             )))
         }
     };
     let s = state.shared.live.snapshot(id).ok_or_else(|| {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            format!("job {id} has no snapshot (yet, or no longer in memory: its images are in its output directory)"),
-        )
+        ApiError::NotFound(format!(
+            "job {id} has no snapshot (yet, or no longer in memory: its images are in its output directory)"
+        ))
     })?;
     let (rows, cols) = s.amplitude.dim();
     let meta = [
@@ -631,8 +546,8 @@ async fn snapshot(
             .await?;
             Ok(image(png, "image/png", &meta))
         }
-        ImageFormat::U16 => Err(bad_request(
-            "format u16: a snapshot is float; give png or f32",
+        ImageFormat::U16 => Err(ApiError::BadRequest(
+            "format u16: a snapshot is float; give png or f32".into(),
         )),
     }
 }
@@ -641,17 +556,14 @@ async fn snapshot(
     params(("format" = Option<ImageFormat>, Query, description = "png (default) or u16")),
     responses((status = 200, description = "The newest camera frame kept (a few a second while a job runs); X-Fpm-Shape, X-Fpm-Led (row,col), X-Fpm-Exposure-Us, X-Fpm-Job, X-Fpm-Seq",
             content_type = "image/png"),
-        (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+        (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
 async fn camera_frame(
     Extract(state): Extract<State>,
     query: Result<axum::extract::Query<Format>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, ApiError> {
-    let format = query.map_err(|e| bad_request(e.body_text()))?.0.format;
+    let format = query?.0.format;
     let f = state.shared.live.frame().ok_or_else(|| {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            "no camera frame yet: one is kept while a job captures",
-        )
+        ApiError::NotFound("no camera frame yet: one is kept while a job captures".into())
     })?;
     let (rows, cols) = f.pixels.dim();
     let meta = [
@@ -672,8 +584,8 @@ async fn camera_frame(
                 encoded(move || fpm_report::preview::counts_png_bytes(&f.pixels.view())).await?;
             Ok(image(png, "image/png", &meta))
         }
-        ImageFormat::F32 => Err(bad_request(
-            "format f32: a camera frame is counts; give png or u16",
+        ImageFormat::F32 => Err(ApiError::BadRequest(
+            "format f32: a camera frame is counts; give png or u16".into(),
         )),
     }
 }
@@ -681,18 +593,13 @@ async fn camera_frame(
 #[utoipa::path(get, path = "/api/jobs/{id}/files/{path}",
     params(("id" = i64, Path, description = "The job's id"),
         ("path" = String, Path, description = "A file in the job's output directory, e.g. acquisition.html")),
-    responses((status = 200, description = "The file"), (status = 400, body = ApiError), (status = 404, body = ApiError)))]
+    responses((status = 200, description = "The file"), (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
 async fn job_file(
     Extract(state): Extract<State>,
     path: Result<UrlPath<(i64, String)>, axum::extract::rejection::PathRejection>,
 ) -> Result<Response, ApiError> {
-    let UrlPath((id, relative)) = path.map_err(|e| bad_request(e.body_text()))?;
-    let job = state
-        .shared
-        .store
-        .get(id)
-        .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?
-        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, format!("no job {id}")))?;
+    let UrlPath((id, relative)) = path?;
+    let job = stored_job(&state, id)?;
     // Only plain names below the job's directory: no `..`, no absolute paths, no links
     // out of it.
     let rel = Path::new(&relative);
@@ -700,17 +607,12 @@ async fn job_file(
         .components()
         .all(|c| matches!(c, std::path::Component::Normal(_)))
     {
-        return Err(bad_request(format!(
+        return Err(ApiError::BadRequest(format!(
             "path {relative:?}: give a file inside the job's output directory"
         )));
     }
     let root = Path::new(&job.out);
-    let not_found = || {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            format!("job {id} has no file {relative:?} (yet)"),
-        )
-    };
+    let not_found = || ApiError::NotFound(format!("job {id} has no file {relative:?} (yet)"));
     let (Ok(root), Ok(file)) = (root.canonicalize(), root.join(rel).canonicalize()) else {
         return Err(not_found());
     };
@@ -738,4 +640,19 @@ async fn page() -> impl IntoResponse {
         ],
         include_str!("../assets/index.html"),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_answers_are_documented_as_the_api_error_schema() {
+        let doc = serde_json::to_value(ApiDoc::openapi()).unwrap();
+        let schema = &doc["components"]["schemas"]["ApiError"];
+        assert!(schema["properties"]["error"].is_object(), "{schema}");
+        let not_found = &doc["paths"]["/api/jobs/{id}"]["get"]["responses"]["404"];
+        let reference = not_found["content"]["application/json"]["schema"]["$ref"].as_str();
+        assert_eq!(reference, Some("#/components/schemas/ApiError"), "{not_found}");
+    }
 }

@@ -322,6 +322,23 @@ impl JobRequest {
         }
     }
 
+    /// Check every value the request holds, as the job would when it runs, so that
+    /// a bad one is said at submission (the service's one check of a request; a
+    /// `resume` is checked against the store by the service). The DPC plan's LED
+    /// places are the board's, read when the job runs: here the paper's board stands
+    /// in, and only the request's own values are checked.
+    pub fn check(&self, camera: &ServiceNames) -> Result<()> {
+        match self {
+            JobRequest::Acquire(a) => a.plan(camera).map(drop),
+            JobRequest::Calibrate(c) => c.plan(camera).map(drop),
+            JobRequest::Sequence(s) => s.as_acquisition().plan(camera).map(drop),
+            JobRequest::Reconstruct(r) => r.job().map(drop),
+            JobRequest::Scan(s) => s.plan(camera).map(drop),
+            JobRequest::Dpc(d) => d.plan(camera, fpm_physics::LedGeometry::paper()).map(drop),
+            JobRequest::Resume(_) => Ok(()),
+        }
+    }
+
     /// The kind, as the job list shows it.
     pub fn kind(&self) -> &'static str {
         match self {

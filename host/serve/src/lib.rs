@@ -17,6 +17,7 @@
 
 pub mod api;
 pub mod client;
+pub mod error;
 pub mod jobs;
 pub mod live;
 pub mod store;

@@ -141,16 +141,62 @@ pub fn acquisition(s: &AcquireSummary, system: &System, failure: Option<&str>, o
     }
 }
 
+/// `out/acquisition.html`, one section after another.
 fn write_acquisition(
     s: &AcquireSummary,
     system: &System,
     failure: Option<&str>,
     out: &Path,
 ) -> anyhow::Result<()> {
-    let c = &s.capture;
     let mut page = Page::new("fpm acquire: a labelled FPM dataset");
     page.paragraph(&format!("Output directory {}.", out.display()));
     page.heading("Result");
+    page.table(&result_rows(s));
+    page.heading("Warnings");
+    page.warnings(&warnings(s, failure));
+
+    let preview = out.join("reconstruction").join("amplitude.png");
+    if let Ok(png) = std::fs::read(&preview) {
+        page.heading("Reconstruction");
+        page.figure(
+            &png,
+            "reconstructed amplitude",
+            "Reconstructed amplitude (streamed while acquiring); the full report is reconstruction/report.html.",
+            &["reconstruction/report.html"],
+        );
+    }
+    page.heading("Charts");
+    let plots = out.join("plots");
+    embed_chart(
+        &mut page,
+        &Coverage {
+            geometry: &s.geometry,
+            missing: &s.still_missing,
+            system,
+        },
+        (&plots, "plots"),
+        "acquisition_coverage",
+        "Every LED of the array at its position: filled where its frame is in the dataset.",
+    );
+    if !s.calibration.is_empty() {
+        page.heading("Calibration captures");
+        calibration_captures(&mut page, s);
+    }
+    if let Some(settings) = &s.camera_settings {
+        page.heading("Camera settings (as its driver reported them)");
+        page.command(&serde_json::to_string_pretty(settings)?);
+    }
+    page.heading("Outputs");
+    page.files(&output_files(out));
+    page.heading("Reproduce");
+    page.command(&command_line());
+    page.write(&out.join("acquisition.html"))
+}
+
+/// What the capture labelled, how fast, the camera's clock, the geometry used and the
+/// streaming reconstruction.
+fn result_rows(s: &AcquireSummary) -> Vec<Row> {
+    let c = &s.capture;
     let mut rows = vec![
         Row::with_id(
             "labelled",
@@ -160,6 +206,14 @@ fn write_acquisition(
         Row::new(
             "speed",
             format!("{:.1} s, {:.1} frames/s", c.seconds, c.frames_per_s),
+        ),
+        Row::with_id(
+            "labelled_live",
+            "labelled as they arrived",
+            format!(
+                "{} of the {} frames that arrived while the sequence ran ({} in all); arrival → label {:.0} ms median, {:.0} ms p99",
+                c.labelled_live, c.arrived_live, c.labelled, c.label_lag_p50_ms, c.label_lag_p99_ms
+            ),
         ),
         Row::with_id(
             "missing",
@@ -217,54 +271,28 @@ fn write_acquisition(
             ),
         ));
     }
-    page.table(&rows);
-    page.heading("Warnings");
-    page.warnings(&warnings(s, failure));
+    rows
+}
 
-    let preview = out.join("reconstruction").join("amplitude.png");
-    if let Ok(png) = std::fs::read(&preview) {
-        page.heading("Reconstruction");
-        page.figure(
-            &png,
-            "reconstructed amplitude",
-            "Reconstructed amplitude (streamed while acquiring); the full report is reconstruction/report.html.",
-            &["reconstruction/report.html"],
-        );
-    }
-    page.heading("Charts");
-    let plots = out.join("plots");
-    embed_chart(
-        &mut page,
-        &Coverage {
-            geometry: &s.geometry,
-            missing: &s.still_missing,
-            system,
-        },
-        (&plots, "plots"),
-        "acquisition_coverage",
-        "Every LED of the array at its position: filled where its frame is in the dataset.",
-    );
-    if !s.calibration.is_empty() {
-        page.heading("Calibration captures");
-        let rows: Vec<Vec<String>> = s
-            .calibration
-            .iter()
-            .map(|r| {
-                vec![
-                    format!("{}/{}", r.labelled, r.requested),
-                    r.missing.len().to_string(),
-                    format!("{:.2}", r.seconds),
-                    r.outcome.clone(),
-                ]
-            })
-            .collect();
-        page.grid(&["labelled", "missing", "seconds", "sequence"], &rows);
-    }
-    if let Some(settings) = &s.camera_settings {
-        page.heading("Camera settings (as its driver reported them)");
-        page.command(&serde_json::to_string_pretty(settings)?);
-    }
-    page.heading("Outputs");
+/// A row per calibration capture.
+fn calibration_captures(page: &mut Page, s: &AcquireSummary) {
+    let rows: Vec<Vec<String>> = s
+        .calibration
+        .iter()
+        .map(|r| {
+            vec![
+                format!("{}/{}", r.labelled, r.requested),
+                r.missing.len().to_string(),
+                format!("{:.2}", r.seconds),
+                r.outcome.clone(),
+            ]
+        })
+        .collect();
+    page.grid(&["labelled", "missing", "seconds", "sequence"], &rows);
+}
+
+/// The files the acquisition wrote (the calibration's and reconstruction's when made).
+fn output_files(out: &Path) -> Vec<(String, String)> {
     let mut files = vec![
         (
             "dataset.toml".to_string(),
@@ -284,10 +312,7 @@ fn write_acquisition(
             files.push((path.into(), what.into()));
         }
     }
-    page.files(&files);
-    page.heading("Reproduce");
-    page.command(&command_line());
-    page.write(&out.join("acquisition.html"))
+    files
 }
 
 #[cfg(test)]

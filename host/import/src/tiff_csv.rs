@@ -37,67 +37,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
     let csv_path = find_csv(src, stated)?;
     let table = Table::read(&csv_path)?;
     let base = csv_path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let images: Vec<(String, Pixels)> = match table.column("file") {
-        Some(files) => files
-            .iter()
-            .map(|f| {
-                let path = base.join(f);
-                Ok((f.clone(), one_page(&path)?))
-            })
-            .collect::<Result<_, ImportError>>()?,
-        None if src.is_dir() => {
-            let tiffs = tiffs_in(src)?;
-            if tiffs.len() != table.rows.len() {
-                return Err(ImportError::file(
-                    &csv_path,
-                    format!(
-                        "{} rows but {} TIFFs in {}: give a `file` column to pair them",
-                        table.rows.len(),
-                        tiffs.len(),
-                        src.display()
-                    ),
-                ));
-            }
-            tiffs
-                .into_iter()
-                .map(|p| {
-                    let name = p.file_name().map(|n| n.to_string_lossy().into_owned());
-                    Ok((name.unwrap_or_default(), one_page(&p)?))
-                })
-                .collect::<Result<_, ImportError>>()?
-        }
-        None => {
-            let pages = pages(src)?;
-            if pages.len() != table.rows.len() {
-                return Err(ImportError::file(
-                    &csv_path,
-                    format!(
-                        "{} rows but {} pages in {}",
-                        table.rows.len(),
-                        pages.len(),
-                        src.display()
-                    ),
-                ));
-            }
-            pages
-                .into_iter()
-                .enumerate()
-                .map(|(k, p)| (format!("page {k}"), p))
-                .collect()
-        }
-    };
-    if let Some((name, p)) = images.iter().find(|(_, p)| p.dim() != images[0].1.dim()) {
-        return Err(ImportError::file(
-            &base.join(name),
-            format!(
-                "{}x{} differs from the first frame's {}x{}",
-                p.dim().1,
-                p.dim().0,
-                images[0].1.dim().1,
-                images[0].1.dim().0
-            ),
-        ));
-    }
+    let images = images(src, &table, &csv_path, &base)?;
 
     let mut assumed = Vec::new();
     let ids = table.ids(&csv_path)?;
@@ -113,69 +53,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         reason: "the LEDs' distance below the sample is not in a CSV: state it with --height-mm"
             .into(),
     })?;
-    let mut positions: Vec<ListedLed> = Vec::new();
-    let mut nas: Vec<LedNa> = Vec::new();
-    let by_position = has("x_mm") || has("y_mm");
-    let by_na = has("na_x") || has("na_y");
-    match (by_position, by_na) {
-        (true, true) => {
-            return Err(ImportError::file(
-                &csv_path,
-                "give the LEDs' positions (x_mm, y_mm) or their NAs (na_x, na_y), not both",
-            ))
-        }
-        (false, false) => {
-            return Err(ImportError::file(
-                &csv_path,
-                "no LED columns: give x_mm and y_mm (and z_mm) or na_x and na_y",
-            ))
-        }
-        _ => {}
-    }
-    for (k, &led) in ids.iter().enumerate() {
-        if by_position {
-            let place = ListedLed {
-                led,
-                x_mm: number("x_mm", k)?,
-                y_mm: number("y_mm", k)?,
-                z_mm: if has("z_mm") { number("z_mm", k)? } else { 0.0 },
-            };
-            match positions.iter().find(|p| p.led == led) {
-                Some(p) if *p != place => {
-                    return Err(ImportError::field(
-                        &csv_path,
-                        "x_mm",
-                        format!("row {}: LED {led} is placed twice, differently", k + 1),
-                    ))
-                }
-                Some(_) => {}
-                None => positions.push(place),
-            }
-        } else {
-            let na = LedNa {
-                led,
-                na: [number("na_x", k)?, number("na_y", k)?],
-            };
-            match nas.iter().find(|n| n.led == led) {
-                Some(n) if *n != na => {
-                    return Err(ImportError::field(
-                        &csv_path,
-                        "na_x",
-                        format!("row {}: LED {led} is given two NAs", k + 1),
-                    ))
-                }
-                Some(_) => {}
-                None => nas.push(na),
-            }
-        }
-    }
-    let mut led = LedSection::listed(height_mm);
-    if by_position {
-        led.position =
-            Some(LedList::new(positions).map_err(|e| ImportError::field(&csv_path, "x_mm", e))?);
-    } else {
-        led.na = Some(LedNas::new(nas).map_err(|e| ImportError::field(&csv_path, "na_x", e))?);
-    }
+    let led = led_section(&table, &csv_path, &ids, height_mm)?;
 
     let frames = images
         .into_iter()
@@ -216,6 +94,156 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
         frames,
         assumed,
     })
+}
+
+/// The frames, each with its name: the `file` column's TIFFs (relative to the CSV at
+/// `base`), else the folder's TIFFs by name, else the multi-page TIFF's pages; one for
+/// each of the CSV's rows, all of one size.
+fn images(
+    src: &Path,
+    table: &Table,
+    csv_path: &Path,
+    base: &Path,
+) -> Result<Vec<(String, Pixels)>, ImportError> {
+    let images: Vec<(String, Pixels)> = match table.column("file") {
+        Some(files) => files
+            .iter()
+            .map(|f| {
+                let path = base.join(f);
+                Ok((f.clone(), one_page(&path)?))
+            })
+            .collect::<Result<_, ImportError>>()?,
+        None if src.is_dir() => {
+            let tiffs = tiffs_in(src)?;
+            if tiffs.len() != table.rows.len() {
+                return Err(ImportError::file(
+                    csv_path,
+                    format!(
+                        "{} rows but {} TIFFs in {}: give a `file` column to pair them",
+                        table.rows.len(),
+                        tiffs.len(),
+                        src.display()
+                    ),
+                ));
+            }
+            tiffs
+                .into_iter()
+                .map(|p| {
+                    let name = p.file_name().map(|n| n.to_string_lossy().into_owned());
+                    Ok((name.unwrap_or_default(), one_page(&p)?))
+                })
+                .collect::<Result<_, ImportError>>()?
+        }
+        None => {
+            let pages = pages(src)?;
+            if pages.len() != table.rows.len() {
+                return Err(ImportError::file(
+                    csv_path,
+                    format!(
+                        "{} rows but {} pages in {}",
+                        table.rows.len(),
+                        pages.len(),
+                        src.display()
+                    ),
+                ));
+            }
+            pages
+                .into_iter()
+                .enumerate()
+                .map(|(k, p)| (format!("page {k}"), p))
+                .collect()
+        }
+    };
+    if let Some((name, p)) = images.iter().find(|(_, p)| p.dim() != images[0].1.dim()) {
+        return Err(ImportError::file(
+            &base.join(name),
+            format!(
+                "{}x{} differs from the first frame's {}x{}",
+                p.dim().1,
+                p.dim().0,
+                images[0].1.dim().1,
+                images[0].1.dim().0
+            ),
+        ));
+    }
+    Ok(images)
+}
+
+/// The LED section: each row's LED placed by its position or its NA (not both), an
+/// LED given twice only alike.
+fn led_section(
+    table: &Table,
+    csv_path: &Path,
+    ids: &[LedIndex],
+    height_mm: f64,
+) -> Result<LedSection, ImportError> {
+    let number = |name: &str, k: usize| table.number(csv_path, name, k);
+    let has = |name: &str| table.column(name).is_some();
+    let mut positions: Vec<ListedLed> = Vec::new();
+    let mut nas: Vec<LedNa> = Vec::new();
+    let by_position = has("x_mm") || has("y_mm");
+    let by_na = has("na_x") || has("na_y");
+    match (by_position, by_na) {
+        (true, true) => {
+            return Err(ImportError::file(
+                csv_path,
+                "give the LEDs' positions (x_mm, y_mm) or their NAs (na_x, na_y), not both",
+            ))
+        }
+        (false, false) => {
+            return Err(ImportError::file(
+                csv_path,
+                "no LED columns: give x_mm and y_mm (and z_mm) or na_x and na_y",
+            ))
+        }
+        _ => {}
+    }
+    for (k, &led) in ids.iter().enumerate() {
+        if by_position {
+            let place = ListedLed {
+                led,
+                x_mm: number("x_mm", k)?,
+                y_mm: number("y_mm", k)?,
+                z_mm: if has("z_mm") { number("z_mm", k)? } else { 0.0 },
+            };
+            match positions.iter().find(|p| p.led == led) {
+                Some(p) if *p != place => {
+                    return Err(ImportError::field(
+                        csv_path,
+                        "x_mm",
+                        format!("row {}: LED {led} is placed twice, differently", k + 1),
+                    ))
+                }
+                Some(_) => {}
+                None => positions.push(place),
+            }
+        } else {
+            let na = LedNa {
+                led,
+                na: [number("na_x", k)?, number("na_y", k)?],
+            };
+            match nas.iter().find(|n| n.led == led) {
+                Some(n) if *n != na => {
+                    return Err(ImportError::field(
+                        csv_path,
+                        "na_x",
+                        format!("row {}: LED {led} is given two NAs", k + 1),
+                    ))
+                }
+                Some(_) => {}
+                None => nas.push(na),
+            }
+        }
+    }
+    let mut led = LedSection::listed(height_mm);
+    if by_position {
+        led.position =
+            Some(LedList::new(positions).map_err(|e| ImportError::field(csv_path, "x_mm", e))?);
+    } else {
+        led.na = Some(LedNas::new(nas).map_err(|e| ImportError::field(csv_path, "na_x", e))?);
+    }
+
+    Ok(led)
 }
 
 /// The CSV: as stated, the one CSV in the folder, or `<stem>.csv` beside a TIFF.

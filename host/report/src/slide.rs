@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use fpm_host::scan::{StitchEvent, StitchOptions, Stitched};
+use fpm_host::scan::{StitchEvent, StitchOptions, StitchReport, Stitched};
 
 use crate::html::{Page, Row};
 
@@ -30,22 +30,11 @@ pub fn stitch(
 /// Write the mosaic's previews (`amplitude.png`, `phase.png`, from its smallest
 /// pyramid level of at most 2048 px a side) and `report.html` into `out` (beside
 /// `mosaic.zarr` and `stitch.json`); `reproduce` is the command that makes it again.
+/// One section after another.
 pub fn write_page(stitched: &Stitched, out: &Path, reproduce: &str) -> Result<PathBuf> {
     let r = &stitched.report;
     let p = &stitched.preview;
-    // Where no field reached: black in the amplitude, −π in the phase.
-    let amplitude = p.amplitude.mapv(|a| if a.is_finite() { a } else { 0.0 });
-    let phase = p.object.mapv(|z| {
-        if z.re.is_finite() && z.im.is_finite() {
-            z.arg()
-        } else {
-            -std::f32::consts::PI
-        }
-    });
-    let amplitude_png = crate::preview::amplitude_png_bytes(&amplitude, p.pixel_um)?;
-    let phase_png = crate::preview::phase_png_bytes(&phase, p.pixel_um)?;
-    std::fs::write(out.join("amplitude.png"), &amplitude_png)?;
-    std::fs::write(out.join("phase.png"), &phase_png)?;
+    let (amplitude_png, phase_png) = previews(stitched, out)?;
 
     let mut page = Page::new("fpm stitch: one slide image");
     page.paragraph(&format!(
@@ -73,6 +62,49 @@ pub fn write_page(stitched: &Stitched, out: &Path, reproduce: &str) -> Result<Pa
         (amplitude_png.as_slice(), "amplitude", &caption("amplitude")),
         (phase_png.as_slice(), "phase", &caption("phase (radians)")),
     ]);
+    page.table(&summary_rows(r));
+    page.heading("Fields");
+    fields(&mut page, r);
+    page.heading("Overlaps");
+    overlaps(&mut page, r);
+    page.heading("Outputs");
+    page.files(&[
+        (
+            "mosaic.zarr".into(),
+            "OME-Zarr: amplitude and phase (radians), a pyramid, in the slide's µm".into(),
+        ),
+        ("stitch.json".into(), "this report's numbers".into()),
+        ("amplitude.png".into(), "amplitude preview".into()),
+        ("phase.png".into(), "phase preview".into()),
+    ]);
+    page.heading("Reproduce");
+    page.command(reproduce);
+    let path = out.join("report.html");
+    page.write(&path)?;
+    Ok(path)
+}
+
+/// The amplitude and phase previews as PNG bytes, written into `out` too.
+fn previews(stitched: &Stitched, out: &Path) -> Result<(Vec<u8>, Vec<u8>)> {
+    let p = &stitched.preview;
+    // Where no field reached: black in the amplitude, −π in the phase.
+    let amplitude = p.amplitude.mapv(|a| if a.is_finite() { a } else { 0.0 });
+    let phase = p.object.mapv(|z| {
+        if z.re.is_finite() && z.im.is_finite() {
+            z.arg()
+        } else {
+            -std::f32::consts::PI
+        }
+    });
+    let amplitude_png = crate::preview::amplitude_png_bytes(&amplitude, p.pixel_um)?;
+    let phase_png = crate::preview::phase_png_bytes(&phase, p.pixel_um)?;
+    std::fs::write(out.join("amplitude.png"), &amplitude_png)?;
+    std::fs::write(out.join("phase.png"), &phase_png)?;
+    Ok((amplitude_png, phase_png))
+}
+
+/// How well the fields fit together, and against the hidden slide for a simulation.
+fn summary_rows(r: &StitchReport) -> Vec<Row> {
     let used = r.pairs.iter().filter(|p| p.used).count();
     let moved = r
         .fields
@@ -125,8 +157,11 @@ pub fn write_page(stitched: &Stitched, out: &Path, reproduce: &str) -> Result<Pa
             ),
         ]);
     }
-    page.table(&rows);
-    page.heading("Fields");
+    rows
+}
+
+/// A row per field: where the stage put it, where it was placed.
+fn fields(page: &mut Page, r: &StitchReport) {
     let fields: Vec<Vec<String>> = r
         .fields
         .iter()
@@ -151,7 +186,10 @@ pub fn write_page(stitched: &Stitched, out: &Path, reproduce: &str) -> Result<Pa
         ],
         &fields,
     );
-    page.heading("Overlaps");
+}
+
+/// A row per overlap: what its registration measured, and whether it was used.
+fn overlaps(page: &mut Page, r: &StitchReport) {
     let name = |k: usize| r.fields.get(k).map_or("?".into(), |f| f.dataset.clone());
     let pairs: Vec<Vec<String>> = r
         .pairs
@@ -182,19 +220,4 @@ pub fn write_page(stitched: &Stitched, out: &Path, reproduce: &str) -> Result<Pa
         ],
         &pairs,
     );
-    page.heading("Outputs");
-    page.files(&[
-        (
-            "mosaic.zarr".into(),
-            "OME-Zarr: amplitude and phase (radians), a pyramid, in the slide's µm".into(),
-        ),
-        ("stitch.json".into(), "this report's numbers".into()),
-        ("amplitude.png".into(), "amplitude preview".into()),
-        ("phase.png".into(), "phase preview".into()),
-    ]);
-    page.heading("Reproduce");
-    page.command(reproduce);
-    let path = out.join("report.html");
-    page.write(&path)?;
-    Ok(path)
 }

@@ -987,119 +987,21 @@ pub(crate) fn as_in_memory(mut manifest: Manifest) -> Manifest {
     manifest
 }
 
+/// A manifest's values checked, each error naming its key (or frame): the system,
+/// the LED array, the camera, then the frames.
 fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
-    let value = |key: &str, v: String, why: &'static str| DatasetError::Value {
-        path: path.to_path_buf(),
-        key: key.into(),
-        value: v,
-        why,
-    };
-    let positive = |key: &str, v: f64| {
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(value(key, v.to_string(), "must be a positive number"))
-        }
-    };
+    let value = |key: &str, v: String, why: &'static str| bad_value(path, key, v, why);
     if let Some((key, v, why)) = m.system().out_of_range() {
         return Err(value(&format!("system.{key}"), v.to_string(), why));
     }
-    positive("led.height_mm", m.led.height_mm)?;
+    positive(path, "led.height_mm", m.led.height_mm)?;
     if let Some(pitch) = m.led.pitch_mm {
-        positive("led.pitch_mm", pitch)?;
+        positive(path, "led.pitch_mm", pitch)?;
     }
-    let listed = m.led.position.is_some() || m.led.na.is_some();
-    if listed {
-        let fixed = if m.led.position.is_some() && m.led.na.is_some() {
-            Some((
-                "led.position/led.na",
-                "give the LEDs' positions or their NAs, not both",
-            ))
-        } else if m.led.rings.is_some() {
-            Some((
-                "led.rings",
-                "a list places its LEDs itself: leave rings out",
-            ))
-        } else if m.led.rows.is_some() || m.led.cols.is_some() {
-            Some((
-                "led.rows/cols",
-                "a list's LED ids bound the array: leave rows and cols out",
-            ))
-        } else {
-            None
-        };
-        if let Some((key, why)) = fixed {
-            return Err(value(key, "given".into(), why));
-        }
-        let Some(list) = m.led.list() else {
-            return Err(value(
-                "led.na",
-                "given".into(),
-                "the NAs do not place a valid list of LEDs",
-            ));
-        };
-        if let Some(center) = m.led.center {
-            if list.get(center).is_none() {
-                return Err(value(
-                    "led.center",
-                    center.to_string(),
-                    "is not one of the listed LEDs",
-                ));
-            }
-        }
+    if listed(m) {
+        validate_listed_leds(path, m)?;
     } else {
-        let (Some(rows), Some(cols), Some(_), Some(center)) =
-            (m.led.rows, m.led.cols, m.led.pitch_mm, m.led.center)
-        else {
-            let missing = [
-                ("rows", m.led.rows.is_none()),
-                ("cols", m.led.cols.is_none()),
-                ("pitch_mm", m.led.pitch_mm.is_none()),
-                ("center", m.led.center.is_none()),
-            ]
-            .iter()
-            .filter(|(_, absent)| *absent)
-            .map(|(k, _)| format!("led.{k}"))
-            .collect::<Vec<_>>()
-            .join(", ");
-            return Err(value(
-                &missing,
-                "absent".into(),
-                "a grid or ring array needs rows, cols, pitch_mm and center (or list the LEDs: [[led.position]] or [[led.na]])",
-            ));
-        };
-        if rows == 0 || cols == 0 {
-            return Err(value(
-                "led.rows/cols",
-                format!("{rows}x{cols}"),
-                "the array needs at least one LED",
-            ));
-        }
-        if rows > 256 || cols > 256 {
-            return Err(value(
-                "led.rows/cols",
-                format!("{rows}x{cols}"),
-                "at most 256x256 (LED indices are 0-255)",
-            ));
-        }
-        if let Some(rings) = m.led.rings {
-            let stated = (rows, cols, center);
-            let implied = (rings.len(), rings.widest(), LedIndex::new(0, 0));
-            if stated != implied {
-                return Err(value(
-                    "led.rows/cols/center",
-                    format!("{}x{}, center {}", stated.0, stated.1, stated.2),
-                    "with led.rings: rows = the number of rings, cols = the largest ring's LEDs, center = [0, 0]",
-                ));
-            }
-        }
-        if center.r() >= rows || center.c() >= cols {
-            return Err(value(
-                "led.center",
-                center.to_string(),
-                "is outside the array",
-            ));
-        }
+        validate_led_grid(path, m)?;
     }
     if !m.led.offset_mm.iter().all(|v| v.is_finite()) {
         return Err(value(
@@ -1122,6 +1024,19 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "must be finite",
         ));
     }
+    validate_camera(path, m)?;
+    validate_frames(path, m)?;
+    Ok(())
+}
+
+/// The array is a list of LEDs (`[[led.position]]` or `[[led.na]]`), not a grid.
+fn listed(m: &Manifest) -> bool {
+    m.led.position.is_some() || m.led.na.is_some()
+}
+
+/// The camera's gamma, mosaic and channel consistent.
+fn validate_camera(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
+    let value = |key: &str, v: String, why: &'static str| bad_value(path, key, v, why);
     m.camera.check_gamma(path)?;
     match (m.camera.bayer, m.camera.channel) {
         (Some(_), None) => {
@@ -1147,6 +1062,12 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
             "only means something with camera.bayer",
         ));
     }
+    Ok(())
+}
+
+/// Every frame's LEDs on the array, its defocus and exposure sensible.
+fn validate_frames(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
+    let listed = listed(m);
     if m.frames.is_empty() {
         return Err(DatasetError::Manifest {
             path: path.to_path_buf(),
@@ -1190,6 +1111,131 @@ fn validate(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
                 f.exposure_ms
             )));
         }
+    }
+    Ok(())
+}
+
+/// The error for `key` = `v` in the manifest at `path`.
+fn bad_value(path: &Path, key: &str, v: String, why: &'static str) -> DatasetError {
+    DatasetError::Value {
+        path: path.to_path_buf(),
+        key: key.into(),
+        value: v,
+        why,
+    }
+}
+
+fn positive(path: &Path, key: &str, v: f64) -> Result<(), DatasetError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(bad_value(
+            path,
+            key,
+            v.to_string(),
+            "must be a positive number",
+        ))
+    }
+}
+
+/// An array given as a list of LEDs (`[[led.position]]` or `[[led.na]]`): nothing that
+/// places LEDs another way beside it, and its centre one of them.
+fn validate_listed_leds(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
+    let value = |key: &str, v: String, why: &'static str| bad_value(path, key, v, why);
+    let fixed = if m.led.position.is_some() && m.led.na.is_some() {
+        Some((
+            "led.position/led.na",
+            "give the LEDs' positions or their NAs, not both",
+        ))
+    } else if m.led.rings.is_some() {
+        Some((
+            "led.rings",
+            "a list places its LEDs itself: leave rings out",
+        ))
+    } else if m.led.rows.is_some() || m.led.cols.is_some() {
+        Some((
+            "led.rows/cols",
+            "a list's LED ids bound the array: leave rows and cols out",
+        ))
+    } else {
+        None
+    };
+    if let Some((key, why)) = fixed {
+        return Err(value(key, "given".into(), why));
+    }
+    let Some(list) = m.led.list() else {
+        return Err(value(
+            "led.na",
+            "given".into(),
+            "the NAs do not place a valid list of LEDs",
+        ));
+    };
+    if let Some(center) = m.led.center {
+        if list.get(center).is_none() {
+            return Err(value(
+                "led.center",
+                center.to_string(),
+                "is not one of the listed LEDs",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A grid or ring array: its rows, cols, pitch and centre given and consistent.
+fn validate_led_grid(path: &Path, m: &Manifest) -> Result<(), DatasetError> {
+    let value = |key: &str, v: String, why: &'static str| bad_value(path, key, v, why);
+    let (Some(rows), Some(cols), Some(_), Some(center)) =
+        (m.led.rows, m.led.cols, m.led.pitch_mm, m.led.center)
+    else {
+        let missing = [
+            ("rows", m.led.rows.is_none()),
+            ("cols", m.led.cols.is_none()),
+            ("pitch_mm", m.led.pitch_mm.is_none()),
+            ("center", m.led.center.is_none()),
+        ]
+        .iter()
+        .filter(|(_, absent)| *absent)
+        .map(|(k, _)| format!("led.{k}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+        return Err(value(
+            &missing,
+            "absent".into(),
+            "a grid or ring array needs rows, cols, pitch_mm and center (or list the LEDs: [[led.position]] or [[led.na]])",
+        ));
+    };
+    if rows == 0 || cols == 0 {
+        return Err(value(
+            "led.rows/cols",
+            format!("{rows}x{cols}"),
+            "the array needs at least one LED",
+        ));
+    }
+    if rows > 256 || cols > 256 {
+        return Err(value(
+            "led.rows/cols",
+            format!("{rows}x{cols}"),
+            "at most 256x256 (LED indices are 0-255)",
+        ));
+    }
+    if let Some(rings) = m.led.rings {
+        let stated = (rows, cols, center);
+        let implied = (rings.len(), rings.widest(), LedIndex::new(0, 0));
+        if stated != implied {
+            return Err(value(
+                "led.rows/cols/center",
+                format!("{}x{}, center {}", stated.0, stated.1, stated.2),
+                "with led.rings: rows = the number of rings, cols = the largest ring's LEDs, center = [0, 0]",
+            ));
+        }
+    }
+    if center.r() >= rows || center.c() >= cols {
+        return Err(value(
+            "led.center",
+            center.to_string(),
+            "is outside the array",
+        ));
     }
     Ok(())
 }

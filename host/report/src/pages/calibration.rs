@@ -25,16 +25,43 @@ pub struct Context<'a> {
     pub outputs: Vec<(String, String)>,
 }
 
-/// Write the page to `path` (its charts into `plots/` beside it, as `calibration_*`).
+/// Write the page to `path` (its charts into `plots/` beside it, as `calibration_*`):
+/// one section after another.
 pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
     let cal = &c.file.calibration;
-    let u = &cal.uncertainty;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut page = Page::new("fpm calibrate: LED array position (pdcFPM)");
     page.paragraph(&format!("Dataset {}.", c.file.dataset));
 
     page.heading("Result (1σ)");
-    page.table(&[
+    page.table(&result_rows(c));
+    if let Some(b) = &cal.uncertainty_sources {
+        uncertainty_sources(&mut page, b, &cal.uncertainty);
+    }
+    page.heading("Warnings");
+    page.warnings(&warnings(cal));
+
+    page.heading("Parameters");
+    page.table(&parameter_rows(c));
+
+    page.heading("Charts");
+    charts(&mut page, c, dir);
+
+    page.heading("Every defocused frame");
+    every_frame(&mut page, cal);
+
+    page.heading("Outputs");
+    page.files(&c.outputs);
+    page.heading("Reproduce");
+    page.command(c.reproduce);
+    page.write(path)
+}
+
+/// The fitted array with its uncertainties, the residual, the feature and the time.
+fn result_rows(c: &Context<'_>) -> Vec<Row> {
+    let cal = &c.file.calibration;
+    let u = &cal.uncertainty;
+    vec![
         Row::with_id("dx_mm", "Δx", pm(cal.placement.dx_mm, u.dx_mm, 4, "mm")),
         Row::with_id("dy_mm", "Δy", pm(cal.placement.dy_mm, u.dy_mm, 4, "mm")),
         Row::with_id("theta_deg", "θ", pm(cal.placement.theta_deg, u.theta_deg, 4, "°")),
@@ -80,43 +107,50 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
             ),
         ),
         Row::new("time", format!("{:.1} ms (frames in memory)", c.file.time_ms)),
-    ]);
-    if let Some(b) = &cal.uncertainty_sources {
-        page.paragraph("What the uncertainty is made of (1σ each, added in quadrature):");
-        let row = |name: &str, u: &fpm_physics::calibrate::Uncertainty| {
-            vec![
-                name.to_string(),
-                format!("{:.4}", u.dx_mm),
-                format!("{:.4}", u.dy_mm),
-                format!("{:.4}", u.theta_deg),
-                format!("{:.4}", u.height_mm),
-            ]
-        };
-        page.grid(
-            &["source", "Δx (mm)", "Δy (mm)", "θ (°)", "h (mm)"],
-            &[
-                row(
-                    "fit spread (residuals, jackknife, pixel noise)",
-                    &b.statistical,
-                ),
-                row("reference frame's pixel noise", &b.reference_frame),
-                row("model bias correction", &b.model_bias),
-                row("defocus", &b.defocus),
-                row(
-                    "board tilt (fitted, or unseen)",
-                    &b.tilt.unwrap_or_default(),
-                ),
-                row("total", u),
-            ],
-        );
-    }
-    page.heading("Warnings");
-    page.warnings(&warnings(cal));
+    ]
+}
 
-    page.heading("Parameters");
+/// What the uncertainty `u` is made of, source by source.
+fn uncertainty_sources(
+    page: &mut Page,
+    b: &fpm_physics::calibrate::uncertainty::Budget,
+    u: &fpm_physics::calibrate::Uncertainty,
+) {
+    page.paragraph("What the uncertainty is made of (1σ each, added in quadrature):");
+    let row = |name: &str, u: &fpm_physics::calibrate::Uncertainty| {
+        vec![
+            name.to_string(),
+            format!("{:.4}", u.dx_mm),
+            format!("{:.4}", u.dy_mm),
+            format!("{:.4}", u.theta_deg),
+            format!("{:.4}", u.height_mm),
+        ]
+    };
+    page.grid(
+        &["source", "Δx (mm)", "Δy (mm)", "θ (°)", "h (mm)"],
+        &[
+            row(
+                "fit spread (residuals, jackknife, pixel noise)",
+                &b.statistical,
+            ),
+            row("reference frame's pixel noise", &b.reference_frame),
+            row("model bias correction", &b.model_bias),
+            row("defocus", &b.defocus),
+            row(
+                "board tilt (fitted, or unseen)",
+                &b.tilt.unwrap_or_default(),
+            ),
+            row("total", u),
+        ],
+    );
+}
+
+/// The defocus, the optics, the nominal array and the bias correction used.
+fn parameter_rows(c: &Context<'_>) -> Vec<Row> {
+    let cal = &c.file.calibration;
     let s = c.system;
     let n = &c.file.nominal;
-    page.table(&[
+    vec![
         Row::new("defocus", format!("{:+.1} µm", cal.defocus_um)),
         Row::new("defocused frames", cal.leds.len().to_string()),
         Row::new(
@@ -145,20 +179,24 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
                 "off (--no-bias-correction)"
             },
         ),
-    ]);
+    ]
+}
 
-    page.heading("Charts");
+/// The residuals and the fitted array, as charts in `dir/plots/`.
+fn charts(page: &mut Page, c: &Context<'_>, dir: &Path) {
+    let cal = &c.file.calibration;
+    let (s, n) = (c.system, &c.file.nominal);
     let plots = (dir.join("plots"), "plots");
     let plots = (plots.0.as_path(), plots.1);
     embed_chart(
-        &mut page,
+        page,
         &Residuals { cal, system: s },
         plots,
         "calibration_residuals",
         "How the feature moved under each LED (crosses, bias-corrected) against the fitted model (circles); residuals magnified.",
     );
     embed_chart(
-        &mut page,
+        page,
         &LedGrid {
             cal,
             nominal: n,
@@ -168,8 +206,10 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
         "calibration_array",
         "The fitted LED array against the nominal grid in the illumination plane; the calibration's LEDs marked by what became of them.",
     );
+}
 
-    page.heading("Every defocused frame");
+/// A row per defocused frame: its LED, its fate, its shifts and residual.
+fn every_frame(page: &mut Page, cal: &fpm_physics::calibrate::Calibration) {
     let rows: Vec<Vec<String>> = cal
         .leds
         .iter()
@@ -206,10 +246,4 @@ pub fn write(c: &Context<'_>, path: &Path) -> Result<()> {
         ],
         &rows,
     );
-
-    page.heading("Outputs");
-    page.files(&c.outputs);
-    page.heading("Reproduce");
-    page.command(c.reproduce);
-    page.write(path)
 }

@@ -11,7 +11,7 @@ use super::embed_chart;
 use crate::charts::reconstruction::{ErrorPerPass, LedPositions, Pupil};
 use crate::html::{Page, Row};
 use crate::preview::object as write_object_previews;
-use fpm_host::reconstruction::Reconstruction;
+use fpm_host::reconstruction::{Reconstruction, Report};
 
 /// What the page is written from.
 pub struct Context<'a> {
@@ -80,7 +80,8 @@ fn page_previews(r: &Reconstruction, dir: &Path) -> Vec<(Vec<u8>, String)> {
 }
 
 /// Write `dir/report.html` (charts into `dir/plots/`) for the reconstruction whose
-/// images `fpm_host::reconstruction::write_outputs` wrote into `dir`.
+/// images `fpm_host::reconstruction::write_outputs` wrote into `dir`: one section
+/// after another.
 pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     let rep = &r.report;
     let mut page = Page::new("fpm reconstruct: amplitude and phase (EPRY)");
@@ -95,6 +96,27 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     page.figures(&figures);
 
     page.heading("Result");
+    page.table(&result_rows(r));
+    page.heading("Warnings");
+    page.warnings(&fpm_host::reconstruction::warnings(rep));
+
+    page.heading("Charts");
+    charts(&mut page, r, dir, c);
+
+    page.heading("Parameters");
+    page.table(&parameter_rows(rep, c.system));
+
+    page.heading("Outputs");
+    page.files(&output_files(dir));
+    page.heading("Reproduce");
+    page.command(c.reproduce);
+    page.write(&dir.join("report.html"))
+}
+
+/// The result's rows: the final error, the image's size, the time, and the truth's
+/// comparison for a simulation.
+fn result_rows(r: &Reconstruction) -> Vec<Row> {
+    let rep = &r.report;
     let mut rows = vec![
         Row::with_id(
             "final_error",
@@ -138,22 +160,23 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
             format!("{:.4} / {:.4} rad", s.amplitude_nrmse, s.phase_rmse_rad),
         ));
     }
-    page.table(&rows);
-    page.heading("Warnings");
-    page.warnings(&fpm_host::reconstruction::warnings(rep));
+    rows
+}
 
-    page.heading("Charts");
+/// The convergence, the pupil and the LED positions, as charts in `dir/plots/`.
+fn charts(page: &mut Page, r: &Reconstruction, dir: &Path, c: &Context<'_>) {
+    let rep = &r.report;
     let plots = dir.join("plots");
     let plots = (plots.as_path(), "plots");
     embed_chart(
-        &mut page,
+        page,
         &ErrorPerPass { report: rep },
         plots,
         "error_per_pass",
         "Convergence: the frames' relative amplitude error after each pass (each tile thin, the mean bold).",
     );
     embed_chart(
-        &mut page,
+        page,
         &Pupil {
             pupil: &r.pupil,
             system: c.system,
@@ -164,7 +187,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
     );
     let source = rep.geometry_source.to_string();
     embed_chart(
-        &mut page,
+        page,
         &LedPositions {
             nominal: c.nominal,
             used: &rep.geometry,
@@ -175,11 +198,13 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         "led_positions",
         "The LED positions the illumination wave vectors were computed from, against the nominal grid.",
     );
+}
 
-    page.heading("Parameters");
+/// The parameters the run used: the array, the height, the frames' fit, the LEDs'
+/// refinement, the optics, the tiling and the background.
+fn parameter_rows(rep: &Report, s: &System) -> Vec<Row> {
     let g = &rep.geometry;
-    let s = c.system;
-    page.table(&[
+    vec![
         Row::new(
             "LED array",
             format!(
@@ -190,64 +215,14 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         Row::with_id(
             "height_from_boundary",
             "h from the bright/dark-field edge",
-            match &rep.height_from_boundary {
-                Some(b) => format!(
-                    "{:.2} ± {:.2} mm from the edges, ± {:.2} mm with the NA's {:.0} % ({} frames decide it, {} partly bright; {:+.1}σ from the geometry's {:.2} mm)",
-                    b.estimate.height_mm,
-                    b.estimate.sigma_mm,
-                    b.sigma_with_na_mm,
-                    b.na_relative_sigma * 100.0,
-                    b.estimate.deciding_frames,
-                    b.estimate.partly_bright,
-                    b.difference_sigma,
-                    b.geometry_height_mm
-                ) + &rep
-                    .height_choice
-                    .map(|c| format!("; {c}"))
-                    .unwrap_or_default(),
-                None => "not bracketed by these frames".to_string(),
-            },
+            height_from_boundary(rep),
         ),
         Row::with_id(
             "bright_field_fit",
             "Bright-field frames against the result",
-            match &rep.bright_field_fit {
-                Some(f) => format!(
-                    "measured ≈ {:.3} × modelled + {:.1} % of their light as offset, correlation {:.3} ({} frames over tiles){}",
-                    f.gain,
-                    100.0 * f.offset_share,
-                    f.correlation,
-                    f.frames,
-                    match (rep.camera_gamma, &rep.camera_gamma_scan) {
-                        (Some(g), Some(_)) => format!("; frames decoded with gamma {g}, read from them"),
-                        (None, Some(_)) => "; frames read as linear, as their scan found".to_string(),
-                        (Some(1.0), None) => "; frames linear, as the dataset states".to_string(),
-                        (Some(g), None) => format!("; frames decoded with the dataset's gamma {g}"),
-                        (None, None) => String::new(),
-                    }
-                ),
-                None => "no bright-field frame".to_string(),
-            },
+            bright_field_fit(rep),
         ),
-        Row::with_id(
-            "refined_leds",
-            "LEDs refined",
-            match &rep.refined_leds {
-                Some(r) => {
-                    let board = r.board.map_or("no board could be fitted".to_string(), |b| {
-                        format!("board fitted to them: {}", b.summary())
-                    });
-                    let scatter = r.led_scatter_mm.map_or(String::new(), |t| {
-                        format!("; LEDs off the board model by {t:.3} mm (1σ, from the data)")
-                    });
-                    format!(
-                        "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin){scatter}; {board}",
-                        r.moved_rms_mm, r.bin_mm
-                    )
-                }
-                None => "no (--refine-leds)".to_string(),
-            },
-        ),
+        Row::with_id("refined_leds", "LEDs refined", refined_leds(rep)),
         Row::new(
             "optics",
             format!(
@@ -274,28 +249,93 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
                 rep.tile_unblended_border
             ),
         ),
-        Row::new(
-            "background",
-            match rep.background.floor_sigma {
-                Some(f) => format!(
-                    "{}, floor {f}σ, noise band {}σ; {} of {} dark-field frames' backgrounds taken off",
-                    rep.background.correction,
-                    rep.background.noise_band_sigma.unwrap_or(0.0),
-                    rep.background
-                        .dark_field_frames
-                        .iter()
-                        .filter(|f| f.taken_off)
-                        .count(),
-                    rep.background.dark_field_frames.len()
-                ),
-                None => rep.background.correction.to_string(),
-            },
-        ),
+        Row::new("background", background(rep)),
         Row::new("background phase", background_phase(&rep.background_phase)),
         Row::new("disc placement", rep.disc_placement),
-    ]);
+    ]
+}
 
-    page.heading("Outputs");
+/// The height the bright/dark-field edges give, against the geometry's.
+fn height_from_boundary(rep: &Report) -> String {
+    match &rep.height_from_boundary {
+        Some(b) => format!(
+            "{:.2} ± {:.2} mm from the edges, ± {:.2} mm with the NA's {:.0} % ({} frames decide it, {} partly bright; {:+.1}σ from the geometry's {:.2} mm)",
+            b.estimate.height_mm,
+            b.estimate.sigma_mm,
+            b.sigma_with_na_mm,
+            b.na_relative_sigma * 100.0,
+            b.estimate.deciding_frames,
+            b.estimate.partly_bright,
+            b.difference_sigma,
+            b.geometry_height_mm
+        ) + &rep
+            .height_choice
+            .map(|c| format!("; {c}"))
+            .unwrap_or_default(),
+        None => "not bracketed by these frames".to_string(),
+    }
+}
+
+/// How well the bright-field frames fit the result, and how they were decoded.
+fn bright_field_fit(rep: &Report) -> String {
+    match &rep.bright_field_fit {
+        Some(f) => format!(
+            "measured ≈ {:.3} × modelled + {:.1} % of their light as offset, correlation {:.3} ({} frames over tiles){}",
+            f.gain,
+            100.0 * f.offset_share,
+            f.correlation,
+            f.frames,
+            match (rep.camera_gamma, &rep.camera_gamma_scan) {
+                (Some(g), Some(_)) => format!("; frames decoded with gamma {g}, read from them"),
+                (None, Some(_)) => "; frames read as linear, as their scan found".to_string(),
+                (Some(1.0), None) => "; frames linear, as the dataset states".to_string(),
+                (Some(g), None) => format!("; frames decoded with the dataset's gamma {g}"),
+                (None, None) => String::new(),
+            }
+        ),
+        None => "no bright-field frame".to_string(),
+    }
+}
+
+/// What the LEDs' refinement moved, and the board fitted to them.
+fn refined_leds(rep: &Report) -> String {
+    match &rep.refined_leds {
+        Some(r) => {
+            let board = r.board.map_or("no board could be fitted".to_string(), |b| {
+                format!("board fitted to them: {}", b.summary())
+            });
+            let scatter = r.led_scatter_mm.map_or(String::new(), |t| {
+                format!("; LEDs off the board model by {t:.3} mm (1σ, from the data)")
+            });
+            format!(
+                "moved {:.3} mm RMS ({:.2} mm of LED travel per frequency bin){scatter}; {board}",
+                r.moved_rms_mm, r.bin_mm
+            )
+        }
+        None => "no (--refine-leds)".to_string(),
+    }
+}
+
+/// The frames' background correction.
+fn background(rep: &Report) -> String {
+    match rep.background.floor_sigma {
+        Some(f) => format!(
+            "{}, floor {f}σ, noise band {}σ; {} of {} dark-field frames' backgrounds taken off",
+            rep.background.correction,
+            rep.background.noise_band_sigma.unwrap_or(0.0),
+            rep.background
+                .dark_field_frames
+                .iter()
+                .filter(|f| f.taken_off)
+                .count(),
+            rep.background.dark_field_frames.len()
+        ),
+        None => rep.background.correction.to_string(),
+    }
+}
+
+/// The output files the run wrote (the object in whichever format it chose).
+fn output_files(dir: &Path) -> Vec<(String, String)> {
     // The object is in whichever format the run wrote.
     let object_files = [
         (
@@ -328,10 +368,7 @@ pub fn write(r: &Reconstruction, dir: &Path, c: &Context<'_>) -> Result<()> {
         ),
         ("plots/".into(), "the charts as PNG and SVG".into()),
     ]);
-    page.files(&files);
-    page.heading("Reproduce");
-    page.command(c.reproduce);
-    page.write(&dir.join("report.html"))
+    files
 }
 
 /// The "background phase" row (and `fpm reconstruct`'s line): kept, or what the

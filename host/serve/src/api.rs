@@ -653,6 +653,10 @@ mod tests {
         assert!(schema["properties"]["error"].is_object(), "{schema}");
         let not_found = &doc["paths"]["/api/jobs/{id}"]["get"]["responses"]["404"];
         let reference = not_found["content"]["application/json"]["schema"]["$ref"].as_str();
-        assert_eq!(reference, Some("#/components/schemas/ApiError"), "{not_found}");
+        assert_eq!(
+            reference,
+            Some("#/components/schemas/ApiError"),
+            "{not_found}"
+        );
     }
 }

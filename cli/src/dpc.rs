@@ -43,48 +43,8 @@ pub fn run(a: DpcArgs) -> Result<()> {
     };
     let result = fpm_host::dpc::dpc_of(&ds, reg)?;
     fpm_host::dpc::write(&result, &ds, &a.out)?;
+    let page = fpm_report::pages::dpc::write_extras(&result, &a.dataset, &a.out);
     let r = &result.report;
-    let span = |img: &fpm_physics::Image| {
-        let m = img.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-        (-m, m)
-    };
-    // Previews are an extra: a failure is reported, never the run's.
-    for (name, img, unit) in [
-        ("phase.png", &result.object.phase, "rad"),
-        ("absorption.png", &result.object.absorption, ""),
-    ] {
-        if let Err(e) = fpm_report::preview::write_png_preview_with_bar(
-            &a.out.join(name),
-            img,
-            span(img),
-            Some(r.pixel_um),
-            unit,
-        ) {
-            tracing::warn!("{name} not written: {e:#}");
-        }
-    }
-    let page = a.out.join("report.html");
-    let outputs = [
-        ("phase.tif", "the phase, radians (OME-TIFF)"),
-        ("absorption.tif", "the absorption μ (OME-TIFF)"),
-        ("dpc.json", "this report, machine-readable"),
-    ]
-    .map(|(f, what)| (f.to_string(), what.to_string()))
-    .to_vec();
-    let context = fpm_report::pages::dpc::Context {
-        report: r,
-        dataset: &a.dataset.display().to_string(),
-        previews: vec![
-            (a.out.join("phase.png"), "phase (radians)"),
-            (a.out.join("absorption.png"), "absorption"),
-        ],
-        reproduce: &fpm_report::html::command_line(),
-        outputs,
-    };
-    // The page is an extra: a failure is a warning, never the run's.
-    if let Err(e) = fpm_report::pages::dpc::write(&context, &page) {
-        tracing::warn!("{} not written: {e:#}", page.display());
-    }
     for w in &r.warnings {
         eprintln!("warning: {w}");
     }

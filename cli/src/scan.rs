@@ -158,23 +158,7 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
             a.stage_sigma_um
         );
     }
-    let options = StitchOptions {
-        job: Job {
-            settings: Settings {
-                upsample: a.upsample,
-                flatten: a.flatten.flatten(),
-                ..Settings::default()
-            },
-            passes: a.passes,
-            ..Job::default()
-        },
-        settings: fpm_physics::stitch::Settings {
-            stage_sigma_um: a.stage_sigma_um,
-            ..Default::default()
-        },
-        redo: a.redo,
-        field_memory_bytes: a.field_memory_mib << 20,
-    };
+    let options = stitch_options(&a);
     let manifest = scan::ScanManifest::read(&a.scan)?;
     let bar = progress::counter("reconstructing", "fields");
     let total = manifest.fields.len();
@@ -202,6 +186,36 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(r)?);
         return Ok(());
     }
+    print_stitch(r, zarr);
+    if let Ok(page) = page {
+        println!("report: {}", page.display());
+    }
+    Ok(())
+}
+
+/// The stitch's options from its flags (the reconstruction's defaults for the rest).
+fn stitch_options(a: &StitchArgs) -> StitchOptions {
+    StitchOptions {
+        job: Job {
+            settings: Settings {
+                upsample: a.upsample,
+                flatten: a.flatten.flatten(),
+                ..Settings::default()
+            },
+            passes: a.passes,
+            ..Job::default()
+        },
+        settings: fpm_physics::stitch::Settings {
+            stage_sigma_um: a.stage_sigma_um,
+            ..Default::default()
+        },
+        redo: a.redo,
+        field_memory_bytes: a.field_memory_mib << 20,
+    }
+}
+
+/// What `fpm stitch` says of the mosaic it wrote to `zarr`.
+fn print_stitch(r: &fpm_host::scan::StitchReport, zarr: &std::path::Path) {
     let used = r.pairs.iter().filter(|p| p.used).count();
     println!(
         "{} fields joined into {}×{} px ({:.2} µm) in {}: {used} of {} overlaps registered, residual {:.2} µm rms",
@@ -235,10 +249,6 @@ pub fn stitch(a: StitchArgs) -> Result<()> {
     for w in &r.warnings {
         println!("warning: {w}");
     }
-    if let Ok(page) = page {
-        println!("report: {}", page.display());
-    }
-    Ok(())
 }
 
 /// `fpm scan`.
@@ -290,38 +300,7 @@ pub fn scan(a: ScanArgs) -> Result<()> {
         &dev,
         stage.as_mut(),
         &scan_plan,
-        &mut |e| match e {
-            fpm_acquire::scan::ScanEvent::Moving { index, .. } => {
-                progress::advance(&bar, index, total);
-                bar.set_message(format!("field {}: moving", index + 1));
-            }
-            fpm_acquire::scan::ScanEvent::Acquiring {
-                index, progress: p, ..
-            } => {
-                bar.set_message(format!("field {}: {}/{} frames", index + 1, p.frames, p.of));
-            }
-            fpm_acquire::scan::ScanEvent::Skipped { index } => {
-                progress::advance(&bar, index + 1, total)
-            }
-            fpm_acquire::scan::ScanEvent::Reconstructed { .. } => {}
-            fpm_acquire::scan::ScanEvent::Focused {
-                index,
-                measured_um,
-                moved,
-            } => bar.set_message(match (measured_um, moved) {
-                (Some(z), true) => format!("field {}: refocused by {z:+.0} µm", index + 1),
-                (Some(z), false) => format!("field {}: in focus ({z:+.0} µm)", index + 1),
-                (None, _) => format!("field {}: too blank to focus, focus kept", index + 1),
-            }),
-            fpm_acquire::scan::ScanEvent::Stitching { done, total } => {
-                progress::advance(&bar, total, total);
-                bar.set_message(if done < total {
-                    format!("stitching: field {}", done + 1)
-                } else {
-                    "stitching: registering and blending".into()
-                });
-            }
-        },
+        &mut |e| show_scan_event(&bar, total, e),
         &control,
     )?;
     bar.finish_and_clear();
@@ -348,4 +327,38 @@ pub fn scan(a: ScanArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// A scan's progress on its bar (`total` fields).
+fn show_scan_event(bar: &indicatif::ProgressBar, total: usize, e: fpm_acquire::scan::ScanEvent) {
+    match e {
+        fpm_acquire::scan::ScanEvent::Moving { index, .. } => {
+            progress::advance(bar, index, total);
+            bar.set_message(format!("field {}: moving", index + 1));
+        }
+        fpm_acquire::scan::ScanEvent::Acquiring {
+            index, progress: p, ..
+        } => {
+            bar.set_message(format!("field {}: {}/{} frames", index + 1, p.frames, p.of));
+        }
+        fpm_acquire::scan::ScanEvent::Skipped { index } => progress::advance(bar, index + 1, total),
+        fpm_acquire::scan::ScanEvent::Reconstructed { .. } => {}
+        fpm_acquire::scan::ScanEvent::Focused {
+            index,
+            measured_um,
+            moved,
+        } => bar.set_message(match (measured_um, moved) {
+            (Some(z), true) => format!("field {}: refocused by {z:+.0} µm", index + 1),
+            (Some(z), false) => format!("field {}: in focus ({z:+.0} µm)", index + 1),
+            (None, _) => format!("field {}: too blank to focus, focus kept", index + 1),
+        }),
+        fpm_acquire::scan::ScanEvent::Stitching { done, total } => {
+            progress::advance(bar, total, total);
+            bar.set_message(if done < total {
+                format!("stitching: field {}", done + 1)
+            } else {
+                "stitching: registering and blending".into()
+            });
+        }
+    }
 }

@@ -3,7 +3,7 @@
 
 use std::io::Write;
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -71,58 +71,11 @@ pub fn run(a: ServeArgs) -> Result<()> {
     // The virtual rig's processes live as long as this one (and die with it).
     let mut supervisor = None;
     let rig = if a.r#virtual {
-        let fpm = std::env::current_exe().context("locating the fpm executable")?;
-        let name = format!("serve-{}", std::process::id());
-        let size = a.virtual_size.to_string();
-        let mut camera = vec!["--size".to_string(), size.clone()];
-        if let Some(w) = a.virtual_slide_um {
-            camera.extend([
-                "--slide-um".into(),
-                w.to_string(),
-                "--stage-error-um".into(),
-                a.virtual_stage_error_um.to_string(),
-            ]);
-        }
-        let camera: Vec<&str> = camera.iter().map(String::as_str).collect();
-        let started = VirtualRig::start_with_firmware(
-            &fpm,
-            &name,
-            &state_dir.join("virtual-rig"),
-            a.virtual_firmware.as_deref(),
-            &camera,
-        )?;
-        let controller = match &a.virtual_firmware {
-            Some(uf2) => format!("the firmware image {} in an emulated RP2040", uf2.display()),
-            None => "emulated controller".to_string(),
-        };
-        let rig = Rig {
-            port: started.emulator.port(),
-            camera: ServiceNames::for_camera(&name),
-            stage: virtual_stage(name.clone()),
-            description: format!(
-                "virtual rig {name}: {controller}, virtual {size}² camera, virtual stage"
-            ),
-        };
+        let (rig, started) = virtual_rig(&a, &state_dir)?;
         supervisor = Some(Supervisor::start(started)?);
         rig
     } else {
-        let port = match &a.port {
-            Some(p) => p.clone(),
-            None => discover::the_only_board(std::time::Duration::from_secs(2))
-                .map_err(anyhow::Error::msg)?,
-        };
-        // Each job opens the stage anew (and fails early here if it cannot be named).
-        if a.stage.stage == StageChoice::Virtual && a.stage.rig.is_none() {
-            anyhow::bail!("--stage virtual needs --rig NAME");
-        }
-        let args = a.stage.clone();
-        let stage: StageFactory = Box::new(move || args.open_focus());
-        Rig {
-            description: format!("controller on {port}, camera {}", a.frames),
-            port,
-            camera: ServiceNames::for_camera(&a.frames),
-            stage,
-        }
+        real_rig(&a)?
     };
     let config = Config {
         listen: a.listen,
@@ -145,6 +98,66 @@ pub fn run(a: ServeArgs) -> Result<()> {
     })?;
     drop(supervisor);
     Ok(())
+}
+
+/// The virtual rig `fpm serve --virtual` starts beside itself (its processes, to be
+/// supervised), and the service's view of it.
+fn virtual_rig(a: &ServeArgs, state_dir: &Path) -> Result<(Rig, VirtualRig)> {
+    let fpm = std::env::current_exe().context("locating the fpm executable")?;
+    let name = format!("serve-{}", std::process::id());
+    let size = a.virtual_size.to_string();
+    let mut camera = vec!["--size".to_string(), size.clone()];
+    if let Some(w) = a.virtual_slide_um {
+        camera.extend([
+            "--slide-um".into(),
+            w.to_string(),
+            "--stage-error-um".into(),
+            a.virtual_stage_error_um.to_string(),
+        ]);
+    }
+    let camera: Vec<&str> = camera.iter().map(String::as_str).collect();
+    let started = VirtualRig::start_with_firmware(
+        &fpm,
+        &name,
+        &state_dir.join("virtual-rig"),
+        a.virtual_firmware.as_deref(),
+        &camera,
+    )?;
+    let controller = match &a.virtual_firmware {
+        Some(uf2) => format!("the firmware image {} in an emulated RP2040", uf2.display()),
+        None => "emulated controller".to_string(),
+    };
+    let rig = Rig {
+        port: started.emulator.port(),
+        camera: ServiceNames::for_camera(&name),
+        stage: virtual_stage(name.clone()),
+        description: format!(
+            "virtual rig {name}: {controller}, virtual {size}² camera, virtual stage"
+        ),
+    };
+    Ok((rig, started))
+}
+
+/// The rig on this machine: the board on `--port` (or the only one plugged in), the
+/// camera on `--frames`, the stage as `--stage` names it.
+fn real_rig(a: &ServeArgs) -> Result<Rig> {
+    let port = match &a.port {
+        Some(p) => p.clone(),
+        None => discover::the_only_board(std::time::Duration::from_secs(2))
+            .map_err(anyhow::Error::msg)?,
+    };
+    // Each job opens the stage anew (and fails early here if it cannot be named).
+    if a.stage.stage == StageChoice::Virtual && a.stage.rig.is_none() {
+        anyhow::bail!("--stage virtual needs --rig NAME");
+    }
+    let args = a.stage.clone();
+    let stage: StageFactory = Box::new(move || args.open_focus());
+    Ok(Rig {
+        description: format!("controller on {port}, camera {}", a.frames),
+        port,
+        camera: ServiceNames::for_camera(&a.frames),
+        stage,
+    })
 }
 
 /// A thread that starts the virtual rig's processes again when they exit (killed,

@@ -1,7 +1,7 @@
 //! The DPC run's `report.html`: the phase and absorption, the patterns, the warnings,
 //! the score against a simulation's truth, and how to run it again.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use fpm_host::dpc::DpcReport;
@@ -20,6 +20,54 @@ pub struct Context<'a> {
     pub reproduce: &'a str,
     /// The result files, relative to the page, with what each is.
     pub outputs: Vec<(String, String)>,
+}
+
+/// A DPC run's extras beside its images in `out`: the phase and absorption previews
+/// (PNG, with a scale and colour bar) and `report.html`; `dataset` names the data
+/// on the page. Each is an extra: a failure is a warning, never the run's. Returns the
+/// page's path.
+pub fn write_extras(result: &fpm_host::dpc::DpcResult, dataset: &Path, out: &Path) -> PathBuf {
+    let r = &result.report;
+    let span = |img: &fpm_physics::Image| {
+        let m = img.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        (-m, m)
+    };
+    for (name, img, unit) in [
+        ("phase.png", &result.object.phase, "rad"),
+        ("absorption.png", &result.object.absorption, ""),
+    ] {
+        if let Err(e) = crate::preview::write_png_preview_with_bar(
+            &out.join(name),
+            img,
+            span(img),
+            Some(r.pixel_um),
+            unit,
+        ) {
+            tracing::warn!("{name} not written: {e:#}");
+        }
+    }
+    let page = out.join("report.html");
+    let outputs = [
+        ("phase.tif", "the phase, radians (OME-TIFF)"),
+        ("absorption.tif", "the absorption μ (OME-TIFF)"),
+        ("dpc.json", "this report, machine-readable"),
+    ]
+    .map(|(f, what)| (f.to_string(), what.to_string()))
+    .to_vec();
+    let context = Context {
+        report: r,
+        dataset: &dataset.display().to_string(),
+        previews: vec![
+            (out.join("phase.png"), "phase (radians)"),
+            (out.join("absorption.png"), "absorption"),
+        ],
+        reproduce: &crate::html::command_line(),
+        outputs,
+    };
+    if let Err(e) = write(&context, &page) {
+        tracing::warn!("{} not written: {e:#}", page.display());
+    }
+    page
 }
 
 /// Write the page to `path`.

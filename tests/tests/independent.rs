@@ -1,0 +1,102 @@
+//! The reconstruction judged on data from a forward model we did not write (issue 63):
+//! `tests/independent/simulate.py`, NumPy from the physics of docs/dataset.md, with
+//! each LED's exact spherical wave and a sample larger than the field. fpm's own
+//! simulator is the model its solver fits, so a bias shared by both cannot show on its
+//! sets; it can on these.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use fpm_tests::{fpm_bin, python_venv, TempDir};
+
+fn workspace() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// A Python with numpy and tifffile (the import tests' environment).
+fn python() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        python_venv(
+            "python-import",
+            &workspace().join("tests/import_sources/requirements.txt"),
+        )
+    })
+}
+
+/// An independent set of `size`² frames in `out`.
+fn simulate(out: &Path, size: usize) {
+    let run = Command::new(python())
+        .arg(workspace().join("tests/independent/simulate.py"))
+        .arg(out)
+        .args(["--size", &size.to_string()])
+        .output()
+        .expect("running simulate.py");
+    assert!(
+        run.status.success(),
+        "simulate.py: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
+
+/// `fpm reconstruct` of `dataset` as the issue measured it (10 passes, U = 2), the
+/// tiling its own unless `tile` is given: (the tile side it used, its complex NRMSE
+/// against the hidden sample).
+fn reconstruct(dataset: &Path, out: &Path, tile: Option<usize>) -> (u64, f64) {
+    let mut cmd = Command::new(fpm_bin());
+    cmd.arg("reconstruct")
+        .arg(dataset)
+        .arg("--out")
+        .arg(out)
+        .args(["--upsample", "2", "--passes", "10", "--json"]);
+    if let Some(t) = tile {
+        cmd.args(["--tile", &t.to_string()]);
+    }
+    let run = cmd.output().expect("running fpm reconstruct");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("report JSON");
+    let nrmse = report["versus_truth"]["complex_nrmse"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no score against the truth: {report}"));
+    (report["tile_size"].as_u64().unwrap_or(0), nrmse)
+}
+
+/// The default tiling is within 1.1× of the best of the tilings tried, on a field of
+/// one default tile (128²) and on one the issue found the default 4.4× off on (256²,
+/// there with another set). Two sizes because the tile rule's choice changes with the
+/// field: the whole frame as one tile at both here, tiles of a half and three
+/// quarters as the rivals. The same sets also show that our model and the
+/// independent one agree: the default recovers the hidden sample to a complex NRMSE
+/// under 0.08 (0.058 and 0.046 measured).
+#[test]
+fn the_default_tiling_is_within_a_tenth_of_the_best_on_independent_fields() {
+    let dir = TempDir::new("independent-tiling");
+    for size in [128usize, 256] {
+        let mut lines = vec![];
+        let set = dir.0.join(format!("set-{size}"));
+        simulate(&set, size);
+        let (default_tile, default) = reconstruct(&set, &dir.0.join(format!("r{size}")), None);
+        let mut best = default;
+        for tile in [size / 2, size * 3 / 4] {
+            let (_, nrmse) = reconstruct(&set, &dir.0.join(format!("r{size}-{tile}")), Some(tile));
+            lines.push(format!("{size}²: --tile {tile}: complex NRMSE {nrmse:.4}"));
+            best = best.min(nrmse);
+        }
+        lines.push(format!(
+            "{size}²: default (tile {default_tile}): complex NRMSE {default:.4}"
+        ));
+        eprintln!("{}", lines.join("\n"));
+        assert!(
+            default <= 1.1 * best,
+            "the default tiling is {:.2}× the best:\n{}",
+            default / best,
+            lines.join("\n")
+        );
+        assert!(default <= 0.08, "{}", lines.join("\n"));
+    }
+}

@@ -53,7 +53,9 @@ fn reconstruct(dataset: &Path, out: &Path, tile: Option<usize>) -> (u64, f64) {
     if let Some(t) = tile {
         cmd.args(["--tile", &t.to_string()]);
     }
+    let started = std::time::Instant::now();
     let run = cmd.output().expect("running fpm reconstruct");
+    let wall_ms = started.elapsed().as_secs_f64() * 1e3;
     assert!(
         run.status.success(),
         "{}",
@@ -63,7 +65,33 @@ fn reconstruct(dataset: &Path, out: &Path, tile: Option<usize>) -> (u64, f64) {
     let nrmse = report["versus_truth"]["complex_nrmse"]
         .as_f64()
         .unwrap_or_else(|| panic!("no score against the truth: {report}"));
+    assert_steps_timed(&report, wall_ms);
     (report["tile_size"].as_u64().unwrap_or(0), nrmse)
+}
+
+/// report.json times each step of the job (issue 63): EPRY as the report's own
+/// `total_ms`, the automatic checks beside it, every step's time within the process's
+/// own wall-clock time.
+fn assert_steps_timed(report: &serde_json::Value, wall_ms: f64) {
+    let steps = report["steps_ms"].as_array().expect("steps_ms");
+    let ms = |name: &str| {
+        steps
+            .iter()
+            .find(|s| s["step"] == name)
+            .and_then(|s| s["ms"].as_f64())
+            .unwrap_or_else(|| panic!("no step {name:?}: {steps:?}"))
+    };
+    assert_eq!(
+        ms("EPRY"),
+        report["total_ms"].as_f64().unwrap(),
+        "{steps:?}"
+    );
+    assert!(ms("refocus estimate and edge checks") >= 0.0, "{steps:?}");
+    let sum: f64 = steps.iter().filter_map(|s| s["ms"].as_f64()).sum();
+    assert!(
+        sum > 0.0 && sum <= wall_ms,
+        "steps {sum} ms in a {wall_ms} ms run: {steps:?}"
+    );
 }
 
 /// The default tiling is within 1.1× of the best of the tilings tried, on a field of

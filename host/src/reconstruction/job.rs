@@ -13,7 +13,7 @@ use fpm_physics::{LedGeometry, System};
 
 use super::height;
 use super::refocus::{defocus_on_disk, RefocusChoice, RefocusReport};
-use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request};
+use super::{reconstruct_on_disk, reconstruct_with_system, Reconstruction, Request, StepTime};
 use crate::calibration::{GeometrySource, PlacementFile};
 use crate::dataset::{Dataset, DatasetInfo, DatasetOnDisk};
 
@@ -257,15 +257,18 @@ impl Job {
             }
             None => None,
         };
+        let mut steps = Steps::default();
         let gamma_scan = match reason {
-            Some(reason) => Some(self.scan_gamma(&mut on_disk, &geometry, reason, on)?),
+            Some(reason) => Some(steps.time("gamma scan", true, || {
+                self.scan_gamma(&mut on_disk, &geometry, reason, on)
+            })?),
             None => None,
         };
         let system = on_disk.manifest.system();
         let bytes = on_disk.in_focus_bytes();
         // Loaded once, whether the run is done at one height or two.
         let loaded = if bytes as f64 <= self.frame_memory_gb * 1e9 {
-            let mut ds = Dataset::load(dir)?;
+            let mut ds = steps.time("frames loaded", false, || Ok(Dataset::load(dir)?))?;
             ds.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
             ds.manifest.camera = on_disk.manifest.camera;
             Some(ds)
@@ -284,16 +287,23 @@ impl Job {
                 Ok(r)
             }
         };
-        let r = reconstruct_at(&geometry, &source)?;
-        let mut r = self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
-            on(JobEvent::WeighingEdgeHeight {
-                stated_mm: geometry.height_mm,
-                edge_mm: at_edge.height_mm,
-            });
-            reconstruct_at(at_edge, source)
+        let r = steps.reconstruction(|| reconstruct_at(&geometry, &source))?;
+        let mut r = steps.time("edge height weighed", true, || {
+            self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
+                on(JobEvent::WeighingEdgeHeight {
+                    stated_mm: geometry.height_mm,
+                    edge_mm: at_edge.height_mm,
+                });
+                reconstruct_at(at_edge, source)
+            })
         })?;
         drop(loaded); // the frames are not needed to score the result
-        score(&on_disk, &mut r);
+        steps.unless_weighed(&r);
+        steps.time("scored against the truth", false, || {
+            score(&on_disk, &mut r);
+            Ok(())
+        })?;
+        r.report.steps_ms = steps.done;
         r.report.camera_gamma_scan = gamma_scan.clone();
         r.report.camera_gamma_scan_reason = reason;
         Ok(Finished {
@@ -355,11 +365,21 @@ impl Job {
             ..ds.manifest.system()
         };
         let (geometry, source) = self.geometry.resolve(&ds.dir, &ds.manifest.geometry())?;
-        let r = self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)?;
-        let mut r = self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
-            self.reconstruct_loaded(ds, &system, (at_edge, source), progress)
+        let mut steps = Steps::default();
+        let r = steps.reconstruction(|| {
+            self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)
         })?;
-        score(ds, &mut r);
+        let mut r = steps.time("edge height weighed", true, || {
+            self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
+                self.reconstruct_loaded(ds, &system, (at_edge, source), progress)
+            })
+        })?;
+        steps.unless_weighed(&r);
+        steps.time("scored against the truth", false, || {
+            score(ds, &mut r);
+            Ok(())
+        })?;
+        r.report.steps_ms = steps.done;
         Ok(r)
     }
 
@@ -461,6 +481,62 @@ impl Job {
             },
         )?;
         Ok(scan)
+    }
+}
+
+/// The steps a job has timed so far ([`super::Report::steps_ms`]).
+#[derive(Default)]
+struct Steps {
+    done: Vec<StepTime>,
+}
+
+impl Steps {
+    /// Run `step`, timing it as `name`.
+    fn time<T>(
+        &mut self,
+        name: &'static str,
+        automatic: bool,
+        step: impl FnOnce() -> Result<T>,
+    ) -> Result<T> {
+        let start = std::time::Instant::now();
+        let out = step()?;
+        self.done.push(StepTime {
+            step: name,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+            automatic,
+        });
+        Ok(out)
+    }
+
+    /// The edge's height was not weighed (nothing to weigh): its step, a few µs of
+    /// deciding so, is left out.
+    fn unless_weighed(&mut self, r: &Reconstruction) {
+        if r.report.height_choice.is_none() {
+            self.done.retain(|s| s.step != "edge height weighed");
+        }
+    }
+
+    /// Run the reconstruction, timed as two steps: EPRY itself (the report's
+    /// `total_ms`) and the refocus estimate and edge checks around it (the rest).
+    fn reconstruction(
+        &mut self,
+        run: impl FnOnce() -> Result<Reconstruction>,
+    ) -> Result<Reconstruction> {
+        let start = std::time::Instant::now();
+        let r = run()?;
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let epry_ms = r.report.total_ms.min(wall_ms);
+        self.done.push(StepTime {
+            step: "refocus estimate and edge checks",
+            ms: wall_ms - epry_ms,
+            automatic: true,
+        });
+        self.done.push(StepTime {
+            step: "EPRY",
+            ms: epry_ms,
+            automatic: false,
+        });
+        Ok(r)
     }
 }
 

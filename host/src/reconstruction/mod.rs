@@ -144,6 +144,37 @@ pub struct Report {
     /// frames of one LED each (`--refine-leds`) does not apply to them.
     #[serde(skip_serializing_if = "is_zero")]
     pub multiplexed_frames: usize,
+    /// How long each step of the job took, in the order they ran (a job's run
+    /// fills it: [`job::Job::run`]); what the automatic checks cost beside EPRY.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub steps_ms: Vec<StepTime>,
+}
+
+/// How long one step of a reconstruction job took.
+#[derive(Debug, Clone, Serialize)]
+pub struct StepTime {
+    /// The step, in words.
+    pub step: &'static str,
+    /// Wall-clock time, ms.
+    pub ms: f64,
+    /// A check the job made by itself (the gamma scan, the refocus estimate and the
+    /// edge's height weighed), as against EPRY, loading and scoring.
+    pub automatic: bool,
+}
+
+impl Report {
+    /// The share of the job's time its automatic checks took (None before a job has
+    /// timed its steps).
+    pub fn automatic_share(&self) -> Option<f64> {
+        let total: f64 = self.steps_ms.iter().map(|s| s.ms).sum();
+        let automatic: f64 = self
+            .steps_ms
+            .iter()
+            .filter(|s| s.automatic)
+            .map(|s| s.ms)
+            .sum();
+        (total > 0.0).then(|| automatic / total)
+    }
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -332,6 +363,7 @@ impl Report {
             refocus: RefocusReport::given(settings.defocus_um),
             sample_bits: None,
             multiplexed_frames: 0,
+            steps_ms: vec![],
         }
     }
 }

@@ -145,6 +145,22 @@ fn result_rows(r: &Reconstruction) -> Vec<Row> {
             ),
         ),
     ];
+    if let Some(share) = rep.automatic_share() {
+        let steps: Vec<String> = rep
+            .steps_ms
+            .iter()
+            .map(|s| format!("{} {:.0} ms", s.step, s.ms))
+            .collect();
+        rows.push(Row::with_id(
+            "steps_ms",
+            "time by step",
+            format!(
+                "{}; the automatic checks {:.0} % of it",
+                steps.join(", "),
+                100.0 * share
+            ),
+        ));
+    }
     if let Some(s) = &rep.versus_truth {
         rows.push(Row::with_id(
             "complex_nrmse",

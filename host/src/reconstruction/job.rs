@@ -235,28 +235,7 @@ impl Job {
         on_disk.manifest.entrance_pupil_mm = self.entrance_pupil_mm;
         let nominal = on_disk.manifest.geometry();
         let (geometry, source) = self.geometry.resolve(dir, &nominal)?;
-        let reason = match self.camera_gamma {
-            Some(CameraGamma::Exponent(gamma)) => {
-                // γ = 1 is linear: nothing to decode, so no full scale needed.
-                decode_with(&mut on_disk, Some(gamma).filter(|&g| g != 1.0))?;
-                None
-            }
-            Some(CameraGamma::Auto) => Some(GammaScanReason::Asked),
-            None if on_disk.manifest.camera.gamma.is_none()
-                && on_disk
-                    .manifest
-                    .camera
-                    .bit_depth
-                    .unwrap_or(on_disk.sample_bits())
-                    <= 8 =>
-            {
-                Some(GammaScanReason::EightBitUnstated)
-            }
-            None if on_disk.manifest.camera.gamma.is_none() && on_disk.sample_bits() <= 16 => {
-                Some(GammaScanReason::Unstated)
-            }
-            None => None,
-        };
+        let reason = self.gamma_reason(&mut on_disk)?;
         let mut steps = Steps::default();
         let gamma_scan = match reason {
             Some(reason) => Some(steps.time("gamma scan", true, || {
@@ -311,6 +290,34 @@ impl Job {
             gamma_scan,
             system,
             nominal,
+        })
+    }
+
+    /// Why the frames' gamma is to be read from them, if it is: asked for, or by
+    /// default for frames whose dataset states none (8-bit ones always, deeper ones
+    /// screened first). A gamma given is applied to `on_disk` here.
+    fn gamma_reason(&self, on_disk: &mut DatasetOnDisk) -> Result<Option<GammaScanReason>> {
+        Ok(match self.camera_gamma {
+            Some(CameraGamma::Exponent(gamma)) => {
+                // γ = 1 is linear: nothing to decode, so no full scale needed.
+                decode_with(on_disk, Some(gamma).filter(|&g| g != 1.0))?;
+                None
+            }
+            Some(CameraGamma::Auto) => Some(GammaScanReason::Asked),
+            None if on_disk.manifest.camera.gamma.is_none()
+                && on_disk
+                    .manifest
+                    .camera
+                    .bit_depth
+                    .unwrap_or(on_disk.sample_bits())
+                    <= 8 =>
+            {
+                Some(GammaScanReason::EightBitUnstated)
+            }
+            None if on_disk.manifest.camera.gamma.is_none() && on_disk.sample_bits() <= 16 => {
+                Some(GammaScanReason::Unstated)
+            }
+            None => None,
         })
     }
 

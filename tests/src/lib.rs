@@ -165,8 +165,22 @@ impl Target {
     }
 }
 
-fn workspace() -> &'static Path {
+/// The workspace's root (the repository).
+pub fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// A Python with NumPy, tifffile, SciPy and h5py (tests/import_sources/requirements.txt,
+/// in target/python-import): what writes other labs' files for the import tests, and
+/// the independent forward model's sets (tests/independent/simulate.py).
+pub fn python_with_numpy() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        python_venv(
+            "python-import",
+            &workspace().join("tests/import_sources/requirements.txt"),
+        )
+    })
 }
 
 /// The firmware image users flash (`fpm-led-controller.uf2`, the chain on one data

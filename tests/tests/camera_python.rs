@@ -8,11 +8,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use fpm_host::dataset::Dataset;
-use fpm_tests::{child, python_venv, Emulator, Ready, TempDir};
-
-fn workspace() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
+use fpm_tests::{child, python_venv, workspace, Emulator, Ready, TempDir};
 
 /// A Python with the contract's packages (iceoryx2, NumPy; pinned in
 /// tools/camera-python/requirements.txt), in a virtual environment under target/.

@@ -8,28 +8,12 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
 
-use fpm_tests::{fpm_bin, fpm_stdout, python_venv, simulate_centred, TempDir};
-
-fn workspace() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
-
-/// A Python with numpy, tifffile, scipy and h5py (tests/import_sources/requirements.txt).
-fn python() -> &'static Path {
-    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        python_venv(
-            "python-import",
-            &workspace().join("tests/import_sources/requirements.txt"),
-        )
-    })
-}
+use fpm_tests::{fpm_bin, fpm_stdout, python_with_numpy, simulate_centred, workspace, TempDir};
 
 /// Write `dataset` as `format` into `out` (export.py's `extra`: `--mutate …`, `--v73`).
 fn export(format: &str, dataset: &Path, out: &Path, extra: &[&str]) {
-    let run = Command::new(python())
+    let run = Command::new(python_with_numpy())
         .arg(workspace().join("tests/import_sources/export.py"))
         .args([format, &dataset.to_string_lossy(), &out.to_string_lossy()])
         .args(extra)

@@ -4,30 +4,14 @@
 //! simulator is the model its solver fits, so a bias shared by both cannot show on its
 //! sets; it can on these.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-use std::sync::OnceLock;
 
-use fpm_tests::{fpm_bin, python_venv, TempDir};
-
-fn workspace() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
-
-/// A Python with numpy and tifffile (the import tests' environment).
-fn python() -> &'static Path {
-    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        python_venv(
-            "python-import",
-            &workspace().join("tests/import_sources/requirements.txt"),
-        )
-    })
-}
+use fpm_tests::{fpm_bin, python_with_numpy, workspace, TempDir};
 
 /// An independent set of `size`² frames in `out`.
 fn simulate(out: &Path, size: usize) {
-    let run = Command::new(python())
+    let run = Command::new(python_with_numpy())
         .arg(workspace().join("tests/independent/simulate.py"))
         .arg(out)
         .args(["--size", &size.to_string()])

@@ -854,6 +854,48 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     assert_eq!(completed["out"], job["out"], "{completed}");
     let out = std::path::Path::new(job["out"].as_str().unwrap());
     assert_eq!(Dataset::load(out).unwrap().frames.len(), 441);
+
+    // Opened again with nothing running, the page shows the newest finished job that
+    // made images (issue 65): those images, not grey boxes.
+    let shown_job = seen["result_job"].as_i64().unwrap_or(0);
+    let newest_done = service
+        .get("/api/jobs")
+        .json()
+        .unwrap()
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|j| j["state"] == "done")
+        .filter(|j| {
+            j["reports"]
+                .as_array()
+                .is_some_and(|r| r.iter().any(|f| f == "reconstruction/report.html"))
+        })
+        .filter_map(|j| j["id"].as_i64())
+        .max();
+    assert_eq!(Some(shown_job), newest_done, "{seen}");
+    let record = service
+        .get(&format!("/api/jobs/{shown_job}"))
+        .json()
+        .unwrap();
+    let written = std::fs::read(
+        std::path::Path::new(record["out"].as_str().unwrap()).join("reconstruction/amplitude.png"),
+    )
+    .unwrap();
+    let (mean, std) = fpm_tests::browser::grey_stats(&written);
+    let shown = &seen["result_image"];
+    assert!(
+        (shown["mean"].as_f64().unwrap() - mean).abs() < 0.5
+            && (shown["std"].as_f64().unwrap() - std).abs() < 0.5,
+        "the page shows {shown}, job {shown_job} wrote mean {mean:.2} σ {std:.2}"
+    );
+    assert!(
+        seen["result_caption"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("job {shown_job}")),
+        "{seen}"
+    );
 }
 
 /// The process whose command line holds every one of `parts` (one of the service's

@@ -1,8 +1,8 @@
 // Drives `fpm serve`'s page in Debian's headless Chromium as a person would: open the
 // address the service printed, start an acquisition, watch its progress and its final
-// image, then start a second, pause it, resume it, cancel it mid-capture, and complete
-// it with the history's Resume button. Prints what it saw as one JSON
-// object on stdout; tests/tests/serve.rs judges it (this script asserts nothing).
+// image, then start a second, pause it, resume it, cancel it mid-capture, complete it
+// with the history's Resume button, and open the page again to see the last result.
+// Prints what it saw as one JSON object on stdout; tests/tests/serve.rs judges it (this script asserts nothing).
 //
 //   node tools/browser/serve-page.mjs PAGE_URL SCREENSHOT.png
 
@@ -27,6 +27,26 @@ const browser = await chromium.launch({
   ],
 });
 const seen = { errors: [], progress: [] };
+
+// The mean and standard deviation of the grey levels the browser drew for image `id`
+// (run in the page).
+function greyStats(id) {
+  const img = document.getElementById(id);
+  const canvas = document.createElement("canvas");
+  canvas.width = img.naturalWidth;
+  canvas.height = img.naturalHeight;
+  const ctx = canvas.getContext("2d");
+  ctx.drawImage(img, 0, 0);
+  const { data } = ctx.getImageData(0, 0, canvas.width, canvas.height);
+  let sum = 0, sum2 = 0;
+  const n = data.length / 4;
+  for (let i = 0; i < data.length; i += 4) {
+    sum += data[i];
+    sum2 += data[i] * data[i];
+  }
+  const mean = sum / n;
+  return { width: img.naturalWidth, height: img.naturalHeight, mean, std: Math.sqrt(sum2 / n - mean * mean) };
+}
 try {
   const page = await browser.newPage({ viewport: { width: 1200, height: 1400 } });
   page.on("pageerror", (e) => seen.errors.push("page error: " + e.message));
@@ -78,23 +98,7 @@ try {
     const img = document.getElementById("amplitude");
     return img.complete && img.naturalWidth > 0 && img.src.includes("seq=");
   }, null, { timeout: 10_000 });
-  seen.final_image = await page.evaluate(() => {
-    const img = document.getElementById("amplitude");
-    const canvas = document.createElement("canvas");
-    canvas.width = img.naturalWidth;
-    canvas.height = img.naturalHeight;
-    const ctx = canvas.getContext("2d");
-    ctx.drawImage(img, 0, 0);
-    const { data } = ctx.getImageData(0, 0, canvas.width, canvas.height);
-    let sum = 0, sum2 = 0;
-    const n = data.length / 4;
-    for (let i = 0; i < data.length; i += 4) {
-      sum += data[i];
-      sum2 += data[i] * data[i];
-    }
-    const mean = sum / n;
-    return { width: img.naturalWidth, height: img.naturalHeight, mean, std: Math.sqrt(sum2 / n - mean * mean) };
-  });
+  seen.final_image = await page.evaluate(greyStats, "amplitude");
   seen.caption = await page.textContent("#amplitude-caption");
   seen.report_links = await page.$$eval(`${row(first)} a`, (links) => links.map((a) => a.getAttribute("href")));
 
@@ -155,6 +159,16 @@ try {
   );
   seen.third_state = await page.getAttribute(row(third), "data-state");
   seen.third_kind = await page.textContent(`${row(third)} td:nth-child(2)`);
+  // Opened again, as a lab opens it in the morning: the newest finished job's
+  // result is on the page, not grey boxes.
+  await page.reload();
+  await page.waitForFunction(() => {
+    const img = document.getElementById("amplitude");
+    return document.body.dataset.resultJob !== undefined && img.complete && img.naturalWidth > 0;
+  }, null, { timeout: 10_000 });
+  seen.result_job = Number(await page.getAttribute("body", "data-result-job"));
+  seen.result_caption = await page.textContent("#amplitude-caption");
+  seen.result_image = await page.evaluate(greyStats, "amplitude");
   await page.screenshot({ path: screenshot, fullPage: true });
 } catch (e) {
   seen.errors.push("driver: " + e.message);

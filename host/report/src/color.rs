@@ -18,17 +18,7 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
         report.dataset, report.reference
     ));
     page.heading("Warnings");
-    let warnings: Vec<String> = report
-        .warnings
-        .iter()
-        .map(|w| w.message.clone())
-        .chain(report.channels.iter().flat_map(|c| {
-            c.warnings
-                .iter()
-                .map(move |w| format!("{}: {}", c.name, w.message))
-        }))
-        .collect();
-    page.warnings(&warnings);
+    page.warnings(&all_warnings(report));
     page.heading("Image");
     let png = std::fs::read(out.join(PREVIEW_NAME))?;
     page.figures_scaled(&[(
@@ -37,6 +27,39 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
         "sRGB preview: each channel's |t|², white-balanced on its clear background",
     )]);
     page.heading("Channels");
+    channels(&mut page, report);
+    page.table(&[
+        Row::new("LED placement", report.geometry.clone()),
+        Row::new(
+            "pixel",
+            format!("{:.4} µm in the sample plane", report.pixel_um),
+        ),
+    ]);
+    page.heading("Outputs");
+    page.files(&output_files(report));
+    page.heading("Reproduce");
+    page.command(reproduce);
+    let path = out.join("report.html");
+    page.write(&path)?;
+    Ok(path)
+}
+
+/// The run's warnings, then each channel's, named by it.
+fn all_warnings(report: &ColorReport) -> Vec<String> {
+    report
+        .warnings
+        .iter()
+        .map(|w| w.message.clone())
+        .chain(report.channels.iter().flat_map(|c| {
+            c.warnings
+                .iter()
+                .map(move |w| format!("{}: {}", c.name, w.message))
+        }))
+        .collect()
+}
+
+/// A row per channel: its wavelength, LEDs, registration, clear level and errors.
+fn channels(page: &mut Page, report: &ColorReport) {
     let rows: Vec<Vec<String>> = report
         .channels
         .iter()
@@ -69,14 +92,10 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
         ],
         &rows,
     );
-    page.table(&[
-        Row::new("LED placement", report.geometry.clone()),
-        Row::new(
-            "pixel",
-            format!("{:.4} µm in the sample plane", report.pixel_um),
-        ),
-    ]);
-    page.heading("Outputs");
+}
+
+/// The colour images, the preview, the report and each channel's own outputs.
+fn output_files(report: &ColorReport) -> Vec<(String, String)> {
     let mut files: Vec<(String, String)> = vec![
         (
             "amplitude.tif".into(),
@@ -95,12 +114,7 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
             format!("{}: its own reconstruction, pupil and report", c.name),
         )
     }));
-    page.files(&files);
-    page.heading("Reproduce");
-    page.command(reproduce);
-    let path = out.join("report.html");
-    page.write(&path)?;
-    Ok(path)
+    files
 }
 
 /// Write a colour run into `out` for people: each channel's own outputs, previews and

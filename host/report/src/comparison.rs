@@ -22,7 +22,6 @@ pub fn write_comparison(
     upsample: usize,
     path: &Path,
 ) -> Result<()> {
-    use fpm_physics::metrics::resample_to;
     let truth = Truth::find(ds.dir())?.context("no truth.json beside the dataset")?;
     let pitch = truth
         .object_pixel_um
@@ -39,26 +38,47 @@ pub fn write_comparison(
         if rh * w != rw * h {
             bail!("{title}: {rw}x{rh} is not the truth's field of view ({w}x{h})");
         }
-        let mut r = resample_to(r, rec_pitch, (h, w), |_, _| true);
-        let c: rustfft::num_complex::Complex64 = r
-            .iter()
-            .zip(t.iter())
-            .map(|(a, b)| {
-                let z = a.conj() * b;
-                rustfft::num_complex::Complex64::new(z.re as f64, z.im as f64)
-            })
-            .sum();
-        // Onto the truth: its global phase by the best rotation, its scale by the mean
-        // amplitudes (a least-squares scale goes to zero for an image unlike the truth,
-        // and the picture is there to show such an image).
-        let mean = |f: &Array2<Complex32>| f.iter().map(|v| v.norm() as f64).sum::<f64>();
-        let (mr, mt) = (mean(&r), mean(&t));
-        if c.norm() > 0.0 && mr > 0.0 {
-            let factor = c / c.norm() * (mt / mr);
-            r.mapv_inplace(|v| v * Complex32::new(factor.re as f32, factor.im as f32));
-        }
-        fields.push((title, r));
+        fields.push((title, onto_truth(r, rec_pitch, &t)));
     }
+    let (cw, ch, canvas) = picture(&fields, &t, pitch);
+    let rgb: Vec<u8> = canvas.iter().flat_map(|&v| [v, v, v]).collect();
+    image_io::write_png_rgb(path, cw, ch, &rgb)?;
+    Ok(())
+}
+
+/// Reconstruction `r` (pixel `pitch_um`) resampled onto the truth `t`'s grid and brought
+/// to its global phase (the best rotation) and mean amplitude (a least-squares scale
+/// goes to zero for an image unlike the truth, and the picture is there to show such
+/// an image).
+fn onto_truth(r: &Array2<Complex32>, pitch_um: f64, t: &Array2<Complex32>) -> Array2<Complex32> {
+    let mut r = fpm_physics::metrics::resample_to(r, pitch_um, t.dim(), |_, _| true);
+    let c: rustfft::num_complex::Complex64 = r
+        .iter()
+        .zip(t.iter())
+        .map(|(a, b)| {
+            let z = a.conj() * b;
+            rustfft::num_complex::Complex64::new(z.re as f64, z.im as f64)
+        })
+        .sum();
+    let mean = |f: &Array2<Complex32>| f.iter().map(|v| v.norm() as f64).sum::<f64>();
+    let (mr, mt) = (mean(&r), mean(t));
+    if c.norm() > 0.0 && mr > 0.0 {
+        let factor = c / c.norm() * (mt / mr);
+        r.mapv_inplace(|v| v * Complex32::new(factor.re as f32, factor.im as f32));
+    }
+    r
+}
+
+/// The titled panels, amplitude above phase, on the truth's grey scales (its 0.5–99.5 %
+/// range, the phase with a quarter margin), the truth with a scale bar (pixel
+/// `pitch_um`): (width, height, grey levels).
+fn picture(
+    fields: &[(&str, Array2<Complex32>)],
+    t: &Array2<Complex32>,
+    pitch_um: f64,
+) -> (usize, usize, Vec<u8>) {
+    let (h, w) = t.dim();
+    let pitch = pitch_um;
     // Grey scales from the truth: its 0.5–99.5 % range, phase with a quarter margin.
     let range = |v: Vec<f32>, margin: f32| {
         let mut v = v;
@@ -107,7 +127,5 @@ pub fn write_comparison(
             }
         }
     }
-    let rgb: Vec<u8> = canvas.iter().flat_map(|&v| [v, v, v]).collect();
-    image_io::write_png_rgb(path, cw, ch, &rgb)?;
-    Ok(())
+    (cw, ch, canvas)
 }

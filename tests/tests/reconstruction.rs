@@ -1448,6 +1448,20 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
     // The edge reads 91 mm for the stated 110 (the first ring's soft vignetting moves
     // it), but the frames fit 110 better: kept, and no warning.
     let quiet = report(&no_flags);
+    // Run with no flags, the job times each step, the checks it made by itself among
+    // them (issue 63: what judgement costs, in report.json).
+    let steps: Vec<&str> = quiet["steps_ms"]
+        .as_array()
+        .map(|s| s.iter().filter_map(|s| s["step"].as_str()).collect())
+        .unwrap_or_default();
+    for step in [
+        "gamma scan",
+        "refocus estimate and edge checks",
+        "EPRY",
+        "edge height weighed",
+    ] {
+        assert!(steps.contains(&step), "no step {step:?} in {steps:?}");
+    }
     let choice = &quiet["height_choice"];
     eprintln!("LED height weighed: {choice}");
     assert_eq!(choice["edge_taken"], false, "{choice}");

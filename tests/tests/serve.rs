@@ -807,19 +807,9 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     assert_eq!(progress.last(), Some(&441.0));
     // The image the page shows at the end is the one the job wrote.
     let first = seen["first"].as_i64().unwrap();
-    let job = service.get(&format!("/api/jobs/{first}")).json().unwrap();
-    let written = std::fs::read(
-        std::path::Path::new(job["out"].as_str().unwrap()).join("reconstruction/amplitude.png"),
-    )
-    .unwrap();
-    let (mean, std) = fpm_tests::browser::grey_stats(&written);
-    let shown = &seen["final_image"];
+    let (_, std) = written_amplitude(&service, first);
     assert!(std > 10.0, "the written amplitude is blank (σ {std:.1})");
-    assert!(
-        (shown["mean"].as_f64().unwrap() - mean).abs() < 0.5
-            && (shown["std"].as_f64().unwrap() - std).abs() < 0.5,
-        "the page shows {shown}, the job wrote mean {mean:.2} σ {std:.2}"
-    );
+    assert_drawn_as_written(&seen["final_image"], &service, first);
     assert!(
         seen["caption"]
             .as_str()
@@ -874,27 +864,33 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
         .filter_map(|j| j["id"].as_i64())
         .max();
     assert_eq!(Some(shown_job), newest_done, "{seen}");
-    let record = service
-        .get(&format!("/api/jobs/{shown_job}"))
-        .json()
-        .unwrap();
-    let written = std::fs::read(
-        std::path::Path::new(record["out"].as_str().unwrap()).join("reconstruction/amplitude.png"),
-    )
-    .unwrap();
-    let (mean, std) = fpm_tests::browser::grey_stats(&written);
-    let shown = &seen["result_image"];
-    assert!(
-        (shown["mean"].as_f64().unwrap() - mean).abs() < 0.5
-            && (shown["std"].as_f64().unwrap() - std).abs() < 0.5,
-        "the page shows {shown}, job {shown_job} wrote mean {mean:.2} σ {std:.2}"
-    );
+    assert_drawn_as_written(&seen["result_image"], &service, shown_job);
     assert!(
         seen["result_caption"]
             .as_str()
             .unwrap()
             .contains(&format!("job {shown_job}")),
         "{seen}"
+    );
+}
+
+/// The grey levels' mean and σ of the amplitude PNG job `id` wrote
+/// (`reconstruction/amplitude.png` in its output directory).
+fn written_amplitude(service: &Service, id: i64) -> (f64, f64) {
+    let job = service.get(&format!("/api/jobs/{id}")).json().unwrap();
+    let png =
+        std::path::Path::new(job["out"].as_str().unwrap()).join("reconstruction/amplitude.png");
+    fpm_tests::browser::grey_stats(&std::fs::read(&png).unwrap())
+}
+
+/// What the browser drew (`shown`: the page driver's grey levels) is the amplitude job
+/// `id` wrote: the same mean and σ within half a grey level.
+fn assert_drawn_as_written(shown: &serde_json::Value, service: &Service, id: i64) {
+    let (mean, std) = written_amplitude(service, id);
+    assert!(
+        (shown["mean"].as_f64().unwrap() - mean).abs() < 0.5
+            && (shown["std"].as_f64().unwrap() - std).abs() < 0.5,
+        "the page shows {shown}, job {id} wrote mean {mean:.2} σ {std:.2}"
     );
 }
 

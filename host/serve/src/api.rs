@@ -293,7 +293,7 @@ async fn submit(
     let id = state
         .worker
         .submit(&request)
-        .map_err(|e| ApiError::Unavailable(format!("{e:#}")))?;
+        .map_err(ApiError::unavailable)?;
     Ok((StatusCode::ACCEPTED, Json(Submitted { id })))
 }
 
@@ -391,7 +391,7 @@ async fn resume(
     let new = state
         .worker
         .submit(&request)
-        .map_err(|e| ApiError::Unavailable(format!("{e:#}")))?;
+        .map_err(ApiError::unavailable)?;
     Ok((
         StatusCode::ACCEPTED,
         Json(Resumed {

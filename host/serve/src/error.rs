@@ -47,6 +47,11 @@ impl ApiError {
         Self::Internal(format!("{:#}", e.into()))
     }
 
+    /// The worker would not take the job (it is stopping), with the chain of causes.
+    pub fn unavailable(e: anyhow::Error) -> Self {
+        Self::Unavailable(format!("{e:#}"))
+    }
+
     /// A request value that fails its check, with the check's chain of causes.
     pub fn invalid(e: anyhow::Error) -> Self {
         Self::BadRequest(format!("{e:#}"))

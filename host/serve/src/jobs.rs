@@ -643,10 +643,10 @@ pub enum OutputFormat {
 }
 
 fn reconstruct_passes() -> usize {
-    fpm_host::reconstruction::Job::default().passes
+    fpm_physics::reconstruct::defaults::PASSES
 }
 fn upsample() -> usize {
-    fpm_physics::reconstruct::Settings::default().upsample
+    fpm_physics::reconstruct::defaults::UPSAMPLE
 }
 
 impl ReconstructRequest {

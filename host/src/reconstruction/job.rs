@@ -267,7 +267,7 @@ impl Job {
             }
         };
         let r = steps.reconstruction(|| reconstruct_at(&geometry, &source))?;
-        let mut r = steps.time("edge height weighed", true, || {
+        let mut r = steps.weighing(|| {
             self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
                 on(JobEvent::WeighingEdgeHeight {
                     stated_mm: geometry.height_mm,
@@ -277,7 +277,6 @@ impl Job {
             })
         })?;
         drop(loaded); // the frames are not needed to score the result
-        steps.unless_weighed(&r);
         steps.time("scored against the truth", false, || {
             score(&on_disk, &mut r);
             Ok(())
@@ -376,12 +375,11 @@ impl Job {
         let r = steps.reconstruction(|| {
             self.reconstruct_loaded(ds, &system, (&geometry, &source), progress)
         })?;
-        let mut r = steps.time("edge height weighed", true, || {
+        let mut r = steps.weighing(|| {
             self.with_edge_height_weighed(r, (&geometry, &source), |at_edge, source| {
                 self.reconstruct_loaded(ds, &system, (at_edge, source), progress)
             })
         })?;
-        steps.unless_weighed(&r);
         steps.time("scored against the truth", false, || {
             score(ds, &mut r);
             Ok(())
@@ -498,6 +496,15 @@ struct Steps {
 }
 
 impl Steps {
+    /// The step `name`, begun at `start`, ended now.
+    fn push(&mut self, name: &'static str, automatic: bool, start: std::time::Instant) {
+        self.done.push(StepTime {
+            step: name,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+            automatic,
+        });
+    }
+
     /// Run `step`, timing it as `name`.
     fn time<T>(
         &mut self,
@@ -507,20 +514,22 @@ impl Steps {
     ) -> Result<T> {
         let start = std::time::Instant::now();
         let out = step()?;
-        self.done.push(StepTime {
-            step: name,
-            ms: start.elapsed().as_secs_f64() * 1e3,
-            automatic,
-        });
+        self.push(name, automatic, start);
         Ok(out)
     }
 
-    /// The edge's height was not weighed (nothing to weigh): its step, a few µs of
-    /// deciding so, is left out.
-    fn unless_weighed(&mut self, r: &Reconstruction) {
-        if r.report.height_choice.is_none() {
-            self.done.retain(|s| s.step != "edge height weighed");
+    /// Run `weigh` (the edge's height weighed on the frames), a step only where it
+    /// weighed: most runs decide in microseconds that there is nothing to weigh.
+    fn weighing(
+        &mut self,
+        weigh: impl FnOnce() -> Result<Reconstruction>,
+    ) -> Result<Reconstruction> {
+        let start = std::time::Instant::now();
+        let r = weigh()?;
+        if r.report.height_choice.is_some() {
+            self.push("edge height weighed", true, start);
         }
+        Ok(r)
     }
 
     /// Run the reconstruction, timed as two steps: EPRY itself (the report's

@@ -352,7 +352,6 @@ fn background(rep: &Report) -> String {
 
 /// The output files the run wrote (the object in whichever format it chose).
 fn output_files(dir: &Path) -> Vec<(String, String)> {
-    // The object is in whichever format the run wrote.
     let object_files = [
         (
             "amplitude.tif",

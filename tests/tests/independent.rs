@@ -50,7 +50,24 @@ fn reconstruct(dataset: &Path, out: &Path, tile: Option<usize>) -> (u64, f64) {
         .as_f64()
         .unwrap_or_else(|| panic!("no score against the truth: {report}"));
     assert_steps_timed(&report, wall_ms);
+    assert_no_stray_light_alarm(&report);
     (report["tile_size"].as_u64().unwrap_or(0), nrmse)
+}
+
+/// These sets' sample fills the field, so their dark-field frames' darkest blocks hold
+/// its own light, which is not flat: left on, as it should be, and no sign of stray
+/// light. The check warned on every such set (396 of 396 frames left on) until it
+/// asked first whether the sample leaves clear glass (issue 63: a check over 2 % false
+/// alarms on another forward model's sets).
+fn assert_no_stray_light_alarm(report: &serde_json::Value) {
+    let warnings = report["warnings"].as_array().expect("warnings");
+    assert!(
+        warnings
+            .iter()
+            .all(|w| w["check"] != "dark-field-background"),
+        "clear glass in the axial frame {}: {warnings:?}",
+        report["background"]["axis_clear_share"]
+    );
 }
 
 /// report.json times each step of the job (issue 63): EPRY as the report's own

@@ -157,6 +157,64 @@ const MIN_WHITE_SHARE: f32 = 0.5;
 /// Measure the background of `frame` from its darkest blocks. `None` for a frame too
 /// small to have blocks (under 32 px on a side).
 pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
+    let (mut blocks, side) = block_stats(frame)?;
+    blocks.sort_by(|a, b| a.mean.total_cmp(&b.mean));
+    let take = ((blocks.len() as f64 * DARKEST_SHARE).ceil() as usize).clamp(1, blocks.len());
+    let mean_of = |set: &[BlockStats], f: fn(&BlockStats) -> f64| {
+        set.iter().map(f).sum::<f64>() / set.len() as f64
+    };
+    // The darkest blocks alone read low (the lowest of noisy means): every block within
+    // two block-mean standard deviations of them belongs to the same background.
+    let darkest = &blocks[..take];
+    let spread = (mean_of(darkest, |b| b.variance) / (side * side) as f64).sqrt();
+    let within = mean_of(darkest, |b| b.mean) + 2.0 * spread;
+    let background = &blocks[..blocks.partition_point(|b| b.mean <= within).max(take)];
+    let (level, variance, white) = (
+        mean_of(background, |b| b.mean),
+        mean_of(background, |b| b.variance),
+        mean_of(background, |b| b.white_variance),
+    );
+    let brightest = blocks.last().map_or(level, |b| b.mean);
+    Some(FrameBackground {
+        level: level as f32,
+        brightest: (brightest - level).max(0.0) as f32,
+        noise: white.sqrt() as f32,
+        white_share: if variance > 0.0 {
+            (white / variance).min(1.0) as f32
+        } else {
+            1.0
+        },
+    })
+}
+
+/// The share of `frame`'s blocks that hold nothing but noise (at least
+/// [`MIN_WHITE_SHARE`] of their variance white): in a bright-field frame, the clear
+/// glass the sample leaves. Where a sample fills the field there is none, and the
+/// darkest blocks of its dark-field frames hold its own light: left on, and no sign of
+/// stray light ([`FrameBackground::is_flat`]). `None` for a frame too small to have
+/// blocks.
+pub fn clear_share(frame: &Measured<'_>) -> Option<f32> {
+    let (blocks, _) = block_stats(frame)?;
+    let clear = blocks
+        .iter()
+        .filter(|b| {
+            b.variance <= 0.0 || b.white_variance >= f64::from(MIN_WHITE_SHARE) * b.variance
+        })
+        .count();
+    Some(clear as f32 / blocks.len() as f32)
+}
+
+/// Whether a bright-field frame with [`clear_share`] `share` leaves as much clear glass
+/// as the background is read from (the darkest tenth of the blocks): then the darkest
+/// blocks of its dark-field frames lie on glass, which scatters nothing, and light
+/// there that is not flat is stray light.
+pub fn leaves_clear_glass(share: f32) -> bool {
+    f64::from(share) >= DARKEST_SHARE
+}
+
+/// Per block of [`BLOCKS_ALONG_SHORT_SIDE`] along the shorter side, the statistics of
+/// counts − dark, row-major, and the blocks' side (None under 2 px).
+fn block_stats(frame: &Measured<'_>) -> Option<(Vec<BlockStats>, usize)> {
     let (h, w) = frame.dim();
     let side = h.min(w) / BLOCKS_ALONG_SHORT_SIDE;
     if side < 2 {
@@ -198,33 +256,7 @@ pub fn estimate(frame: &Measured<'_>) -> Option<FrameBackground> {
             ));
         }
     }
-    blocks.sort_by(|a, b| a.mean.total_cmp(&b.mean));
-    let take = ((blocks.len() as f64 * DARKEST_SHARE).ceil() as usize).clamp(1, blocks.len());
-    let mean_of = |set: &[BlockStats], f: fn(&BlockStats) -> f64| {
-        set.iter().map(f).sum::<f64>() / set.len() as f64
-    };
-    // The darkest blocks alone read low (the lowest of noisy means): every block within
-    // two block-mean standard deviations of them belongs to the same background.
-    let darkest = &blocks[..take];
-    let spread = (mean_of(darkest, |b| b.variance) / (side * side) as f64).sqrt();
-    let within = mean_of(darkest, |b| b.mean) + 2.0 * spread;
-    let background = &blocks[..blocks.partition_point(|b| b.mean <= within).max(take)];
-    let (level, variance, white) = (
-        mean_of(background, |b| b.mean),
-        mean_of(background, |b| b.variance),
-        mean_of(background, |b| b.white_variance),
-    );
-    let brightest = blocks.last().map_or(level, |b| b.mean);
-    Some(FrameBackground {
-        level: level as f32,
-        brightest: (brightest - level).max(0.0) as f32,
-        noise: white.sqrt() as f32,
-        white_share: if variance > 0.0 {
-            (white / variance).min(1.0) as f32
-        } else {
-            1.0
-        },
-    })
+    Some((blocks, side))
 }
 
 /// One block's statistics of counts − dark.
@@ -363,6 +395,33 @@ mod tests {
         let m = measured(&pixels, 100.0);
         let b = estimate(&m).unwrap();
         assert!(!b.is_flat(), "{b:?}");
+    }
+
+    /// A bright-field frame whose sample (structure over many pixels) covers the left
+    /// `share` of it, clear glass (noise alone) the rest: the clear share is the glass's,
+    /// and a field the sample fills leaves no glass.
+    #[test]
+    fn the_clear_share_is_the_glass_the_sample_leaves() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let noise = Normal::new(0.0f32, 4.0).unwrap();
+        for share in [0.0, 0.5, 1.0] {
+            let edge = (128.0 * share) as usize;
+            let pixels = Pixels::F32(Array2::from_shape_fn((128, 128), |(r, c)| {
+                let (x, y) = (c as f32 / 3.0, r as f32 / 2.5);
+                let sample = if c < edge {
+                    60.0 * x.sin() * y.cos()
+                } else {
+                    0.0
+                };
+                100.0 + 400.0 + sample + noise.sample(&mut rng)
+            }));
+            let clear = clear_share(&measured(&pixels, 100.0)).unwrap();
+            assert!(
+                (clear - (1.0 - share as f32)).abs() <= 0.07,
+                "sample over {share} of the field: clear share {clear}"
+            );
+            assert_eq!(leaves_clear_glass(clear), share < 0.9, "{share}: {clear}");
+        }
     }
 
     #[test]

@@ -350,7 +350,11 @@ impl Report {
             total_ms,
             threads: rayon::current_num_threads().min(layout.tiles.len()),
             disc_placement: DISC_PLACEMENT,
-            background: BackgroundReport::new(settings.background, &outcome.backgrounds),
+            background: BackgroundReport::new(
+                settings.background,
+                &outcome.backgrounds,
+                outcome.axis_clear_share,
+            ),
             background_phase: BackgroundPhaseReport::new(system, geometry, settings, outcome),
             versus_truth: None,
             height_from_boundary: None,
@@ -389,6 +393,12 @@ pub struct BackgroundReport {
     /// whether it was taken off (only a flat one is: mostly white noise, not the
     /// sample's dim light).
     pub dark_field_frames: Vec<FrameBackgroundReport>,
+    /// The share of the frame nearest the axis that is clear glass (its blocks holding
+    /// only noise). With none, the sample fills the field, and its dark-field frames'
+    /// darkest blocks hold its own light: left on as they should be, and not a sign of
+    /// stray light (which cannot be told from it there).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axis_clear_share: Option<f32>,
 }
 
 /// One dark-field frame's background.
@@ -409,7 +419,11 @@ pub struct FrameBackgroundReport {
 }
 
 impl BackgroundReport {
-    fn new(correction: Correction, backgrounds: &[(LedIndex, FrameBackground)]) -> Self {
+    fn new(
+        correction: Correction,
+        backgrounds: &[(LedIndex, FrameBackground)],
+        axis_clear_share: Option<f32>,
+    ) -> Self {
         let (correction, floor_sigma, floor, noise_band_sigma) = match correction {
             Correction::DarkLevel => ("dark level", None, None, None),
             Correction::PerFrame {
@@ -439,6 +453,10 @@ impl BackgroundReport {
                     taken_off: b.is_flat(),
                 })
                 .collect(),
+            axis_clear_share: match correction {
+                "per frame" => axis_clear_share,
+                _ => None,
+            },
         }
     }
 }

@@ -37,6 +37,8 @@ pub struct Banded {
     corrections: Vec<Option<(f32, f32, bool, f32)>>,
     backgrounds: Vec<(LedIndex, FrameBackground)>,
     clear_level: Option<f32>,
+    /// The clear glass in the frame nearest the axis ([`TiledOutcome::axis_clear_share`]).
+    axis_clear_share: Option<f32>,
     assembly: Assembly,
     next_tile: usize,
     done: AtomicUsize,
@@ -84,6 +86,7 @@ impl Banded {
             nearest_count,
             backgrounds: vec![],
             clear_level: None,
+            axis_clear_share: None,
             assembly,
             next_tile: 0,
             done: AtomicUsize::new(0),
@@ -125,6 +128,7 @@ impl Banded {
         }
         if k == self.nearest {
             self.clear_level = Some(reference_level(k, frame)? / self.nearest_count as f32);
+            self.axis_clear_share = clear_share(&frame.measured);
         }
         let (corrected, background) = correct(
             *frame,
@@ -241,7 +245,12 @@ impl Banded {
             settings: self.settings,
             clear_level: self.clear_level.ok_or(TiledError::NoFrames)?,
         };
-        self.assembly
-            .finish(fixed, self.layout, &self.leds, self.backgrounds)
+        self.assembly.finish(
+            fixed,
+            self.layout,
+            &self.leds,
+            self.backgrounds,
+            self.axis_clear_share,
+        )
     }
 }

@@ -31,7 +31,7 @@ use super::offline::{run_amplitudes, Amplitudes, Field, Lit, Outcome};
 use super::refine::{FieldFrequencies, RefinedLeds};
 use super::streaming::Streaming;
 use super::Settings;
-use crate::background::{correct, FrameBackground};
+use crate::background::{clear_share, correct, FrameBackground};
 use crate::frame::{LitFrame, Measured, Region};
 use crate::optics::{LedGeometry, System};
 use crate::tiles::{auto_tile_side, plan, Mosaic, Tile};
@@ -79,6 +79,11 @@ pub struct TiledOutcome {
     /// by LED (taken off where [`FrameBackground::is_flat`]; empty when the settings take
     /// off the dark level only).
     pub backgrounds: Vec<(LedIndex, FrameBackground)>,
+    /// The share of the clear glass the sample leaves in the frame nearest the axis
+    /// ([`crate::background::clear_share`]; None for a frame too small for blocks):
+    /// where there is none, dark-field backgrounds that are not flat are the sample's
+    /// own light.
+    pub axis_clear_share: Option<f32>,
     /// The LED positions refined inside the passes, over all tiles (when the settings
     /// ask for it).
     pub refined_leds: Option<RefinedLeds>,
@@ -402,6 +407,7 @@ impl Assembly {
         layout: TileLayout,
         leds: &[LedIndex],
         backgrounds: Vec<(LedIndex, FrameBackground)>,
+        axis_clear_share: Option<f32>,
     ) -> Result<TiledOutcome, TiledError> {
         let Fixed {
             system,
@@ -449,6 +455,7 @@ impl Assembly {
             layout,
             clear_level,
             backgrounds,
+            axis_clear_share,
         })
     }
 }
@@ -501,5 +508,8 @@ fn solve(
     for (k, (result, outcome)) in results.into_iter().enumerate() {
         assembly.add(k, result, outcome);
     }
-    assembly.finish(fixed, layout, &leds, backgrounds)
+    let axis_clear_share = self::clear_level(system, geometry, &frames)
+        .ok()
+        .and_then(|(nearest, _)| clear_share(&frames[nearest].measured));
+    assembly.finish(fixed, layout, &leds, backgrounds, axis_clear_share)
 }

@@ -567,14 +567,7 @@ pub fn capture_steps(
     for l in &late {
         received.label(l, since_start(), &mut on_news);
     }
-    // Arrival → label handed on, ms, over the frames the final pairing kept.
-    let mut lags: Vec<f64> = matched
-        .iter()
-        .filter_map(|&(_, fi)| {
-            Some(((*received.labelled_ns.get(fi)?)? - received.arrived_ns.get(fi)?) as f64 / 1e6)
-        })
-        .collect();
-    lags.sort_by(f64::total_cmp);
+    let lags = received.lags_ms(&matched);
     let quantile = |q: f64| match lags.len() {
         0 => 0.0,
         n => lags[((n - 1) as f64 * q).round() as usize],
@@ -660,6 +653,25 @@ struct Received {
 }
 
 impl Received {
+    /// Arrival → label handed on, ms, over the frames the final pairing kept
+    /// (`matched`: step, frame), sorted. The first frames' (they wait for the camera's
+    /// clock to be fitted, and are the p99) go to the debug log, in arrival order, for
+    /// whoever tunes the labeller.
+    fn lags_ms(&self, matched: &[(usize, usize)]) -> Vec<f64> {
+        let lag = |fi: usize| {
+            Some((self.labelled_ns.get(fi).copied()?? - *self.arrived_ns.get(fi)?) as f64 / 1e6)
+        };
+        let mut lags: Vec<f64> = matched.iter().filter_map(|&(_, fi)| lag(fi)).collect();
+        lags.sort_by(f64::total_cmp);
+        if tracing::enabled!(tracing::Level::DEBUG) {
+            let first: Vec<String> = (0..self.arrived_ns.len().min(12))
+                .map(|fi| lag(fi).map_or("-".into(), |ms| format!("{ms:.0}")))
+                .collect();
+            tracing::debug!("label lag of the first frames, ms: {}", first.join(" "));
+        }
+        lags
+    }
+
     /// A frame taken off the camera at `at`: given to the labeller, told (before any
     /// label), kept.
     fn arrive(

@@ -509,6 +509,22 @@ pub struct ColorReport {
     pub warnings: Vec<crate::reconstruction::Warning>,
 }
 
+impl ColorReport {
+    /// The run's warnings, then each channel's, named by it: what a page, a client or
+    /// a script shows of them.
+    pub fn all_warnings(&self) -> Vec<String> {
+        self.warnings
+            .iter()
+            .map(|w| w.message.clone())
+            .chain(self.channels.iter().flat_map(|c| {
+                c.warnings
+                    .iter()
+                    .map(move |w| format!("{}: {}", c.name, w.message))
+            }))
+            .collect()
+    }
+}
+
 /// One channel in [`ColorReport`].
 #[derive(Debug, Clone, Serialize)]
 pub struct ChannelReport {

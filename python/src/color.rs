@@ -102,16 +102,7 @@ impl ColorResult {
     /// What a user must know, each with the action that applies.
     #[getter]
     fn warnings(&self) -> Vec<String> {
-        let r = &self.inner.report;
-        r.warnings
-            .iter()
-            .map(|w| w.message.clone())
-            .chain(r.channels.iter().flat_map(|c| {
-                c.warnings
-                    .iter()
-                    .map(move |w| format!("{}: {}", c.name, w.message))
-            }))
-            .collect()
+        self.inner.report.all_warnings()
     }
     /// Write the colour result into `dir` as `fpm reconstruct` does: amplitude/phase
     /// with one channel per wavelength (`format="tiff"` or `"ome-zarr"`), color.png,

@@ -456,7 +456,7 @@ fn labels_come_out_while_frames_arrive() {
             "{:?}",
             done.pairing.clock_problem
         );
-        // Live: all but the first frames (the clock is fitted from 7, more when frames
+        // Live: all but the first frames (the clock is fitted from 8, more when frames
         // were lost at the start) and the last few are labelled before the last frame
         // arrives, each within a few steps of the moment it could be: a frame waits for
         // a later one to close its step's window (frames come in order: until the next

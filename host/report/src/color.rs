@@ -18,7 +18,7 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
         report.dataset, report.reference
     ));
     page.heading("Warnings");
-    page.warnings(&all_warnings(report));
+    page.warnings(&report.all_warnings());
     page.heading("Image");
     let png = std::fs::read(out.join(PREVIEW_NAME))?;
     page.figures_scaled(&[(
@@ -42,20 +42,6 @@ pub fn write_page(report: &ColorReport, out: &Path, reproduce: &str) -> Result<P
     let path = out.join("report.html");
     page.write(&path)?;
     Ok(path)
-}
-
-/// The run's warnings, then each channel's, named by it.
-fn all_warnings(report: &ColorReport) -> Vec<String> {
-    report
-        .warnings
-        .iter()
-        .map(|w| w.message.clone())
-        .chain(report.channels.iter().flat_map(|c| {
-            c.warnings
-                .iter()
-                .map(move |w| format!("{}: {}", c.name, w.message))
-        }))
-        .collect()
 }
 
 /// A row per channel: its wavelength, LEDs, registration, clear level and errors.

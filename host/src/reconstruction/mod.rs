@@ -424,8 +424,9 @@ impl BackgroundReport {
         backgrounds: &[(LedIndex, FrameBackground)],
         axis_clear_share: Option<f32>,
     ) -> Self {
-        let (correction, floor_sigma, floor, noise_band_sigma) = match correction {
-            Correction::DarkLevel => ("dark level", None, None, None),
+        let (correction, floor_sigma, floor, noise_band_sigma, axis_clear_share) = match correction
+        {
+            Correction::DarkLevel => ("dark level", None, None, None, None),
             Correction::PerFrame {
                 floor_sigma,
                 soft,
@@ -435,6 +436,7 @@ impl BackgroundReport {
                 Some(floor_sigma),
                 Some(if soft { "soft" } else { "hard" }),
                 Some(band_sigma),
+                axis_clear_share,
             ),
         };
         Self {
@@ -453,10 +455,7 @@ impl BackgroundReport {
                     taken_off: b.is_flat(),
                 })
                 .collect(),
-            axis_clear_share: match correction {
-                "per frame" => axis_clear_share,
-                _ => None,
-            },
+            axis_clear_share,
         }
     }
 }

@@ -101,19 +101,16 @@ impl Warnings {
 /// light, which is not flat: left on, as it should be, and no sign of stray light. On
 /// independent wave-optics sets of a field-filling sample this fired on every set (396
 /// of 396 frames left on) before it asked.
-fn stray_light(background: &super::BackgroundReport) -> Option<Warning> {
+fn stray_light(background: &super::BackgroundReport) -> Option<String> {
     let frames = &background.dark_field_frames;
     let refused = frames.iter().filter(|f| !f.taken_off).count();
     let glass = background
         .axis_clear_share
         .is_none_or(fpm_physics::background::leaves_clear_glass);
-    (glass && refused * 2 > frames.len().max(1)).then(|| Warning {
-        check: Check::DarkFieldBackground,
-        message: format!(
-            "{refused} of {} dark-field frames had a background that was not flat where the sample leaves clear glass, which scatters nothing (structured stray light): it was left on; shade the objective from the room and from reflections off the LED board (the report's dark-field chart shows which frames), and acquire again",
-            frames.len()
-        ),
-    })
+    (glass && refused * 2 > frames.len().max(1)).then(|| format!(
+        "{refused} of {} dark-field frames had a background that was not flat where the sample leaves clear glass, which scatters nothing (structured stray light): it was left on; shade the objective from the room and from reflections off the LED board (the report's dark-field chart shows which frames), and acquire again",
+        frames.len()
+    ))
 }
 
 /// Below this median brightest-block SNR the dark-field frames are dim
@@ -283,7 +280,7 @@ pub fn checks(report: &Report) -> Vec<Warning> {
             p.height_mm, p.mismatched_blocks, p.mismatched_blocks_as_given
         ));
     }
-    out.0.extend(stray_light(&report.background));
+    out.extend(Check::DarkFieldBackground, stray_light(&report.background));
     let b = &report.background_phase;
     if b.block_um.is_some() && b.totals.fitted * 2 < b.totals.blocks {
         out.push(Check::FlattenBackground, format!(

@@ -145,22 +145,31 @@ pub fn clear_level(
     geometry: &LedGeometry,
     frames: &[LitFrame<'_>],
 ) -> Result<(usize, f32), TiledError> {
+    let (nearest, count) = axial_frame(system, geometry, frames).ok_or(TiledError::NoFrames)?;
+    Ok((
+        nearest,
+        reference_level(nearest, &frames[nearest])? / count as f32,
+    ))
+}
+
+/// The frame nearest the axis (its index) and how many bright-field LEDs light it: a
+/// multiplexed frame over clear glass is as bright as those together, and the clear
+/// level is one LED's. None without frames.
+fn axial_frame(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'_>],
+) -> Option<(usize, usize)> {
     let leds: Vec<LedIndex> = frames.iter().map(|f| f.led).collect();
     let also: Vec<Vec<LedIndex>> = frames.iter().map(|f| f.also.to_vec()).collect();
     let lit = Lit {
         leds: &leds,
         also: &also,
     };
-    let nearest = *lit
-        .nearest_first(geometry, (0.0, 0.0), system)
-        .first()
-        .ok_or(TiledError::NoFrames)?;
-    // A multiplexed frame over clear glass is as bright as its bright-field LEDs
-    // together: the level is one LED's.
-    let count = lit.bright_field_count(nearest, geometry, (0.0, 0.0), system);
-    Ok((
+    let nearest = *lit.nearest_first(geometry, (0.0, 0.0), system).first()?;
+    Some((
         nearest,
-        reference_level(nearest, &frames[nearest])? / count as f32,
+        lit.bright_field_count(nearest, geometry, (0.0, 0.0), system),
     ))
 }
 
@@ -508,8 +517,7 @@ fn solve(
     for (k, (result, outcome)) in results.into_iter().enumerate() {
         assembly.add(k, result, outcome);
     }
-    let axis_clear_share = self::clear_level(system, geometry, &frames)
-        .ok()
+    let axis_clear_share = axial_frame(system, geometry, &frames)
         .and_then(|(nearest, _)| clear_share(&frames[nearest].measured));
     assembly.finish(fixed, layout, &leds, backgrounds, axis_clear_share)
 }

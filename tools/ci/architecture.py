@@ -8,8 +8,7 @@
   tools/): libraries take typed options, and the CLI parses into them.
 - No two modules of a crate import each other, directly or round a circle (each file
   a module; its `crate::`, `super::` and `self::` paths outside comments and test
-  modules are its imports). The one circle left is listed in KNOWN_CIRCLES with the
-  issue that removes it; a new one fails.
+  modules are its imports): any circle fails.
 - No function in the product's code (tests, benches and examples aside) is longer than
   80 lines, but those listed in tools/ci/long-functions.txt: tables and declarations
   that say so, and functions still to be split, each at its length today (a listed
@@ -27,13 +26,6 @@ from pathlib import Path
 
 # The longest a function may be, lines from `fn` to its closing brace.
 MAX_FUNCTION_LINES = 80
-
-# Circles being taken apart, by crate: remove an entry when its circle is gone.
-KNOWN_CIRCLES = {
-    # Issue 62: every acquisition mode one machine (the modes' drivers import each
-    # other through MAX_MULTIPLEX, Control/Watcher and ScanStage).
-    "fpm-acquire": {"acquisition", "multiplexed", "pipeline", "scan", "stage"},
-}
 
 
 def module_of(src: Path, file: Path) -> tuple:
@@ -299,8 +291,6 @@ def main() -> int:
         }
         for src in sources:
             for group in circles(src):
-                if group == KNOWN_CIRCLES.get(package["name"]):
-                    continue
                 breaches.append(
                     f"{src.relative_to(root)}: modules of {package['name']} import each other "
                     f"round a circle: {', '.join(sorted(group))}; move what they share into a "
@@ -312,7 +302,7 @@ def main() -> int:
     if not breaches:
         print(
             f"architecture: {len(members)} crates checked (host/ imports nothing from rig/; "
-            "clap only in cli/ and tools/; no module circles but the known one; no function "
+            "clap only in cli/ and tools/; no module circles; no function "
             f"over {MAX_FUNCTION_LINES} lines but the {len(known_long(root))} listed)"
         )
     return 1 if breaches else 0

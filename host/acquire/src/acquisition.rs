@@ -37,6 +37,9 @@ use crate::stage::{Slide, StagePosition};
 use crate::stream::StreamWorker;
 use crate::summary::AcquireSummary;
 
+/// Most LEDs lit together: a set fits one request (`fpm/light/set/define`).
+pub const MAX_MULTIPLEX: usize = fpm_protocol::limits::MAX_LEDS_PER_LIST;
+
 /// What to acquire and how.
 #[derive(Debug, Clone)]
 pub struct Plan {
@@ -134,7 +137,7 @@ impl Plan {
             }
         }
         self.multiplex
-            .check(crate::multiplexed::MAX_MULTIPLEX)
+            .check(MAX_MULTIPLEX)
             .map_err(anyhow::Error::msg)?;
         if !self.multiplex.is_one() {
             if self.calibrate {

@@ -20,8 +20,8 @@ use serde::Serialize;
 
 use crate::acquisition::{Phase, Progress, Snapshot};
 use crate::capture::{capture_steps, Lighting, News};
+use crate::control::{Control, Watcher};
 use crate::controller::Controller;
-use crate::pipeline::{Control, Watcher};
 
 /// Most rounds of four frames one preview takes (one controller sequence holds them).
 pub const MAX_ROUNDS: usize = fpm_protocol::limits::MAX_SEQUENCE_STEPS / 4;
@@ -191,7 +191,7 @@ pub fn live(
     if !(1..=MAX_ROUNDS).contains(&plan.rounds) {
         bail!("rounds {}: give 1 to {MAX_ROUNDS}", plan.rounds);
     }
-    crate::pipeline::wait_for_camera(&plan.camera)?;
+    crate::rig::wait_for_camera(&plan.camera)?;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("creating {}", plan.out.display()))?;
     let board = dev.info().geometry;

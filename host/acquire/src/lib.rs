@@ -14,6 +14,8 @@
 //! * [`acquisition`]: the acquisition as a sans-IO state machine — calibrate (pdcFPM)
 //!   → order nearest-first → capture → retake what is missing → stream into the
 //!   reconstruction → write the dataset — events in, actions out;
+//! * [`rig`]: what every driver reads from the rig before it starts;
+//! * [`control`]: how a running acquisition is watched and steered, in every mode;
 //! * [`pipeline`]: the I/O loop that drives it on a live rig.
 //!
 //! Nothing here knows whether the rig is real or virtual.
@@ -22,6 +24,7 @@ pub mod acquisition;
 pub mod board_geometry;
 pub mod capture;
 pub mod color;
+pub mod control;
 pub mod controller;
 pub mod dpc;
 pub mod journal;
@@ -30,6 +33,7 @@ pub mod labeller;
 pub mod multiplexed;
 pub mod page;
 pub mod pipeline;
+pub mod rig;
 pub mod scan;
 pub mod stage;
 pub mod stream;

@@ -17,12 +17,12 @@ use fpm_protocol::SetStep;
 
 use crate::acquisition::{sequence_id, Phase, Plan, Progress, Snapshot};
 use crate::capture::{capture_steps, Lighting, News};
+use crate::control::{Control, Watcher};
 use crate::controller::Controller;
-use crate::pipeline::{Control, Watcher};
+use crate::rig;
 use crate::summary::AcquireSummary;
 
-/// Most LEDs lit together: a set fits one request (`fpm/light/set/define`).
-pub const MAX_MULTIPLEX: usize = fpm_protocol::limits::MAX_LEDS_PER_LIST;
+pub use crate::acquisition::MAX_MULTIPLEX;
 
 /// Acquire `plan` (its `multiplex` > 1) into `plan.out`: the sets defined on the board,
 /// one sequence lighting each once, the frames written as a dataset, reconstructed if
@@ -34,12 +34,12 @@ pub fn acquire(
     control: &Control,
 ) -> Result<AcquireSummary> {
     plan.validate()?;
-    crate::pipeline::wait_for_camera(&plan.camera)?;
+    rig::wait_for_camera(&plan.camera)?;
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("creating {}", plan.out.display()))?;
-    let nominal = crate::pipeline::nominal_geometry(dev);
-    let camera_settings = crate::pipeline::camera_settings(&plan.camera, &plan.system);
-    let board_calibration = crate::pipeline::stored_board_calibration(dev);
+    let nominal = rig::nominal_geometry(dev);
+    let camera_settings = rig::camera_settings(&plan.camera, &plan.system);
+    let board_calibration = rig::stored_board_calibration(dev);
     let (geometry, geometry_source) = match &board_calibration {
         Some(c) => (
             crate::board_geometry::geometry(&nominal, c),

@@ -9,193 +9,23 @@
 //! from memory too.
 
 use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
-use fpm_frames::ServiceNames;
 use fpm_physics::{LedGeometry, System};
-use fpm_protocol::{BoardCalibration, StoredCalibration};
 
 use crate::acquisition::sequence_id;
 pub use crate::acquisition::Plan;
-use crate::acquisition::{Acquisition, Action, Event, Progress, Rig, Snapshot};
+use crate::acquisition::{Acquisition, Action, Event, Rig};
 use crate::board_geometry;
-use crate::capture::{capture, News, Sequence, ShotView};
+use crate::capture::{capture, News, Sequence};
+pub use crate::control::{Control, Watcher};
 use crate::controller::Controller;
 use crate::journal::Journal;
 use crate::page;
+pub use crate::rig::{board_geometry, nominal_geometry, stored_board_calibration, CAMERA_WAIT};
+use crate::rig::{camera_settings, wait_for_camera};
 use crate::stage::FocusStage;
 pub use crate::summary::AcquireSummary;
-
-/// How long an acquisition waits for its camera to publish before saying none does.
-pub const CAMERA_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
-
-/// Whether a camera publishes on `names`, waiting up to [`CAMERA_WAIT`] for one to come
-/// up: a sequence over every LED with no camera would take minutes to fail.
-pub(crate) fn wait_for_camera(names: &ServiceNames) -> Result<()> {
-    let subscriber = fpm_frames::FrameSubscriber::create(names)?;
-    if !subscriber.wait_for_publisher(CAMERA_WAIT) {
-        bail!(
-            "no camera publishes frames on {} (waited {} s): start the camera's driver (`fpm camera run`, or the virtual rig's camera) or give its name with --frames",
-            names.frames,
-            CAMERA_WAIT.as_secs()
-        );
-    }
-    Ok(())
-}
-
-/// What the camera's driver says it applied, if it says (an optional extra: never an
-/// error). A reported pixel pitch that disagrees with the system's is warned about.
-pub(crate) fn camera_settings(camera: &ServiceNames, system: &System) -> Option<serde_json::Value> {
-    let text = fpm_frames::read_settings(camera, std::time::Duration::from_millis(300))?;
-    let value: serde_json::Value = match serde_json::from_str(&text) {
-        Ok(v) => v,
-        Err(e) => {
-            tracing::warn!("the camera's settings are not JSON ({e}); left out");
-            return None;
-        }
-    };
-    tracing::info!("camera settings as applied: {value}");
-    if let Some(pitch) = value.get("pixel_size_um").and_then(|v| v.as_f64()) {
-        let binning = value
-            .get("binning")
-            .and_then(|b| b.get(0))
-            .and_then(|b| b.as_f64())
-            .unwrap_or(1.0);
-        // A colour mosaic's channel is published one pixel per 2 × 2 cell.
-        let factor = value
-            .get("published_pixel_factor")
-            .and_then(|f| f.as_f64())
-            .unwrap_or(1.0);
-        let effective = pitch * binning * factor;
-        if (effective - system.pixel_size_um).abs() > 0.01 * system.pixel_size_um {
-            tracing::warn!(
-                "the camera reports {effective:.3} µm pixels ({pitch} µm × binning {binning} × {factor} for a colour channel), the system says {:.3} µm (--pixel-um)",
-                system.pixel_size_um
-            );
-        }
-    }
-    Some(value)
-}
-
-/// The nominal array as the controller describes it.
-pub fn nominal_geometry(dev: &Controller) -> LedGeometry {
-    board_geometry::nominal(&dev.info().geometry)
-}
-
-/// The calibration stored on the board, if any (see [`stored_calibration`]).
-pub fn stored_board_calibration(dev: &Controller) -> Option<BoardCalibration> {
-    stored_calibration(dev)
-}
-
-/// Where the board's LEDs are: its stored calibration placing its grid, or the
-/// nominal grid when it stores none.
-pub fn board_geometry(dev: &Controller) -> LedGeometry {
-    let nominal = nominal_geometry(dev);
-    match stored_calibration(dev) {
-        Some(c) => board_geometry::geometry(&nominal, &c),
-        None => nominal,
-    }
-}
-
-/// The calibration stored on the board, if any. A board that cannot say (older
-/// firmware, a damaged record, a link error) has none, with a note in the log.
-fn stored_calibration(dev: &Controller) -> Option<BoardCalibration> {
-    match dev.stored_calibration() {
-        Ok(StoredCalibration::Calibrated(c)) => Some(c),
-        Ok(other) => {
-            tracing::info!("the board: {}", board_geometry::describe_stored(&other));
-            None
-        }
-        Err(e) => {
-            tracing::info!("no stored geometry: {e}");
-            None
-        }
-    }
-}
-
-/// Whoever watches an acquisition: its progress after every event, and, if it wants
-/// them, the live snapshots of the reconstruction and each labelled frame as it
-/// arrives. A closure over `&Progress` is a watcher of progress alone.
-pub trait Watcher {
-    /// How far the acquisition is (after every event).
-    fn progress(&mut self, progress: &Progress);
-    /// Whether it shows snapshots: only then are they taken (a stream's blend, or a
-    /// copy of the finished object, is not made for nobody).
-    fn wants_snapshots(&self) -> bool {
-        false
-    }
-    /// A snapshot of the reconstruction ([`Plan::snapshot_every`], and the finished one).
-    fn snapshot(&mut self, _snapshot: Snapshot) {}
-    /// A labelled frame as it arrives, lent: copy what you keep (on the capture's
-    /// thread, between two frames: keep it short).
-    fn frame(&mut self, _shot: &ShotView<'_>) {}
-}
-
-impl<F: FnMut(&Progress)> Watcher for F {
-    fn progress(&mut self, progress: &Progress) {
-        self(progress)
-    }
-}
-
-/// How a running acquisition is steered from outside its loop (another thread, a
-/// signal handler): cancel, pause, resume. The loop reads the flags between events; a
-/// capture sequence running is aborted at once by a cancel or a pause.
-#[derive(Debug, Clone, Default)]
-pub struct Control {
-    cancel: Arc<AtomicBool>,
-    pause: Arc<AtomicBool>,
-    /// When [`Control::cancel`] was first called (a flag set elsewhere has none).
-    cancelled_at: Arc<std::sync::OnceLock<std::time::Instant>>,
-}
-
-impl Control {
-    /// Nothing asked yet.
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Cancelled when `flag` is set (by a signal handler, say).
-    pub fn cancelled_by(flag: Arc<AtomicBool>) -> Self {
-        Self {
-            cancel: flag,
-            ..Self::default()
-        }
-    }
-
-    /// Stop: no new sequence starts, what was captured is written, the run fails
-    /// saying it was cancelled.
-    pub fn cancel(&self) {
-        self.cancelled_at.get_or_init(std::time::Instant::now);
-        self.cancel.store(true, Ordering::SeqCst);
-    }
-
-    /// When [`Control::cancel`] was first called.
-    pub fn cancelled_at(&self) -> Option<std::time::Instant> {
-        self.cancelled_at.get().copied()
-    }
-
-    /// Hold between LEDs (and before any stage move) until [`Control::resume`].
-    pub fn pause(&self) {
-        self.pause.store(true, Ordering::SeqCst);
-    }
-
-    /// Go on after a pause.
-    pub fn resume(&self) {
-        self.pause.store(false, Ordering::SeqCst);
-    }
-
-    /// Whether a cancel was asked for.
-    pub fn is_cancelled(&self) -> bool {
-        self.cancel.load(Ordering::SeqCst)
-    }
-
-    /// Whether a pause is asked for now.
-    pub fn is_paused(&self) -> bool {
-        self.pause.load(Ordering::SeqCst)
-    }
-}
 
 /// Run the acquisition of `plan` with controller `dev` and focus stage `stage`.
 /// `watcher` sees its progress after every event; `control` pauses, resumes or
@@ -342,7 +172,7 @@ fn run(
         .with_context(|| format!("creating {}", plan.out.display()))?;
     let rig = Rig {
         nominal: nominal_geometry(dev),
-        stored: stored_calibration(dev),
+        stored: stored_board_calibration(dev),
         camera_settings: camera_settings(&plan.camera, &plan.system),
     };
     let nominal = rig.nominal;

@@ -21,12 +21,11 @@ use serde::Serialize;
 
 use crate::acquisition::Plan;
 use crate::acquisition::Progress;
-use crate::pipeline::{self, Control};
+use crate::control::Control;
+use crate::pipeline;
 use crate::{Controller, FocusStage};
 
-/// A stage that moves over the slide and focuses: what a scan drives.
-pub trait ScanStage: Stage + FocusStage {}
-impl<T: Stage + FocusStage> ScanStage for T {}
+pub use crate::stage::ScanStage;
 
 /// What to scan.
 #[derive(Debug, Clone)]

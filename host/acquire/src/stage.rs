@@ -36,6 +36,10 @@ impl StagePosition {
     }
 }
 
+/// A stage that moves over the slide and focuses: what a scan drives.
+pub trait ScanStage: Stage + FocusStage {}
+impl<T: Stage + FocusStage> ScanStage for T {}
+
 /// A focus stage.
 pub trait FocusStage {
     /// Move to `to` and return once it is there (settled).
@@ -51,7 +55,7 @@ pub trait FocusStage {
 
     /// This stage as one that also moves over the slide, for a scan (None: it only
     /// focuses, as a person turning the knob does).
-    fn as_scan_stage(&mut self) -> Option<&mut dyn crate::scan::ScanStage> {
+    fn as_scan_stage(&mut self) -> Option<&mut dyn ScanStage> {
         None
     }
 }
@@ -173,7 +177,7 @@ impl FocusStage for MotorisedFocus {
         Ok(())
     }
 
-    fn as_scan_stage(&mut self) -> Option<&mut dyn crate::scan::ScanStage> {
+    fn as_scan_stage(&mut self) -> Option<&mut dyn ScanStage> {
         Some(self)
     }
 }

@@ -876,7 +876,7 @@ fn orient<T: Clone>(img: ndarray::Array2<T>, cam: &CameraSection) -> ndarray::Ar
 }
 
 /// `dir/dataset.toml`, read and validated: its path and the manifest as stored.
-pub(crate) fn read_manifest(dir: &Path) -> Result<(PathBuf, Manifest), DatasetError> {
+pub fn read_manifest(dir: &Path) -> Result<(PathBuf, Manifest), DatasetError> {
     let path = dir.join("dataset.toml");
     let text = std::fs::read_to_string(&path).map_err(|e| DatasetError::Manifest {
         path: path.clone(),

@@ -2,6 +2,8 @@
 """Checks of the workspace's shape that a reviewer would otherwise have to remember
 (docs/architecture.md): run by .ci/run, and by hand with `python3 tools/ci/architecture.py`.
 
+- host/ is a folder of crates, not a crate itself (a crate there would hide among the
+  others, and the layout could not say what it is).
 - Nothing under host/ (the product's libraries) depends on a crate under rig/ (the
   virtual rig, which stands in for hardware): the product must not need its stand-in.
 - clap (argument parsing) is a dependency of the command-line crates only (cli/,
@@ -270,6 +272,11 @@ def main() -> int:
     for package in meta["packages"]:
         here = members[package["name"]]
         top = here.parts[0]
+        if here == Path("host"):
+            breaches.append(
+                f"host/Cargo.toml: {package['name']} is the folder host/ itself: host/ holds "
+                "crates only, each in a folder named for its job, so the layout says what each is"
+            )
         for dep in package["dependencies"]:
             name = dep["name"]
             if top == "host" and name in members and members[name].parts[0] == "rig":
@@ -301,7 +308,7 @@ def main() -> int:
         print(b, file=sys.stderr)
     if not breaches:
         print(
-            f"architecture: {len(members)} crates checked (host/ imports nothing from rig/; "
+            f"architecture: {len(members)} crates checked (host/ holds crates only and imports nothing from rig/; "
             "clap only in cli/ and tools/; no module circles; no function "
             f"over {MAX_FUNCTION_LINES} lines but the {len(known_long(root))} listed)"
         )

@@ -522,3 +522,80 @@ pub fn copy_dataset(from: &Path, to: &Path) {
         }
     }
 }
+
+pub use foreign::foreign_device;
+
+/// Devices on the serial link that are not our firmware's current version.
+pub mod foreign {
+    use std::io::{Read, Write};
+    use std::os::fd::AsFd;
+    use std::time::{Duration, Instant};
+
+    use fpm_protocol::{ProtocolVersion, VersionEndpoint, WireError};
+    use postcard_rpc::header::VarSeq;
+    use postcard_rpc::Endpoint;
+
+    use crate::wire::{frame, frames};
+
+    /// A stand-in for other firmware on a pseudo-terminal (a board flashed with another
+    /// protocol version, or a device that is no fpm controller): answers the version
+    /// request with `version`, or everything with `UnknownKey` when `version` is `None`,
+    /// for a minute. Returns its thread, the port's path and the pair (keep it: the port
+    /// closes with it).
+    pub fn foreign_device(
+        version: Option<ProtocolVersion>,
+    ) -> (std::thread::JoinHandle<()>, String, nix::pty::OpenptyResult) {
+        let pair = nix::pty::openpty(None, None).unwrap();
+        let mut t = nix::sys::termios::tcgetattr(pair.slave.as_fd()).unwrap();
+        nix::sys::termios::cfmakeraw(&mut t);
+        nix::sys::termios::tcsetattr(pair.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &t)
+            .unwrap();
+        let path = nix::unistd::ttyname(pair.slave.as_fd())
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        let mut master = std::fs::File::from(pair.master.try_clone().unwrap());
+        let handle = std::thread::spawn(move || {
+            let mut buf = [0u8; 512];
+            let mut acc = vec![];
+            let deadline = Instant::now() + Duration::from_secs(60);
+            while Instant::now() < deadline {
+                let n = match master.read(&mut buf) {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => n,
+                };
+                acc.extend_from_slice(&buf[..n]);
+                if !acc.contains(&0) {
+                    continue;
+                }
+                for (hdr, _) in frames(&acc) {
+                    let VarSeq::Seq4(seq) = hdr.seq_no else {
+                        continue;
+                    };
+                    let reply = match version {
+                        Some(v)
+                            if hdr.key
+                                == postcard_rpc::header::VarKey::Key8(VersionEndpoint::REQ_KEY) =>
+                        {
+                            frame(
+                                VersionEndpoint::RESP_KEY,
+                                seq,
+                                &postcard::to_stdvec(&v).unwrap(),
+                            )
+                        }
+                        _ => frame(
+                            postcard_rpc::standard_icd::ERROR_KEY,
+                            seq,
+                            &postcard::to_stdvec(&WireError::UnknownKey).unwrap(),
+                        ),
+                    };
+                    if master.write_all(&reply).is_err() {
+                        return;
+                    }
+                }
+                acc.clear();
+            }
+        });
+        (handle, path, pair)
+    }
+}

@@ -1504,3 +1504,85 @@ fn the_virtual_rig_runs_on_the_real_firmware_image() {
         "60 steps of 50 ms captured in {seconds:.2} s"
     );
 }
+
+/// A board flashed with another protocol version (an older firmware than this host) is
+/// found when the service starts: `/api/status` says so with what to do, and every job
+/// that drives the rig is refused with 409 and that advice, without queueing it, while
+/// a reconstruction is still judged on its own request.
+#[test]
+fn a_controller_on_another_protocol_version_is_shown_and_its_jobs_refused() {
+    use fpm_protocol::{ProtocolVersion, PROTOCOL_VERSION};
+    let older = ProtocolVersion {
+        major: PROTOCOL_VERSION.major.saturating_sub(1),
+        minor: 9,
+    };
+    let (_device, port, _pair) = fpm_tests::foreign_device(Some(older));
+    let dir = TempDir::new("serve-old-firmware");
+    let service = VirtualService::start_on_rig(
+        fpm_bin(),
+        &dir.0.join("state"),
+        &[
+            "--port",
+            &port,
+            "--frames",
+            "fpm-test-no-camera",
+            "--stage",
+            "manual",
+        ],
+        Stdio::inherit(),
+    )
+    .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let controller = loop {
+        let status = service.get("/api/status").unwrap().json().unwrap();
+        if status["controller"]["state"] != "unchecked" || Instant::now() > deadline {
+            break status["controller"].clone();
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_eq!(controller["state"], "mismatch", "{controller}");
+    assert_eq!(controller["device"], older.to_string(), "{controller}");
+    assert_eq!(
+        controller["host"],
+        PROTOCOL_VERSION.to_string(),
+        "{controller}"
+    );
+    let advice = controller["error"].as_str().unwrap();
+    assert!(
+        advice.contains("flash newer firmware") && advice.contains("docs/hardware.md"),
+        "{advice}"
+    );
+
+    for kind in ["acquire", "calibrate", "dpc"] {
+        let out = dir.0.join(kind);
+        let body = serde_json::json!({"kind": kind, "out": out}).to_string();
+        let refused = service.post("/api/jobs", Some(&body)).unwrap();
+        assert_eq!(refused.status, 409, "{kind}: {}", refused.body);
+        let said = refused.json().unwrap()["error"]
+            .as_str()
+            .unwrap()
+            .to_owned();
+        assert!(
+            said.contains(&older.to_string()) && said.contains("flash newer firmware"),
+            "{kind}: {said}"
+        );
+        assert!(
+            !out.exists(),
+            "{kind}: a refused job wrote {}",
+            out.display()
+        );
+    }
+    // A reconstruction needs no controller: its request is judged on its own.
+    let reconstruct = serde_json::json!({"kind": "reconstruct", "dataset": dir.0.join("none")});
+    let judged = service
+        .post("/api/jobs", Some(&reconstruct.to_string()))
+        .unwrap();
+    assert_eq!(judged.status, 400, "{}", judged.body);
+    assert!(judged.body.contains("no dataset.toml"), "{}", judged.body);
+    let jobs = service.get("/api/jobs").unwrap().json().unwrap();
+    assert_eq!(
+        jobs,
+        serde_json::json!([]),
+        "refused jobs were queued: {jobs}"
+    );
+}

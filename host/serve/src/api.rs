@@ -26,6 +26,7 @@ use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 use utoipa::{OpenApi, ToSchema};
 
+use crate::board::Board;
 pub use crate::error::ApiError;
 use crate::error::ErrorBody;
 use crate::jobs::{
@@ -134,6 +135,7 @@ pub struct State {
     ),
     components(schemas(
         Status,
+        Board,
         Submitted,
         Resumed,
         Job,
@@ -241,6 +243,10 @@ pub struct Status {
     /// The iceoryx2 service on which local viewers read the snapshots in place
     /// (`fpm_frames::SnapshotSubscriber`; header `fpm::SnapshotHeader/1`).
     pub snapshot_service: String,
+    /// The LED controller as last found: `ready` with its versions, `mismatch` (jobs
+    /// that drive the rig are refused, `error` says what to do), `unreachable` or
+    /// `unchecked`.
+    pub controller: Board,
 }
 
 #[utoipa::path(get, path = "/api/status", responses((status = 200, body = Status)))]
@@ -254,6 +260,7 @@ async fn status(Extract(state): Extract<State>) -> Json<Status> {
         eta_s: current.and_then(|c| c.2),
         runs: state.shared.runs.display().to_string(),
         snapshot_service: state.shared.snapshot_service.clone(),
+        controller: state.shared.board(),
     })
 }
 
@@ -275,13 +282,17 @@ pub struct Submitted {
 }
 
 #[utoipa::path(post, path = "/api/jobs", request_body = JobRequest,
-    responses((status = 202, body = Submitted), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody)),
+    responses((status = 202, body = Submitted), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody),
+        (status = 409, body = ErrorBody, description = "The job drives the rig and the LED controller speaks another protocol version (the error says what to do)")),
     security(("token" = [])))]
 async fn submit(
     Extract(state): Extract<State>,
     body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<(StatusCode, Json<Submitted>), ApiError> {
     let mut request = JobRequest::parse(&body?).map_err(ApiError::BadRequest)?;
+    if request.drives_rig() {
+        refuse_on_wrong_firmware(&state).await?;
+    }
     request.place(&state.shared.runs);
     // Checked now, not when the rig gets to it: a bad value is said to the one who sent it.
     match &mut request {
@@ -318,6 +329,23 @@ async fn cancel(
     let UrlPath(id) = id?;
     state.worker.cancel(id)?;
     Ok(StatusCode::ACCEPTED)
+}
+
+/// A 409 when the controller speaks another protocol version, after looking at it
+/// again (a board flashed since the last look is taken).
+async fn refuse_on_wrong_firmware(state: &State) -> Result<(), ApiError> {
+    let Board::Mismatch { port, .. } = state.shared.board() else {
+        return Ok(());
+    };
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let shared = state.shared.clone();
+    // Opening a serial port and its handshake block: off the runtime's threads.
+    std::thread::spawn(move || tx.send(shared.check_board(&port)));
+    let board = rx.await.map_err(ApiError::internal)?;
+    match board.refusal() {
+        Some(why) => Err(ApiError::Conflict(why.to_owned())),
+        None => Ok(()),
+    }
 }
 
 /// Where job `id`'s frames are, if it can be completed by a resume job: it is an

@@ -166,16 +166,38 @@ impl VirtualService {
         args: &[&str],
         stderr: std::process::Stdio,
     ) -> anyhow::Result<Self> {
+        let mut all = vec!["--virtual"];
+        all.extend_from_slice(args);
+        Self::start_serve(fpm, state, &all, stderr)
+    }
+
+    /// `fpm serve` on a rig of the caller's (`--port`, `--frames`, `--stage` in
+    /// `args`), not a virtual one: nothing is started beside it.
+    pub fn start_on_rig(
+        fpm: &std::path::Path,
+        state: &std::path::Path,
+        args: &[&str],
+        stderr: std::process::Stdio,
+    ) -> anyhow::Result<Self> {
+        Self::start_serve(fpm, state, args, stderr)
+    }
+
+    fn start_serve(
+        fpm: &std::path::Path,
+        state: &std::path::Path,
+        args: &[&str],
+        stderr: std::process::Stdio,
+    ) -> anyhow::Result<Self> {
         use anyhow::Context;
         let mut child = std::process::Command::new(fpm)
-            .args(["serve", "--virtual", "--listen", "127.0.0.1:0"])
+            .args(["serve", "--listen", "127.0.0.1:0"])
             .args(args)
             .arg("--state-dir")
             .arg(state)
             .stdout(std::process::Stdio::piped())
             .stderr(stderr)
             .spawn()
-            .context("starting fpm serve --virtual")?;
+            .context("starting fpm serve")?;
         let said: std::io::Result<Vec<String>> = child
             .stdout
             .take()

@@ -339,6 +339,12 @@ impl JobRequest {
         }
     }
 
+    /// Whether the job lights LEDs or takes frames (all but a reconstruction): it
+    /// needs a controller that speaks this host's protocol.
+    pub fn drives_rig(&self) -> bool {
+        !matches!(self, JobRequest::Reconstruct(_))
+    }
+
     /// The kind, as the job list shows it.
     pub fn kind(&self) -> &'static str {
         match self {

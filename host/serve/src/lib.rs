@@ -16,6 +16,7 @@
 //! * [`client`]: a minimal blocking client of the API (tests, benchmarks, the demo).
 
 pub mod api;
+pub mod board;
 pub mod client;
 pub mod error;
 pub mod jobs;
@@ -100,6 +101,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             rig.camera.clone(),
             config.state_dir.join("runs"),
             fpm_frames::snapshot_service_name(address.port()),
+            rig.port.clone(),
         ));
         let worker = worker::Worker::start(shared.clone(), rig)?;
         let state = api::State {

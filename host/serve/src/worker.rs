@@ -13,6 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Result};
+use fpm_acquire::controller::ControllerError;
 use fpm_acquire::pipeline::Control;
 use fpm_acquire::{Controller, Progress};
 use fpm_frames::ServiceNames;
@@ -20,6 +21,7 @@ use serde::Serialize;
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
+use crate::board::Board;
 use crate::jobs::{AcquireRequest, JobRequest, ScanRequest};
 use crate::live::Live;
 use crate::store::{JobState, Store};
@@ -109,6 +111,11 @@ pub struct Shared {
     /// The iceoryx2 service the snapshots are published on for local viewers.
     pub snapshot_service: String,
     running: Mutex<Option<Running>>,
+    /// The LED controller as last found ([`crate::board`]).
+    board: Mutex<Board>,
+    /// Held while a job has the controller open, so that the service's own look at
+    /// it never opens the port beside a job.
+    rig_in_use: Mutex<()>,
 }
 
 impl Shared {
@@ -119,8 +126,11 @@ impl Shared {
         camera: ServiceNames,
         runs: std::path::PathBuf,
         snapshot_service: String,
+        port: String,
     ) -> Self {
         Self {
+            board: Mutex::new(Board::Unchecked { port }),
+            rig_in_use: Mutex::new(()),
             snapshot_service,
             store,
             events: broadcast::channel(4096).0,
@@ -130,6 +140,41 @@ impl Shared {
             live: Live::default(),
             running: Mutex::new(None),
         }
+    }
+
+    /// The LED controller as last found.
+    pub fn board(&self) -> Board {
+        self.board.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    fn set_board(&self, board: Board) {
+        let mut now = self.board.lock().unwrap_or_else(|e| e.into_inner());
+        if *now != board {
+            tracing::info!(
+                "the LED controller: {}",
+                serde_json::to_string(&board).unwrap_or_default()
+            );
+            *now = board;
+        }
+    }
+
+    /// Look at the controller on `port` again, unless a job has it open (then what
+    /// that job found stands); returns what is known. A board found on another
+    /// protocol version stays so until it answers again: a look that could not reach
+    /// it (unplugged, or the port still held by the last look's closing reader) says
+    /// nothing about its firmware.
+    pub fn check_board(&self, port: &str) -> Board {
+        if let Ok(_idle) = self.rig_in_use.try_lock() {
+            let found = Board::check(port);
+            let unknown = matches!(found, Board::Unreachable { .. })
+                && matches!(self.board(), Board::Mismatch { .. });
+            if unknown {
+                tracing::debug!("the LED controller could not be looked at again: {found:?}");
+            } else {
+                self.set_board(found);
+            }
+        }
+        self.board()
     }
 
     fn running(&self) -> std::sync::MutexGuard<'_, Option<Running>> {
@@ -391,6 +436,9 @@ fn run(shared: &Shared, rig: &Rig, queue: &mpsc::Receiver<i64>, stop: &AtomicBoo
             )
         })
         .ok();
+    // The board is looked at once before the first job, for the page and
+    // /api/status; each job's own opening of it keeps that up to date.
+    shared.check_board(&rig.port);
     while !stop.load(Ordering::SeqCst) {
         if let Some(p) = &publisher {
             p.serve();
@@ -399,6 +447,39 @@ fn run(shared: &Shared, rig: &Rig, queue: &mpsc::Receiver<i64>, stop: &AtomicBoo
             continue;
         };
         run_job(shared, rig, id, stop, publisher.as_ref());
+    }
+}
+
+/// Job `id`'s LED controller on `port`. One that is not there yet (a board being
+/// plugged back in, a driver restarting) is waited for a while: the service reconnects
+/// when it returns. What the opening finds is what the service knows of the board.
+fn open_controller(shared: &Shared, port: &str, id: i64, control: &Control) -> Result<Controller> {
+    let deadline = Instant::now() + CONTROLLER_WAIT;
+    let mut said = false;
+    loop {
+        match Controller::open(port, Duration::from_secs(2)) {
+            Ok(dev) => {
+                shared.set_board(Board::of(&dev));
+                return Ok(dev);
+            }
+            // Waiting does not change a board's firmware.
+            Err(e @ ControllerError::VersionMismatch { .. }) => {
+                let board = Board::from_error(port, &e);
+                let said = board.refusal().unwrap_or_default().to_owned();
+                shared.set_board(board);
+                bail!("{said}");
+            }
+            Err(e) if Instant::now() < deadline && !control.is_cancelled() => {
+                if !std::mem::replace(&mut said, true) {
+                    tracing::warn!("job {id}: waiting for the LED controller on {port} ({e:#})");
+                }
+                std::thread::sleep(Duration::from_millis(250));
+            }
+            Err(e) => bail!(
+                "the LED controller on {port}: {e:#} (waited {} s for it: is it plugged in?)",
+                CONTROLLER_WAIT.as_secs()
+            ),
+        }
     }
 }
 
@@ -422,6 +503,9 @@ fn run_job(
     if stop.load(Ordering::SeqCst) {
         control.cancel();
     }
+    // A job on the rig has the controller to itself (a reconstruction does not use it).
+    let _rig = (job.kind != "reconstruct")
+        .then(|| shared.rig_in_use.lock().unwrap_or_else(|e| e.into_inner()));
     *shared.running() = Some(Running {
         id,
         kind: job.kind.clone(),
@@ -432,30 +516,8 @@ fn run_job(
     shared.set_state(id, JobState::Running, None, None);
     let request: Result<JobRequest> = serde_json::from_value(job.request).map_err(Into::into);
     let watcher = JobWatcher::new(shared, id, publisher);
-    // A controller that is not there yet (a board being plugged back in, a driver
-    // restarting) is waited for a while: the service reconnects when it returns.
     let open = || -> Result<_> {
-        let deadline = Instant::now() + CONTROLLER_WAIT;
-        let mut said = false;
-        let dev = loop {
-            match Controller::open(&rig.port, Duration::from_secs(2)) {
-                Ok(dev) => break dev,
-                Err(e) if Instant::now() < deadline && !control.is_cancelled() => {
-                    if !std::mem::replace(&mut said, true) {
-                        tracing::warn!(
-                            "job {id}: waiting for the LED controller on {} ({e:#})",
-                            rig.port
-                        );
-                    }
-                    std::thread::sleep(Duration::from_millis(250));
-                }
-                Err(e) => bail!(
-                    "the LED controller on {}: {e:#} (waited {} s for it: is it plugged in?)",
-                    rig.port,
-                    CONTROLLER_WAIT.as_secs()
-                ),
-            }
-        };
+        let dev = open_controller(shared, &rig.port, id, &control)?;
         Ok((dev, (rig.stage)()?))
     };
     let summary = |s: fpm_acquire::AcquireSummary| serde_json::to_value(s).unwrap_or_default();

@@ -10,6 +10,7 @@ mod camera;
 mod color;
 mod demo;
 mod device;
+mod doctor;
 mod dpc;
 mod emulator;
 mod flatten;
@@ -47,6 +48,9 @@ enum Command {
     Device(device::DeviceArgs),
     /// Run the emulated LED controller on a pseudo-terminal.
     Emulator(emulator::EmulatorArgs),
+    /// Check this machine for fpm (udev, ports, the board's versions, cameras, shared
+    /// memory, disk, the service's port), each finding with the action to take.
+    Doctor(doctor::DoctorArgs),
     /// Run a simulated camera on a virtual rig (with `fpm emulator --rig`): renders
     /// each triggered exposure for a hidden, misplaced LED array and publishes frames
     /// on iceoryx2.
@@ -116,6 +120,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Device(args) => device::run(args),
         Command::Emulator(args) => emulator::run(args),
+        Command::Doctor(args) => doctor::run(args),
         Command::VirtualCamera(args) => virtual_camera::run(args),
         Command::Camera(cmd) => camera::run(cmd),
         Command::Simulate(cmd) => simulate::run(cmd),

@@ -204,7 +204,7 @@ fn virtual_stage(rig: String) -> StageFactory {
 }
 
 /// $XDG_STATE_HOME/fpm, else ~/.local/state/fpm.
-fn default_state_dir() -> Result<PathBuf> {
+pub(crate) fn default_state_dir() -> Result<PathBuf> {
     if let Some(d) = std::env::var_os("XDG_STATE_HOME").filter(|d| !d.is_empty()) {
         return Ok(PathBuf::from(d).join("fpm"));
     }

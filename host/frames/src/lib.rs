@@ -27,7 +27,8 @@ pub use header::FrameHeader;
 pub use iceoryx2::prelude::LogLevel;
 pub use publisher::{FrameLoan, FramePublisher};
 pub use service::{
-    cleanup_stale, node, set_ipc_log_level, ServiceNames, FRAME_READY, SAMPLES_PER_PUBLISHER,
+    cleanup_stale, node, set_ipc_log_level, stale_nodes, ServiceNames, FRAME_READY,
+    SAMPLES_PER_PUBLISHER,
 };
 pub use settings::{read_settings, SettingsPublisher, MAX_SETTINGS_BYTES};
 pub use snapshots::{

@@ -131,6 +131,21 @@ pub(crate) fn publisher(service: &PubSub, max_pixels: usize) -> Result<FramePort
         .map_err(|e| ipc("creating the frame publisher")(&e))
 }
 
+/// How many dead nodes (processes that crashed or were killed) left resources behind,
+/// without touching them: what `fpm doctor` reports.
+pub fn stale_nodes() -> Result<usize, FrameError> {
+    quiet_by_default();
+    let mut dead = 0;
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(_) = state {
+            dead += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| ipc("listing nodes")(&e))?;
+    Ok(dead)
+}
+
 /// Remove what crashed processes left behind (shared memory, service entries): safe
 /// to call any time, a live process's resources are never touched. Returns how many
 /// dead nodes were cleaned up.

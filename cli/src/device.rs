@@ -104,6 +104,10 @@ enum DeviceCommand {
     Abort,
     /// State of the sequence engine.
     SequenceStatus,
+    /// Restart the board in the RP2040 boot ROM's USB mode (BOOTSEL) without unplugging
+    /// it: its RPI-RP2 drive appears, onto which a UF2 image is copied (a running
+    /// sequence is aborted and every LED turned off first; protocol ≥ 1.3).
+    Bootsel,
     /// The array geometry stored on the board (Δx, Δy, θ, h with their σ, the date and
     /// the fit residual of the calibration): show it, store one, or forget it.
     Geometry {
@@ -272,9 +276,21 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     };
     let dev = Controller::open(&port, timeout)?;
     let json = args.json;
+    if let DeviceCommand::Bootsel = args.command {
+        let (board, serial) = (dev.info().board.to_string(), dev.info().serial);
+        dev.reboot_to_bootsel()?;
+        let said =
+            serde_json::json!({"port": port, "board": board, "serial": serial, "bootsel": true});
+        emit(&said, json, |_| {
+            println!(
+                "{board} (serial {serial:#x}) on {port} is restarting in BOOTSEL: its RPI-RP2 drive appears within seconds; copy fpm-led-controller.uf2 onto it (docs/hardware.md), and the board restarts with that firmware"
+            )
+        });
+        return Ok(());
+    }
     match args.command {
-        // Answered above, without opening a port.
-        DeviceCommand::List => {}
+        // Answered above (without opening a port, or handing the port over).
+        DeviceCommand::List | DeviceCommand::Bootsel => {}
         DeviceCommand::Info => emit(dev.info(), json, print_info),
         DeviceCommand::Status => emit(&dev.status()?, json, print_status),
         DeviceCommand::Ping { count } => ping(&dev, count, json)?,

@@ -20,6 +20,10 @@ pub type GammaResult = Result<bool, DeviceError>;
 pub type StartResult = Result<SequenceStarted, DeviceError>;
 /// Reply of [`LedSetDefineEndpoint`].
 pub type LedSetsResult = Result<LedSetsDefined, DeviceError>;
+/// Reply of [`BootselEndpoint`]: sent, then every LED off, then the board restarts in
+/// the RP2040 boot ROM's USB mode (BOOTSEL: its RPI-RP2 drive and PICOBOOT), as if
+/// BOOTSEL had been held while plugging it in. The link closes with the restart.
+pub type BootselResult = Result<(), DeviceError>;
 
 endpoints! {
     list = ENDPOINT_LIST;
@@ -46,6 +50,8 @@ endpoints! {
     // 1.2
     | LedSetDefineEndpoint   | LedSetDefine      | LedSetsResult     | "fpm/light/set/define"   |
     | SequenceSetStepsEndpoint | SetStepChunk    | StepsResult       | "fpm/seq/set-steps"      |
+    // 1.3
+    | BootselEndpoint        | ()                | BootselResult     | "fpm/device/bootsel"     |
 }
 
 topics! {
@@ -76,7 +82,7 @@ mod tests {
     /// message keys collide at 8 bytes.
     #[test]
     fn keys_are_unique() {
-        let mut keys: [Key; 22] = [
+        let mut keys: [Key; 23] = [
             VersionEndpoint::REQ_KEY,
             InfoEndpoint::REQ_KEY,
             StatusEndpoint::REQ_KEY,
@@ -96,6 +102,7 @@ mod tests {
             GammaEndpoint::REQ_KEY,
             LedSetDefineEndpoint::REQ_KEY,
             SequenceSetStepsEndpoint::REQ_KEY,
+            BootselEndpoint::REQ_KEY,
             StepTopic::TOPIC_KEY,
             SetStepTopic::TOPIC_KEY,
             SequenceEndTopic::TOPIC_KEY,
@@ -106,8 +113,8 @@ mod tests {
         }
         assert_eq!(
             ENDPOINT_LIST.endpoints.len(),
-            19 + 2,
-            "19 ours + 2 standard"
+            20 + 2,
+            "20 ours + 2 standard"
         );
     }
 

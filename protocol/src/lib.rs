@@ -51,8 +51,9 @@ use serde::{Deserialize, Serialize};
 /// History: 1.0 lighting, budget, sequences; 1.1 the stored board geometry
 /// (`fpm/board/geometry`) and gamma correction (`fpm/light/gamma`); 1.2 LED sets lit
 /// whole by sequence steps (`fpm/light/set/define`, `fpm/seq/set-steps`,
-/// `fpm/seq/set-step`: [`led_sets`]).
-pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_2;
+/// `fpm/seq/set-step`: [`led_sets`]); 1.3 the reboot into the boot ROM's USB mode
+/// (`fpm/device/bootsel`), for flashing a board in place.
+pub const PROTOCOL_VERSION: ProtocolVersion = PROTOCOL_1_3;
 
 /// USB vendor id the controller enumerates with (pid.codes, the open-hardware vendor id).
 /// Hosts find boards by it (`fpm device list`); the udev rule in `udev/` matches it.
@@ -60,6 +61,9 @@ pub const USB_VID: u16 = 0x1209;
 /// USB product id: pid.codes' test PID, fine for development; register a PID before
 /// shipping boards.
 pub const USB_PID: u16 = 0x0001;
+
+/// Protocol 1.3: what a device must speak for [`BootselEndpoint`].
+pub const PROTOCOL_1_3: ProtocolVersion = ProtocolVersion { major: 1, minor: 3 };
 
 /// Protocol 1.1: what a device must speak for the stored geometry and gamma endpoints.
 pub const PROTOCOL_1_1: ProtocolVersion = ProtocolVersion { major: 1, minor: 1 };

@@ -440,6 +440,24 @@ impl Emulator {
         }
     }
 
+    /// Its exit status once it has ended by itself, waiting up to `timeout` (None: it
+    /// still runs).
+    pub fn exited_within(
+        &mut self,
+        timeout: std::time::Duration,
+    ) -> Option<std::process::ExitStatus> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if let Some(status) = self.process.process.try_wait() {
+                return Some(status);
+            }
+            if std::time::Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     /// Kill it without warning (SIGKILL): the link stays behind, as after a crash.
     pub fn kill(&mut self) {
         self.process.process.kill();

@@ -162,6 +162,35 @@ mcu.core.PC = FLASH_START;
 const log = (message) => process.stderr.write(`rp2040 harness: ${message}\n`);
 log(`${blocks} UF2 blocks loaded from ${opt.uf2}`);
 
+// The restart in BOOTSEL (`fpm/device/bootsel`): the firmware calls the boot ROM's
+// reset_usb_boot, which leaves the ROM's reboot magic (0xb007c0d3) in the watchdog's
+// scratch register 4, the ROM address to restart at in scratch 7 (its USB boot), and
+// fires the watchdog. A board resets there and comes back as the RP2040's boot device;
+// this chip cannot (the ROM's own boot path is not emulated), so the harness reports
+// the hand-over to the ROM, with the registers as the ROM left them, and stops as a
+// board leaves its serial port.
+const WATCHDOG_REBOOT_MAGIC = 0xb007c0d3;
+const watchdog = mcu.peripherals[0x40058];
+let rebooting = false;
+watchdog.onWatchdogTrigger = () => {
+  const scratch = Array.from(watchdog.scratchData, (v) => v >>> 0);
+  if (rebooting) return;
+  if (scratch[4] !== WATCHDOG_REBOOT_MAGIC) {
+    log(`watchdog reset at ${mcu.clock.micros.toFixed(0)} µs (not emulated; the firmware goes on)`);
+    return;
+  }
+  rebooting = true;
+  emit({
+    type: 'bootsel',
+    us: Number(mcu.clock.micros.toFixed(3)),
+    rom_entry: scratch[7],
+    scratch,
+  });
+  log(`the firmware handed over to the boot ROM's reboot (watchdog scratch 4 = 0x${scratch[4].toString(16)}, restart at 0x${scratch[7].toString(16)} in the ROM): a board restarts in BOOTSEL here; stopping`);
+  saveFlash();
+  process.exit(0);
+};
+
 // USB CDC-ACM ↔ stdin/stdout. Like a real host, we leave the firmware's OUT endpoint
 // armed until there are bytes to send. rp2040js clears a buffer's AVAILABLE bit the
 // moment the firmware arms it, which embassy-rp reads as "a packet arrived"; its own

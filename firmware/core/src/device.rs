@@ -43,6 +43,8 @@ pub struct Device<S: LedStrip, T: TriggerOut, F: NorFlash> {
     /// A sequence step written to a strip that `latches_later`: its LEDs lit, and the
     /// model's latch time, until the shell reports the real one.
     awaiting_latch: Option<(u16, u64)>,
+    /// The host asked for the boot ROM's USB mode ([`Device::bootsel_requested`]).
+    bootsel: bool,
 }
 
 /// How long after the model's latch time a sequence waits for the shell's report
@@ -79,9 +81,18 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             stats: LinkStats::default(),
             topic_seq: 0,
             awaiting_latch: None,
+            bootsel: false,
             tx_buf: [0; MAX_FRAME_LEN],
             enc_buf: [0; MAX_ENCODED_FRAME_LEN],
         })
+    }
+
+    /// Whether the host asked to restart in the boot ROM's USB mode (BOOTSEL): the
+    /// reply has been sent and every LED written off. The shell lets the reply and the
+    /// strip's latch go out, then restarts there (`reset_to_usb_boot` on an RP2040);
+    /// the controller answers nothing more meanwhile.
+    pub fn bootsel_requested(&self) -> bool {
+        self.bootsel
     }
 
     /// The LED strip driver (the emulator inspects it).
@@ -215,6 +226,10 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
     // ---------------------------------------------------------------- dispatch
 
     fn dispatch(&mut self, frame: &[u8], now: u64, out: &mut impl FrameSink) {
+        if self.bootsel {
+            // Restarting in BOOTSEL: what comes after is the next firmware's to answer.
+            return;
+        }
         let Some((hdr, body)) = VarHeader::take_from_slice(frame) else {
             self.stats.frames_dropped = self.stats.frames_dropped.wrapping_add(1);
             return;
@@ -251,6 +266,7 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             GeometrySetEndpoint => set_geometry,
             LedSetDefineEndpoint => define_set,
             SequenceSetStepsEndpoint => seq_set_steps,
+            BootselEndpoint => bootsel,
         }
         self.stats.unknown_keys = self.stats.unknown_keys.wrapping_add(1);
         self.send(ERROR_KEY, hdr.seq_no, &WireError::UnknownKey, out);
@@ -544,6 +560,17 @@ impl<S: LedStrip, T: TriggerOut, F: NorFlash> Device<S, T, F> {
             .ok_or(DeviceError::NotRunning)?;
         self.finish(end, now, out);
         Ok(self.engine.status())
+    }
+
+    /// Every LED off, then the restart in BOOTSEL is left to the shell. Not while a
+    /// sequence runs (the host aborts it first): a board does not go dark mid-capture
+    /// on a stray request.
+    fn bootsel(&mut self, _: (), now: u64, _: &mut impl FrameSink) -> BootselResult {
+        self.not_running()?;
+        self.leds.stage(false);
+        self.commit(self.leds.brightness(), self.budget, now)?;
+        self.bootsel = true;
+        Ok(())
     }
 
     fn seq_status(&mut self, _: (), _: u64, _: &mut impl FrameSink) -> SequenceStatus {

@@ -114,6 +114,7 @@ fn valid_body(path: &str, raw: &[u8], out: &mut [u8]) -> Option<usize> {
         GammaEndpoint,
         LedSetDefineEndpoint,
         SequenceSetStepsEndpoint,
+        BootselEndpoint,
     );
     None
 }
@@ -136,15 +137,20 @@ fn frame(key: Key, seq: u32, body: &[u8], out: &mut [u8; MAX_ENCODED_FRAME_LEN +
 
 /// Run `script` against a fresh controller; panics if an invariant breaks.
 pub fn run(script: &[u8]) {
-    let board = BoardConfig::PICO_21X21;
-    let strip = CheckedStrip {
-        max_ua: board.max_current_ma as u64 * 1000,
-        channel_current_ua: board.channel_current_ua,
+    // A board as it starts (again, after a restart in BOOTSEL brings it back).
+    let start = || {
+        let board = BoardConfig::PICO_21X21;
+        let strip = CheckedStrip {
+            max_ua: board.max_current_ma as u64 * 1000,
+            channel_current_ua: board.channel_current_ua,
+        };
+        let store = CalibrationStore::new(RamNor::<{ 2 * 4096 }>::erased(), 0);
+        let Ok(dev) = Device::new(board, 1, strip, NoTrigger, store) else {
+            panic!("the reference board is valid");
+        };
+        dev
     };
-    let store = CalibrationStore::new(RamNor::<{ 2 * 4096 }>::erased(), 0);
-    let Ok(mut dev) = Device::new(board, 1, strip, NoTrigger, store) else {
-        panic!("the reference board is valid");
-    };
+    let mut dev = start();
     let mut sink = |_: &[u8]| {};
     let mut now = 0u64;
     let mut cur = Cursor {
@@ -197,9 +203,25 @@ pub fn run(script: &[u8]) {
             lit_ma <= limit_ma,
             "{lit_ma} mA lit over a budget of {limit_ma} mA"
         );
+        if dev.bootsel_requested() {
+            assert_eq!(
+                lit_ma, 0,
+                "{lit_ma} mA still lit when restarting in BOOTSEL"
+            );
+            dev = start();
+        }
     }
 
     // Whatever came before, a delimiter then a valid request gets its answer.
+    answers_a_ping(&mut dev, now);
+}
+
+/// A delimiter then a ping gets its answer, whatever `dev` was sent before.
+fn answers_a_ping<S: LedStrip, F: embedded_storage::nor_flash::NorFlash>(
+    dev: &mut Device<S, NoTrigger, F>,
+    now: u64,
+) {
+    let mut wire = [0u8; MAX_ENCODED_FRAME_LEN + 8];
     let mut answered = false;
     let mut rx = FrameReceiver::new();
     let mut check = |bytes: &[u8]| {

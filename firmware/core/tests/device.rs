@@ -754,3 +754,39 @@ fn protocol_errors_are_answered_and_counted() {
 }
 
 use postcard_rpc::Endpoint;
+
+/// The reboot into BOOTSEL: refused while a sequence runs (a stray request must not
+/// darken a capture), else answered, every LED written off, and the shell told; after
+/// it the controller answers nothing (the next firmware will).
+#[test]
+fn bootsel_turns_every_led_off_then_leaves_the_restart_to_the_shell() {
+    let mut dev = device();
+    upload(&mut dev, 3, &led_steps(100), timing(None));
+    ok::<SequenceStartEndpoint>(&mut dev, &3, T0).unwrap();
+    run_until(&mut dev, T0, T0 + 20_000);
+    let now = T0 + 20_000;
+    assert_eq!(
+        ok::<BootselEndpoint>(&mut dev, &(), now),
+        Err(DeviceError::Busy)
+    );
+    assert!(!dev.bootsel_requested());
+    ok::<SequenceAbortEndpoint>(&mut dev, &(), now).unwrap();
+
+    let lit = SetLeds {
+        leds: [LedIndex::new(10, 10), LedIndex::new(3, 4)]
+            .into_iter()
+            .collect(),
+        color: Rgb::WHITE,
+        keep_others: false,
+    };
+    ok::<SetLedsEndpoint>(&mut dev, &lit, now).unwrap();
+    assert!(dev.current_ma() > 0);
+    assert_eq!(ok::<BootselEndpoint>(&mut dev, &(), now), Ok(()));
+    assert!(dev.bootsel_requested());
+    assert_eq!(dev.current_ma(), 0);
+    assert!(dev.strip().pixels.iter().all(|p| p.is_off()));
+    let mut answered = vec![];
+    let ping = encode_request::<PingEndpoint>(&1, 9);
+    dev.receive(&ping, now, &mut |b: &[u8]| answered.extend_from_slice(b));
+    assert!(answered.is_empty(), "answered after BOOTSEL: {answered:?}");
+}

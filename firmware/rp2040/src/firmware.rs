@@ -39,13 +39,8 @@ pub async fn run(spawner: Spawner, board: BoardConfig) -> ! {
     let lanes = board.geometry.lanes;
     let led_count = board.geometry.led_count();
 
-    // The flash chip's unique id is the board's serial number.
-    let mut uid = [0u8; 8];
     let mut flash = Flash::<_, Blocking, FLASH_SIZE>::new_blocking(p.FLASH);
-    if flash.blocking_unique_id(&mut uid).is_err() {
-        defmt::warn!("could not read the flash unique id; serial number 0");
-    }
-    let serial = u64::from_be_bytes(uid);
+    let serial = serial_number(&mut flash);
     static SERIAL_TEXT: StaticCell<heapless::String<16>> = StaticCell::new();
     let serial_text = SERIAL_TEXT.init(hex16(serial));
 
@@ -130,7 +125,30 @@ pub async fn run(spawner: Spawner, board: BoardConfig) -> ! {
             Either4::Fourth(()) => next = device.poll(now_us(), &mut outbox),
         }
         outbox.flush(&mut tx).await;
+        if device.bootsel_requested() {
+            restart_in_bootsel().await;
+        }
     }
+}
+
+/// The flash chip's unique id: the board's serial number (0 if it cannot be read).
+fn serial_number(
+    flash: &mut Flash<'_, embassy_rp::peripherals::FLASH, Blocking, FLASH_SIZE>,
+) -> u64 {
+    let mut uid = [0u8; 8];
+    if flash.blocking_unique_id(&mut uid).is_err() {
+        defmt::warn!("could not read the flash unique id; serial number 0");
+    }
+    u64::from_be_bytes(uid)
+}
+
+/// The reply is out and every LED written off: give the chain time to latch that,
+/// then hand over to the boot ROM's USB mode, mass storage and PICOBOOT both on, as a
+/// cold boot with BOOTSEL held.
+async fn restart_in_bootsel() {
+    defmt::info!("restarting in BOOTSEL, as asked");
+    Timer::after_millis(50).await;
+    embassy_rp::rom_data::reset_to_usb_boot(0, 0);
 }
 
 fn hex16(x: u64) -> heapless::String<16> {

@@ -603,6 +603,46 @@ fn the_emulator_logs_what_it_lights_and_cleans_up_its_link() {
     );
 }
 
+/// The restart in BOOTSEL, as `fpm device bootsel` asks it: the running sequence
+/// aborted, every LED turned off and latched, the answer, then the board leaves its
+/// port (the emulator ends, successfully, as the port does). On the firmware image the
+/// harness sees it hand over to the boot ROM: the ROM's reboot magic in the watchdog's
+/// scratch register and a restart address inside the ROM.
+#[test]
+fn bootsel_turns_every_led_off_answers_and_leaves_the_port() {
+    let dir = TempDir::new("bootsel");
+    let link = dir.0.join("ctl.tty");
+    let mut emu = TARGET.start(&link, &["--no-camera"]);
+    let dev = Controller::open(&emu.port(), TIMEOUT).unwrap();
+    dev.set_led(LedIndex::new(10, 10), Rgb::WHITE).unwrap();
+    emu.log_when(|l| l.contains("LEDs lit: (10,10)"), Duration::from_secs(5));
+    dev.reboot_to_bootsel().unwrap();
+    let status = emu
+        .exited_within(Duration::from_secs(20))
+        .unwrap_or_else(|| panic!("still running after BOOTSEL:\n{}", emu.log_text()));
+    assert!(status.success(), "{status}\n{}", emu.log_text());
+    let log = emu.log_text();
+    let off = log.rfind("LEDs: all off");
+    let lit = log.rfind("LEDs lit: (10,10)");
+    assert!(
+        off > lit,
+        "the LEDs were not turned off before the restart:\n{log}"
+    );
+    assert!(log.contains("BOOTSEL"), "{log}");
+    if TARGET == fpm_tests::Target::Firmware {
+        let entry = log
+            .split("restart at ROM address 0x")
+            .nth(1)
+            .and_then(|s| s.split_whitespace().next())
+            .and_then(|h| u32::from_str_radix(h, 16).ok())
+            .unwrap_or_else(|| panic!("no hand-over to the boot ROM:\n{log}"));
+        assert!(
+            entry < 0x4000,
+            "the restart address {entry:#x} is not in the 16 KiB ROM"
+        );
+    }
+}
+
 fn board_calibration(dx_mm: f32) -> BoardCalibration {
     BoardCalibration {
         dx_mm,

@@ -166,7 +166,14 @@ fn random_request_bodies_on_every_key_never_wedge_the_process() {
     let dir = TempDir::new("fuzzkeys");
     let emu = TARGET.start(&dir.0.join("ctl.tty"), &[]);
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
-    let keys: Vec<Key> = ENDPOINT_LIST.endpoints.iter().map(|(_, k, _)| *k).collect();
+    // Every key but the reboot into BOOTSEL, which ends the session by design (an
+    // empty body is a valid request); its own test covers it.
+    let keys: Vec<Key> = ENDPOINT_LIST
+        .endpoints
+        .iter()
+        .map(|(_, k, _)| *k)
+        .filter(|k| k.to_bytes() != BootselEndpoint::REQ_KEY.to_bytes())
+        .collect();
     let mut bytes = vec![];
     for seq in 0..2000u32 {
         let key = keys[rng.gen_range(0..keys.len())];

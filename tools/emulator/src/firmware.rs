@@ -154,13 +154,7 @@ pub fn run_firmware(args: &EmulatorOptions, uf2: &Path) -> Result<()> {
         ),
         None => None,
     };
-    let mut pins = Pins {
-        strip: EmulatedStrip::new(fpm_firmware::BoardConfig::PICO_21X21.geometry),
-        rig,
-        pulses: 0,
-        trigger_high_at: None,
-        round_trips_us: vec![],
-    };
+    let mut pins = Pins::new(rig);
     let mut buf = [0u8; 4096];
     while !fpm_rig_bus::stop::requested() {
         pins.handle(events.try_iter());
@@ -190,7 +184,7 @@ pub fn run_firmware(args: &EmulatorOptions, uf2: &Path) -> Result<()> {
             let n = std::io::Read::read(&mut from_device, &mut buf)
                 .context("reading from the RP2040 emulator")?;
             if n == 0 {
-                bail!("the RP2040 emulator stopped");
+                return pins.emulator_ended(&events);
             }
             if !pty.write_frame(&buf[..n]) {
                 tracing::warn!("no client is reading: dropped {n} byte(s) from the device");
@@ -216,9 +210,41 @@ struct Pins {
     trigger_high_at: Option<u64>,
     /// Request round trips seen, emulated µs.
     round_trips_us: Vec<f64>,
+    /// When the firmware handed over to the boot ROM's restart in BOOTSEL, emulated µs.
+    bootsel_at_us: Option<f64>,
 }
 
 impl Pins {
+    /// The reference board's chain, all off, publishing to `rig` if given.
+    fn new(rig: Option<fpm_rig_bus::PulsePublisher>) -> Self {
+        Self {
+            strip: EmulatedStrip::new(fpm_firmware::BoardConfig::PICO_21X21.geometry),
+            rig,
+            pulses: 0,
+            trigger_high_at: None,
+            round_trips_us: vec![],
+            bootsel_at_us: None,
+        }
+    }
+
+    /// The harness ended (its output closed): as a board leaving its serial port for
+    /// BOOTSEL when the firmware handed over to the boot ROM's restart there, else an
+    /// error.
+    fn emulator_ended(&mut self, events: &mpsc::Receiver<PinEvent>) -> Result<()> {
+        // Its last events may still be on their way.
+        std::thread::sleep(Duration::from_millis(100));
+        self.handle(events.try_iter());
+        match self.bootsel_at_us {
+            Some(us) => {
+                tracing::info!(
+                    "the firmware restarted in BOOTSEL at {us:.0} µs (emulated), as asked: a board leaves its serial port here for the RP2040's boot device; the emulator stops"
+                );
+                Ok(())
+            }
+            None => bail!("the RP2040 emulator stopped"),
+        }
+    }
+
     /// One log line on the request round trips, for the end of a run.
     fn round_trip_summary(&self) -> Option<String> {
         let mut t = self.round_trips_us.clone();
@@ -312,6 +338,12 @@ impl Pins {
                 }
                 PinEvent::Flash => tracing::info!("the firmware wrote its flash"),
                 PinEvent::RoundTrip(us) => self.round_trips_us.push(us),
+                PinEvent::Bootsel { us, rom_entry } => {
+                    tracing::info!(
+                        "the firmware called the boot ROM's reset into BOOTSEL at {us:.0} µs: the ROM's reboot magic is in the watchdog, restart at ROM address {rom_entry:#x}"
+                    );
+                    self.bootsel_at_us = Some(us);
+                }
                 PinEvent::PowerCut => {
                     tracing::warn!("power cut during a flash write (--power-cut-after)")
                 }
@@ -347,6 +379,14 @@ enum PinEvent {
     RoundTrip(f64),
     /// The board lost power mid-write (`--power-cut-after`); the harness has stopped.
     PowerCut,
+    /// The firmware handed over to the boot ROM's restart in BOOTSEL (the reboot magic
+    /// in the watchdog's scratch registers); the harness stops.
+    Bootsel {
+        /// When, emulated µs.
+        us: f64,
+        /// The ROM address the reboot restarts at (its USB boot).
+        rom_entry: u64,
+    },
     /// The camera trigger output changed, at emulated µs.
     Trigger {
         /// Its new level.
@@ -378,6 +418,10 @@ impl PinEvent {
             "flash" => Some(PinEvent::Flash),
             "round-trip" => Some(PinEvent::RoundTrip(v.get("us")?.as_f64()?)),
             "power-cut" => Some(PinEvent::PowerCut),
+            "bootsel" => Some(PinEvent::Bootsel {
+                us: v.get("us")?.as_f64()?,
+                rom_entry: v.get("rom_entry")?.as_u64()?,
+            }),
             "trigger" => Some(PinEvent::Trigger {
                 high: v.get("level")?.as_u64()? == 1,
                 us: v.get("us")?.as_f64()?.round() as u64,

@@ -21,17 +21,7 @@ pub fn run(args: EmulatorOptions) -> Result<()> {
     if let Some(uf2) = &args.firmware {
         return crate::firmware::run_firmware(&args, uf2);
     }
-    let mut board = BoardConfig::PICO_21X21;
-    board.name = "fpm-emulator";
-    board.geometry.rows = args.rows;
-    board.geometry.cols = args.cols;
-    board.geometry.center = fpm_protocol::LedIndex::new(args.rows / 2, args.cols / 2);
-    board.geometry.lanes = args.lanes;
-    board.max_current_ma = args.max_current_ma;
-    board
-        .validate()
-        .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
-
+    let board = board(&args)?;
     fpm_rig_bus::stop::install().context("installing signal handlers")?;
 
     let strip = EmulatedStrip::new(board.geometry);
@@ -117,6 +107,9 @@ pub fn run(args: EmulatorOptions) -> Result<()> {
                 next = device.receive(&buf[..n], now, &mut send);
                 stamp_trigger(&device, camera.as_mut(), now, rig.as_ref(), &mut pulses);
                 flash.save_if_changed(device.calibration_store().flash())?;
+                if left_for_bootsel(&device, &args.link) {
+                    break;
+                }
             }
         }
     }
@@ -125,6 +118,40 @@ pub fn run(args: EmulatorOptions) -> Result<()> {
         device.link_stats()
     );
     Ok(())
+}
+
+/// The emulated board as `args` describe it.
+fn board(args: &EmulatorOptions) -> Result<BoardConfig> {
+    let mut board = BoardConfig::PICO_21X21;
+    board.name = "fpm-emulator";
+    board.geometry.rows = args.rows;
+    board.geometry.cols = args.cols;
+    board.geometry.center = fpm_protocol::LedIndex::new(args.rows / 2, args.cols / 2);
+    board.geometry.lanes = args.lanes;
+    board.max_current_ma = args.max_current_ma;
+    board
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid board: {e}"))?;
+    Ok(board)
+}
+
+/// Whether the host asked the board to restart in BOOTSEL (then said so). A board
+/// leaves its serial port there for the boot ROM's USB mode; there is no boot device
+/// to emulate, so the emulator ends as the port does (a supervisor, as `fpm serve
+/// --virtual`'s, starts it again as a flashed board would come back).
+fn left_for_bootsel(
+    device: &Device<EmulatedStrip, EmulatedTrigger, EmulatedFlash>,
+    link: &std::path::Path,
+) -> bool {
+    if device.bootsel_requested() {
+        // As the firmware does: the reply out to the host, the chain latched off.
+        std::thread::sleep(Duration::from_millis(50));
+        tracing::info!(
+            "restarting in BOOTSEL, as asked: every LED off; a board now leaves {} and appears as the RP2040's boot device (USB 2e8a:0003); the emulator, which has none, stops",
+            link.display()
+        );
+    }
+    device.bootsel_requested()
 }
 
 /// Hand trigger-line changes to the camera, stamped with the time they happened, and

@@ -234,6 +234,18 @@ impl Controller {
         self.checked::<GammaEndpoint, _>(&on)
     }
 
+    /// Restart the board in the RP2040 boot ROM's USB mode (BOOTSEL: its RPI-RP2 drive
+    /// and PICOBOOT), for flashing it in place (protocol ≥ 1.3). A running sequence is
+    /// aborted first; the board turns every LED off, answers, and leaves this port,
+    /// so the controller is of no further use.
+    pub fn reboot_to_bootsel(self) -> Result<()> {
+        self.require(PROTOCOL_1_3, BootselEndpoint::PATH)?;
+        if self.sequence_status()?.state == SequenceState::Running {
+            self.abort_sequence()?;
+        }
+        self.checked::<BootselEndpoint, _>(&())
+    }
+
     /// The array geometry stored on the board (protocol ≥ 1.1).
     pub fn stored_calibration(&self) -> Result<StoredCalibration> {
         self.require(BoardCalibration::SINCE, GeometryEndpoint::PATH)?;

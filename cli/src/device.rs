@@ -104,6 +104,21 @@ enum DeviceCommand {
     Abort,
     /// State of the sequence engine.
     SequenceStatus,
+    /// Flash a UF2 image onto the board in place: the image checked as the boot ROM
+    /// reads it, the board restarted in BOOTSEL (protocol ≥ 1.3; a board already in
+    /// BOOTSEL is flashed as it is), the image copied onto its RPI-RP2 drive, and the
+    /// board waited for until it answers in this host's protocol.
+    Flash {
+        /// The UF2 image (`cargo run -p fpm-fwtool -- uf2 ELF OUT.uf2` makes one).
+        image: std::path::PathBuf,
+        /// Where the board's boot drive is mounted (default: found among the mounted
+        /// file systems by its INFO_UF2.TXT).
+        #[arg(long)]
+        drive: Option<std::path::PathBuf>,
+        /// How long to wait for the boot drive, and for the board to come back, s.
+        #[arg(long, default_value_t = 30)]
+        wait_s: u64,
+    },
     /// Restart the board in the RP2040 boot ROM's USB mode (BOOTSEL) without unplugging
     /// it: its RPI-RP2 drive appears, onto which a UF2 image is copied (a running
     /// sequence is aborted and every LED turned off first; protocol ≥ 1.3).
@@ -271,6 +286,22 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     let timeout = Duration::from_millis(args.timeout_ms);
     let port = match (&args.command, args.port) {
         (DeviceCommand::List, _) => return list(timeout, args.json),
+        (
+            DeviceCommand::Flash {
+                image,
+                drive,
+                wait_s,
+            },
+            port,
+        ) => {
+            let options = fpm_flash::Options {
+                image: image.clone(),
+                port,
+                drive: drive.clone(),
+                timeout: Duration::from_secs(*wait_s),
+            };
+            return flash(&options, args.json);
+        }
         (_, Some(port)) => port,
         (_, None) => discover::the_only_board(timeout).map_err(anyhow::Error::msg)?,
     };
@@ -290,7 +321,7 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     }
     match args.command {
         // Answered above (without opening a port, or handing the port over).
-        DeviceCommand::List | DeviceCommand::Bootsel => {}
+        DeviceCommand::List | DeviceCommand::Bootsel | DeviceCommand::Flash { .. } => {}
         DeviceCommand::Info => emit(dev.info(), json, print_info),
         DeviceCommand::Status => emit(&dev.status()?, json, print_status),
         DeviceCommand::Ping { count } => ping(&dev, count, json)?,
@@ -380,6 +411,41 @@ fn geometry(
 }
 
 /// Print `value` as one line of JSON, or as text.
+/// `fpm device flash`: each step said as it is done (on stderr with --json), then what
+/// was flashed.
+fn flash(options: &fpm_flash::Options, json: bool) -> Result<()> {
+    use fpm_flash::Step;
+    let mut said = |step: Step| {
+        let line = match step {
+            Step::Checked => "image checked (UF2 for the RP2040, inside its flash)",
+            Step::Restarting => "board restarting in BOOTSEL",
+            Step::DriveFound => "boot drive found",
+            Step::Copied => "image copied onto the boot drive; the boot ROM writes it and restarts",
+            Step::Back => "board answering with the new firmware",
+        };
+        eprintln!("[{}/5] {line}", step as usize + 1);
+    };
+    let done = fpm_flash::flash(options, &mut said)?;
+    emit(&done, json, |d| {
+        let before = d
+            .before
+            .as_ref()
+            .map_or("a board in BOOTSEL".to_string(), |(f, p)| {
+                format!("firmware {f} (protocol {p})")
+            });
+        println!(
+            "{}: {before} → firmware {} (protocol {}), {} blocks ({} KiB) copied onto {}",
+            d.port,
+            d.after.0,
+            d.after.1,
+            d.image.blocks,
+            d.image.flash_bytes / 1024,
+            d.drive.display()
+        )
+    });
+    Ok(())
+}
+
 fn emit<T: serde::Serialize>(value: &T, json: bool, text: impl FnOnce(&T)) {
     if json {
         println!("{}", serde_json::to_string(value).unwrap_or_default());

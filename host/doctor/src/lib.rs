@@ -222,7 +222,7 @@ fn board(port: &str) -> Finding {
             "board",
             Status::Fail,
             e.to_string(),
-            "flash the firmware this host was built with (docs/hardware.md, \"Flash the LED controller\"), or install the fpm that matches the board".into(),
+            "fpm device flash fpm-led-controller.uf2 puts the firmware this host was built with on it (docs/hardware.md), or install the fpm that matches the board".into(),
         ),
         Err(e @ ControllerError::NotFpm { .. }) => Finding::with(
             "board",

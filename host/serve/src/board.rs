@@ -102,10 +102,10 @@ impl Board {
     }
 }
 
-/// A version mismatch as a refused request says it: the client's error, then how the
-/// board gets the firmware this host speaks.
+/// A version mismatch as a refused request says it: the client's error (both versions
+/// and which side to update, how), then what the service does meanwhile.
 fn refusal_text(e: &ControllerError) -> String {
     format!(
-        "{e} (flashing: docs/hardware.md, \"Flash the LED controller\"); jobs that drive the rig are refused until then, and the board is looked at again with the next one"
+        "{e}; jobs that drive the rig are refused until then, and the board is looked at again with the next one"
     )
 }

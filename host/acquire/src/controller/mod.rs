@@ -123,7 +123,7 @@ impl Controller {
         };
         if !PROTOCOL_VERSION.accepts(&device) {
             let advice = if device.is_older_than(&PROTOCOL_VERSION) {
-                "flash newer firmware onto the controller"
+                "flash newer firmware onto the controller: fpm device flash fpm-led-controller.uf2 (a board older than protocol 1.3 is put in BOOTSEL by hand first: docs/hardware.md)"
             } else {
                 "update the fpm host software"
             };

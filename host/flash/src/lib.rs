@@ -234,12 +234,9 @@ pub fn flash(options: &Options, progress: &mut dyn FnMut(Step)) -> Result<Flashe
     progress(Step::DriveFound);
     copy_onto(&image.path, &drive)?;
     progress(Step::Copied);
-    let Some(port) = port.or_else(|| discover::the_only_board(Duration::from_secs(2)).ok()) else {
-        return Err(FlashError::NotBack {
-            port: "(the board's USB serial port)".into(),
-            why: "no board found".into(),
-            waited_s: 0,
-        });
+    let port = match port {
+        Some(p) => p,
+        None => wait_for_port(options.timeout)?,
     };
     let dev = wait_for_board(&port, options.timeout)?;
     let info = dev.info();
@@ -253,10 +250,11 @@ pub fn flash(options: &Options, progress: &mut dyn FnMut(Step)) -> Result<Flashe
     })
 }
 
-/// Ask the board to restart in BOOTSEL; its port and versions (None when no board
-/// answers but a boot drive is there already: a new Pico, or one left in BOOTSEL).
+/// The board's port, and its firmware and protocol before (None when no board
+/// answered but a boot drive was there already: a new Pico, or one left in BOOTSEL).
 type Restarted = (Option<String>, Option<(String, String)>);
 
+/// Ask the board to restart in BOOTSEL, or find one there already.
 fn restart_in_bootsel(options: &Options) -> Result<Restarted, FlashError> {
     let timeout = Duration::from_secs(2);
     let port = match &options.port {
@@ -325,6 +323,25 @@ fn copy_onto(image: &Path, drive: &Path) -> Result<(), FlashError> {
         drive: drive.to_owned(),
         source,
     })
+}
+
+/// The port of the one board connected, for a board that was flashed from BOOTSEL
+/// with no port known: it enumerates only once the boot ROM has restarted it.
+fn wait_for_port(timeout: Duration) -> Result<String, FlashError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        match discover::the_only_board(Duration::from_secs(2)) {
+            Ok(port) => return Ok(port),
+            Err(why) if Instant::now() >= deadline => {
+                return Err(FlashError::NotBack {
+                    port: "(the board's USB serial port)".into(),
+                    why,
+                    waited_s: timeout.as_secs(),
+                })
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(200)),
+        }
+    }
 }
 
 /// The board on `port` once it answers again, in this host's protocol.

@@ -141,6 +141,14 @@ pub struct EmulatorProcess {
 impl EmulatorProcess {
     /// Start the emulator of the executable `fpm` at `link`, its log to `stderr`.
     pub fn start_at(fpm: &Path, link: &Path, extra: &[&str], stderr: Stdio) -> Result<Self> {
+        // A link left by a crashed emulator goes first (the new one would replace it
+        // anyway): its pseudo-terminal's number is free for any process on the
+        // machine to get, so the old link can point at someone else's live terminal
+        // and look ready before this emulator has made its own.
+        if std::fs::symlink_metadata(link).is_ok_and(|meta| meta.file_type().is_symlink()) {
+            std::fs::remove_file(link)
+                .with_context(|| format!("removing the stale link {}", link.display()))?;
+        }
         let mut command = Command::new(fpm);
         command
             .arg("emulator")

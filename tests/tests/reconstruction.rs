@@ -1398,11 +1398,11 @@ fn a_noise_band_recovers_detail_from_dim_eight_bit_dark_field() {
 /// show the sample far out of focus and the run refocuses by itself: the bars of group
 /// 8 stand out well over twice as strongly as when the frames are taken as in focus
 /// (the result then smears the fine groups into a texture and draws spokes round every
-/// particle), and nearly as strongly as at the 140 µm a hand scan found. The soft floor
-/// leaves the clear glass cleaner than the hard one did, and the default noise band on
-/// the dark-field frames that are mostly noise (most of this set's: they sit at 2–3
-/// counts, their signal a few counts more) brings it within 3× the centre frame's light,
-/// both keeping the bars.
+/// particle). The default noise band on the dark-field frames that are mostly noise
+/// (most of this set's: they sit at 2–3 counts, their signal a few counts more) brings
+/// the clear glass within 3× the centre frame's light, keeping the bars. (Three runs of
+/// 4096² in CI's 30 minutes: the hand-refocused run with the hard floor, which showed
+/// the soft floor's gain, measured 0.089 against the soft floor's 0.064, went.)
 #[test]
 fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean() {
     let dir = TempDir::new("ring93");
@@ -1422,21 +1422,6 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
     // instead of a gamma scan and two reconstructions weighing the height (a third
     // of this test's time).
     let as_chosen = ["--led-height-mm", "110", "--camera-gamma", "1"];
-    let refocused = run(
-        "refocused",
-        &[
-            &as_chosen[..],
-            &[
-                "--refocus-um",
-                "140",
-                "--floor",
-                "hard",
-                "--noise-band-sigma",
-                "0",
-            ],
-        ]
-        .concat(),
-    );
     let as_in_focus = run(
         "as-in-focus",
         &[&as_chosen[..], &["--refocus-um", "0"]].concat(),
@@ -1502,12 +1487,9 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
         "{z} ± {sigma}"
     );
     let bars = |out: &Path| group_8_bars(&read_f32(&out.join("phase.tif")));
-    let (sharp, by_itself, smeared) = (bars(&refocused), bars(&no_flags), bars(&as_in_focus));
-    eprintln!(
-        "group 8 bars: refocused by hand {sharp:.2}, by itself {by_itself:.2}, as in focus {smeared:.2}"
-    );
-    // Measured: 13.2 and 11.3 against 5.0.
-    assert!(sharp > 2.0 * smeared, "{sharp} against {smeared}");
+    let (by_itself, smeared) = (bars(&no_flags), bars(&as_in_focus));
+    eprintln!("group 8 bars: refocused by itself {by_itself:.2}, as in focus {smeared:.2}");
+    // Measured: 11.3 against 5.0 (13.2 refocused by hand at 140 µm).
     assert!(by_itself > 2.0 * smeared, "{by_itself} against {smeared}");
     let ds = fpm_host::dataset::Dataset::load(&ring93()).unwrap();
     let m = ds.measured(0);
@@ -1516,19 +1498,15 @@ fn a_full_real_frame_from_a_ring_array_refocuses_itself_and_its_glass_is_clean()
     let frame = clear_glass_variation(&light, &light.mapv(f32::sqrt), 1.0);
     let glass =
         |out: &Path| clear_glass_variation(&light, &read_f32(&out.join("amplitude.tif")), 1.0);
-    let (banded, hard_3, soft_3) = (glass(&no_flags), glass(&refocused), glass(&no_band));
+    let (banded, soft_3) = (glass(&no_flags), glass(&no_band));
     eprintln!(
-        "clear-glass variation: no flags (soft 3σ floor, noise band) {banded:.4}, hard 3σ floor {hard_3:.4}, soft 3σ floor without the band {soft_3:.4}, the centre frame's light {frame:.4}"
+        "clear-glass variation: no flags (soft 3σ floor, noise band) {banded:.4}, soft 3σ floor without the band {soft_3:.4}, the centre frame's light {frame:.4}"
     );
-    // Measured: 0.033, 0.089 and 0.064 against 0.012.
+    // Measured: 0.033 and 0.064 against 0.012.
     assert!(banded < 3.0 * frame, "{banded} against the frame's {frame}");
     assert!(
         banded < 0.7 * soft_3,
         "{banded} with the band against {soft_3} without"
-    );
-    assert!(
-        soft_3 < 0.85 * hard_3,
-        "soft {soft_3} against hard {hard_3}"
     );
     let unbanded = bars(&no_band);
     eprintln!("group 8 bars without the noise band: {unbanded:.2}");

@@ -82,12 +82,10 @@ fn emulator_killed_mid_sequence_is_reported_at_once_and_a_restart_reconnects() {
     drop(events);
     drop(dev);
 
-    // The crash left its link behind: opening it fails with a clear message.
+    // The crash left its link behind. It is not opened here: the dead terminal's
+    // number is free for any process on the machine, so the link may already point at
+    // another test's live board.
     assert!(std::fs::symlink_metadata(&link).is_ok());
-    if let Err(e) = Controller::open(&link.to_string_lossy(), Duration::from_millis(300)) {
-        let text = e.to_string();
-        assert!(text.contains(&*link.to_string_lossy()), "{text}");
-    }
 
     // A restarted emulator replaces the stale link; the client reconnects and works.
     let emu2 = TARGET.start(&link, &[]);

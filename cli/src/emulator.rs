@@ -58,6 +58,26 @@ pub struct EmulatorArgs {
     /// runs sequences several times faster than real time).
     #[arg(long, requires = "firmware")]
     pub real_time: bool,
+    /// Answer the version request with this protocol version (MAJOR.MINOR) instead of
+    /// the firmware's: a board flashed with other firmware, as the host's version
+    /// handshake sees it (for trying what each command says to it).
+    #[arg(long, value_name = "MAJOR.MINOR", value_parser = parse_protocol, conflicts_with = "firmware")]
+    pub report_protocol: Option<fpm_protocol::ProtocolVersion>,
+}
+
+/// A protocol version written MAJOR.MINOR.
+fn parse_protocol(text: &str) -> Result<fpm_protocol::ProtocolVersion, String> {
+    let (major, minor) = text
+        .split_once('.')
+        .ok_or_else(|| format!("{text:?}: write it MAJOR.MINOR, e.g. 1.2"))?;
+    let number = |s: &str| {
+        s.parse::<u16>()
+            .map_err(|e| format!("{text:?}: {s:?} is no version number ({e})"))
+    };
+    Ok(fpm_protocol::ProtocolVersion {
+        major: number(major)?,
+        minor: number(minor)?,
+    })
 }
 
 /// Run it.
@@ -77,5 +97,6 @@ pub fn run(a: EmulatorArgs) -> Result<()> {
         power_cut_after: a.power_cut_after,
         firmware: a.firmware,
         real_time: a.real_time,
+        report_protocol: a.report_protocol,
     })
 }

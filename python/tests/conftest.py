@@ -46,11 +46,12 @@ def placement(acquisition):
 
 # The acquisition service (`fpm serve --virtual`) for the client and napari tests.
 
-def _serve(fpm_cli, state, size):
-    """`fpm serve --virtual` with a size² camera, its client; stopped after."""
+def _serve(fpm_cli, state, size=None, rig=()):
+    """`fpm serve --virtual` with a size² camera (or on the rig `rig` names), its
+    client; stopped after."""
+    on = ["--virtual", "--virtual-size", str(size)] if size else list(rig)
     process = subprocess.Popen(
-        [fpm_cli, "serve", "--virtual", "--virtual-size", str(size), "--listen", "127.0.0.1:0",
-         "--state-dir", str(state)],
+        [fpm_cli, "serve", *on, "--listen", "127.0.0.1:0", "--state-dir", str(state)],
         stdout=subprocess.PIPE,
         text=True,
     )

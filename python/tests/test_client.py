@@ -168,6 +168,36 @@ def test_a_bad_request_is_refused_naming_its_field(service, tmp_path):
     assert service.jobs() == []
 
 
+def test_a_board_of_another_protocol_is_refused_with_the_way_out(fpm_cli, tmp_path):
+    """A board flashed with older firmware (the emulated controller reporting protocol
+    0.9): the service refuses every job that would drive it, and the client raises
+    that refusal with the way out, before anything is queued."""
+    from conftest import _serve
+
+    link = tmp_path / "ctl.tty"
+    board = subprocess.Popen(
+        [fpm_cli, "emulator", "--link", str(link), "--no-camera", "--report-protocol", "0.9"],
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 20
+        while not link.exists():
+            assert board.poll() is None and time.monotonic() < deadline, "no emulator"
+            time.sleep(0.02)
+        served = _serve(fpm_cli, tmp_path / "state", rig=["--port", str(link)])
+        client = next(served)
+        try:
+            with pytest.raises(fpm.ServiceError, match=r"(?s)409: .*0\.9.*fpm device flash"):
+                client.acquire(tmp_path / "x")
+            assert client.jobs() == []
+            assert client.status()["controller"]["state"] == "mismatch"
+        finally:
+            served.close()
+    finally:
+        board.terminate()
+        board.wait(timeout=30)
+
+
 def _rig_of(client):
     """The virtual rig's name, as `fpm serve --virtual` describes it."""
     rig = client.status()["rig"]

@@ -16,6 +16,8 @@ const TIMEOUT: Duration = Duration::from_secs(2);
 
 #[test]
 fn a_protocol_version_mismatch_names_both_versions() {
+    // Built (if it must be) before the stand-ins start: they answer for a minute.
+    let fpm = fpm_tests::fpm_bin();
     let newer = ProtocolVersion {
         major: PROTOCOL_VERSION.major + 1,
         minor: 0,
@@ -45,6 +47,22 @@ fn a_protocol_version_mismatch_names_both_versions() {
         .expect("mismatch refused")
         .to_string();
     assert!(text.contains("flash newer firmware"), "{text}");
+
+    // `fpm acquire` on that board stops before anything is lit or written, and says
+    // how to flash it.
+    let out = tempfile::tempdir().unwrap();
+    let acquired = std::process::Command::new(fpm)
+        .args(["acquire", "--port", &path, "--out"])
+        .arg(out.path().join("data"))
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&acquired.stderr);
+    assert!(!acquired.status.success(), "{said}");
+    assert!(
+        said.contains(&older.to_string()) && said.contains("fpm device flash"),
+        "{said}"
+    );
+    assert!(!out.path().join("data").exists(), "{said}");
 }
 
 #[test]

@@ -334,7 +334,10 @@ async fn cancel(
 /// A 409 when the controller speaks another protocol version, after looking at it
 /// again (a board flashed since the last look is taken).
 async fn refuse_on_wrong_firmware(state: &State) -> Result<(), ApiError> {
-    let Board::Mismatch { port, .. } = state.shared.board() else {
+    // Looked at again where it was wrong (it may have been flashed since), and where
+    // it was not looked at yet (a job sent as the service starts, before its worker
+    // has): the job is refused now rather than queued to fail.
+    let (Board::Mismatch { port, .. } | Board::Unchecked { port }) = state.shared.board() else {
         return Ok(());
     };
     let (tx, rx) = tokio::sync::oneshot::channel();

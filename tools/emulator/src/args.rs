@@ -45,4 +45,8 @@ pub struct EmulatorOptions {
     /// it triggers falls behind it as it never would behind a real board; the emulated
     /// time stays exact either way.
     pub real_time: bool,
+    /// Answer the version request with this protocol version instead of the
+    /// firmware's: a board flashed with other firmware, as the host's handshake sees
+    /// it (for testing that every command refuses it with the way out).
+    pub report_protocol: Option<fpm_protocol::ProtocolVersion>,
 }

@@ -64,7 +64,7 @@ pub fn run(args: EmulatorOptions) -> Result<()> {
 
     while !fpm_rig_bus::stop::requested() {
         let mut send = |bytes: &[u8]| {
-            if !pty.write_frame(bytes) {
+            if !pty.write_frame(&outgoing(bytes, args.report_protocol)) {
                 dropped_frames += 1;
                 tracing::warn!(
                     "no client is reading: dropped an outgoing frame ({dropped_frames} so far)"
@@ -118,6 +118,35 @@ pub fn run(args: EmulatorOptions) -> Result<()> {
         device.link_stats()
     );
     Ok(())
+}
+
+/// `frame` as it goes out: the version request's answer reporting `report` instead
+/// of the firmware's version where one is given.
+fn outgoing(
+    frame: &[u8],
+    report: Option<fpm_protocol::ProtocolVersion>,
+) -> std::borrow::Cow<'_, [u8]> {
+    match report.and_then(|v| with_reported_version(frame, v)) {
+        Some(changed) => std::borrow::Cow::Owned(changed),
+        None => std::borrow::Cow::Borrowed(frame),
+    }
+}
+
+/// `frame` (one COBS frame with its delimiter) with the version it reports replaced
+/// by `version`, if it is the version request's answer.
+fn with_reported_version(frame: &[u8], version: fpm_protocol::ProtocolVersion) -> Option<Vec<u8>> {
+    use fpm_protocol::postcard_rpc::header::{VarHeader, VarKey};
+    use fpm_protocol::postcard_rpc::Endpoint;
+    let raw = cobs::decode_vec(frame.strip_suffix(&[0])?).ok()?;
+    let (header, _) = VarHeader::take_from_slice(&raw)?;
+    if header.key != VarKey::Key8(fpm_protocol::VersionEndpoint::RESP_KEY) {
+        return None;
+    }
+    let mut answer = header.write_to_vec();
+    answer.extend(postcard::to_stdvec(&version).ok()?);
+    let mut out = cobs::encode_vec(&answer);
+    out.push(0);
+    Some(out)
 }
 
 /// The emulated board as `args` describe it.

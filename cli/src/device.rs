@@ -106,19 +106,10 @@ enum DeviceCommand {
     SequenceStatus,
     /// Flash a UF2 image onto the board in place: the image checked as the boot ROM
     /// reads it, the board restarted in BOOTSEL (protocol ≥ 1.3; a board already in
-    /// BOOTSEL is flashed as it is), the image copied onto its RPI-RP2 drive, and the
-    /// board waited for until it answers in this host's protocol.
-    Flash {
-        /// The UF2 image (`cargo run -p fpm-fwtool -- uf2 ELF OUT.uf2` makes one).
-        image: std::path::PathBuf,
-        /// Where the board's boot drive is mounted (default: found among the mounted
-        /// file systems by its INFO_UF2.TXT).
-        #[arg(long)]
-        drive: Option<std::path::PathBuf>,
-        /// How long to wait for the boot drive, and for the board to come back, s.
-        #[arg(long, default_value_t = 30)]
-        wait_s: u64,
-    },
+    /// BOOTSEL is flashed as it is), the image written over the boot ROM's PICOBOOT
+    /// interface and read back (or copied onto its RPI-RP2 drive), and the board
+    /// waited for until it answers in this host's protocol.
+    Flash(FlashArgs),
     /// Restart the board in the RP2040 boot ROM's USB mode (BOOTSEL) without unplugging
     /// it: its RPI-RP2 drive appears, onto which a UF2 image is copied (a running
     /// sequence is aborted and every LED turned off first; protocol ≥ 1.3).
@@ -134,6 +125,37 @@ enum DeviceCommand {
         #[arg(long, conflicts_with = "set")]
         clear: bool,
     },
+}
+
+/// `fpm device flash`'s arguments.
+#[derive(clap::Args, Debug, Clone)]
+pub struct FlashArgs {
+    /// The UF2 image (`cargo run -p fpm-fwtool -- uf2 ELF OUT.uf2` makes one).
+    pub image: std::path::PathBuf,
+    /// Where the board's boot drive is mounted (default: found among the mounted
+    /// file systems by its INFO_UF2.TXT). Given, the image goes onto the drive.
+    #[arg(long)]
+    pub drive: Option<std::path::PathBuf>,
+    /// An emulated boot ROM's PICOBOOT socket (the virtual rig's, `fpm_rig::boot_rom`),
+    /// looked for as the board's boot device.
+    #[arg(long, value_name = "SOCKET")]
+    pub boot_rom_socket: Option<std::path::PathBuf>,
+    /// How long to wait for the boot device, and for the board to come back, s.
+    #[arg(long, default_value_t = 30)]
+    pub wait_s: u64,
+}
+
+impl FlashArgs {
+    /// What to flash, on the board at `port` (None: the one connected).
+    fn options(&self, port: Option<String>) -> fpm_flash::Options {
+        fpm_flash::Options {
+            image: self.image.clone(),
+            port,
+            drive: self.drive.clone(),
+            boot_rom_socket: self.boot_rom_socket.clone(),
+            timeout: Duration::from_secs(self.wait_s),
+        }
+    }
 }
 
 #[derive(Subcommand, Debug, Clone, Copy)]
@@ -286,22 +308,7 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     let timeout = Duration::from_millis(args.timeout_ms);
     let port = match (&args.command, args.port) {
         (DeviceCommand::List, _) => return list(timeout, args.json),
-        (
-            DeviceCommand::Flash {
-                image,
-                drive,
-                wait_s,
-            },
-            port,
-        ) => {
-            let options = fpm_flash::Options {
-                image: image.clone(),
-                port,
-                drive: drive.clone(),
-                timeout: Duration::from_secs(*wait_s),
-            };
-            return flash(&options, args.json);
-        }
+        (DeviceCommand::Flash(f), port) => return flash(&f.options(port), args.json),
         (_, Some(port)) => port,
         (_, None) => discover::the_only_board(timeout).map_err(anyhow::Error::msg)?,
     };
@@ -321,7 +328,7 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     }
     match args.command {
         // Answered above (without opening a port, or handing the port over).
-        DeviceCommand::List | DeviceCommand::Bootsel | DeviceCommand::Flash { .. } => {}
+        DeviceCommand::List | DeviceCommand::Bootsel | DeviceCommand::Flash(_) => {}
         DeviceCommand::Info => emit(dev.info(), json, print_info),
         DeviceCommand::Status => emit(&dev.status()?, json, print_status),
         DeviceCommand::Ping { count } => ping(&dev, count, json)?,
@@ -414,16 +421,33 @@ fn geometry(
 /// `fpm device flash`: each step said as it is done (on stderr with --json), then what
 /// was flashed.
 fn flash(options: &fpm_flash::Options, json: bool) -> Result<()> {
-    use fpm_flash::Step;
+    use fpm_flash::{BootDeviceKind as Via, Step};
+    let mut bar: Option<indicatif::ProgressBar> = None;
     let mut said = |step: Step| {
         let line = match step {
-            Step::Checked => "image checked (UF2 for the RP2040, inside its flash)",
+            Step::Checked => "image checked (UF2 for the RP2040, inside its flash, its boot loader's CRC holding)",
             Step::Restarting => "board restarting in BOOTSEL",
-            Step::DriveFound => "boot drive found",
-            Step::Copied => "image copied onto the boot drive; the boot ROM writes it and restarts",
+            Step::BootDeviceFound(Via::Picoboot) => "boot ROM's PICOBOOT interface found",
+            Step::BootDeviceFound(Via::Drive) => "boot drive found",
+            Step::Writing(w) => {
+                let bar = bar.get_or_insert_with(|| {
+                    crate::progress::counter("[4/5] writing", "pages written and read back")
+                });
+                crate::progress::advance(bar, w.pages, w.of);
+                return;
+            }
+            Step::Written(Via::Picoboot) => {
+                if let Some(bar) = bar.take() {
+                    bar.finish_and_clear();
+                }
+                "image written and read back, the boot loader's page last; board restarting"
+            }
+            Step::Written(Via::Drive) => {
+                "image copied onto the boot drive; the boot ROM writes it and restarts"
+            }
             Step::Back => "board answering with the new firmware",
         };
-        eprintln!("[{}/5] {line}", step as usize + 1);
+        eprintln!("[{}/5] {line}", step.number());
     };
     let done = fpm_flash::flash(options, &mut said)?;
     emit(&done, json, |d| {
@@ -433,14 +457,20 @@ fn flash(options: &fpm_flash::Options, json: bool) -> Result<()> {
             .map_or("a board in BOOTSEL".to_string(), |(f, p)| {
                 format!("firmware {f} (protocol {p})")
             });
+        let how = match d.via {
+            Via::Picoboot => format!(
+                "written over PICOBOOT ({}) and {} pages read back",
+                d.boot_device, d.verified_pages
+            ),
+            Via::Drive => format!("copied onto {}", d.boot_device),
+        };
         println!(
-            "{}: {before} → firmware {} (protocol {}), {} blocks ({} KiB) copied onto {}",
+            "{}: {before} → firmware {} (protocol {}), {} blocks ({} KiB) {how}",
             d.port,
             d.after.0,
             d.after.1,
             d.image.blocks,
             d.image.flash_bytes / 1024,
-            d.drive.display()
         )
     });
     Ok(())

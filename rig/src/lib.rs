@@ -9,9 +9,12 @@
 //!   hidden, misplaced LED array, and publishes frames on the iceoryx2 frame contract
 //!   like any camera driver;
 //! * [`stage`]: the virtual focus stage, an `fpm_acquire::FocusStage`;
+//! * [`boot_rom`]: the RP2040 boot ROM's PICOBOOT interface with its flash, which
+//!   `fpm device flash` writes a board through once it is in BOOTSEL;
 //! * [`process`]: rig processes (the controller emulator, the virtual camera) started
 //!   as children and stopped on drop, shared by the demo, the benchmarks and the tests.
 
+pub mod boot_rom;
 pub mod camera;
 pub mod demo;
 pub mod process;

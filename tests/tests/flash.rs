@@ -139,3 +139,210 @@ fn a_board_in_the_rig_is_flashed_in_place_and_a_wrong_image_never_darkens_it() {
         back.log_text()
     );
 }
+
+/// `fpm device --port PORT --json flash ARGS…` with the boot ROM's PICOBOOT interface
+/// at `socket`: success, stdout, stderr.
+fn flash_over(port: &Path, socket: &Path, args: &[&str]) -> (bool, String, String) {
+    let socket = socket.to_string_lossy().into_owned();
+    flash(port, &[args, &["--boot-rom-socket", &socket]].concat())
+}
+
+/// The image's flash pages, as the boot ROM holds them once written.
+fn pages(uf2: &Path) -> Vec<fpm_flash::picoboot::Page> {
+    fpm_flash::check_image(uf2).unwrap().pages
+}
+
+/// A board in the rig runs the 2-lane image; `fpm device flash` restarts it in BOOTSEL
+/// and writes the 1-lane image over PICOBOOT to the emulated boot ROM, which held the
+/// 2-lane image. Every page is read back, the boot loader's last; the ROM restarts;
+/// the board comes back from what its flash now holds, answering as the 1-lane image.
+#[test]
+fn a_board_in_the_rig_is_flashed_over_picoboot_and_comes_back_from_its_flash() {
+    let dir = TempDir::new("picoboot");
+    let link = dir.0.join("ctl.tty");
+    let socket = dir.0.join("picoboot.sock");
+    let (old, new) = (
+        fpm_tests::firmware_uf2_with_lanes(2),
+        fpm_tests::firmware_uf2_with_lanes(1),
+    );
+    let board = Emulator::start_at(
+        &link,
+        &["--firmware", &old.to_string_lossy(), "--no-camera"],
+    );
+    let flashing = {
+        let (link, socket, new) = (link.clone(), socket.clone(), new.to_owned());
+        std::thread::spawn(move || {
+            flash_over(&link, &socket, &[&new.to_string_lossy(), "--wait-s", "60"])
+        })
+    };
+    // The board leaves its port for BOOTSEL; its boot ROM appears with the old image.
+    let mut board = board;
+    let left = board.exited_within(Duration::from_secs(60));
+    assert!(left.is_some_and(|s| s.success()), "{}", board.log_text());
+    drop(board);
+    let rom = fpm_rig::boot_rom::BootRom::with_pages(&pages(old), Default::default());
+    assert!(rom.would_boot(), "the old image boots");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let rom = fpm_rig::boot_rom::serve(&socket, rom, &|| Instant::now() > deadline).unwrap();
+    assert!(rom.rebooted, "the flasher did not restart the boot ROM");
+    assert_eq!(rom.exclusive, 2, "exclusive access, the drive ejected");
+    assert!(
+        rom.holds(&pages(new)),
+        "the flash is not exactly the new image"
+    );
+    assert!(rom.would_boot());
+    // The chip starts from its flash.
+    let from_flash = dir.0.join("flash.uf2");
+    std::fs::write(&from_flash, rom.flash_as_uf2()).unwrap();
+    let back = Emulator::start_at(
+        &link,
+        &["--firmware", &from_flash.to_string_lossy(), "--no-camera"],
+    );
+    let (ok, out, err) = flashing.join().unwrap();
+    assert!(ok, "{err}\n{}", back.log_text());
+    for step in 1..=5 {
+        assert!(err.contains(&format!("[{step}/5]")), "{err}");
+    }
+    let done: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(done["via"], "picoboot", "{done}");
+    assert_eq!(
+        done["verified_pages"].as_u64(),
+        Some(pages(new).len() as u64),
+        "{done}"
+    );
+    assert_eq!(done["after"][1], PROTOCOL_VERSION.to_string(), "{done}");
+    let dev = fpm_acquire::Controller::open(&link.to_string_lossy(), Duration::from_secs(5))
+        .expect("the flashed board answers");
+    assert_eq!(dev.info().geometry.lanes, 1, "the board runs the new image");
+}
+
+/// A board in BOOTSEL with a bootable image, and a write that goes wrong each way: a
+/// page the ROM refuses, a page that reads back wrong (the boot loader's own too), the
+/// device gone half-way through a page. Each ends with the step and the way out, and
+/// leaves a flash the ROM does not boot: never half of each image.
+#[test]
+fn a_picoboot_write_that_fails_leaves_no_image_the_boot_rom_would_start() {
+    use fpm_rig::boot_rom::{serve, BootRom, Faults};
+    let dir = TempDir::new("picoboot-faults");
+    let socket = dir.0.join("picoboot.sock");
+    let no_board = dir.0.join("no-board.tty");
+    let (old, new) = (
+        pages(fpm_tests::firmware_uf2_with_lanes(2)),
+        fpm_tests::firmware_uf2_with_lanes(1),
+    );
+    let middle = pages(new)[pages(new).len() / 2].0;
+    let boot_page = fpm_flash::picoboot::FLASH.start;
+    let cases = [
+        (
+            Faults {
+                refuse_write_at: Some(middle),
+                ..Faults::default()
+            },
+            format!("refused writing 256 bytes at {middle:#010x} (UnknownError)"),
+        ),
+        (
+            Faults {
+                corrupt_at: Some(middle + 17),
+                ..Faults::default()
+            },
+            format!("reading back {middle:#010x}: byte 17 of the page"),
+        ),
+        (
+            Faults {
+                corrupt_at: Some(boot_page + 3),
+                ..Faults::default()
+            },
+            format!("reading back {boot_page:#010x}: byte 3 of the page"),
+        ),
+        (
+            Faults {
+                vanish_in_write: Some(9),
+                ..Faults::default()
+            },
+            "the device is gone".to_owned(),
+        ),
+    ];
+    for (faults, says) in cases {
+        let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let rom = {
+            let (socket, old, done) = (socket.clone(), old.clone(), done.clone());
+            std::thread::spawn(move || {
+                let stop = || done.load(std::sync::atomic::Ordering::SeqCst);
+                serve(&socket, BootRom::with_pages(&old, faults), &stop).unwrap()
+            })
+        };
+        let listening = Instant::now() + Duration::from_secs(10);
+        while !socket.exists() {
+            assert!(Instant::now() < listening, "the boot ROM never listened");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let (ok, _, err) = flash_over(
+            &no_board,
+            &socket,
+            &[&new.to_string_lossy(), "--wait-s", "10"],
+        );
+        done.store(true, std::sync::atomic::Ordering::SeqCst);
+        let rom = rom.join().unwrap();
+        assert!(!ok, "{faults:?}: flashed");
+        assert!(err.contains(&says), "{faults:?}: {err}");
+        assert!(
+            err.contains("[3/5]") && err.contains("stays in BOOTSEL"),
+            "{faults:?}: {err}"
+        );
+        assert!(!rom.would_boot(), "{faults:?}: the ROM would start the mix");
+        assert!(!rom.rebooted, "{faults:?}");
+    }
+}
+
+/// The emulated boot ROM keeps the real one's rules, so that the flasher is judged by
+/// them: sector-aligned erases and page-aligned writes inside the flash, a refused
+/// command stalling until the interface is reset with its status readable, and NOR
+/// flash (a page written twice without its erase reads back wrong).
+#[test]
+fn the_emulated_boot_rom_keeps_the_roms_rules() {
+    use fpm_flash::picoboot::{Picoboot, PicobootError, StatusCode, FLASH};
+    let rom = fpm_rig::boot_rom::BootRom::with_pages(&[], Default::default());
+    let mut boot = Picoboot::new(rom).unwrap();
+    let refused = |r: Result<(), PicobootError>| match r {
+        Err(PicobootError::Refused { code, .. }) => code,
+        other => panic!("not refused: {other:?}"),
+    };
+    assert_eq!(
+        refused(boot.erase(FLASH.start + 256, 4096)),
+        StatusCode::BadAlignment
+    );
+    assert_eq!(
+        refused(boot.erase(FLASH.end, 4096)),
+        StatusCode::InvalidAddress
+    );
+    assert_eq!(
+        refused(boot.write(FLASH.start + 8, &[0; 256])),
+        StatusCode::BadAlignment
+    );
+    assert_eq!(
+        refused(boot.write(FLASH.start, &[0; 100])),
+        StatusCode::BadAlignment
+    );
+    // After each refusal the next command goes through.
+    boot.erase(FLASH.start, 4096).unwrap();
+    let page: Vec<u8> = (0..=255).collect();
+    boot.write(FLASH.start, &page).unwrap();
+    assert_eq!(boot.read(FLASH.start, 256).unwrap(), page);
+    let other: Vec<u8> = (0..=255).rev().collect();
+    boot.write(FLASH.start, &other).unwrap();
+    let read = boot.read(FLASH.start, 256).unwrap();
+    assert!(
+        read != other
+            && read
+                .iter()
+                .zip(&page)
+                .zip(&other)
+                .all(|((r, a), b)| *r == a & b),
+        "NOR flash: a second write only clears bits"
+    );
+    boot.reboot(0).unwrap();
+    assert!(matches!(
+        boot.read(FLASH.start, 4),
+        Err(PicobootError::Transport { .. })
+    ));
+}

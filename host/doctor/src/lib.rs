@@ -133,32 +133,53 @@ fn udev_dirs() -> Vec<PathBuf> {
 /// The board's udev rule (its vendor and product id in a `.rules` file).
 fn udev_rule(dirs: &[PathBuf]) -> Finding {
     let (vid, pid) = (format!("{USB_VID:04x}"), format!("{USB_PID:04x}"));
-    let names = |text: &str| {
-        text.lines()
-            .filter(|l| !l.trim_start().starts_with('#'))
-            .any(|l| l.contains(&format!("\"{vid}\"")) && l.contains(&format!("\"{pid}\"")))
+    let rule_for = |(vid, pid): (&str, &str)| {
+        dirs.iter()
+            .filter_map(|d| std::fs::read_dir(d).ok())
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "rules"))
+            .find(|p| {
+                std::fs::read_to_string(p).is_ok_and(|text| {
+                    text.lines()
+                        .filter(|l| !l.trim_start().starts_with('#'))
+                        .any(|l| {
+                            l.contains(&format!("\"{vid}\"")) && l.contains(&format!("\"{pid}\""))
+                        })
+                })
+            })
     };
-    let found = dirs
-        .iter()
-        .filter_map(|d| std::fs::read_dir(d).ok())
-        .flatten()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "rules"))
-        .find(|p| std::fs::read_to_string(p).is_ok_and(|t| names(&t)));
-    match found {
-        Some(path) => Finding::ok(
+    let install = "sudo cp udev/99-fpm.rules /etc/udev/rules.d/ && sudo udevadm control --reload && sudo udevadm trigger (the rule is in the repository; docs/hardware.md)";
+    match (rule_for((&vid, &pid)), rule_for(RP2_BOOT)) {
+        (Some(path), Some(_)) => Finding::ok(
             "udev",
-            format!("the board's rule (USB {vid}:{pid}) is installed: {}", path.display()),
+            format!(
+                "the board's rule (USB {vid}:{pid}, and the boot ROM's {}:{}) is installed: {}",
+                RP2_BOOT.0,
+                RP2_BOOT.1,
+                path.display()
+            ),
         ),
-        None => Finding::with(
+        (Some(path), None) => Finding::with(
+            "udev",
+            Status::Warn,
+            format!(
+                "{} names the board (USB {vid}:{pid}) but not its boot ROM (USB {}:{}): fpm device flash cannot write over PICOBOOT and copies onto the RPI-RP2 drive instead, unchecked",
+                path.display(),
+                RP2_BOOT.0,
+                RP2_BOOT.1
+            ),
+            install.into(),
+        ),
+        (None, _) => Finding::with(
             "udev",
             Status::Warn,
             format!(
                 "no udev rule names the board (USB {vid}:{pid}) in {}: its serial port is root's only, and has no stable name",
                 dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
             ),
-            "sudo cp udev/99-fpm.rules /etc/udev/rules.d/ && sudo udevadm control --reload && sudo udevadm trigger (the rule is in the repository; docs/hardware.md)".into(),
+            install.into(),
         ),
     }
 }
@@ -274,7 +295,7 @@ fn boot_device(sysfs: &Path) -> Finding {
             "boot device",
             Status::Warn,
             format!("an RP2040 waits in BOOTSEL at {node}, which this user cannot open ({e})"),
-            "copy fpm-led-controller.uf2 onto its RPI-RP2 drive (docs/hardware.md), or let the user reach it: a udev rule with ATTRS{idVendor}==\"2e8a\", ATTRS{idProduct}==\"0003\", TAG+=\"uaccess\"".into(),
+            "install the udev rule (udev/99-fpm.rules names the boot ROM too), then unplug and replug the board; meanwhile fpm device flash copies onto its RPI-RP2 drive".into(),
         ),
     }
 }

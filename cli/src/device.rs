@@ -131,7 +131,13 @@ enum DeviceCommand {
 #[derive(clap::Args, Debug, Clone)]
 pub struct FlashArgs {
     /// The UF2 image (`cargo run -p fpm-fwtool -- uf2 ELF OUT.uf2` makes one).
-    pub image: std::path::PathBuf,
+    /// Omitted: the firmware of the checkout this fpm was built from, built now
+    /// (`cargo build --release` in firmware/rp2040) for the board's data lanes.
+    pub image: Option<std::path::PathBuf>,
+    /// With no image: build the image for this many data lanes (1, 2 or 4) instead of
+    /// the board's (a board that does not answer, as one in BOOTSEL, gets 1).
+    #[arg(long, conflicts_with = "image")]
+    pub lanes: Option<u8>,
     /// Where the board's boot drive is mounted (default: found among the mounted
     /// file systems by its INFO_UF2.TXT). Given, the image goes onto the drive.
     #[arg(long)]
@@ -146,10 +152,10 @@ pub struct FlashArgs {
 }
 
 impl FlashArgs {
-    /// What to flash, on the board at `port` (None: the one connected).
-    fn options(&self, port: Option<String>) -> fpm_flash::Options {
+    /// Flashing `image` on the board at `port` (None: the one connected).
+    fn options(&self, image: std::path::PathBuf, port: Option<String>) -> fpm_flash::Options {
         fpm_flash::Options {
-            image: self.image.clone(),
+            image,
             port,
             drive: self.drive.clone(),
             boot_rom_socket: self.boot_rom_socket.clone(),
@@ -308,7 +314,7 @@ pub fn run(args: DeviceArgs) -> Result<()> {
     let timeout = Duration::from_millis(args.timeout_ms);
     let port = match (&args.command, args.port) {
         (DeviceCommand::List, _) => return list(timeout, args.json),
-        (DeviceCommand::Flash(f), port) => return flash(&f.options(port), args.json),
+        (DeviceCommand::Flash(f), port) => return flash_command(f, port, args.json),
         (_, Some(port)) => port,
         (_, None) => discover::the_only_board(timeout).map_err(anyhow::Error::msg)?,
     };
@@ -415,6 +421,58 @@ fn geometry(
         println!("board {:#x}: {verb}{}", r.serial, r.description)
     });
     Ok(())
+}
+
+/// `fpm device flash`: the image given, or the firmware of this checkout built for
+/// the board's data lanes (`--lanes` otherwise).
+fn flash_command(f: &FlashArgs, port: Option<String>, json: bool) -> Result<()> {
+    // The built image's scratch directory lives until the flash is done.
+    let (image, _scratch) = match &f.image {
+        Some(image) => (image.clone(), None),
+        None => {
+            let (dir, image) = build_firmware(f.lanes, port.as_deref())?;
+            (image, Some(dir))
+        }
+    };
+    flash(&f.options(image, port), json)
+}
+
+/// The firmware of the checkout this fpm was built from, built for `lanes` data lanes
+/// (None: the board's, asked on `port`), as a UF2 in a scratch directory.
+fn build_firmware(
+    lanes: Option<u8>,
+    port: Option<&str>,
+) -> Result<(tempfile::TempDir, std::path::PathBuf)> {
+    let timeout = Duration::from_secs(2);
+    let board = || -> Option<u8> {
+        let port = match port {
+            Some(p) => p.to_owned(),
+            None => discover::the_only_board(timeout).ok()?,
+        };
+        Some(Controller::open(&port, timeout).ok()?.info().geometry.lanes)
+    };
+    let (lanes, whose) = match lanes {
+        Some(n) => (n, "as asked"),
+        None => match board() {
+            Some(n) => (n, "the board's"),
+            None => (1, "no board answers; --lanes for another"),
+        },
+    };
+    let checkout = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    eprintln!(
+        "no image given: building the firmware of {} for {lanes} data lane(s) ({whose})",
+        checkout.display()
+    );
+    let uf2 = fpm_fwtool::build::build_uf2(&checkout, lanes)?;
+    let name = fpm_fwtool::build::elf_path(&checkout, lanes)?
+        .with_extension("uf2")
+        .file_name()
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| "fpm-led-controller.uf2".into());
+    let dir = tempfile::tempdir()?;
+    let path = dir.path().join(name);
+    std::fs::write(&path, uf2)?;
+    Ok((dir, path))
 }
 
 /// Print `value` as one line of JSON, or as text.

@@ -346,3 +346,50 @@ fn the_emulated_boot_rom_keeps_the_roms_rules() {
         Err(PicobootError::Transport { .. })
     ));
 }
+
+/// A new Pico (its flash erased, in BOOTSEL) flashed with no image given: the firmware
+/// of the checkout `fpm` was built from is built (cargo finds it up to date after the
+/// suite's own build) for one data lane, no board answering to say otherwise, and
+/// written over PICOBOOT; the board then starts from its flash.
+#[test]
+fn a_new_pico_is_flashed_with_the_firmware_of_this_checkout() {
+    let dir = TempDir::new("picoboot-new");
+    let link = dir.0.join("ctl.tty");
+    let socket = dir.0.join("picoboot.sock");
+    let built = pages(firmware_uf2());
+    let flashing = {
+        let (link, socket) = (link.clone(), socket.clone());
+        std::thread::spawn(move || flash_over(&link, &socket, &["--wait-s", "120"]))
+    };
+    let deadline = Instant::now() + Duration::from_secs(300);
+    let rom = fpm_rig::boot_rom::serve(
+        &socket,
+        fpm_rig::boot_rom::BootRom::with_pages(&[], Default::default()),
+        &|| Instant::now() > deadline,
+    )
+    .unwrap();
+    assert!(rom.rebooted, "the flasher did not restart the boot ROM");
+    assert!(rom.holds(&built), "the flash is not this checkout's image");
+    let from_flash = dir.0.join("flash.uf2");
+    std::fs::write(&from_flash, rom.flash_as_uf2()).unwrap();
+    let back = Emulator::start_at(
+        &link,
+        &["--firmware", &from_flash.to_string_lossy(), "--no-camera"],
+    );
+    let (ok, out, err) = flashing.join().unwrap();
+    assert!(ok, "{err}\n{}", back.log_text());
+    assert!(
+        err.contains("building the firmware of")
+            && err.contains("1 data lane(s) (no board answers"),
+        "{err}"
+    );
+    let done: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(done["before"].is_null(), "{done}");
+    assert!(
+        done["image"]["path"]
+            .as_str()
+            .is_some_and(|p| p.ends_with("/fpm-led-controller.uf2")),
+        "{done}"
+    );
+    assert_eq!(done["after"][1], PROTOCOL_VERSION.to_string(), "{done}");
+}

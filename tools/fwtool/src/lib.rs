@@ -1,5 +1,6 @@
 //! Firmware image tools: what the RP2040's boot ROM wants (UF2) and what fits (sizes).
 
+pub mod build;
 pub mod uf2;
 
 use anyhow::{bail, Context, Result};

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use fpm_protocol::*;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -104,7 +104,8 @@ enum DeviceCommand {
     Abort,
     /// State of the sequence engine.
     SequenceStatus,
-    /// Flash a UF2 image onto the board in place: the image checked as the boot ROM
+    /// Flash a UF2 image (or the firmware's ELF; with none, this checkout's firmware,
+    /// built now) onto the board in place: the image checked as the boot ROM
     /// reads it, the board restarted in BOOTSEL (protocol ≥ 1.3; a board already in
     /// BOOTSEL is flashed as it is), the image written over the boot ROM's PICOBOOT
     /// interface and read back (or copied onto its RPI-RP2 drive), and the board
@@ -130,8 +131,8 @@ enum DeviceCommand {
 /// `fpm device flash`'s arguments.
 #[derive(clap::Args, Debug, Clone)]
 pub struct FlashArgs {
-    /// The UF2 image (`cargo run -p fpm-fwtool -- uf2 ELF OUT.uf2` makes one).
-    /// Omitted: the firmware of the checkout this fpm was built from, built now
+    /// The image: a UF2 file, or the firmware's ELF (converted as `fpm-fwtool uf2`
+    /// does). Omitted: the firmware of the checkout this fpm was built from, built now
     /// (`cargo build --release` in firmware/rp2040) for the board's data lanes.
     pub image: Option<std::path::PathBuf>,
     /// With no image: build the image for this many data lanes (1, 2 or 4) instead of
@@ -426,8 +427,12 @@ fn geometry(
 /// `fpm device flash`: the image given, or the firmware of this checkout built for
 /// the board's data lanes (`--lanes` otherwise).
 fn flash_command(f: &FlashArgs, port: Option<String>, json: bool) -> Result<()> {
-    // The built image's scratch directory lives until the flash is done.
+    // A built or converted image's scratch directory lives until the flash is done.
     let (image, _scratch) = match &f.image {
+        Some(image) if is_elf(image) => {
+            let (dir, uf2) = uf2_of_elf(image)?;
+            (uf2, Some(dir))
+        }
         Some(image) => (image.clone(), None),
         None => {
             let (dir, image) = build_firmware(f.lanes, port.as_deref())?;
@@ -435,6 +440,33 @@ fn flash_command(f: &FlashArgs, port: Option<String>, json: bool) -> Result<()> 
         }
     };
     flash(&f.options(image, port), json)
+}
+
+/// Whether `path` starts as an ELF file does (a UF2 block starts otherwise).
+fn is_elf(path: &std::path::Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 4];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok_and(|()| magic == *b"\x7fELF")
+}
+
+/// The UF2 of the ELF image at `elf` (as `fpm-fwtool uf2` writes it), in a scratch
+/// directory.
+fn uf2_of_elf(elf: &std::path::Path) -> Result<(tempfile::TempDir, std::path::PathBuf)> {
+    let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let segments = fpm_fwtool::segments(&bytes).with_context(|| format!("{}", elf.display()))?;
+    let dir = tempfile::tempdir()?;
+    let name = elf.with_extension("uf2");
+    let path = dir.path().join(
+        name.file_name()
+            .unwrap_or(std::ffi::OsStr::new("image.uf2")),
+    );
+    std::fs::write(
+        &path,
+        fpm_fwtool::uf2::encode(&segments, fpm_fwtool::uf2::RP2040_FAMILY),
+    )?;
+    Ok((dir, path))
 }
 
 /// The firmware of the checkout this fpm was built from, built for `lanes` data lanes

@@ -152,9 +152,9 @@ fn pages(uf2: &Path) -> Vec<fpm_flash::picoboot::Page> {
     fpm_flash::check_image(uf2).unwrap().pages
 }
 
-/// A board in the rig runs the 2-lane image; `fpm device flash` restarts it in BOOTSEL
-/// and writes the 1-lane image over PICOBOOT to the emulated boot ROM, which held the
-/// 2-lane image. Every page is read back, the boot loader's last; the ROM restarts;
+/// A board in the rig runs the 2-lane image; `fpm device flash`, given the 1-lane
+/// image's ELF, restarts it in BOOTSEL and writes that image over PICOBOOT to the
+/// emulated boot ROM, which held the 2-lane image. Every page is read back, the boot loader's last; the ROM restarts;
 /// the board comes back from what its flash now holds, answering as the 1-lane image.
 #[test]
 fn a_board_in_the_rig_is_flashed_over_picoboot_and_comes_back_from_its_flash() {
@@ -170,9 +170,10 @@ fn a_board_in_the_rig_is_flashed_over_picoboot_and_comes_back_from_its_flash() {
         &["--firmware", &old.to_string_lossy(), "--no-camera"],
     );
     let flashing = {
-        let (link, socket, new) = (link.clone(), socket.clone(), new.to_owned());
+        // The ELF beside its UF2, as the firmware's build leaves it.
+        let (link, socket, elf) = (link.clone(), socket.clone(), new.with_extension(""));
         std::thread::spawn(move || {
-            flash_over(&link, &socket, &[&new.to_string_lossy(), "--wait-s", "60"])
+            flash_over(&link, &socket, &[&elf.to_string_lossy(), "--wait-s", "60"])
         })
     };
     // The board leaves its port for BOOTSEL; its boot ROM appears with the old image.

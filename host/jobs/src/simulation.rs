@@ -230,8 +230,10 @@ pub struct Written {
     pub truth: Truth,
 }
 
-/// Most LEDs [`AcquisitionSet::multiplex`] lights in one frame.
-pub const MAX_MULTIPLEX: usize = 64;
+/// Most LEDs [`AcquisitionSet::multiplex`] lights in one frame: the controller's own
+/// limit (one frame's LED list on the wire), so that a simulated set is one a board
+/// could take.
+pub const MAX_MULTIPLEX: usize = fpm_protocol::limits::MAX_LEDS_PER_LIST;
 
 /// The paper's array at its nominal place: what a simulated dataset states.
 fn nominal() -> LedGeometry {

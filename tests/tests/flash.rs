@@ -147,6 +147,17 @@ fn flash_over(port: &Path, socket: &Path, args: &[&str]) -> (bool, String, Strin
     flash(port, &[args, &["--boot-rom-socket", &socket]].concat())
 }
 
+/// The board the boot ROM restarts: the chip started (in rp2040js, at `link`) from what
+/// `rom`'s flash holds, written as a UF2 into `dir`.
+fn start_from_flash(rom: &fpm_rig::boot_rom::BootRom, dir: &Path, link: &Path) -> Emulator {
+    let from_flash = dir.join("flash.uf2");
+    std::fs::write(&from_flash, rom.flash_as_uf2()).unwrap();
+    Emulator::start_at(
+        link,
+        &["--firmware", &from_flash.to_string_lossy(), "--no-camera"],
+    )
+}
+
 /// The image's flash pages, as the boot ROM holds them once written.
 fn pages(uf2: &Path) -> Vec<fpm_flash::picoboot::Page> {
     fpm_flash::check_image(uf2).unwrap().pages
@@ -192,13 +203,7 @@ fn a_board_in_the_rig_is_flashed_over_picoboot_and_comes_back_from_its_flash() {
         "the flash is not exactly the new image"
     );
     assert!(rom.would_boot());
-    // The chip starts from its flash.
-    let from_flash = dir.0.join("flash.uf2");
-    std::fs::write(&from_flash, rom.flash_as_uf2()).unwrap();
-    let back = Emulator::start_at(
-        &link,
-        &["--firmware", &from_flash.to_string_lossy(), "--no-camera"],
-    );
+    let back = start_from_flash(&rom, &dir.0, &link);
     let (ok, out, err) = flashing.join().unwrap();
     assert!(ok, "{err}\n{}", back.log_text());
     for step in 1..=5 {
@@ -371,12 +376,7 @@ fn a_new_pico_is_flashed_with_the_firmware_of_this_checkout() {
     .unwrap();
     assert!(rom.rebooted, "the flasher did not restart the boot ROM");
     assert!(rom.holds(&built), "the flash is not this checkout's image");
-    let from_flash = dir.0.join("flash.uf2");
-    std::fs::write(&from_flash, rom.flash_as_uf2()).unwrap();
-    let back = Emulator::start_at(
-        &link,
-        &["--firmware", &from_flash.to_string_lossy(), "--no-camera"],
-    );
+    let back = start_from_flash(&rom, &dir.0, &link);
     let (ok, out, err) = flashing.join().unwrap();
     assert!(ok, "{err}\n{}", back.log_text());
     assert!(

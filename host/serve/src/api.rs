@@ -331,6 +331,10 @@ async fn cancel(
     Ok(StatusCode::ACCEPTED)
 }
 
+/// How long a job's request waits for the worker's look at an unchecked board (the
+/// handshake's own timeout is 2 s).
+const UNCHECKED_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// A 409 when the controller speaks another protocol version, after looking at it
 /// again (a board flashed since the last look is taken).
 async fn refuse_on_wrong_firmware(state: &State) -> Result<(), ApiError> {
@@ -344,7 +348,14 @@ async fn refuse_on_wrong_firmware(state: &State) -> Result<(), ApiError> {
     let shared = state.shared.clone();
     // Opening a serial port and its handshake block: off the runtime's threads.
     std::thread::spawn(move || tx.send(shared.check_board(&port)));
-    let board = rx.await.map_err(ApiError::internal)?;
+    let mut board = rx.await.map_err(ApiError::internal)?;
+    // Still unchecked: the worker is looking at the board right now (its first look,
+    // or a job opening it), and says what it found within the handshake's timeout.
+    let waited = std::time::Instant::now();
+    while matches!(board, Board::Unchecked { .. }) && waited.elapsed() < UNCHECKED_WAIT {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        board = state.shared.board();
+    }
     match board.refusal() {
         Some(why) => Err(ApiError::Conflict(why.to_owned())),
         None => Ok(()),

@@ -131,33 +131,22 @@ impl BootRom {
 
     /// The flash as a UF2 image (its pages that are not erased), to start a board from.
     pub fn flash_as_uf2(&self) -> Vec<u8> {
-        let pages: Vec<(usize, &[u8])> = self
+        let written: Vec<fpm_fwtool::Segment> = self
             .flash
             .chunks_exact(PAGE as usize)
             .enumerate()
             .filter(|(_, p)| p.iter().any(|&b| b != 0xff))
+            .map(|(k, p)| {
+                let address = u64::from(FLASH.start) + (k as u64) * u64::from(PAGE);
+                fpm_fwtool::Segment {
+                    load_addr: address,
+                    run_addr: address,
+                    data: p.to_vec(),
+                    mem_size: p.len() as u64,
+                }
+            })
             .collect();
-        let mut out = Vec::with_capacity(pages.len() * 512);
-        for (n, (k, data)) in pages.iter().enumerate() {
-            let mut block = [0u8; 512];
-            let words = [
-                0x0A32_4655u32,
-                0x9E5D_5157,
-                0x0000_2000,
-                FLASH.start + (*k as u32) * PAGE,
-                PAGE,
-                n as u32,
-                pages.len() as u32,
-                fpm_flash::RP2040_FAMILY,
-            ];
-            for (i, w) in words.iter().enumerate() {
-                block[4 * i..4 * i + 4].copy_from_slice(&w.to_le_bytes());
-            }
-            block[32..32 + PAGE as usize].copy_from_slice(data);
-            block[508..512].copy_from_slice(&0x0AB1_6F30u32.to_le_bytes());
-            out.extend_from_slice(&block);
-        }
-        out
+        fpm_fwtool::uf2::encode(&written, fpm_fwtool::uf2::RP2040_FAMILY)
     }
 
     fn refuse(&mut self, code: StatusCode) {

@@ -254,11 +254,7 @@ fn build_firmware_images() -> String {
 }
 
 /// The firmware's images: the chain's data lanes and the ELF's name.
-const FIRMWARE_IMAGES: [(u8, &str); 3] = [
-    (1, "fpm-led-controller"),
-    (2, "fpm-led-controller-2lanes"),
-    (4, "fpm-led-controller-4lanes"),
-];
+const FIRMWARE_IMAGES: [(u8, &str); 3] = fpm_fwtool::build::IMAGES;
 
 /// Run `fpm args…`, which must succeed (its stderr in the panic otherwise); its stdout.
 pub fn fpm_stdout(args: &[&str]) -> String {

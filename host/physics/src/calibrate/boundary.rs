@@ -184,7 +184,7 @@ fn frame_thresholds<'a>(
 /// [`best_range`] over every block of every frame, `None` unless it lies strictly
 /// inside `search_mm` (else the frames bound h on one side only).
 fn bounded_best_range(
-    blocks: impl Iterator<Item = (f64, bool)> + Clone,
+    blocks: impl Iterator<Item = (f64, bool)>,
     (lo, hi): (f64, f64),
 ) -> Option<(f64, f64, usize)> {
     let (best_lo, best_hi, mismatched) = best_range(blocks, lo, hi)?;
@@ -252,16 +252,21 @@ pub fn estimate(
 /// "lit ⇔ h above the block's threshold", and that fewest. The hull of all ranges that
 /// tie.
 fn best_range(
-    blocks: impl Iterator<Item = (f64, bool)> + Clone,
+    blocks: impl Iterator<Item = (f64, bool)>,
     lo: f64,
     hi: f64,
 ) -> Option<(f64, f64, usize)> {
-    // At h = lo: lit blocks above lo disagree, dark blocks below lo disagree.
-    let mut wrong = blocks
-        .clone()
-        .filter(|&(t, lit)| if lit { t >= lo } else { t < lo })
-        .count();
-    let mut events: Vec<(f64, bool)> = blocks.filter(|(t, _)| *t > lo && *t < hi).collect();
+    // At h = lo: lit blocks above lo disagree, dark blocks below lo disagree. One pass
+    // (each threshold is computed as it is read, for every block of every frame and,
+    // in the entrance pupil's fit, for each of 42 candidates).
+    let mut wrong = 0usize;
+    let mut events: Vec<(f64, bool)> = vec![];
+    for (t, lit) in blocks {
+        wrong += usize::from(if lit { t >= lo } else { t < lo });
+        if t > lo && t < hi {
+            events.push((t, lit));
+        }
+    }
     if events.is_empty() {
         return None;
     }
@@ -397,9 +402,11 @@ impl BlockReader {
             .iter()
             .find(|f| f.led == reference_led && !f.is_multiplexed())?;
         let mut reader = Self::new(system, reference, side_px);
-        for f in frames {
-            reader.read(f);
-        }
+        // Each frame's blocks apart (the frames are independent), in the frames' order.
+        reader.read = frames
+            .par_iter()
+            .filter_map(|f| reader.blocks_of(f))
+            .collect();
         Some(reader)
     }
 
@@ -419,16 +426,23 @@ impl BlockReader {
     /// Frame `f` (one of a size other than the reference's, or lit by several LEDs,
     /// is left out: an edge is one LED's).
     pub fn read(&mut self, f: &LitFrame<'_>) {
+        if let Some(blocks) = self.blocks_of(f) {
+            self.read.push(blocks);
+        }
+    }
+
+    /// Frame `f`'s blocks, lit or not (None: a frame [`Self::read`] leaves out).
+    fn blocks_of(&self, f: &LitFrame<'_>) -> Option<LitFrameBlocks> {
         if f.measured.dim() != self.dim || f.is_multiplexed() {
-            return;
+            return None;
         }
         let means = self
             .blocks
             .means(&f.measured.intensity(Region::whole(self.dim)));
-        self.read.push(LitFrameBlocks {
+        Some(LitFrameBlocks {
             led: f.led,
             lit: lit_blocks(&means, &self.reference_means),
-        });
+        })
     }
 
     /// The estimate from the frames read (see [`estimate`]).

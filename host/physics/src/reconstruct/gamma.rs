@@ -10,6 +10,8 @@
 //! least at γ 2.2–2.4 (0.607 read as linear, 0.526 at 2.2), where the bright-field
 //! fit's offset ([`super::contrast`]) vanishes too.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -27,6 +29,22 @@ pub const COARSE: [f64; 6] = [1.0, 1.4, 1.8, 2.2, 2.6, 3.0];
 /// [`FLAT_WITHIN`]): every display gamma simulated (1.8–2.6) fits it better than
 /// linear, and linear frames fit it 20–30 % worse.
 pub const SCREEN: [f64; 2] = [COARSE[0], COARSE[1]];
+
+/// The side of the central square the screen reconstructs is at most this, camera
+/// pixels: it only decides whether to scan, on a margin of 20–30 % (linear frames
+/// against [`SCREEN`]'s second candidate), and a quarter of [`MAX_SIDE`]'s pixels cost
+/// a quarter as much (issue 63: the screen was 43 % of a default 441×256² run).
+pub const SCREEN_SIDE: usize = 128;
+
+/// The screen's frames reach at most this illumination NA, in objective NAs: the
+/// bright field and the first dark-field annuli, whose dim light against the bright
+/// frames is what a display gamma bends. The far dark field adds cost, not contrast
+/// between the two candidates.
+pub const SCREEN_REACH: f64 = 1.6;
+
+/// Fewer frames than this within [`SCREEN_REACH`] (a sparse or odd array): the
+/// screen takes them all.
+const SCREEN_MIN_FRAMES: usize = 16;
 
 /// Passes of the screen's two candidates (at most the scan's): it only decides whether
 /// to scan, and the scan runs every candidate at the full passes.
@@ -126,6 +144,28 @@ fn central_square<'a>(frames: &[LitFrame<'a>], side: usize) -> Vec<LitFrame<'a>>
         .collect()
 }
 
+/// The frames a screen reconstructs: those lit by one LED within [`SCREEN_REACH`]
+/// objective NAs of the axis, or all of them when too few are.
+fn screen_frames<'a>(
+    system: &System,
+    geometry: &LedGeometry,
+    frames: &[LitFrame<'a>],
+) -> Vec<LitFrame<'a>> {
+    let reach = SCREEN_REACH * system.cutoff();
+    let near: Vec<LitFrame<'a>> = frames
+        .iter()
+        .filter(|f| {
+            let (fx, fy) = geometry.pupil_frequency(f.led, 0.0, 0.0, system);
+            !f.is_multiplexed() && fx.hypot(fy) <= reach
+        })
+        .copied()
+        .collect();
+    match near.len() >= SCREEN_MIN_FRAMES {
+        true => near,
+        false => frames.to_vec(),
+    }
+}
+
 /// The frames decoded with `gamma` (1: linear) from stored values of `full_scale`,
 /// their stored dark level `dark_counts` decoded alike.
 fn decoded<'a>(
@@ -181,63 +221,44 @@ pub fn scan(
     screened: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<GammaScan, TiledError> {
-    let Stored {
-        full_scale,
-        dark_counts,
-    } = stored;
     let side = side(system, geometry, tiled::check_sizes(frames)?);
     let square = central_square(frames, side);
-    let settings = Settings {
-        // Not needed to compare the candidates, and each costs a fit per pass.
-        refine_leds: None,
-        // The candidates are compared by their frames' error, which a soft floor skews:
-        // it shrinks dim dark-field light by how far above the noise decoding leaves it,
-        // which depends on the gamma (with it, the vendored USAF set read 1.94 instead
-        // of 2.27, a simulated 2.2 read 1.2). A noise band skews it too: it leaves the
-        // model free within the band, whose width in decoded units depends on the gamma
-        // (with it a good simulated 8-bit stained set read as display-encoded).
-        background: settings.background.for_comparing_errors(),
-        ..settings
-    };
     // A screen counts its own two candidates; a full scan (after one, too) all ten.
     let full = COARSE.len() + 4;
-    let total = std::sync::atomic::AtomicUsize::new(if screened { SCREEN.len() } else { full });
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    let run_for = |gamma: f64, passes: usize| -> Result<GammaCandidate, TiledError> {
-        let frames = decoded(&square, gamma, full_scale, dark_counts);
-        let outcome = tiled::reconstruct(
-            system,
-            geometry,
-            &frames,
-            settings,
-            passes,
-            Some(side),
-            &|_, _| {},
-        )?;
-        let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(n, total.load(std::sync::atomic::Ordering::Relaxed).max(n));
-        Ok(GammaCandidate {
-            gamma,
-            error: outcome
-                .tiles
-                .iter()
-                .filter_map(|t| t.errors.last())
-                .sum::<f64>()
-                / outcome.tiles.len().max(1) as f64,
-            bright_field: outcome.bright_field,
-        })
+    let trial = Trial {
+        system,
+        geometry,
+        settings: Settings {
+            // Not needed to compare the candidates, and each costs a fit per pass.
+            refine_leds: None,
+            // The candidates are compared by their frames' error, which a soft floor
+            // skews: it shrinks dim dark-field light by how far above the noise decoding
+            // leaves it, which depends on the gamma (with it, the vendored USAF set read
+            // 1.94 instead of 2.27, a simulated 2.2 read 1.2). A noise band skews it too:
+            // it leaves the model free within the band, whose width in decoded units
+            // depends on the gamma (with it a good simulated 8-bit stained set read as
+            // display-encoded).
+            background: settings.background.for_comparing_errors(),
+            ..settings
+        },
+        stored,
+        done: AtomicUsize::new(0),
+        total: AtomicUsize::new(if screened { SCREEN.len() } else { full }),
+        progress,
     };
-    let run = |gamma: f64| run_for(gamma, passes);
+    let run = |gamma: f64| trial.run(&square, side, gamma, passes);
     if screened {
         let passes = SCREEN_PASSES.min(passes);
+        let screen_side = side.min(SCREEN_SIDE);
+        let screen_square = central_square(&screen_frames(system, geometry, frames), screen_side);
         let screen: Vec<GammaCandidate> = SCREEN
             .par_iter()
-            .map(|&g| run_for(g, passes))
+            .map(|&g| trial.run(&screen_square, screen_side, g, passes))
             .collect::<Result<_, _>>()?;
         if screen[1].error >= screen[0].error * (1.0 - FLAT_WITHIN) {
-            return Ok(conclude(screen, side, passes));
+            return Ok(conclude(screen, screen_side, passes));
         }
-        total.fetch_add(full, std::sync::atomic::Ordering::Relaxed);
+        trial.total.fetch_add(full, Ordering::Relaxed);
     }
     let mut candidates: Vec<GammaCandidate> = COARSE
         .par_iter()
@@ -255,10 +276,62 @@ pub fn scan(
             .map(|&g| run(g))
             .collect::<Result<Vec<_>, _>>()?,
     );
-    let total = total.load(std::sync::atomic::Ordering::Relaxed);
+    let total = trial.total.load(Ordering::Relaxed);
     progress(total, total);
     candidates.sort_by(|a, b| a.gamma.total_cmp(&b.gamma));
     Ok(conclude(candidates, side, passes))
+}
+
+/// What every candidate's run shares: the optics, the settings, the stored values'
+/// scale and the progress count.
+struct Trial<'a> {
+    system: &'a System,
+    geometry: &'a LedGeometry,
+    settings: Settings,
+    stored: Stored,
+    done: AtomicUsize,
+    total: AtomicUsize,
+    progress: &'a (dyn Fn(usize, usize) + Sync),
+}
+
+impl Trial<'_> {
+    /// `square` (frames of `side` px) decoded with `gamma` and reconstructed for
+    /// `passes`: the candidate's mean error over its tiles.
+    fn run(
+        &self,
+        square: &[LitFrame<'_>],
+        side: usize,
+        gamma: f64,
+        passes: usize,
+    ) -> Result<GammaCandidate, TiledError> {
+        let frames = decoded(
+            square,
+            gamma,
+            self.stored.full_scale,
+            self.stored.dark_counts,
+        );
+        let outcome = tiled::reconstruct(
+            self.system,
+            self.geometry,
+            &frames,
+            self.settings,
+            passes,
+            Some(side),
+            &|_, _| {},
+        )?;
+        let n = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        (self.progress)(n, self.total.load(Ordering::Relaxed).max(n));
+        Ok(GammaCandidate {
+            gamma,
+            error: outcome
+                .tiles
+                .iter()
+                .filter_map(|t| t.errors.last())
+                .sum::<f64>()
+                / outcome.tiles.len().max(1) as f64,
+            bright_field: outcome.bright_field,
+        })
+    }
 }
 
 /// Rounded to a tenth (the candidates' grid), so that fine and coarse ones coincide.

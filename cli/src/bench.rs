@@ -100,6 +100,10 @@ pub enum BenchCommand {
     /// dataset is written to disk, `fpm reconstruct` runs on it in a child process, and
     /// its peak resident set is read from the kernel.
     Memory(MemoryArgs),
+    /// The whole `fpm reconstruct` process on a 441-frame set, timed from outside,
+    /// beside EPRY alone and each automatic step (from the run's report.json), and
+    /// fpm-rs's EPRY on the same frames when a Python with fpm-rs is at hand.
+    Reconstruct(ReconstructArgs),
     /// LED switch time of single-LED scans (the firmware's chain model): full chain
     /// versus partial shifts, for 1, 2 and 4 data lanes.
     LedSwitch {
@@ -204,6 +208,47 @@ pub struct MemoryArgs {
     json: bool,
 }
 
+/// `fpm bench reconstruct`'s flags.
+#[derive(Args, Debug)]
+pub struct ReconstructArgs {
+    /// A dataset to reconstruct (default: 441 frames simulated for the run).
+    #[arg(long)]
+    dataset: Option<std::path::PathBuf>,
+    /// Sensor side of the simulated set, pixels.
+    #[arg(long, default_value_t = 256)]
+    size: usize,
+    /// EPRY passes.
+    #[arg(long, default_value_t = 3)]
+    passes: usize,
+    /// HR pixels per camera pixel (default: `fpm reconstruct`'s).
+    #[arg(long)]
+    upsample: Option<usize>,
+    /// Runs of `fpm reconstruct`; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    rounds: usize,
+    /// A Python with fpm-rs, numpy and tifffile (default: the venv
+    /// tools/peers/compare.sh makes, when it exists).
+    #[arg(long)]
+    peers_python: Option<std::path::PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+impl From<ReconstructArgs> for fpm_bench::reconstruct::ReconstructOptions {
+    fn from(a: ReconstructArgs) -> Self {
+        Self {
+            dataset: a.dataset,
+            size: a.size,
+            passes: a.passes,
+            upsample: a.upsample,
+            rounds: a.rounds,
+            peers_python: a.peers_python,
+            json: a.json,
+        }
+    }
+}
+
 /// Run one benchmark.
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
@@ -241,6 +286,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             keep: a.keep,
             json: a.json,
         }),
+        BenchCommand::Reconstruct(a) => fpm_bench::reconstruct::run(a.into()),
         BenchCommand::Epry {
             size,
             upsample,

@@ -265,3 +265,46 @@ fn the_memory_bench_reads_the_peak_of_a_banded_run() {
     assert!(peak > 0.01 && peak < 2.0, "peak {peak} GB");
     assert!(!dir.exists(), "the scratch directory is removed");
 }
+
+/// `fpm bench reconstruct` times the whole process from outside and each step from
+/// the run's report: the steps fit inside the whole, the automatic ones are counted
+/// apart, and without a Python that has fpm-rs the comparison is left out with the way
+/// to get one, not failed (issue 63).
+#[test]
+fn the_reconstruct_bench_splits_the_whole_run_into_its_steps() {
+    let nowhere = TempDir::new("bench-reconstruct-no-peers");
+    let run = Command::new(fpm_bin())
+        .args(["bench", "reconstruct", "--size", "64", "--passes", "1"])
+        .args(["--rounds", "2", "--json"])
+        .env("FPM_PEERS_VENV", nowhere.0.join("venv"))
+        .output()
+        .expect("running fpm");
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!(r["frames"], 441, "{r}");
+    assert_eq!(r["rounds"], 2, "{r}");
+    let whole = r["whole_s"].as_f64().expect("whole_s");
+    let steps = r["steps"].as_array().expect("steps");
+    let seconds = |s: &serde_json::Value| s["seconds"].as_f64().unwrap_or(f64::NAN);
+    assert!(steps.iter().any(|s| s["step"] == "EPRY"), "{r}");
+    assert!(steps.iter().any(|s| s["automatic"] == true), "{r}");
+    let sum: f64 = steps.iter().map(seconds).sum();
+    assert!(
+        sum > 0.0 && sum <= whole,
+        "steps {sum} s of a whole {whole} s"
+    );
+    let automatic: f64 = steps
+        .iter()
+        .filter(|s| s["automatic"] == true)
+        .map(seconds)
+        .sum();
+    let share = r["automatic_share"].as_f64().expect("automatic_share");
+    assert!((share - automatic / whole).abs() < 1e-9, "{r}");
+    assert!(r["fpm_rs"].is_null(), "{r}");
+    let why = r["fpm_rs_skipped"].as_str().unwrap_or("");
+    assert!(why.contains("tools/peers/compare.sh"), "{why}");
+}

@@ -9,7 +9,8 @@ ours, and the complex NRMSE against the dataset's ground truth (docs/dataset.md 
 
 Run it through compare.sh, which sets up the venv with the pinned peers.
 
-How each peer is fed (read from the installed sources, fpm-rs 0.2.0b3 / fpm-py 2.0.1):
+How each peer is fed (read from the installed sources, fpm-rs 0.2.0b3 / fpm-py 2.0.1;
+fpm-rs 0.1.0, for Python >= 3.13, takes the same k vectors through its older API):
   fpm-rs  KVectorList of k = 2*pi*f_i (rad/m), the illumination vectors of docs/dataset.md
           section 1; checked against fpm-rs's own PlanarLEDArray built from [led].
           compile_model(reconstruction_shape = U x frame shape), Epry(iterations=N)
@@ -294,23 +295,30 @@ def run_fpm_rs(ds: Dataset, args, snap: bool):
     import numpy as np
     import fpm_rs as fpm
 
-    optics = fpm.Optics(wavelength_vacuum_m=ds.wavelength * 1e-6, objective_na=ds.na,
-                        magnification=ds.magnification, camera_pixel_size=ds.camera_pixel * 1e-6)
-    f = ds.f.copy()
     notes = []
-    # cross-check: fpm-rs's own planar-array geometry must give the same vectors
-    led = ds.led
-    r0, c0 = led.get("center", [led["rows"] // 2, led["cols"] // 2])
-    dx, dy = led.get("offset_mm", [0.0, 0.0])
-    arr = fpm.PlanarLEDArray(
-        shape=(int(led["rows"]), int(led["cols"])), pitch_m=float(led["pitch_mm"]) * 1e-3,
-        reference_index=(float(c0), float(r0)),
-        pose=fpm.ArrayPose.from_translation_and_extrinsic_xyz_degrees(
-            (dx * 1e-3, dy * 1e-3, -float(led["height_mm"]) * 1e-3),
-            (0.0, 0.0, float(led.get("rotation_deg", 0.0)))))
-    kr = arr.resolve(optics).k_vectors[[arr.source_index(r, c) for r, c in ds.leds]]
-    dev = float(np.max(np.abs(kr - 2 * np.pi * f * 1e6)) / np.max(np.abs(kr)))
-    notes.append(f"k = 2*pi*f_i; fpm-rs PlanarLEDArray agrees to {dev:.1e} (relative)")
+    if hasattr(fpm, "PlanarLEDArray"):  # fpm-rs 0.2
+        optics = fpm.Optics(wavelength_vacuum_m=ds.wavelength * 1e-6, objective_na=ds.na,
+                            magnification=ds.magnification, camera_pixel_size=ds.camera_pixel * 1e-6)
+        f = ds.f.copy()
+        # cross-check: fpm-rs's own planar-array geometry must give the same vectors
+        led = ds.led
+        r0, c0 = led.get("center", [led["rows"] // 2, led["cols"] // 2])
+        dx, dy = led.get("offset_mm", [0.0, 0.0])
+        arr = fpm.PlanarLEDArray(
+            shape=(int(led["rows"]), int(led["cols"])), pitch_m=float(led["pitch_mm"]) * 1e-3,
+            reference_index=(float(c0), float(r0)),
+            pose=fpm.ArrayPose.from_translation_and_extrinsic_xyz_degrees(
+                (dx * 1e-3, dy * 1e-3, -float(led["height_mm"]) * 1e-3),
+                (0.0, 0.0, float(led.get("rotation_deg", 0.0)))))
+        kr = arr.resolve(optics).k_vectors[[arr.source_index(r, c) for r, c in ds.leds]]
+        dev = float(np.max(np.abs(kr - 2 * np.pi * f * 1e6)) / np.max(np.abs(kr)))
+        notes.append(f"k = 2*pi*f_i; fpm-rs PlanarLEDArray agrees to {dev:.1e} (relative)")
+        illumination = lambda k: fpm.Illumination(fpm.KVectorList(k))  # noqa: E731
+    else:  # fpm-rs 0.1: positional optics (SI units), a KVectorList is the illumination
+        optics = fpm.Optics(ds.wavelength * 1e-6, ds.na, ds.magnification, ds.camera_pixel * 1e-6)
+        f = ds.f.copy()
+        notes.append("k = 2*pi*f_i (fpm-rs 0.1 API)")
+        illumination = fpm.KVectorList
     if snap:
         H, W = ds.shape
         step = np.array([1.0 / (W * ds.pixel), 1.0 / (H * ds.pixel)])
@@ -320,7 +328,7 @@ def run_fpm_rs(ds: Dataset, args, snap: bool):
         f = moved
     k = np.ascontiguousarray(2 * np.pi * f * 1e6)
     hr = (ds.shape[0] * args.upsample, ds.shape[1] * args.upsample)
-    model = fpm.compile_model(optics, fpm.Illumination(fpm.KVectorList(k)), ds.shape, hr)
+    model = fpm.compile_model(optics, illumination(k), ds.shape, hr)
     assert model.frame_count == len(ds.leds) and tuple(model.reconstruction_shape) == hr
     problem = fpm.ReconstructionProblem(ds.frames, model)
     alg = fpm.Epry(iterations=args.passes)

@@ -15,6 +15,7 @@ pub mod geometry;
 pub mod led_switch;
 pub mod link;
 pub mod memory;
+pub mod reconstruct;
 pub mod scan;
 pub mod serve;
 mod stats;

@@ -68,6 +68,8 @@ pub fn run(a: ServeArgs) -> Result<()> {
         Some(d) => d.clone(),
         None => default_state_dir()?,
     };
+    // Before anything is written in it (the virtual rig's files too).
+    fpm_serve::private_dir(&state_dir)?;
     // The virtual rig's processes live as long as this one (and die with it).
     let mut supervisor = None;
     let rig = if a.r#virtual {

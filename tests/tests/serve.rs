@@ -1179,9 +1179,21 @@ fn a_scan_runs_as_a_job_and_a_resume_completes_it() {
 /// a step). Each quarter of the capture announces at least a tenth of the frames.
 #[test]
 fn the_default_service_labels_frames_all_through_the_capture() {
+    use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
     let dir = TempDir::new("serve-default-live");
-    let service =
-        VirtualService::start_with(fpm_bin(), &dir.0.join("state"), &[], Stdio::inherit()).unwrap();
+    let state = dir.0.join("state");
+    // As services before 2026-12-08 left it: readable by every local user.
+    std::fs::DirBuilder::new()
+        .mode(0o755)
+        .create(&state)
+        .unwrap();
+    let service = VirtualService::start_with(fpm_bin(), &state, &[], Stdio::inherit()).unwrap();
+    // The state (token, job history, runs) is the owner's alone, as Jupyter's runtime
+    // directory is (issue 65).
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode(&state), 0o700, "the state directory");
+    assert_eq!(mode(&state.join("jobs.sqlite")), 0o600, "the job database");
+    assert_eq!(mode(&state.join("token")), 0o600, "the token");
     let events = events(service.address);
     let job = serde_json::json!({"kind": "acquire", "reconstruct": true});
     let id = service.submit(&job).unwrap();

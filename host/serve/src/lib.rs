@@ -71,6 +71,32 @@ pub struct Started<'a> {
     pub page: String,
 }
 
+/// `dir` created if needed and made the owner's alone (0700), as Jupyter keeps its
+/// runtime directory: it holds the token, the job history with its paths, and the runs.
+/// A directory an older service made readable to all is tightened, and the log says so.
+pub fn private_dir(dir: &std::path::Path) -> Result<()> {
+    use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+        .with_context(|| format!("creating {}", dir.display()))?;
+    let mode = std::fs::metadata(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .permissions()
+        .mode()
+        & 0o777;
+    if mode & 0o077 != 0 {
+        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700))
+            .with_context(|| format!("making {} private (chmod 700)", dir.display()))?;
+        tracing::info!(
+            "made {} readable by its owner alone (it was {mode:o})",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// Run the service until SIGINT or SIGTERM: `on_started` once it listens.
 pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> Result<()> {
     if !config.listen.ip().is_loopback() && !config.public {
@@ -79,8 +105,7 @@ pub fn serve(config: Config, rig: Rig, on_started: impl FnOnce(Started<'_>)) -> 
             config.listen
         );
     }
-    std::fs::create_dir_all(&config.state_dir)
-        .with_context(|| format!("creating {}", config.state_dir.display()))?;
+    private_dir(&config.state_dir)?;
     let store = store::Store::open(&config.state_dir.join("jobs.sqlite"))?;
     recover_interrupted(&store);
     let token = api::Token::create(&config.state_dir.join("token"))?;

@@ -123,10 +123,40 @@ fn now_s() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
+/// The database file created empty (SQLite takes an empty file as a new database)
+/// or kept readable by its owner alone (0600): the job history holds every request
+/// and its paths. SQLite gives its -wal and -shm files the database's permissions.
+fn owner_only(path: &Path) -> Result<()> {
+    use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .mode(0o600)
+        .open(path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    let mode = file.metadata()?.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        file.set_permissions(std::fs::Permissions::from_mode(0o600))
+            .with_context(|| format!("making {} private (chmod 600)", path.display()))?;
+    }
+    // An older service's write-ahead log keeps the mode it was made with.
+    for suffix in ["-wal", "-shm"] {
+        let mut side = path.as_os_str().to_owned();
+        side.push(suffix);
+        let side = Path::new(&side);
+        if side.exists() {
+            std::fs::set_permissions(side, std::fs::Permissions::from_mode(0o600))
+                .with_context(|| format!("making {} private (chmod 600)", side.display()))?;
+        }
+    }
+    Ok(())
+}
+
 impl Store {
     /// Open (or create) the database at `path`; jobs a previous service left running
     /// are marked interrupted.
     pub fn open(path: &Path) -> Result<Self> {
+        owner_only(path)?;
         let conn = Connection::open(path).with_context(|| format!("opening {}", path.display()))?;
         conn.pragma_update(None, "journal_mode", "WAL")
             .with_context(|| format!("{}: write-ahead log", path.display()))?;

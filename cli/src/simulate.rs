@@ -108,8 +108,7 @@ impl ColorArgs {
             }
             return Ok(None);
         }
-        let mut channels = fpm_physics::color::parse_channels(&self.colors, "--colors")
-            .map_err(anyhow::Error::msg)?;
+        let mut channels = fpm_physics::color::parse_channels(&self.colors, "--colors")?;
         let mut set_per =
             |flag: &str,
              items: &[String],

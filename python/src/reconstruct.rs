@@ -116,7 +116,9 @@ pub(crate) fn settings(
         flatten,
         ..Settings::default()
     };
-    settings.validate().map_err(PyValueError::new_err)?;
+    settings
+        .validate()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(settings)
 }
 

@@ -212,8 +212,8 @@ pub fn simulate_color_acquisition<'py>(
     sample: &str,
 ) -> PyResult<(PathBuf, Bound<'py, PyAny>)> {
     let sample = sample_kind(sample)?;
-    let mut channels =
-        fpm_physics::color::parse_channels(&colors, "colors").map_err(PyValueError::new_err)?;
+    let mut channels = fpm_physics::color::parse_channels(&colors, "colors")
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     for c in &mut channels {
         if let Some((x, y)) = die_offset_mm.as_ref().and_then(|m| m.get(&c.name)) {
             c.die_offset_mm = [*x, *y];

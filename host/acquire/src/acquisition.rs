@@ -136,9 +136,7 @@ impl Plan {
                 bail!("leds: LED [{}, {}] twice", twice.row, twice.col);
             }
         }
-        self.multiplex
-            .check(MAX_MULTIPLEX)
-            .map_err(anyhow::Error::msg)?;
+        self.multiplex.check(MAX_MULTIPLEX)?;
         if !self.multiplex.is_one() {
             if self.calibrate {
                 bail!("multiplex with calibrate: a calibration takes one LED per frame; calibrate first and store it on the board (calibrate with store_geometry), then acquire multiplexed from it");
@@ -170,10 +168,8 @@ impl Plan {
         if let Some((name, v, why)) = self.system.out_of_range() {
             bail!("{name} {v}: {why}");
         }
-        limits::check_run(self.passes, self.tile).map_err(anyhow::Error::msg)?;
-        streaming_settings(self)
-            .validate()
-            .map_err(anyhow::Error::msg)
+        limits::check_run(self.passes, self.tile)?;
+        Ok(streaming_settings(self).validate()?)
     }
 
     /// How long each LED stays lit, µs, as the controller takes it.

@@ -43,8 +43,7 @@ impl ColorPlan {
     /// the WS2812B's wavelengths (`fpm_physics::color::ws2812b`) unless given. Errors
     /// name the item (as `what`'s) that is wrong.
     pub fn parse(items: &[String], focus: &str, what: &str) -> Result<Self> {
-        let channels: Vec<ColorChannel> = fpm_physics::color::parse_channels(items, what)
-            .map_err(anyhow::Error::msg)?
+        let channels: Vec<ColorChannel> = fpm_physics::color::parse_channels(items, what)?
             .into_iter()
             .map(|c| ColorChannel {
                 rgb: match c.name.as_str() {

@@ -124,7 +124,7 @@ pub fn read(src: &Path, stated: &Stated) -> Result<Imported, ImportError> {
             z_mm: 0.0,
         })
         .collect();
-    let list = LedList::new(leds).map_err(|e| ImportError::field(src, "encoder", e))?;
+    let list = LedList::new(leds).map_err(|e| ImportError::field(src, "encoder", e.message))?;
     let orientation = match file.scalar_opt("orientation")? {
         None => 0,
         Some(v) if v.fract() == 0.0 && (0.0..=4.0).contains(&v) => v as u8,

@@ -237,8 +237,9 @@ fn led_section(
     }
     let mut led = LedSection::listed(height_mm);
     if by_position {
-        led.position =
-            Some(LedList::new(positions).map_err(|e| ImportError::field(csv_path, "x_mm", e))?);
+        led.position = Some(
+            LedList::new(positions).map_err(|e| ImportError::field(csv_path, "x_mm", e.message))?,
+        );
     } else {
         led.na = Some(LedNas::new(nas).map_err(|e| ImportError::field(csv_path, "na_x", e))?);
     }

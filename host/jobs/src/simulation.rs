@@ -489,9 +489,7 @@ fn write_acquisition_lit(
     };
     let object = sample_at(system.wavelength_um);
     let truth = scene.truth;
-    set.multiplex
-        .check(MAX_MULTIPLEX)
-        .map_err(anyhow::Error::msg)?;
+    set.multiplex.check(MAX_MULTIPLEX)?;
     let positions = led_positions(&truth, set.led_jitter_mm, scene.seed)?;
     let board = |led| {
         positions

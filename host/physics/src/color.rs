@@ -84,7 +84,8 @@ pub fn ws2812b_channel(name: &str) -> Option<Channel> {
 /// `items` (`red`, `green`, `blue`, or `r`, `g`, `b`, each optionally `NAME:UM`) as
 /// WS2812B channels ([`ws2812b`]), with the wavelengths given; at least one, each once.
 /// Errors name `what` (the flag or field) and the item.
-pub fn parse_channels(items: &[String], what: &str) -> Result<Vec<Channel>, String> {
+pub fn parse_channels(items: &[String], what: &str) -> Result<Vec<Channel>, crate::Invalid> {
+    let invalid = |message: String| crate::Invalid::new(what, message);
     let mut channels: Vec<Channel> = vec![];
     for item in items {
         let (name, wavelength) = match item.split_once(':') {
@@ -92,23 +93,27 @@ pub fn parse_channels(items: &[String], what: &str) -> Result<Vec<Channel>, Stri
             None => (item.trim(), None),
         };
         let mut channel = ws2812b_channel(name)
-            .ok_or_else(|| format!("{what} {item}: {name:?} is not red, green or blue"))?;
+            .ok_or_else(|| invalid(format!("{what} {item}: {name:?} is not red, green or blue")))?;
         if let Some(w) = wavelength {
             channel.wavelength_um = w
                 .parse::<f64>()
                 .ok()
                 .filter(|w| w.is_finite() && (0.2..=2.0).contains(w))
-                .ok_or_else(|| format!("{what} {item}: {w:?} is not a wavelength in µm (0.2-2)"))?;
+                .ok_or_else(|| {
+                    invalid(format!(
+                        "{what} {item}: {w:?} is not a wavelength in µm (0.2-2)"
+                    ))
+                })?;
         }
         if channels.iter().any(|c| c.name == channel.name) {
-            return Err(format!("{what}: {} is given twice", channel.name));
+            return Err(invalid(format!("{what}: {} is given twice", channel.name)));
         }
         channels.push(channel);
     }
     if channels.is_empty() {
-        return Err(format!(
+        return Err(invalid(format!(
             "{what}: name at least one colour (red, green, blue)"
-        ));
+        )));
     }
     Ok(channels)
 }

@@ -41,19 +41,23 @@ static INTERNED: Mutex<Vec<&'static [ListedLed]>> = Mutex::new(Vec::new());
 impl LedList {
     /// The list of `leds` (in any order), or what is wrong with it: none, an id twice
     /// or a coordinate that is not finite.
-    pub fn new(mut leds: Vec<ListedLed>) -> Result<Self, String> {
+    pub fn new(mut leds: Vec<ListedLed>) -> Result<Self, crate::Invalid> {
+        let invalid = |message: String| crate::Invalid::new("leds", message);
         if leds.is_empty() {
-            return Err("the list holds no LED".into());
+            return Err(invalid("the list holds no LED".into()));
         }
         if let Some(bad) = leds
             .iter()
             .find(|l| !(l.x_mm.is_finite() && l.y_mm.is_finite() && l.z_mm.is_finite()))
         {
-            return Err(format!("LED {} has a position that is not finite", bad.led));
+            return Err(invalid(format!(
+                "LED {} has a position that is not finite",
+                bad.led
+            )));
         }
         leds.sort_by_key(|l| (l.led.row, l.led.col));
         if let Some(pair) = leds.windows(2).find(|w| w[0].led == w[1].led) {
-            return Err(format!("LED {} is listed twice", pair[0].led));
+            return Err(invalid(format!("LED {} is listed twice", pair[0].led)));
         }
         let mut interned = INTERNED.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(found) = interned.iter().find(|l| **l == leds.as_slice()) {
@@ -177,9 +181,11 @@ mod tests {
     #[test]
     fn a_list_with_an_id_twice_or_no_led_is_refused_by_name() {
         let twice = LedList::new(vec![led(3, 4, 0.0, 0.0), led(3, 4, 1.0, 0.0)]);
-        assert_eq!(twice.unwrap_err(), "LED (3, 4) is listed twice");
+        assert_eq!(twice.unwrap_err().to_string(), "LED (3, 4) is listed twice");
         assert!(LedList::new(Vec::new()).is_err());
-        let nan = LedList::new(vec![led(0, 0, f64::NAN, 0.0)]).unwrap_err();
+        let nan = LedList::new(vec![led(0, 0, f64::NAN, 0.0)])
+            .unwrap_err()
+            .to_string();
         assert!(nan.contains("not finite"), "{nan}");
     }
 }

@@ -25,6 +25,7 @@ pub mod dpc;
 pub mod fft;
 pub mod frame;
 pub mod image;
+mod invalid;
 pub mod led_list;
 pub mod metrics;
 pub mod multiplex;
@@ -37,6 +38,7 @@ pub mod study;
 pub mod tiles;
 
 pub use image::Image;
+pub use invalid::Invalid;
 pub use led_list::{LedList, ListedLed};
 pub use optics::{LedGeometry, LedIndex, Placement, Rings, System};
 /// The complex type of every field (object, pupil, exit wave).

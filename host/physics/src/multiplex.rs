@@ -48,13 +48,16 @@ impl Multiplex {
     }
 
     /// Both counts within 1..=`max`, or which one is not.
-    pub fn check(&self, max: usize) -> Result<(), String> {
+    pub fn check(&self, max: usize) -> Result<(), crate::Invalid> {
         for (name, k) in [
             ("multiplex", self.dark_field),
             ("multiplex_bright", self.bright_field),
         ] {
             if !(1..=max).contains(&k) {
-                return Err(format!("{name} {k}: light 1 to {max} LEDs per frame"));
+                return Err(crate::Invalid::new(
+                    name,
+                    format!("{name} {k}: light 1 to {max} LEDs per frame"),
+                ));
             }
         }
         Ok(())

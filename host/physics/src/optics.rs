@@ -155,24 +155,25 @@ pub struct Rings {
 impl Rings {
     /// Rings of `counts` LEDs, from the centre out: one LED at the centre, each ring
     /// 1–256 LEDs (LED indices are 0–255), at most [`MAX_RINGS`] rings.
-    pub fn new(counts: &[u16]) -> Result<Self, String> {
+    pub fn new(counts: &[u16]) -> Result<Self, crate::Invalid> {
+        let invalid = |message: String| crate::Invalid::new("rings", message);
         if counts.is_empty() || counts.len() > MAX_RINGS {
-            return Err(format!(
+            return Err(invalid(format!(
                 "{counts:?}: give 1 to {MAX_RINGS} rings, the centre LED first"
-            ));
+            )));
         }
         if counts[0] != 1 {
-            return Err(format!(
+            return Err(invalid(format!(
                 "{counts:?}: ring 0 is the centre LED alone (1, not {})",
                 counts[0]
-            ));
+            )));
         }
         let mut packed = [0u8; MAX_RINGS];
         for (k, &n) in counts.iter().enumerate() {
             if !(1..=256).contains(&n) {
-                return Err(format!(
+                return Err(invalid(format!(
                     "{counts:?}: ring {k} holds {n} LEDs; each holds 1 to 256"
-                ));
+                )));
             }
             packed[k] = (n - 1) as u8;
         }
@@ -215,8 +216,8 @@ impl Rings {
 }
 
 impl TryFrom<Vec<u16>> for Rings {
-    type Error = String;
-    fn try_from(counts: Vec<u16>) -> Result<Self, String> {
+    type Error = crate::Invalid;
+    fn try_from(counts: Vec<u16>) -> Result<Self, crate::Invalid> {
         Self::new(&counts)
     }
 }

@@ -196,17 +196,16 @@ pub struct Finished {
 impl Job {
     /// Every setting in its range, or an error naming the first that is not.
     pub fn validate(&self) -> Result<()> {
-        self.settings.validate().map_err(anyhow::Error::msg)?;
+        self.settings.validate()?;
         if let Refocus::Distance(um) = self.refocus {
             Settings {
                 defocus_um: um,
                 ..self.settings
             }
-            .validate()
-            .map_err(anyhow::Error::msg)?;
+            .validate()?;
         }
         let positive = |x: f64| x.is_finite() && x > 0.0;
-        limits::check_run(self.passes, self.tile).map_err(anyhow::Error::msg)?;
+        limits::check_run(self.passes, self.tile)?;
         if let Some(p) = self.entrance_pupil_mm {
             if !positive(p) {
                 bail!("entrance_pupil_mm {p}: must be a positive distance in mm");

@@ -132,19 +132,25 @@ pub mod limits {
     pub const REFOCUS_UM: f64 = 10_000.0;
 
     /// `passes` and `tile` (None: from the physics) in their ranges, or what is not.
-    pub fn check_run(passes: usize, tile: Option<usize>) -> Result<(), String> {
+    pub fn check_run(passes: usize, tile: Option<usize>) -> Result<(), crate::Invalid> {
         if !PASSES.contains(&passes) {
-            return Err(format!(
-                "passes {passes}: must be {}-{}",
-                PASSES.start(),
-                PASSES.end()
+            return Err(crate::Invalid::new(
+                "passes",
+                format!(
+                    "passes {passes}: must be {}-{}",
+                    PASSES.start(),
+                    PASSES.end()
+                ),
             ));
         }
         match tile.filter(|t| !TILE.contains(t)) {
-            Some(t) => Err(format!(
-                "tile {t}: must be {}-{} camera pixels",
-                TILE.start(),
-                TILE.end()
+            Some(t) => Err(crate::Invalid::new(
+                "tile",
+                format!(
+                    "tile {t}: must be {}-{} camera pixels",
+                    TILE.start(),
+                    TILE.end()
+                ),
             )),
             None => Ok(()),
         }
@@ -154,28 +160,38 @@ pub mod limits {
 impl Settings {
     /// Every setting in its range ([`limits`]), or what is not, named as the CLI and
     /// Python name it.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), crate::Invalid> {
+        use crate::Invalid;
         if !limits::UPSAMPLE.contains(&self.upsample) {
-            return Err(format!(
-                "upsample {}: must be {}-{}",
-                self.upsample,
-                limits::UPSAMPLE.start(),
-                limits::UPSAMPLE.end()
+            return Err(Invalid::new(
+                "upsample",
+                format!(
+                    "upsample {}: must be {}-{}",
+                    self.upsample,
+                    limits::UPSAMPLE.start(),
+                    limits::UPSAMPLE.end()
+                ),
             ));
         }
         for (name, step) in [("alpha", self.alpha), ("beta", self.beta)] {
             if !(limits::STEP.contains(&step) && step > 0.0) {
-                return Err(format!(
-                    "{name} {step}: must be above 0 and at most {}",
-                    limits::STEP.end()
+                return Err(Invalid::new(
+                    name,
+                    format!(
+                        "{name} {step}: must be above 0 and at most {}",
+                        limits::STEP.end()
+                    ),
                 ));
             }
         }
         if !(self.defocus_um.is_finite() && self.defocus_um.abs() <= limits::REFOCUS_UM) {
-            return Err(format!(
-                "refocus_um {}: must be a distance within ±{} µm",
-                self.defocus_um,
-                limits::REFOCUS_UM
+            return Err(Invalid::new(
+                "refocus_um",
+                format!(
+                    "refocus_um {}: must be a distance within ±{} µm",
+                    self.defocus_um,
+                    limits::REFOCUS_UM
+                ),
             ));
         }
         if let Correction::PerFrame {
@@ -185,16 +201,23 @@ impl Settings {
         } = self.background
         {
             if !(floor_sigma.is_finite() && floor_sigma >= 0.0) {
-                return Err(format!("floor_sigma {floor_sigma}: must be 0 or more"));
+                return Err(Invalid::new(
+                    "floor_sigma",
+                    format!("floor_sigma {floor_sigma}: must be 0 or more"),
+                ));
             }
             if !(band_sigma.is_finite() && band_sigma >= 0.0) {
-                return Err(format!("noise_band_sigma {band_sigma}: must be 0 or more"));
+                return Err(Invalid::new(
+                    "noise_band_sigma",
+                    format!("noise_band_sigma {band_sigma}: must be 0 or more"),
+                ));
             }
         }
         if let Flatten::BlockUm(um) = self.flatten {
             if !(um.is_finite() && um > 0.0) {
-                return Err(format!(
-                    "background_block_um {um}: must be a positive size in µm"
+                return Err(Invalid::new(
+                    "background_block_um",
+                    format!("background_block_um {um}: must be a positive size in µm"),
                 ));
             }
         }

@@ -773,7 +773,8 @@ fn bad_request(
 /// The page in a real browser (Debian's headless Chromium, driven by Playwright as a
 /// person would use it): an acquisition started from its form shows its progress
 /// advancing and then the final image the job wrote; a second, cancelled from the page
-/// mid-capture, ends cancelled with the frames it took written.
+/// mid-capture, ends cancelled with the frames it took written. Opened again, the page
+/// shows the last result, and the history each finished job's thumbnail and numbers.
 #[test]
 fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
     let dir = TempDir::new("serve-page");
@@ -871,6 +872,33 @@ fn the_page_starts_watches_and_cancels_acquisitions_in_a_browser() {
             .unwrap()
             .contains(&format!("job {shown_job}")),
         "{seen}"
+    );
+    // Its history row: the first job's amplitude as a thumbnail, and the numbers its
+    // report holds (issue 65), as the report says them.
+    assert!(
+        seen["history_thumb_width"].as_u64().unwrap_or(0) > 0,
+        "{seen}"
+    );
+    let facts = seen["history_facts"].as_str().unwrap_or_default();
+    let out = service.get(&format!("/api/jobs/{first}")).json().unwrap()["out"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(std::path::Path::new(&out).join("reconstruction/report.json"))
+            .unwrap(),
+    )
+    .unwrap();
+    assert!(facts.contains("441 frames"), "{facts}");
+    // The virtual rig's truth scores it when it lies beside the dataset.
+    if let Some(nrmse) = report["versus_truth"]["complex_nrmse"].as_f64() {
+        assert!(facts.contains(&format!("NRMSE {nrmse:.3}")), "{facts}");
+    }
+    let warnings = report["warnings"].as_array().map_or(0, Vec::len);
+    assert!(
+        facts.contains(&format!("{warnings} warning"))
+            || (warnings == 0 && facts.contains("no warnings")),
+        "{facts}, {warnings} in the report"
     );
 }
 

@@ -169,6 +169,14 @@ try {
   seen.result_job = Number(await page.getAttribute("body", "data-result-job"));
   seen.result_caption = await page.textContent("#amplitude-caption");
   seen.result_image = await page.evaluate(greyStats, "amplitude");
+  // The history: the first job's row with its result's thumbnail and key numbers.
+  await page.waitForFunction((r) => {
+    const img = document.querySelector(r + " img.thumb");
+    const facts = document.querySelector(r + ' .facts[data-filled="true"]');
+    return img && img.complete && img.naturalWidth > 0 && facts;
+  }, row(first), { timeout: 10_000 });
+  seen.history_thumb_width = await page.$eval(`${row(first)} img.thumb`, (img) => img.naturalWidth);
+  seen.history_facts = await page.textContent(`${row(first)} .facts`);
   await page.screenshot({ path: screenshot, fullPage: true });
 } catch (e) {
   seen.errors.push("driver: " + e.message);

@@ -68,6 +68,8 @@ def parse_args() -> argparse.Namespace:
                         "default 1, what `fpm reconstruct` uses on a one-tile field")
     p.add_argument("--peers", default=",".join(PEERS),
                    help=f"comma list of peers to run (default: {','.join(PEERS)})")
+    p.add_argument("--without-ours", action="store_true",
+                   help="run the peers only (`fpm bench reconstruct` times ours itself)")
     p.add_argument("--truth-amplitude", type=Path, help="default DATASET/truth_amplitude.tif")
     p.add_argument("--truth-phase", type=Path, help="default DATASET/truth_phase.tif")
     p.add_argument("--keep", type=Path, help="keep our output and the peers' objects (.npy) here")
@@ -296,10 +298,10 @@ def run_fpm_rs(ds: Dataset, args, snap: bool):
     import fpm_rs as fpm
 
     notes = []
+    f = ds.f.copy()
     if hasattr(fpm, "PlanarLEDArray"):  # fpm-rs 0.2
         optics = fpm.Optics(wavelength_vacuum_m=ds.wavelength * 1e-6, objective_na=ds.na,
                             magnification=ds.magnification, camera_pixel_size=ds.camera_pixel * 1e-6)
-        f = ds.f.copy()
         # cross-check: fpm-rs's own planar-array geometry must give the same vectors
         led = ds.led
         r0, c0 = led.get("center", [led["rows"] // 2, led["cols"] // 2])
@@ -316,7 +318,6 @@ def run_fpm_rs(ds: Dataset, args, snap: bool):
         illumination = lambda k: fpm.Illumination(fpm.KVectorList(k))  # noqa: E731
     else:  # fpm-rs 0.1: positional optics (SI units), a KVectorList is the illumination
         optics = fpm.Optics(ds.wavelength * 1e-6, ds.na, ds.magnification, ds.camera_pixel * 1e-6)
-        f = ds.f.copy()
         notes.append("k = 2*pi*f_i (fpm-rs 0.1 API)")
         illumination = fpm.KVectorList
     if snap:
@@ -423,7 +424,7 @@ def main() -> int:
     workdir = Path(tempfile.mkdtemp(prefix="fpm-peers-"))
     rows = []
     try:
-        runs = [("fpm (ours)", "", lambda: run_ours(args, workdir))]
+        runs = [] if args.without_ours else [("fpm (ours)", "", lambda: run_ours(args, workdir))]
         for p in peers:
             if p == "fpm-rs":
                 runs.append(("fpm-rs", "EPRY, exact k", lambda: run_fpm_rs(ds, args, snap=False)))
@@ -452,7 +453,7 @@ def main() -> int:
                 row.update(error=f"{type(e).__name__}: {e}")
                 log(f"  {tool} failed: {row['error']}")
             rows.append(row)
-        if args.keep:
+        if args.keep and not args.without_ours:
             args.keep.mkdir(parents=True, exist_ok=True)
             shutil.copytree(workdir / "ours", args.keep / "ours", dirs_exist_ok=True)
     finally:

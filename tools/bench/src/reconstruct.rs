@@ -236,7 +236,7 @@ fn fpm_rs_epry(
         .arg(dataset)
         .args(["--passes", &a.passes.to_string()])
         .args(["--upsample", &upsample.to_string()])
-        .args(["--peers", "fpm-rs", "--fpm"])
+        .args(["--peers", "fpm-rs", "--without-ours", "--fpm"])
         .arg(exe)
         .arg("--json")
         .arg(&out)

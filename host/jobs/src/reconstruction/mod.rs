@@ -559,12 +559,11 @@ pub fn reconstruct_with_system(
     // The edges' check needs only the frames: it runs beside EPRY, which leaves a core
     // idle on a field of one tile (on more, the two share the cores as they would in
     // turn).
-    let start = Instant::now();
     let (outcome, height_from_boundary) = rayon::join(
         || {
-            let outcome =
-                tiled::reconstruct(system, geometry, &frames, settings, passes, tile, progress);
-            (outcome, start.elapsed())
+            let start = Instant::now();
+            tiled::reconstruct(system, geometry, &frames, settings, passes, tile, progress)
+                .map(|outcome| (outcome, start.elapsed()))
         },
         || {
             let began = Instant::now();
@@ -576,8 +575,8 @@ pub fn reconstruct_with_system(
             check
         },
     );
-    let (outcome, epry_time) = outcome;
-    let outcome = outcome.with_context(|| format!("reconstructing {}", ds.dir.display()))?;
+    let (outcome, epry_time) =
+        outcome.with_context(|| format!("reconstructing {}", ds.dir.display()))?;
     let total_ms = epry_time.as_secs_f64() * 1e3;
     let mut report = Report::new(&ds.dir, system, request, frames.len(), &outcome, total_ms);
     report.height_from_boundary = height_from_boundary;
